@@ -1,0 +1,27 @@
+"""clphong: OpenCL image-space deferred Phong shading of EXR G-buffers.
+
+The Python API and the ``clphong`` command go through the same functions::
+
+    import clphong
+    scene = clphong.load_scene("gbuffers/spheres.toml")
+    gbuffer = clphong.read_gbuffer("gbuffers/spheres.exr")
+    rgb = clphong.render(scene, gbuffer)          # (H, W, 3) float32, scene-linear
+    clphong.write_exr("spheres.exr", rgb)
+
+:class:`Renderer` compiles once and shades many frames.
+"""
+
+from .errors import ClphongError, DeviceError, GBufferError, OutputError, SceneError
+from .gbuffer import GBuffer, read_gbuffer
+from .output import write_exr
+from .plan import ShadingPlan, make_plan
+from .render import Renderer, render
+from .scene import Scene, load_scene, parse_scene
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ClphongError", "DeviceError", "GBufferError", "OutputError", "SceneError",
+    "GBuffer", "read_gbuffer", "write_exr", "ShadingPlan", "make_plan",
+    "Renderer", "render", "Scene", "load_scene", "parse_scene", "__version__",
+]

@@ -1,0 +1,125 @@
+"""The shading plan: which kernel variant a scene needs, and why.
+
+The plan turns a scene and the material maps a G-buffer carries into the ``-D``
+defines of ``kernels/clphong.h``. Only what the scene uses is compiled in: no
+specular code when ``k_s = 0`` and no k_s map, no point-light loop without point
+lights, a constant view vector for an orthographic camera, Blinn's constant half
+vector for directional lights seen by an orthographic camera, and map loads only
+for the maps present. ``print(plan)`` says what was chosen and why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+#: Light sums longer than this use Neumaier compensation. The error of a naive
+#: sum of n non-negative terms is at most (n−1)·u relative, 2u with
+#: compensation; at n ≤ 4 the naive sum is already within 3u.
+COMPENSATE_ABOVE = 4
+
+#: Pixels per work-item, as explicit SIMD lanes (see kernels/clphong.h).
+DEFAULT_LANES = 16
+
+MAP_NAMES = ("k_d", "k_s", "h", "specular_color")
+
+
+@dataclass(frozen=True)
+class ShadingPlan:
+    """The compile-time variant of the shading kernel for one scene."""
+
+    defines: dict[str, int]
+    reasons: tuple[tuple[str, str], ...]
+    kernel: str = "lanes"
+    n_point: int = 0
+    n_directional: int = 0
+    n_ambient: int = 0
+    maps: tuple[str, ...] = ()
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def entry_file(self) -> str:
+        return "shade.cl" if self.kernel == "lanes" else "shade_obvious.cl"
+
+    @property
+    def lanes(self) -> int:
+        return self.defines.get("LANES", 1)
+
+    def __str__(self) -> str:
+        lines = [
+            f"kernel: kernels/{self.entry_file} ({self.kernel}, {self.lanes} pixel(s) per work-item)",
+            f"lights: {self.n_point} point, {self.n_directional} directional, {self.n_ambient} ambient",
+            f"material maps: {', '.join(self.maps) if self.maps else 'none'}",
+            "defines:",
+        ]
+        width = max(len(f"{k}={v}") for k, v in self.defines.items())
+        why = dict(self.reasons)
+        for k, v in self.defines.items():
+            kv = f"{k}={v}"
+            lines.append(f"  -D{kv:<{width}}  {why.get(k, '')}")
+        lines += [f"note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
+
+def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LANES,
+              compensated: bool | None = None) -> ShadingPlan:
+    """Choose the kernel variant for ``scene`` and the material ``maps`` present.
+
+    Parameters
+    ----------
+    scene : clphong.scene.Scene
+    maps : iterable of str
+        Names of the per-pixel material maps present (subset of ``MAP_NAMES``).
+    kernel : {"lanes", "obvious"}
+        ``"lanes"``: LANES pixels per work-item in explicit vectors (the fast
+        path). ``"obvious"``: one pixel per work-item with ``float3`` and
+        ``pow()``, kept as the baseline that ``clphong bench`` measures against.
+    lanes : {1, 4, 8, 16}
+    compensated : bool, optional
+        Force Neumaier summation on or off; by default on above
+        ``COMPENSATE_ABOVE`` lights.
+    """
+    if kernel not in ("lanes", "obvious"):
+        raise ValueError(f"kernel must be 'lanes' or 'obvious', not {kernel!r}")
+    m = scene.material
+    maps = tuple(n for n in MAP_NAMES if n in set(maps))
+    n_point = len(scene.lights_of("point"))
+    n_dir = len(scene.lights_of("directional"))
+    n_amb = len(scene.lights_of("ambient"))
+    blinn = m.model == "blinn-phong"
+    ortho = scene.camera.type == "orthographic"
+    specular = m.k_s > 0 or "k_s" in maps
+    if compensated is None:
+        compensated = n_point + n_dir > COMPENSATE_ABOVE
+    d: dict[str, int] = {}
+    r: list[tuple[str, str]] = []
+
+    def put(name, value, why):
+        d[name] = int(value)
+        r.append((name, why))
+
+    if kernel == "lanes":
+        put("LANES", lanes, "explicit SIMD lanes across pixels (POCL-NOTES: the obvious kernel runs scalar)")
+    put("MODEL_BLINN", blinn, f"material.model = {m.model!r}")
+    put("HAS_POINT", n_point > 0, f"{n_point} point light(s)")
+    put("HAS_DIRECTIONAL", n_dir > 0, f"{n_dir} directional light(s)")
+    put("HAS_SPECULAR", specular,
+        "k_s map present" if "k_s" in maps else f"material.k_s = {m.k_s:g}")
+    put("CAMERA_ORTHO", ortho, f"camera.type = {scene.camera.type!r}"
+        + (": v is constant" if ortho else ": v = normalize(eye − P) per pixel"))
+    put("BLINN_CONST_H", blinn and ortho and n_dir > 0 and specular,
+        "Blinn + orthographic camera: each directional light's half vector is constant (host-computed)"
+        if blinn and ortho else "needs Blinn-Phong with an orthographic camera")
+    put("MAP_KD", "k_d" in maps, "per-pixel k_d map" if "k_d" in maps else "uniform k_d")
+    put("MAP_KS", "k_s" in maps, "per-pixel k_s map" if "k_s" in maps else "uniform k_s")
+    put("MAP_H", "h" in maps and specular, "per-pixel shininess map" if "h" in maps else "uniform h")
+    put("MAP_CS", "specular_color" in maps and specular,
+        "per-pixel specular colour map" if "specular_color" in maps else "uniform specular_color")
+    put("COMPENSATED_SUM", compensated,
+        f"{n_point + n_dir} lights summed: "
+        + ("Neumaier summation keeps the sum's error at ~2u" if compensated
+           else f"≤ {COMPENSATE_ABOVE} terms, naive sum within {max(n_point + n_dir - 1, 0)}u"))
+    notes = []
+    if not n_point and not n_dir:
+        notes.append("no direct lights: only the ambient term is shaded")
+    return ShadingPlan(defines=d, reasons=tuple(r), kernel=kernel, n_point=n_point,
+                       n_directional=n_dir, n_ambient=n_amb, maps=maps, notes=tuple(notes))

@@ -1,0 +1,350 @@
+"""The float64 reference: a numpy mirror of every kernel function.
+
+Each function here has the name, argument order and guards of its twin in
+``kernels/*.cl``, evaluated in float64 on the same float32 G-buffer values. It is
+the oracle for every kernel test and every error figure (``clphong bench``).
+
+:func:`error_bound` is the error model of the float32 kernels
+(``docs/error-model.md``): for each pixel and channel it returns an upper bound
+of |kernel − reference| built from the operation count of each term, the
+conditioning of each term, and the documented guards. Tests compare the kernels
+to the reference with exactly this bound; nothing is tuned to pass.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Unit roundoff of float32.
+U = 2.0 ** -24
+#: Smallest normal float32: the kernels flush anything below it to zero
+#: (-cl-denorms-are-zero).
+FLT_MIN = float(np.finfo(np.float32).tiny)
+
+
+def _dot(a, b):
+    return np.einsum("...i,...i->...", a, b)
+
+
+# --------------------------------------------------------------------------- brdf.cl
+
+def lambert(NoL):
+    """Lambert's cosine law: max(n·l, 0)."""
+    return np.maximum(NoL, 0.0)
+
+
+def phong_delta(n, l, v, NoL):
+    """δ = 1 − r·v = |r − v|²/2 with r = 2n(n·l) − l (unit vectors)."""
+    e = 2.0 * NoL[..., None] * n - l - v
+    return 0.5 * _dot(e, e)
+
+
+def blinn_delta(n, l, v):
+    """δ = 1 − n·h = |n − h|²/2, h = (l + v)/|l + v|; δ = 1 where l = −v."""
+    hv = l + v
+    hh = _dot(hv, hv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        h = hv / np.sqrt(hh)[..., None]
+    e = n - h
+    return np.where(hh <= 0.0, 1.0, 0.5 * _dot(e, e))
+
+
+def blinn_delta_const_h(n, h, undefined=False):
+    """δ = |n − h|²/2 for a half vector constant per light; 1 if it is undefined."""
+    if undefined:
+        return np.ones(n.shape[:-1])
+    e = n - h
+    return 0.5 * _dot(e, e)
+
+
+def specular_power(delta, k):
+    """max(1 − δ, 0)^k as exp(k·log1p(−δ)); 0 for δ ≥ 1 unless k = 0 (0⁰ := 1)."""
+    k = np.broadcast_to(np.asarray(k, np.float64), np.shape(delta))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        s = np.exp(k * np.log1p(-np.minimum(delta, 1.0)))
+    return np.where(delta >= 1.0, np.where(k == 0.0, 1.0, 0.0), s)
+
+
+# ------------------------------------------------------------------------- lights.cl
+
+def attenuation(c0, c1, c2, d):
+    """1/(c0 + c1·d + c2·d²)."""
+    return 1.0 / (c0 + d * (c1 + d * c2))
+
+
+@dataclass
+class Pixels:
+    """The per-pixel shading inputs (float64), shaded pixels only."""
+
+    p: np.ndarray   # (M, 3) position
+    n: np.ndarray   # (M, 3) unit normal
+    v: np.ndarray   # (M, 3) unit direction to the viewer
+    k: np.ndarray   # (M,) specular exponent: h (Phong) or 4h (Blinn)
+    blinn: bool
+    specular: bool
+
+
+def shade_direction(px: Pixels, l, NoL):
+    """(diffuse, specular) weights for unit l; specular only where n·l > 0."""
+    diffuse = lambert(NoL)
+    if not px.specular:
+        return diffuse, np.zeros_like(diffuse)
+    if px.blinn:
+        delta = blinn_delta(px.n, l, px.v)
+    else:
+        delta = phong_delta(px.n, l, px.v, NoL)
+    return diffuse, np.where(NoL > 0.0, specular_power(delta, px.k), 0.0)
+
+
+def shade_point_light(px: Pixels, L, c0, c1, c2):
+    """Weights of a point light at L, times attenuation(d); nothing when d = 0."""
+    dv = np.asarray(L, np.float64) - px.p
+    d2 = _dot(dv, dv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.sqrt(d2)
+        l = dv / d[..., None]
+    NoL = np.where(d2 <= 0.0, 0.0, _dot(px.n, l))
+    l = np.where((d2 <= 0.0)[..., None], 0.0, l)
+    diffuse, specular = shade_direction(px, l, NoL)
+    att = attenuation(c0, c1, c2, d)
+    return diffuse * att, specular * att
+
+
+def shade_directional_light(px: Pixels, l, h=None, h_undefined=False):
+    """Weights of a directional light (unit l towards it); constant h if given."""
+    l = np.asarray(l, np.float64)
+    NoL = px.n @ l
+    if h is not None and px.blinn and px.specular:
+        delta = blinn_delta_const_h(px.n, np.asarray(h, np.float64), h_undefined)
+        return lambert(NoL), np.where(NoL > 0.0, specular_power(delta, px.k), 0.0)
+    return shade_direction(px, np.broadcast_to(l, px.n.shape), NoL)
+
+
+# -------------------------------------------------------------------------- shade.cl
+
+def _inputs(scene, gbuffer):
+    """Shaded-pixel inputs and per-pixel material, in float64."""
+    from .render import half_vector, view_vector  # noqa: F401  (same host maths)
+
+    bg = gbuffer.background_mask().reshape(-1)
+    fg = ~bg
+    P = gbuffer.position.reshape(-1, 3)[fg].astype(np.float64)
+    N = gbuffer.normal.reshape(-1, 3)[fg].astype(np.float64)
+    n = N / np.sqrt(_dot(N, N))[..., None]
+    C = gbuffer.albedo.reshape(-1, 3)[fg].astype(np.float64)
+    m = scene.material
+    maps = gbuffer.maps
+    k_d = maps["k_d"].reshape(-1)[fg].astype(np.float64) if "k_d" in maps else m.k_d
+    k_s = maps["k_s"].reshape(-1)[fg].astype(np.float64) if "k_s" in maps else m.k_s
+    h = maps["h"].reshape(-1)[fg].astype(np.float64) if "h" in maps else np.full(len(P), m.h)
+    Cs = (maps["specular_color"].reshape(-1, 3)[fg].astype(np.float64)
+          if "specular_color" in maps else np.asarray(m.specular_color, np.float64))
+    D = C * np.asarray(k_d)[..., None] if np.ndim(k_d) else C * k_d
+    S = Cs * (np.asarray(k_s)[..., None] if np.ndim(k_s) else k_s) * np.ones((len(P), 3))
+    blinn = m.model == "blinn-phong"
+    k = 4.0 * h if blinn else h
+    v_ortho = view_vector(scene.camera)
+    if v_ortho is not None:
+        v = np.broadcast_to(v_ortho, P.shape)
+    else:
+        e = np.asarray(scene.camera.position, np.float64) - P
+        v = e / np.sqrt(_dot(e, e))[..., None]
+    specular = m.k_s > 0 or "k_s" in maps
+    px = Pixels(p=P, n=n, v=v, k=k, blinn=blinn, specular=specular)
+    return px, C, D, S, fg
+
+
+def _light_terms(scene, px: Pixels):
+    """Yield (light, radiance, l or None, diffuse, specular) per direct light."""
+    from .render import half_vector, view_vector
+
+    v_ortho = view_vector(scene.camera)
+    for lt in scene.lights_of("directional"):
+        l = -np.asarray(lt.direction, np.float64)
+        if v_ortho is not None:
+            h, undefined = half_vector(l, v_ortho)
+            diffuse, specular = shade_directional_light(px, l, h, undefined)
+        else:
+            diffuse, specular = shade_directional_light(px, l)
+        yield lt, np.asarray(lt.radiance, np.float64), diffuse, specular
+    for lt in scene.lights_of("point"):
+        c0, c1, c2 = lt.attenuation
+        diffuse, specular = shade_point_light(px, lt.position, c0, c1, c2)
+        yield lt, np.asarray(lt.radiance, np.float64), diffuse, specular
+
+
+def Lc_max(L) -> float:
+    return float(np.max(np.abs(L)))
+
+
+def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form):
+    """(absolute error bound, upper bound of the value) of the specular power.
+
+    Ungated by n·l: the caller applies the terminator rule.
+    """
+    if px.blinn:
+        delta = blinn_delta(px.n, l, px.v)
+        lv = np.sqrt(_dot(l + px.v, l + px.v))
+        with np.errstate(divide="ignore"):
+            # h = (l + v)/|l + v| turns direction errors of l and v into
+            # (η_l + η_v)/|l + v|: Blinn's half vector is ill-conditioned as l → −v.
+            e_vec = eta_n + 2.0 * (eta_l + eta_v + 2.0 * U) / lv
+    else:
+        delta = phong_delta(px.n, l, px.v, NoL)
+        # r = 2n(n·l) − l: twice the error of n·l and of n, plus l's; then − v.
+        e_vec = 3.0 * eps_NoL + eta_v
+    delta = np.minimum(delta, 2.0)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        if form == "delta":
+            # |Δδ| for δ = |e|²/2 when |Δe| ≤ e_vec and |e| = √(2δ).
+            d_delta = np.sqrt(2.0 * delta) * e_vec + 0.5 * e_vec ** 2 + 4.0 * U * delta
+            y = np.abs(k * np.log1p(-np.minimum(delta, 1.0 - 1e-300)))
+            s = specular_power(delta, k)
+            # log1p 2 ulp, k·(·) 1, exp 3 ulp (relative in y), k rounded to float32;
+            # then Δδ through d/dδ of k·log1p(−δ) = −k/(1 − δ).
+            rel = 4.0 * U + 4.0 * U * y + k * d_delta / np.maximum(1.0 - delta, 1e-300)
+        else:
+            # pow(x, k) with x = r·v: |Δx| ≤ e_vec + 4u, pow 16 ulp: relative k·|Δx|/x.
+            d_delta = e_vec + 4.0 * U
+            x = 1.0 - delta
+            s = specular_power(delta, k)
+            rel = 16.0 * U + k * d_delta / np.maximum(x, 1e-300)
+        upper = specular_power(np.maximum(delta - d_delta, 0.0), k)
+        err = np.minimum(np.nan_to_num(s * rel, nan=np.inf, posinf=np.inf), upper)
+    return err, upper
+
+
+def ambient_radiance(scene) -> np.ndarray:
+    """k_a·Σ ambient radiance (rgb)."""
+    amb = np.zeros(3)
+    for lt in scene.lights_of("ambient"):
+        amb += np.asarray(lt.radiance, np.float64)
+    return amb * scene.material.k_a
+
+
+def shade(scene, gbuffer) -> np.ndarray:
+    """E = E_A + Σ_i (E_D + E_S)_i·attenuation_i per pixel, (H, W, 3) float64."""
+    H, W = gbuffer.shape
+    out = np.empty((H * W, 3))
+    out[:] = np.asarray(scene.background, np.float64)
+    px, C, D, S, fg = _inputs(scene, gbuffer)
+    E = C * ambient_radiance(scene)
+    for _, L, diffuse, specular in _light_terms(scene, px):
+        E += L * (D * diffuse[:, None] + S * specular[:, None])
+    out[fg] = E
+    return out.reshape(H, W, 3)
+
+
+# ------------------------------------------------------------------- the error model
+
+def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta"):
+    """Upper bound of |float32 kernel − :func:`shade`| per pixel and channel.
+
+    Parameters
+    ----------
+    scene, gbuffer
+        As for :func:`shade`.
+    origin : (3,) array, optional
+        The float32 rebasing origin the kernel used (``Frame.origin``); 0 if
+        omitted.
+    compensated : bool
+        Whether the kernel summed the lights with Neumaier compensation.
+    form : {"delta", "naive"}
+        ``"delta"``: the specular power as exp(k·log1p(−δ)) with δ from
+        |r − v|²/2 (shade.cl). ``"naive"``: pow(r·v, k) (shade_obvious.cl).
+
+    Returns
+    -------
+    bound : (H, W, 3) float64 array
+        Absolute bound; 0 on background pixels.
+    band : (H, W) bool array
+        Pixels where some light's n·l lies within its own error of 0, so the
+        float32 kernel may switch the specular term on where the reference has it
+        off, or the reverse. The bound there includes that whole term; report
+        these pixels separately (POCL-NOTES "The terminator").
+
+    Notes
+    -----
+    See ``docs/error-model.md`` for the derivation. Constants: u = 2⁻²⁴; the
+    OpenCL 1.2 ulp limits of the builtins (rsqrt 2, division 2.5, log1p 2,
+    exp 3, pow 16); every first-order bound is doubled to cover the
+    second-order terms and the rounding of the float32 inputs.
+    """
+    from .render import view_vector
+
+    H, W = gbuffer.shape
+    bound = np.zeros((H * W, 3))
+    band = np.zeros(H * W, bool)
+    px, C, D, S, fg = _inputs(scene, gbuffer)
+    o = np.zeros(3) if origin is None else np.asarray(origin, np.float64)
+    rp = np.sqrt(_dot(px.p - o, px.p - o))          # |P − o|
+    ortho = view_vector(scene.camera) is not None
+    if ortho:
+        eta_v = np.full(len(px.p), U)
+    else:
+        eye = np.asarray(scene.camera.position, np.float64)
+        de = np.sqrt(_dot(eye - px.p, eye - px.p))
+        with np.errstate(divide="ignore"):
+            eta_v = U * (2.0 + (rp + np.linalg.norm(eye - o)) / de)
+    eta_n = np.full(len(px.p), U)                   # unit normal rounded to float32
+    k = np.broadcast_to(px.k, (len(px.p),))
+    total = np.abs(C * ambient_radiance(scene))    # Σ|c_i|, for the summation error
+    B = 2.0 * U * total                             # ambient: two roundings
+    n_direct = 0
+    for lt, L, diffuse, specular in _light_terms(scene, px):
+        n_direct += 1
+        if lt.type == "point":
+            Lp = np.asarray(lt.position, np.float64)
+            dv = Lp - px.p
+            d = np.sqrt(_dot(dv, dv))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                eta_l = U * (2.0 + (rp + np.linalg.norm(Lp - o)) / d)
+                c0, c1, c2 = lt.attenuation
+                cond = (abs(c0) + abs(c1) * d + abs(c2) * d * d) / (c0 + c1 * d + c2 * d * d)
+            # d from the rounded position difference and rsqrt; Horner's three
+            # roundings; the coefficients rounded to float32; the division.
+            e_att = cond * (4.0 * U + 2.0 * eta_l) + 3.0 * U
+            with np.errstate(invalid="ignore"):
+                NoL = np.where(d > 0, _dot(px.n, dv) / d, 0.0)
+                lvec = np.where((d > 0)[:, None], dv / d[:, None], 0.0)
+        else:
+            eta_l = np.full(len(px.p), U)
+            e_att = np.zeros(len(px.p))
+            lvec = np.broadcast_to(-np.asarray(lt.direction, np.float64), px.n.shape)
+            NoL = px.n @ lvec[0]
+            d = None
+        eps_NoL = eta_n + eta_l + 4.0 * U
+        Lc = np.abs(L)
+        # Diffuse: max(n·l, 0) is continuous, so its error is that of n·l.
+        diff_abs = np.where(NoL > -eps_NoL, eps_NoL, 0.0)
+        att = np.ones(len(px.p)) if d is None else attenuation(*lt.attenuation, d)
+        e_diff = diffuse * e_att + att * diff_abs + diffuse * 5.0 * U
+        # Specular: the error of δ (or of r·v for the naive form) through the power.
+        if px.specular:
+            spec_abs, spec_upper = _specular_error(px, lvec, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form)
+            e_spec = specular * (e_att + 5.0 * U) + att * spec_abs
+            # The terminator: within eps_NoL of n·l = 0 the float32 gate n·l > 0
+            # may disagree with float64's, switching the whole term.
+            near = (np.abs(NoL) <= eps_NoL) & (spec_upper > 0)
+            e_spec = np.where(near, e_spec + att * spec_upper, e_spec)
+            band_fg = near & (np.abs(S).max(axis=1) * Lc_max(L) > 0)
+        else:
+            e_spec = np.zeros(len(px.p))
+            band_fg = np.zeros(len(px.p), bool)
+        idx = np.flatnonzero(fg)
+        band[idx[band_fg]] = True
+        # Underflow: intermediates below FLT_MIN are flushed to zero.
+        floor = FLT_MIN * 2.0 * max(1.0, float(np.max(att, initial=1.0)))
+        B += Lc * (np.abs(D) * e_diff[:, None] + np.abs(S) * e_spec[:, None]) \
+            + Lc * (np.abs(D) + np.abs(S)) * floor
+        total += Lc * (np.abs(D) * diffuse[:, None] + np.abs(S) * specular[:, None])
+    # The light sum: Neumaier's compensated sum errs by ≤ 2u|Σ| + O(n·u²)Σ|c|;
+    # the naive one by (n − 1)·u·Σ|c|; plus the final rounding.
+    if compensated:
+        B += (3.0 * U + 2.0 * n_direct * U * U) * total
+    else:
+        B += (max(n_direct, 1) * U + U) * total
+    bound[fg] = 2.0 * B
+    return bound.reshape(H, W, 3), band.reshape(H, W)

@@ -1,0 +1,242 @@
+"""OpenCL runtime: device selection, kernel sources and the program cache.
+
+Device choice, in order:
+
+1. ``device=`` argument (CLI ``--device``), in ``PYOPENCL_CTX`` syntax
+   (``"0"``, ``"0:1"``) or as a case-insensitive substring of a platform or
+   device name (``"pocl"``, ``"nvidia"``);
+2. the ``PYOPENCL_CTX`` environment variable, as PyOpenCL reads it;
+3. PoCL's CPU device (installed from PyPI with ``pip install "pyopencl[pocl]"``).
+
+Programs are built once per (device, kernel sources, options) and cached in the
+process. Across processes PoCL's own kernel cache (``$XDG_CACHE_HOME/pocl`` or
+``$POCL_CACHE_DIR``) makes a rebuild of the same source and options cost tens of
+milliseconds; PyOpenCL skips its own binary cache for PoCL.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.resources
+import os
+import threading
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DeviceError
+
+_INSTALL_HINT = (
+    "install PoCL with 'pip install \"pyopencl[pocl]\"', or choose another device "
+    "with --device or the PYOPENCL_CTX environment variable (e.g. PYOPENCL_CTX=0)"
+)
+
+
+#: LLVM CPU names with avx512f (prefixes), for which 16 float lanes fill a register.
+AVX512_TARGETS = (
+    "skylake-avx512", "cascadelake", "cooperlake", "cannonlake", "icelake", "tigerlake",
+    "rocketlake", "sapphirerapids", "graniterapids", "emeraldrapids", "diamondrapids",
+    "znver4", "znver5", "knl", "knm", "x86-64-v4",
+)
+
+
+def kernel_dir() -> Path:
+    """The folder holding the ``.cl`` sources.
+
+    In a wheel they are installed as the data package ``clphong.kernels``; in a
+    source checkout or an editable install they are the top-level ``kernels/``.
+    """
+    try:
+        res = importlib.resources.files("clphong.kernels")
+        path = Path(str(res))
+        if (path / "shade.cl").is_file():
+            return path
+    except (ModuleNotFoundError, TypeError):
+        pass
+    path = Path(__file__).resolve().parent.parent / "kernels"
+    if (path / "shade.cl").is_file():
+        return path
+    raise DeviceError(
+        "clphong's OpenCL sources (kernels/*.cl) were not found next to the package; "
+        "reinstall clphong with 'pip install .'"
+    )
+
+
+def _sources_digest(folder: Path) -> str:
+    h = hashlib.sha256()
+    for f in sorted(folder.glob("*.cl")) + sorted(folder.glob("*.h")):
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def _cl():
+    try:
+        import pyopencl as cl
+    except ImportError as exc:  # pragma: no cover - dependency is declared
+        raise DeviceError(f"pyopencl is not importable ({exc}); {_INSTALL_HINT}") from exc
+    return cl
+
+
+def _all_devices():
+    cl = _cl()
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error as exc:
+        raise DeviceError(f"no OpenCL platform found ({exc}); {_INSTALL_HINT}") from exc
+    out = []
+    for pi, plat in enumerate(platforms):
+        try:
+            devs = plat.get_devices()
+        except cl.Error:
+            devs = []
+        for di, dev in enumerate(devs):
+            out.append((pi, di, plat, dev))
+    return out
+
+
+def list_devices() -> list[str]:
+    """One line per OpenCL device: ``'P:D  platform / device'``."""
+    return [f"{pi}:{di}  {plat.name} / {dev.name.strip()}" for pi, di, plat, dev in _all_devices()]
+
+
+def _choose(spec: str | None):
+    devices = _all_devices()
+    if not devices:
+        raise DeviceError(f"no OpenCL device found; {_INSTALL_HINT}")
+    if spec is None:
+        for _, _, plat, dev in devices:
+            if "portable computing language" in plat.name.lower() or "pocl" in plat.name.lower():
+                if dev.type & _cl().device_type.CPU:
+                    return dev
+        return devices[0][3]
+    spec = spec.strip()
+    parts = spec.split(":")
+    if all(p.isdigit() for p in parts if p) and parts[0]:
+        pi = int(parts[0])
+        di = int(parts[1]) if len(parts) > 1 and parts[1] else 0
+        for p_i, d_i, _, dev in devices:
+            if p_i == pi and d_i == di:
+                return dev
+        raise DeviceError(
+            f"device '{spec}': no such OpenCL device; available: " + "; ".join(list_devices())
+        )
+    low = spec.lower()
+    for _, _, plat, dev in devices:
+        if low in dev.name.lower() or low in plat.name.lower():
+            return dev
+    raise DeviceError(f"device '{spec}': no match; available: " + "; ".join(list_devices()))
+
+
+@dataclass
+class Runtime:
+    """An OpenCL context and queue on one device, with a program cache."""
+
+    device: object
+    context: object
+    queue: object
+    _programs: dict = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+    builds: int = 0            # programs actually built in this process
+    build_seconds: float = 0.0
+
+    @property
+    def name(self) -> str:
+        return f"{self.device.platform.name} / {self.device.name.strip()}"
+
+    @property
+    def llvm_target(self) -> str:
+        """PoCL's LLVM CPU target (from the device version's HSTR), or ''."""
+        version = self.device.version
+        if "HSTR:" not in version:
+            return ""
+        return version.split("HSTR:")[1].strip().split("-")[-1]
+
+    @property
+    def lanes(self) -> int:
+        """Pixels per work-item for the lane kernel on this device.
+
+        16 where PoCL compiles for an AVX-512 target; 8 on other CPUs (PoCL 3.0
+        aborts the process on float16 builtins for targets without avx512f,
+        whatever the CPU itself supports); 1 on GPUs and other devices, whose
+        hardware already runs work-items in SIMD.
+        """
+        cl = _cl()
+        if not self.device.type & cl.device_type.CPU:
+            return 1
+        target = self.llvm_target
+        if target and any(target.startswith(t) for t in AVX512_TARGETS):
+            return 16
+        return 8
+
+    def program(self, entry_file: str, defines: dict[str, int | float | str]):
+        """Build (once) and return the program for ``kernels/entry_file`` with ``-D`` defines."""
+        cl = _cl()
+        folder = kernel_dir()
+        opts = [f"-D{k}={v}" for k, v in sorted(defines.items())]
+        opts += ["-cl-denorms-are-zero", f"-I{folder}"]
+        key = (entry_file, tuple(opts), _sources_digest(folder))
+        with self._lock:
+            prog = self._programs.get(key)
+            if prog is not None:
+                return prog
+            src = (folder / entry_file).read_text()
+            t0 = time.perf_counter()
+            try:
+                with warnings.catch_warnings():
+                    # PoCL reports harmless AVX ABI notes for float16 lanes on AVX2 CPUs.
+                    warnings.simplefilter("ignore", cl.CompilerWarning)
+                    prog = cl.Program(self.context, src).build(options=opts)
+            except cl.RuntimeError as exc:
+                log = str(exc).strip().splitlines()
+                first = next((ln for ln in log if "error" in ln.lower()), log[-1] if log else "")
+                raise DeviceError(
+                    f"kernels/{entry_file} failed to build on {self.name}: {first.strip()}; "
+                    "set PYOPENCL_CTX or --device to use another device"
+                ) from exc
+            self.build_seconds += time.perf_counter() - t0
+            self.builds += 1
+            self._programs[key] = prog
+            return prog
+
+
+_RUNTIMES: dict[str | None, Runtime] = {}
+_RT_LOCK = threading.Lock()
+
+
+def get_runtime(device: str | None = None) -> Runtime:
+    """The process-wide runtime for ``device`` (see the module docstring)."""
+    cl = _cl()
+    if device is None and os.environ.get("PYOPENCL_CTX"):
+        key = "PYOPENCL_CTX=" + os.environ["PYOPENCL_CTX"]
+    else:
+        key = device
+    with _RT_LOCK:
+        rt = _RUNTIMES.get(key)
+        if rt is not None:
+            return rt
+        try:
+            if device is None and os.environ.get("PYOPENCL_CTX"):
+                ctx = cl.create_some_context(interactive=False)
+                dev = ctx.devices[0]
+            else:
+                dev = _choose(device)
+                ctx = cl.Context([dev])
+            queue = cl.CommandQueue(ctx, properties=cl.command_queue_properties.PROFILING_ENABLE)
+        except DeviceError:
+            raise
+        except Exception as exc:  # pyopencl raises several types here
+            raise DeviceError(
+                f"could not open OpenCL device ({str(exc).strip().splitlines()[0]}); {_INSTALL_HINT}"
+            ) from exc
+        rt = Runtime(device=dev, context=ctx, queue=queue)
+        _RUNTIMES[key] = rt
+        return rt
+
+
+def float4(x=0.0, y=0.0, z=0.0, w=0.0):
+    """A ``float4`` kernel argument."""
+    return _cl().cltypes.make_float4(x, y, z, w)

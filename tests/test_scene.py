@@ -1,0 +1,824 @@
+"""Tests of clphong.scene: parsing, validation messages, warnings, attenuation."""
+
+from __future__ import annotations
+
+import copy
+import math
+import re
+import sys
+import time
+import warnings
+from fractions import Fraction
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from clphong.errors import SceneError
+from clphong.scene import (
+    LIGHT_TYPES,
+    Camera,
+    Light,
+    Material,
+    Scene,
+    SceneWarning,
+    attenuation_problem,
+    load_scene,
+    parse_scene,
+)
+
+README_TOML = """\
+[camera]
+type = "perspective"          # eye at `position`; v = normalize(eye − P)
+position = [0.0, 2.0, 6.0]
+# type = "orthographic"       # viewer at infinity: `direction` is the view direction (eye → scene)
+# direction = [0, -0.5, -1]
+
+[material]
+model = "phong"               # or "blinn-phong"
+k_a = 0.1
+k_d = 0.7
+k_s = 0.2
+h = 32.0                      # shininess (Blinn-Phong uses exponent 4h)
+# specular_color = [1,1,1]    # default white, so each highlight takes its light's colour
+
+[render]                      # optional table
+# background = [0, 0, 0]      # value written for background pixels (default 0)
+
+[[light]]
+type = "point"
+position = [3.0, 5.0, 4.0]
+color = [1.0, 0.9, 0.8]       # linear RGB in the working colour space
+intensity = 25.0
+attenuation = [1.0, 0.0, 0.0] # c0, c1, c2 of 1/(c0 + c1·d + c2·d²); default [1, 0, 0] = no falloff
+
+[[light]]
+type = "directional"
+direction = [-1.0, -1.5, -1.0] # the direction the light TRAVELS; l = −normalize(direction)
+color = [1.0, 1.0, 1.0]
+intensity = 3.0
+
+[[light]]
+type = "ambient"              # E_A = C_d·k_a·color·intensity
+color = [1.0, 1.0, 1.0]
+intensity = 1.0
+"""
+
+SRC = "scene.toml"
+
+
+def base() -> dict:
+    """A valid scene as plain data (no warnings)."""
+    return {
+        "camera": {"type": "perspective", "position": [0.0, 2.0, 6.0]},
+        "material": {"model": "phong", "k_a": 0.1, "k_d": 0.7, "k_s": 0.2, "h": 32.0},
+        "light": [
+            {"type": "point", "position": [3.0, 5.0, 4.0], "color": [1.0, 0.9, 0.8],
+             "intensity": 25.0, "attenuation": [1.0, 0.0, 0.0]},
+            {"type": "directional", "direction": [-1.0, -1.5, -1.0], "intensity": 3.0},
+            {"type": "ambient", "color": [1.0, 1.0, 1.0], "intensity": 1.0},
+        ],
+    }
+
+
+def parse_quietly(data, source=SRC) -> Scene:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SceneWarning)
+        return parse_scene(data, source)
+
+
+def error_of(data, source=SRC) -> str:
+    with pytest.raises(SceneError) as info:
+        parse_quietly(data, source)
+    return str(info.value)
+
+
+def assert_one_line(msg: str) -> None:
+    assert msg and len(msg.splitlines()) == 1 and "\n" not in msg and "\r" not in msg
+
+
+def set_at(data: dict, path: tuple, value) -> None:
+    obj = data
+    for p in path[:-1]:
+        obj = obj[p]
+    obj[path[-1]] = value
+
+
+def drop_at(data: dict, path: tuple) -> None:
+    obj = data
+    for p in path[:-1]:
+        obj = obj[p]
+    del obj[path[-1]]
+
+
+ORTHO = {"type": "orthographic", "direction": [0, -0.5, -1]}
+
+# (id, mutation, key path the message must name, fragments it must contain)
+ERROR_CASES = [
+    # wrong types
+    ("number-is-string", lambda d: set_at(d, ("light", 2, "intensity"), "bright"),
+     "light[2].intensity", ["expected a number, got string 'bright'", "3rd [[light]]"]),
+    ("number-is-numeric-string", lambda d: set_at(d, ("material", "k_d"), "0.7"),
+     "material.k_d", ["expected a number", "without quotes"]),
+    ("number-is-bool", lambda d: set_at(d, ("material", "h"), True),
+     "material.h", ["expected a number, got boolean true"]),
+    ("number-is-array", lambda d: set_at(d, ("material", "k_s"), [0.2]),
+     "material.k_s", ["expected a number, got array"]),
+    ("vector-is-number", lambda d: set_at(d, ("camera", "position"), 6.0),
+     "camera.position", ["expected an array of 3 numbers", "float 6.0"]),
+    ("vector-is-string", lambda d: set_at(d, ("light", 0, "position"), "1,2,3"),
+     "light[0].position", ["expected an array of 3 numbers", "string '1,2,3'"]),
+    ("vector-element-is-string", lambda d: set_at(d, ("light", 0, "color"), [1, "x", 1]),
+     "light[0].color[1]", ["expected a number, got string 'x'"]),
+    ("vector-element-is-bool", lambda d: set_at(d, ("camera", "position"), [0, False, 1]),
+     "camera.position[1]", ["expected a number, got boolean false"]),
+    ("vector-too-short", lambda d: set_at(d, ("light", 0, "color"), [1, 2]),
+     "light[0].color", ["expected 3 numbers", "got 2"]),
+    ("vector-too-long", lambda d: set_at(d, ("material", "specular_color"), [1, 1, 1, 1]),
+     "material.specular_color", ["expected 3 numbers", "got 4"]),
+    ("enum-is-number", lambda d: set_at(d, ("camera", "type"), 1),
+     "camera.type", ["expected a string", "'perspective', 'orthographic'", "integer 1"]),
+    ("light-type-is-array", lambda d: set_at(d, ("light", 1, "type"), ["point"]),
+     "light[1].type", ["expected a string", "'point', 'directional', 'ambient'"]),
+    ("camera-not-table", lambda d: set_at(d, ("camera",), "perspective"),
+     "camera", ["expected a table"]),
+    ("camera-array-of-tables", lambda d: set_at(d, ("camera",), [d["camera"]]),
+     "camera", ["not [[camera]]"]),
+    ("light-single-table", lambda d: set_at(d, ("light",), d["light"][0]),
+     "light", ["not [light]"]),
+    ("light-not-array", lambda d: set_at(d, ("light",), 3),
+     "light", ["expected an array of tables", "integer 3"]),
+    ("light-element-not-table", lambda d: set_at(d, ("light", 1), 3),
+     "light[1]", ["expected a table, got integer 3"]),
+    ("render-not-table", lambda d: set_at(d, ("render",), [0, 0, 0]),
+     "render", ["expected a table"]),
+    ("background-is-string", lambda d: set_at(d, ("render",), {"background": "black"}),
+     "render.background", ["expected a number or an array of 3 numbers"]),
+    # unknown keys, with did-you-mean
+    ("unknown-top-table", lambda d: set_at(d, ("materal",), {}),
+     "materal", ["unknown key; did you mean 'material'?"]),
+    ("unknown-top-plural", lambda d: set_at(d, ("lights",), []),
+     "lights", ["did you mean 'light'?"]),
+    ("unknown-top-far", lambda d: set_at(d, ("zzzz",), 1),
+     "zzzz", ["unknown key; valid keys are 'camera', 'material', 'render', 'light'"]),
+    ("unknown-material-key", lambda d: set_at(d, ("material", "k_dd"), 0.7),
+     "material.k_dd", ["unknown key; did you mean 'k_d'?"]),
+    ("unknown-material-far", lambda d: set_at(d, ("material", "roughness"), 0.7),
+     "material.roughness", ["unknown key; valid keys are 'model', 'k_a'"]),
+    ("unknown-camera-key", lambda d: set_at(d, ("camera", "positon"), [0, 0, 0]),
+     "camera.positon", ["did you mean 'position'?"]),
+    ("unknown-light-key", lambda d: set_at(d, ("light", 0, "colour"), [1, 1, 1]),
+     "light[0].colour", ["did you mean 'color'?", "1st [[light]]"]),
+    ("unknown-render-key", lambda d: set_at(d, ("render",), {"backgorund": 0}),
+     "render.backgorund", ["did you mean 'background'?"]),
+    ("unknown-quoted-key", lambda d: set_at(d, ("material", "k d"), 1),
+     "material.'k d'", ["unknown key"]),
+    ("unknown-key-with-newline", lambda d: set_at(d, ("material", "k\nd"), 1),
+     "material.'k\\nd'", ["unknown key"]),
+    # missing required keys
+    ("missing-camera", lambda d: drop_at(d, ("camera",)),
+     "camera", ["missing required table [camera]"]),
+    ("missing-material", lambda d: drop_at(d, ("material",)),
+     "material", ["missing required table [material]"]),
+    ("missing-camera-type", lambda d: drop_at(d, ("camera", "type")),
+     "camera.type", ["missing required key", "'perspective', 'orthographic'"]),
+    ("missing-camera-position", lambda d: drop_at(d, ("camera", "position")),
+     "camera.position", ["missing", "'perspective' camera"]),
+    ("missing-camera-direction", lambda d: set_at(d, ("camera",), {"type": "orthographic"}),
+     "camera.direction", ["missing", "'orthographic' camera"]),
+    ("missing-material-model", lambda d: drop_at(d, ("material", "model")),
+     "material.model", ["missing required key"]),
+    ("missing-material-k_a", lambda d: drop_at(d, ("material", "k_a")),
+     "material.k_a", ["missing required key"]),
+    ("missing-material-k_d", lambda d: drop_at(d, ("material", "k_d")),
+     "material.k_d", ["missing required key"]),
+    ("missing-material-k_s", lambda d: drop_at(d, ("material", "k_s")),
+     "material.k_s", ["missing required key"]),
+    ("missing-material-h", lambda d: drop_at(d, ("material", "h")),
+     "material.h", ["missing required key"]),
+    ("missing-light-type", lambda d: drop_at(d, ("light", 2, "type")),
+     "light[2].type", ["missing required key", "'point', 'directional', 'ambient'"]),
+    ("missing-point-position", lambda d: drop_at(d, ("light", 0, "position")),
+     "light[0].position", ["missing", "'point' light"]),
+    ("missing-directional-direction", lambda d: drop_at(d, ("light", 1, "direction")),
+     "light[1].direction", ["missing", "'directional' light"]),
+    # keys that do not belong to the type
+    ("attenuation-on-directional", lambda d: set_at(d, ("light", 1, "attenuation"), [1, 0, 0]),
+     "light[1].attenuation", ["does not apply to a 'directional' light", "'point' lights"]),
+    ("attenuation-on-ambient", lambda d: set_at(d, ("light", 2, "attenuation"), [1, 0, 0]),
+     "light[2].attenuation", ["does not apply to an 'ambient' light"]),
+    ("position-on-directional", lambda d: set_at(d, ("light", 1, "position"), [1, 0, 0]),
+     "light[1].position", ["does not apply to a 'directional' light"]),
+    ("direction-on-point", lambda d: set_at(d, ("light", 0, "direction"), [1, 0, 0]),
+     "light[0].direction", ["does not apply to a 'point' light", "'directional' lights"]),
+    ("direction-on-ambient", lambda d: set_at(d, ("light", 2, "direction"), [1, 0, 0]),
+     "light[2].direction", ["does not apply to an 'ambient' light"]),
+    ("position-on-orthographic", lambda d: set_at(d, ("camera",), dict(ORTHO, position=[0, 0, 1])),
+     "camera.position", ["does not apply to an 'orthographic' camera"]),
+    ("direction-on-perspective", lambda d: set_at(d, ("camera", "direction"), [0, 0, -1]),
+     "camera.direction", ["does not apply to a 'perspective' camera"]),
+    # bad enum values
+    ("bad-model", lambda d: set_at(d, ("material", "model"), "phong2"),
+     "material.model", ["invalid value 'phong2'", "expected one of 'phong', 'blinn-phong'"]),
+    ("bad-model-case", lambda d: set_at(d, ("material", "model"), "Blinn-Phong"),
+     "material.model", ["did you mean 'blinn-phong'?"]),
+    ("bad-camera-type", lambda d: set_at(d, ("camera", "type"), "fisheye"),
+     "camera.type", ["invalid value 'fisheye'", "'perspective', 'orthographic'"]),
+    ("bad-light-type", lambda d: set_at(d, ("light", 0, "type"), "spot"),
+     "light[0].type", ["invalid value 'spot'", "'point', 'directional', 'ambient'"]),
+    # NaN / Inf anywhere
+    ("nan-k_a", lambda d: set_at(d, ("material", "k_a"), float("nan")),
+     "material.k_a", ["must be finite, got nan"]),
+    ("inf-h", lambda d: set_at(d, ("material", "h"), float("inf")),
+     "material.h", ["must be finite, got inf"]),
+    ("neg-inf-position", lambda d: set_at(d, ("camera", "position"), [0, -math.inf, 0]),
+     "camera.position[1]", ["must be finite, got -inf"]),
+    ("nan-intensity", lambda d: set_at(d, ("light", 2, "intensity"), math.nan),
+     "light[2].intensity", ["must be finite"]),
+    ("nan-light-position", lambda d: set_at(d, ("light", 0, "position"), [math.nan, 0, 0]),
+     "light[0].position[0]", ["must be finite"]),
+    ("inf-direction", lambda d: set_at(d, ("light", 1, "direction"), [0, 0, math.inf]),
+     "light[1].direction[2]", ["must be finite"]),
+    ("nan-attenuation", lambda d: set_at(d, ("light", 0, "attenuation"), [1, math.nan, 0]),
+     "light[0].attenuation[1]", ["must be finite"]),
+    ("inf-background", lambda d: set_at(d, ("render",), {"background": [0, math.inf, 0]}),
+     "render.background[1]", ["must be finite"]),
+    ("nan-background-scalar", lambda d: set_at(d, ("render",), {"background": math.nan}),
+     "render.background", ["must be finite"]),
+    ("nan-specular", lambda d: set_at(d, ("material", "specular_color"), [1, 1, math.nan]),
+     "material.specular_color[2]", ["must be finite"]),
+    ("huge-int", lambda d: set_at(d, ("material", "h"), 10**400),
+     "material.h", ["too large for a float64"]),
+    # negative coefficients
+    ("negative-k_a", lambda d: set_at(d, ("material", "k_a"), -0.1),
+     "material.k_a", ["must be >= 0, got -0.1"]),
+    ("negative-k_d", lambda d: set_at(d, ("material", "k_d"), -1),
+     "material.k_d", ["must be >= 0, got -1.0"]),
+    ("negative-k_s", lambda d: set_at(d, ("material", "k_s"), -0.2),
+     "material.k_s", ["must be >= 0"]),
+    ("negative-h", lambda d: set_at(d, ("material", "h"), -32.0),
+     "material.h", ["must be >= 0"]),
+    ("negative-intensity", lambda d: set_at(d, ("light", 1, "intensity"), -3.0),
+     "light[1].intensity", ["must be >= 0"]),
+    ("negative-color", lambda d: set_at(d, ("light", 0, "color"), [1.0, -0.9, 0.8]),
+     "light[0].color[1]", ["must be >= 0, got -0.9"]),
+    ("negative-specular-color", lambda d: set_at(d, ("material", "specular_color"), [-1, 1, 1]),
+     "material.specular_color[0]", ["must be >= 0"]),
+    # zero-length directions
+    ("zero-camera-direction", lambda d: set_at(d, ("camera",), dict(ORTHO, direction=[0, 0, 0])),
+     "camera.direction", ["zero-length vector"]),
+    ("zero-light-direction", lambda d: set_at(d, ("light", 1, "direction"), [0.0, -0.0, 0]),
+     "light[1].direction", ["zero-length vector"]),
+    # attenuation that reaches zero or goes negative
+    ("attenuation-c0-zero", lambda d: set_at(d, ("light", 0, "attenuation"), [0, 0, 1]),
+     "light[0].attenuation", ["reaches 0 at d = 0"]),
+    ("attenuation-c0-negative", lambda d: set_at(d, ("light", 0, "attenuation"), [-1, 0, 1]),
+     "light[0].attenuation", ["negative at d = 0"]),
+    ("attenuation-linear-negative", lambda d: set_at(d, ("light", 0, "attenuation"), [1, -0.4, 0]),
+     "light[0].attenuation", ["goes negative for d > 2.5"]),
+    ("attenuation-c2-negative", lambda d: set_at(d, ("light", 0, "attenuation"), [1, 0, -0.25]),
+     "light[0].attenuation", ["reaches 0 at d = 2 ", "goes negative for d > 2 "]),
+    ("attenuation-two-roots", lambda d: set_at(d, ("light", 0, "attenuation"), [1, -3, 1]),
+     "light[0].attenuation", ["goes negative for 0.381966 < d < 2.61803"]),
+    ("attenuation-double-root", lambda d: set_at(d, ("light", 0, "attenuation"), [1, -2, 1]),
+     "light[0].attenuation", ["reaches 0 at d = 1 ", "double root"]),
+    ("attenuation-zero", lambda d: set_at(d, ("light", 0, "attenuation"), [0, 0, 0]),
+     "light[0].attenuation", ["reaches 0 at d = 0"]),
+    # top level
+    ("top-not-table", lambda d: d.clear() or None, "camera", ["missing required table"]),
+]
+
+
+@pytest.mark.parametrize("mutate, path, fragments",
+                         [c[1:] for c in ERROR_CASES], ids=[c[0] for c in ERROR_CASES])
+def test_error_names_file_and_key(mutate, path, fragments):
+    data = base()
+    mutate(data)
+    msg = error_of(data)
+    assert_one_line(msg)
+    assert msg.startswith(f"{SRC}: {path}: "), msg
+    for f in fragments:
+        assert f in msg, msg
+
+
+def test_light_messages_say_which_table():
+    data = base()
+    data["light"][1]["intensity"] = "x"
+    assert "(light[1] is the 2nd [[light]])" in error_of(data)
+    data = base()
+    data["light"] = [{"type": "ambient"}] * 12 + [{"type": "ambient", "color": 1}]
+    assert "light[12] is the 13th [[light]]" in error_of(data)
+
+
+def test_top_level_must_be_a_table():
+    msg = error_of([1, 2])
+    assert_one_line(msg)
+    assert msg.startswith("scene.toml: expected a table")
+
+
+def test_first_unknown_key_in_order_is_reported():
+    data = base()
+    data["material"]["zz"] = 1
+    data["material"]["k_dd"] = 1
+    assert "material.zz:" in error_of(data)
+
+
+def test_ints_accepted_and_stored_as_float():
+    data = base()
+    data["material"].update(k_a=0, k_d=1, k_s=0, h=32)
+    data["light"][0]["position"] = [3, 5, 4]
+    s = parse_quietly(data)
+    for x in (s.material.k_a, s.material.k_d, s.material.h, *s.lights[0].position):
+        assert type(x) is float
+    assert s.material.h == 32.0
+
+
+def test_numpy_scalars_accepted():
+    data = base()
+    data["material"]["h"] = np.float32(8.0)
+    data["material"]["k_d"] = np.int64(0)
+    s = parse_quietly(data)
+    assert type(s.material.h) is float and s.material.h == 8.0
+    assert type(s.material.k_d) is float
+
+
+def test_negative_attenuation_coefficients_allowed_when_positive():
+    data = base()
+    data["light"][0]["attenuation"] = [1, -1, 1]       # discriminant < 0
+    assert parse_quietly(data).lights[0].attenuation == (1.0, -1.0, 1.0)
+
+
+def test_attenuation_float32_warning():
+    data = base()
+    data["light"][0]["attenuation"] = [1, -2, 1 + 2**-52]  # > 0 in float64 only
+    with pytest.warns(SceneWarning, match=r"light\[0\]\.attenuation: .*float32"):
+        s = parse_scene(data, SRC)
+    assert len(s.warnings) == 1
+
+
+# --------------------------------------------------------------------------
+# files
+# --------------------------------------------------------------------------
+
+
+def test_readme_example_parses(tmp_path):
+    f = tmp_path / "scene.toml"
+    f.write_text(README_TOML, encoding="utf-8")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s = load_scene(f)
+    assert s.source == str(f)
+    assert s.warnings == ()
+    assert s.camera == Camera("perspective", position=(0.0, 2.0, 6.0))
+    assert s.material == Material("phong", 0.1, 0.7, 0.2, 32.0)
+    assert [lt.type for lt in s.lights] == ["point", "directional", "ambient"]
+    p, d, a = s.lights
+    assert p.position == (3.0, 5.0, 4.0) and p.attenuation == (1.0, 0.0, 0.0)
+    assert p.radiance == pytest.approx((25.0, 22.5, 20.0))
+    n = math.sqrt(1 + 2.25 + 1)
+    assert d.direction == pytest.approx((-1 / n, -1.5 / n, -1 / n), rel=1e-15)
+    assert a.radiance == (1.0, 1.0, 1.0)
+    assert s.background == (0.0, 0.0, 0.0)
+    assert s.lights_of("point") == (p,)
+    assert s.lights_of("directional") == (d,)
+    assert s.lights_of("ambient") == (a,)
+
+
+def test_readme_orthographic_variant(tmp_path):
+    text = README_TOML.replace('type = "perspective"', 'type = "orthographic"')
+    text = text.replace("position = [0.0, 2.0, 6.0]", "direction = [0, -0.5, -1]")
+    f = tmp_path / "ortho.toml"
+    f.write_text(text, encoding="utf-8")
+    s = load_scene(str(f))
+    assert s.camera.type == "orthographic" and s.camera.position is None
+    assert s.camera.direction == pytest.approx((0, -0.5 / math.sqrt(1.25), -1 / math.sqrt(1.25)))
+
+
+def test_toml_keys_checked_from_file(tmp_path):
+    f = tmp_path / "scene.toml"
+    f.write_text(README_TOML.replace("[material]", "[materal]"), encoding="utf-8")
+    with pytest.raises(SceneError) as info:
+        load_scene(f)
+    msg = str(info.value)
+    assert_one_line(msg)
+    assert msg == f"{f}: materal: unknown key; did you mean 'material'?"
+
+
+def test_toml_nan_and_inf_rejected(tmp_path):
+    f = tmp_path / "scene.toml"
+    f.write_text(README_TOML.replace("h = 32.0", "h = nan"), encoding="utf-8")
+    with pytest.raises(SceneError, match=r"material\.h: must be finite, got nan"):
+        load_scene(f)
+    f.write_text(README_TOML.replace("intensity = 3.0", "intensity = +inf"), encoding="utf-8")
+    with pytest.raises(SceneError, match=r"light\[1\]\.intensity: must be finite, got inf"):
+        load_scene(f)
+
+
+def test_missing_file(tmp_path):
+    f = tmp_path / "nope.toml"
+    with pytest.raises(SceneError) as info:
+        load_scene(f)
+    msg = str(info.value)
+    assert_one_line(msg)
+    assert msg == f"{f}: cannot read scene file: no such file"
+
+
+def test_directory_is_not_a_scene(tmp_path):
+    with pytest.raises(SceneError, match="cannot read scene file"):
+        load_scene(tmp_path)
+
+
+def test_invalid_toml_gives_line_and_column(tmp_path):
+    f = tmp_path / "bad.toml"
+    f.write_text('[camera]\ntype = perspective\n', encoding="utf-8")
+    with pytest.raises(SceneError) as info:
+        load_scene(f)
+    msg = str(info.value)
+    assert_one_line(msg)
+    assert msg.startswith(f"{f}:2:8: invalid TOML: ")
+    assert "(at line" not in msg
+
+
+def test_duplicate_key_is_a_toml_error(tmp_path):
+    f = tmp_path / "dup.toml"
+    f.write_text('[material]\nk_a = 1\nk_a = 2\n', encoding="utf-8")
+    with pytest.raises(SceneError, match=r"dup\.toml:3:\d+: invalid TOML"):
+        load_scene(f)
+
+
+def test_invalid_toml_at_end_of_document(tmp_path):
+    f = tmp_path / "bad.toml"
+    f.write_text('[camera]\nposition = [0, 2,\n', encoding="utf-8")
+    with pytest.raises(SceneError) as info:
+        load_scene(f)
+    msg = str(info.value)
+    assert_one_line(msg)
+    assert msg.startswith(f"{f}") and "invalid TOML" in msg
+
+
+def test_non_utf8_file(tmp_path):
+    f = tmp_path / "latin1.toml"
+    f.write_bytes(b'[camera]\ntype = "caf\xe9"\n')
+    with pytest.raises(SceneError) as info:
+        load_scene(f)
+    msg = str(info.value)
+    assert_one_line(msg)
+    assert msg.startswith(f"{f}:2: invalid TOML: not UTF-8")
+
+
+def test_empty_file_reports_missing_camera(tmp_path):
+    f = tmp_path / "empty.toml"
+    f.write_text("", encoding="utf-8")
+    with pytest.raises(SceneError) as info:
+        load_scene(f)
+    assert str(info.value) == f"{f}: camera: missing required table [camera]"
+
+
+# --------------------------------------------------------------------------
+# defaults, lights list, background
+# --------------------------------------------------------------------------
+
+
+def test_defaults():
+    data = {
+        "camera": {"type": "perspective", "position": [0, 0, 5]},
+        "material": {"model": "blinn-phong", "k_a": 0, "k_d": 1, "k_s": 0, "h": 0},
+        "light": [{"type": "point", "position": [1, 1, 1]},
+                  {"type": "directional", "direction": [0, 0, -2]},
+                  {"type": "ambient"}],
+    }
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s = parse_scene(data)
+    assert s.source == "<scene>" and s.warnings == ()
+    assert s.material.specular_color == (1.0, 1.0, 1.0)
+    assert s.background == (0.0, 0.0, 0.0)
+    p, d, a = s.lights
+    for lt in s.lights:
+        assert lt.color == (1.0, 1.0, 1.0) and lt.intensity == 1.0
+        assert lt.attenuation == (1.0, 0.0, 0.0)
+    assert p.direction is None and d.position is None
+    assert a.position is None and a.direction is None
+    assert d.direction == (0.0, 0.0, -1.0)
+
+
+@pytest.mark.parametrize("lights", [None, []], ids=["absent", "empty"])
+def test_no_lights_allowed(lights):
+    data = base()
+    data["material"]["k_a"] = 0.0
+    if lights is None:
+        del data["light"]
+    else:
+        data["light"] = lights
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s = parse_scene(data, SRC)
+    assert s.lights == () and s.lights_of("point") == ()
+
+
+def test_lights_of_rejects_unknown_type():
+    s = parse_quietly(base())
+    with pytest.raises(ValueError, match="'point', 'directional', 'ambient'"):
+        s.lights_of("spot")
+
+
+def test_background_vector_and_scalar():
+    data = base()
+    data["render"] = {"background": [0.1, 0.2, -1]}
+    assert parse_quietly(data).background == (0.1, 0.2, -1.0)
+    data["render"] = {"background": 1}
+    assert parse_quietly(data).background == (1.0, 1.0, 1.0)
+    data["render"] = {}
+    assert parse_quietly(data).background == (0.0, 0.0, 0.0)
+
+
+def test_h_zero_with_specular_allowed_without_warning():
+    data = base()
+    data["material"].update(k_s=0.2, h=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert parse_scene(data).material.h == 0.0
+
+
+def test_radiance():
+    lt = Light("point", color=(1.0, 0.5, 0.0), intensity=4.0, position=(0.0, 0.0, 0.0))
+    assert lt.radiance == (4.0, 2.0, 0.0)
+
+
+# --------------------------------------------------------------------------
+# warnings
+# --------------------------------------------------------------------------
+
+
+def test_warning_coefficient_sum():
+    data = base()
+    data["material"].update(k_a=0.2, k_d=0.8, k_s=0.5)
+    with pytest.warns(SceneWarning) as rec:
+        s = parse_scene(data, SRC)
+    assert len(s.warnings) == 1
+    msg = s.warnings[0]
+    assert_one_line(msg)
+    assert msg.startswith("scene.toml: material: k_a + k_d + k_s = 1.5 > 1")
+    assert [str(w.message) for w in rec] == [msg]
+    assert rec[0].filename == __file__          # points at the caller
+
+
+@pytest.mark.parametrize("ks", [(0.1, 0.7, 0.2), (0.3, 0.3, 0.4), (0.2, 0.6, 0.2), (0, 1, 0)])
+def test_no_warning_when_sum_is_one_in_decimal(ks):
+    data = base()
+    data["material"].update(k_a=ks[0], k_d=ks[1], k_s=ks[2])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert parse_scene(data, SRC).warnings == ()
+
+
+def test_warning_ambient_without_ambient_light():
+    data = base()
+    del data["light"][2]
+    with pytest.warns(SceneWarning, match="no ambient light"):
+        s = parse_scene(data, SRC)
+    (msg,) = s.warnings
+    assert_one_line(msg)
+    assert msg.startswith("scene.toml: material.k_a: ")
+    assert "the ambient term is 0" in msg
+    assert 'add a [[light]] of type = "ambient"' in msg
+
+
+def test_no_ambient_warning_when_k_a_is_zero():
+    data = base()
+    del data["light"][2]
+    data["material"]["k_a"] = 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert parse_scene(data).warnings == ()
+
+
+def test_load_scene_emits_warnings(tmp_path):
+    f = tmp_path / "s.toml"
+    f.write_text(README_TOML.replace("k_s = 0.2", "k_s = 0.9"), encoding="utf-8")
+    with pytest.warns(SceneWarning, match=re.escape(f"{f}: material: k_a + k_d + k_s")) as rec:
+        load_scene(f)
+    assert rec[0].filename == __file__
+
+
+# --------------------------------------------------------------------------
+# directions
+# --------------------------------------------------------------------------
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+vectors = st.tuples(finite, finite, finite).filter(lambda v: any(c != 0 for c in v))
+
+
+def _dir_scene(v):
+    data = base()
+    data["camera"] = {"type": "orthographic", "direction": list(v)}
+    data["light"][1]["direction"] = list(v)
+    return parse_quietly(data)
+
+
+@settings(max_examples=300, deadline=None)
+@given(vectors)
+def test_directions_normalised(v):
+    s = _dir_scene(v)
+    for u in (s.camera.direction, s.lights[1].direction):
+        assert all(type(c) is float for c in u)
+        assert abs(math.hypot(*u) - 1.0) <= 4 * sys.float_info.epsilon
+        # same direction: u is a positive multiple of v (compare in exact arithmetic
+        # after scaling v by its largest component)
+        m = max(abs(c) for c in v)
+        w = [c / m for c in v]
+        nw = math.hypot(*w)
+        for a, b in zip(u, w):
+            assert a == pytest.approx(b / nw, rel=1e-12, abs=1e-300)
+    # normalising is idempotent, so a round trip is exact
+    assert _dir_scene(s.camera.direction).camera.direction == s.camera.direction
+
+
+def test_direction_examples():
+    s = _dir_scene((0.0, 3.0, -4.0))
+    assert s.camera.direction == (0.0, 0.6, -0.8)
+    assert _dir_scene((5e-324, 5e-324, 0.0)).camera.direction == pytest.approx(
+        (math.sqrt(0.5), math.sqrt(0.5), 0.0))
+    big = sys.float_info.max
+    assert _dir_scene((big, -big, big)).camera.direction == pytest.approx(
+        (1 / math.sqrt(3), -1 / math.sqrt(3), 1 / math.sqrt(3)))
+
+
+# --------------------------------------------------------------------------
+# attenuation condition vs brute force
+# --------------------------------------------------------------------------
+
+# Coefficients on a grid of 1/4 in [-4, 4]: every real root is then below 17,
+# every negative interval is wider than 1/16, and p(d) is computed exactly in
+# float64 on the sample grid d = k/256, so a dense sample decides positivity
+# except at a double root, which is added to the samples.
+quarter = st.integers(-16, 16).map(lambda k: k / 4)
+D_GRID = np.arange(0, 100 * 256 + 1, dtype=np.float64) / 256.0
+
+
+def brute_force_positive(c0, c1, c2) -> bool:
+    p = c0 + c1 * D_GRID + c2 * D_GRID * D_GRID
+    if p.min() <= 0:
+        return False
+    if c2 > 0 and c1 < 0:  # the vertex, where a double root would touch 0
+        v = Fraction(-c1) / (2 * Fraction(c2))
+        if Fraction(c0) + Fraction(c1) * v + Fraction(c2) * v * v <= 0:
+            return False
+    return True
+
+
+def reported_points(msg: str) -> list[float]:
+    """The distances where a message says p(d) = 0: 'at d = X', 'd > X', 'X < d < Y'."""
+    pat = r"reaches 0 at d = ([0-9.e+-]+)|d > ([0-9.e+-]+)|([0-9.e+-]+) < d < ([0-9.e+-]+)"
+    return [float(x) for m in re.findall(pat, msg) for x in m if x]
+
+
+@settings(max_examples=600, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(quarter, quarter, quarter)
+def test_attenuation_condition_matches_brute_force(c0, c1, c2):
+    problem = attenuation_problem(c0, c1, c2)
+    assert (problem is None) == brute_force_positive(c0, c1, c2), (c0, c1, c2, problem)
+    # the closed form of the brief
+    exact = c0 > 0 and ((c2 > 0 and (c1 >= 0 or c1 * c1 < 4 * c0 * c2)) or (c2 == 0 and c1 >= 0))
+    assert (problem is None) == exact
+    if problem is not None:
+        assert "\n" not in problem
+        scale = abs(c0) + abs(c1) + abs(c2)
+        for d in reported_points(problem):   # where it says p reaches 0, it does
+            assert d >= 0
+            assert abs(c0 + c1 * d + c2 * d * d) <= 1e-5 * scale * (1 + d * d)
+
+
+def p_exact(c, d: Fraction) -> Fraction:
+    return Fraction(c[0]) + Fraction(c[1]) * d + Fraction(c[2]) * d * d
+
+
+wide = st.one_of(st.floats(-1e6, 1e6), st.sampled_from([0.0, -0.0, 1.0, -1.0, 2.0, 4.0]),
+                 st.floats(-1e-6, 1e-6), st.floats(-1e300, 1e300))
+
+
+@settings(max_examples=600, deadline=None)
+@given(wide, wide, wide)
+def test_attenuation_condition_exact_witnesses(c0, c1, c2):
+    """Accepted: p > 0 at its minimum over d >= 0; rejected: a d >= 0 with p <= 0."""
+    c = (c0, c1, c2)
+    problem = attenuation_problem(*c)
+    # candidate minimisers / witnesses, exact
+    cands = [Fraction(0)]
+    if c2 != 0 and -c1 / c2 >= 0:
+        cands.append(Fraction(-c1) / (2 * Fraction(c2)))
+    big = 1 + 2 * (abs(Fraction(c0)) + abs(Fraction(c1))) / max(abs(Fraction(c2)), Fraction(1, 10**400))
+    if c2 == 0 and c1 != 0:
+        big = 1 + 2 * abs(Fraction(c0)) / abs(Fraction(c1))
+    cands.append(big)
+    values = [p_exact(c, d) for d in cands]
+    if problem is None:
+        # convex or linear with c1 >= 0: the minimum over d >= 0 is at 0 or the vertex
+        assert c2 >= 0 and all(v > 0 for v in values[:2])
+        if c2 == 0:
+            assert c1 >= 0
+    else:
+        assert min(values) <= 0, (c, problem)
+
+
+def test_attenuation_exact_at_the_boundary():
+    # c1^2 - 4 c0 c2 is 2^-104 > 0 in exact arithmetic but rounds to 0 in float64
+    c0, c1, c2 = 1.0, -2.0 * (1 + 2**-52), 1.0
+    assert attenuation_problem(c0, c1, c2) is not None
+    # and the other way round: a hair inside
+    assert attenuation_problem(1.0, -2.0, 1.0 + 2**-52) is None
+    # coefficients whose squares overflow float64
+    assert attenuation_problem(1e300, -1e200, 1e300) is None
+    msg = attenuation_problem(1e300, -1e200, 1e-100)        # roots near 1e100 and 1e300
+    assert msg is not None and "1e+100" in msg and "1e+300" in msg
+    msg = attenuation_problem(1e300, -1e-300, 0.0)           # root at 1e600
+    assert msg is not None and "d > 1e+600" in msg
+    msg = attenuation_problem(1e300, 1e300, -5e-324)         # root beyond float64
+    assert msg is not None and "e+6" in msg
+
+
+# --------------------------------------------------------------------------
+# round trip
+# --------------------------------------------------------------------------
+
+nonneg = st.floats(0, 1e6)
+anyf = st.floats(-1e6, 1e6)
+vec = st.lists(anyf, min_size=3, max_size=3)
+nonneg_vec = st.lists(nonneg, min_size=3, max_size=3)
+direction = vec.filter(lambda v: any(v))
+good_att = st.sampled_from([[1, 0, 0], [1, -1, 1], [0.5, 0.1, 0.01], [2, 0, 3]])
+
+light_st = st.one_of(
+    st.fixed_dictionaries({"type": st.just("point"), "position": vec},
+                          optional={"color": nonneg_vec, "intensity": nonneg,
+                                    "attenuation": good_att}),
+    st.fixed_dictionaries({"type": st.just("directional"), "direction": direction},
+                          optional={"color": nonneg_vec, "intensity": nonneg}),
+    st.fixed_dictionaries({"type": st.just("ambient")},
+                          optional={"color": nonneg_vec, "intensity": nonneg}),
+)
+scene_st = st.fixed_dictionaries(
+    {
+        "camera": st.one_of(
+            st.fixed_dictionaries({"type": st.just("perspective"), "position": vec}),
+            st.fixed_dictionaries({"type": st.just("orthographic"), "direction": direction})),
+        "material": st.fixed_dictionaries(
+            {"model": st.sampled_from(["phong", "blinn-phong"]), "k_a": nonneg, "k_d": nonneg,
+             "k_s": nonneg, "h": nonneg}, optional={"specular_color": nonneg_vec}),
+    },
+    optional={"light": st.lists(light_st, max_size=5),
+              "render": st.fixed_dictionaries({}, optional={"background": vec})},
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(scene_st)
+def test_to_dict_round_trip(data):
+    s = parse_quietly(data, "x.toml")
+    d = s.to_dict()
+    s2 = parse_quietly(copy.deepcopy(d), "x.toml")
+    assert s2 == s
+    assert s2.to_dict() == d
+    assert [lt["type"] for lt in d["light"]] == [lt.type for lt in s.lights]
+
+
+def test_to_dict_layout():
+    d = parse_quietly(base()).to_dict()
+    assert set(d) == {"camera", "material", "render", "light"}
+    assert d["camera"] == {"type": "perspective", "position": [0.0, 2.0, 6.0]}
+    assert set(d["light"][0]) == {"type", "color", "intensity", "position", "attenuation"}
+    assert set(d["light"][1]) == {"type", "color", "intensity", "direction"}
+    assert set(d["light"][2]) == {"type", "color", "intensity"}
+
+
+# --------------------------------------------------------------------------
+# scale
+# --------------------------------------------------------------------------
+
+
+def test_many_lights_parse_in_linear_time():
+    n = 100_000
+    kinds = [
+        {"type": "point", "position": [1, 2, 3], "color": [1, 1, 1], "intensity": 2,
+         "attenuation": [1, 0.1, 0.01]},
+        {"type": "directional", "direction": [0, -1, 0], "intensity": 0.5},
+        {"type": "ambient", "intensity": 0.1},
+    ]
+    data = base()
+    data["light"] = [kinds[i % 3] for i in range(n)]
+    t0 = time.perf_counter()
+    s = parse_quietly(data)
+    elapsed = time.perf_counter() - t0
+    assert len(s.lights) == n
+    assert len(s.lights_of("point")) == (n + 2) // 3
+    assert elapsed < 4.0, f"{n} lights took {elapsed:.2f} s"
+    # an error at the very end is still found and named
+    data["light"][-1] = {"type": "point", "position": [0, 0, 0], "intensity": -1}
+    msg = error_of(data)
+    assert msg.startswith(f"scene.toml: light[{n - 1}].intensity: must be >= 0")
+    assert f"the {n}th [[light]]" in msg
+
+
+def test_light_types_constant():
+    assert LIGHT_TYPES == ("point", "directional", "ambient")
