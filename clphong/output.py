@@ -1,0 +1,251 @@
+"""Writing results safely: atomic EXR output through OpenImageIO.
+
+Every file clphong writes goes through :func:`atomic_path`: the data are
+written to a hidden temporary file in the destination folder (same extension,
+so OpenImageIO picks the same format) and renamed onto the destination only
+when the write succeeded. A failed or interrupted write therefore never
+leaves a partial or truncated file behind, and never clobbers an existing
+good file.
+
+Public functions
+----------------
+atomic_path
+    Context manager yielding a temporary name that is renamed into place.
+write_exr
+    Write an (H, W, C) array to an OpenEXR file with explicit channel names,
+    pixel type, compression and header attributes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+from collections.abc import Iterator, Mapping, Sequence
+
+import numpy as np
+import OpenImageIO as oiio
+
+from .errors import OutputError
+
+__all__ = ["atomic_path", "write_exr", "set_attribute", "PIXEL_TYPES"]
+
+#: Pixel types accepted by :func:`write_exr` and ``write_gbuffer``.
+PIXEL_TYPES = ("float", "half")
+
+
+def _one_line(text: str) -> str:
+    """Collapse a (possibly multi-line) library message onto one line."""
+    parts = [p.strip() for p in str(text).splitlines() if p.strip()]
+    return "; ".join(parts) if parts else "unknown error"
+
+
+def _remove_quietly(name: str) -> None:
+    with contextlib.suppress(OSError):
+        os.remove(name)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[str]:
+    """Yield a temporary file name that replaces ``path`` on success.
+
+    The temporary file lies in the same folder as ``path`` (so the final
+    :func:`os.replace` is an atomic rename on the same file system) and has
+    the same extension, e.g. ``.out.tmp-1f2e3d4c.exr`` for ``out.exr``. It is
+    created empty (with the permissions the umask allows) to reserve the name
+    and to check that the folder is writable.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The destination file.
+
+    Yields
+    ------
+    str
+        The temporary file name to write to.
+
+    Raises
+    ------
+    OutputError
+        If the folder of ``path`` is missing or not writable, if ``path`` is
+        a directory, or if the final rename fails. The temporary file is
+        removed in every failure case.
+
+    Notes
+    -----
+    On any exception raised inside the ``with`` block (including
+    ``KeyboardInterrupt``) the temporary file is deleted and the exception
+    re-raised; ``path`` is left untouched.
+
+    Examples
+    --------
+    >>> with atomic_path("out.exr") as tmp:          # doctest: +SKIP
+    ...     write_the_image(tmp)
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    name = os.path.basename(path)
+    stem, ext = os.path.splitext(name)
+    if not name:
+        raise OutputError(f"{path}: not a file name")
+    if os.path.isdir(path):
+        raise OutputError(f"{path}: is a directory; give a file name")
+    if not os.path.isdir(folder):
+        raise OutputError(f"{path}: folder {folder} does not exist; create it first")
+    tmp = None
+    for _ in range(100):
+        candidate = os.path.join(folder, f".{stem}.tmp-{secrets.token_hex(4)}{ext}")
+        try:
+            fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise OutputError(f"{path}: cannot write in folder {folder}: {exc.strerror or exc}") from exc
+        os.close(fd)
+        tmp = candidate
+        break
+    if tmp is None:  # pragma: no cover - 100 collisions of 32 random bits
+        raise OutputError(f"{path}: could not create a temporary file in {folder}")
+    try:
+        yield tmp
+    except BaseException:
+        _remove_quietly(tmp)
+        raise
+    try:
+        os.replace(tmp, path)
+    except OSError as exc:
+        _remove_quietly(tmp)
+        raise OutputError(f"{path}: cannot replace the file: {exc.strerror or exc}") from exc
+
+
+def set_attribute(spec: oiio.ImageSpec, name: str, value: object) -> None:
+    """Set one header attribute on an ImageSpec, choosing its type.
+
+    Parameters
+    ----------
+    spec : OpenImageIO.ImageSpec
+        The spec to modify.
+    name : str
+        Attribute name, e.g. ``"chromaticities"`` or ``"worldToCamera"``.
+    value : object
+        ``int``, ``float``, ``str`` (and numpy scalars) are set directly.
+        A ``(TypeDesc, value)`` pair is set with that type. A 4x4 array, or
+        16 numbers, becomes a ``matrix``; a 3x3 array a ``matrix33``; any
+        other sequence of numbers ``int[n]`` or ``float[n]`` (e.g. the 8
+        ``chromaticities``); a sequence of strings ``string[n]``.
+
+    Raises
+    ------
+    OutputError
+        If the value has no representable type.
+    """
+    if isinstance(value, tuple) and len(value) == 2 and isinstance(value[0], oiio.TypeDesc):
+        spec.attribute(name, value[0], value[1])
+        return
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, bool):
+        spec.attribute(name, int(value))
+        return
+    if isinstance(value, (int, float, str)):
+        spec.attribute(name, value)
+        return
+    if isinstance(value, Sequence | np.ndarray) and len(value) > 0:
+        if all(isinstance(v, str) for v in value):
+            spec.attribute(name, oiio.TypeDesc(f"string[{len(value)}]"), tuple(value))
+            return
+        arr = np.asarray(value)
+        if arr.dtype.kind in "iub" or arr.dtype.kind == "f":
+            flat = arr.reshape(-1)
+            if arr.shape == (4, 4) or (arr.ndim == 1 and arr.size == 16):
+                spec.attribute(name, oiio.TypeDesc("matrix"), tuple(float(v) for v in flat))
+            elif arr.shape == (3, 3):
+                spec.attribute(name, oiio.TypeDesc("matrix33"), tuple(float(v) for v in flat))
+            elif arr.dtype.kind in "iub":
+                spec.attribute(name, oiio.TypeDesc(f"int[{flat.size}]"), tuple(int(v) for v in flat))
+            else:
+                spec.attribute(name, oiio.TypeDesc(f"float[{flat.size}]"), tuple(float(v) for v in flat))
+            return
+    raise OutputError(f"attribute {name!r}: cannot store a value of type {type(value).__name__} "
+                      "in an image header")
+
+
+def write_exr(path: str | os.PathLike, rgb: np.ndarray, *, pixel_type: str = "float",
+              compression: str = "zip", attributes: Mapping[str, object] | None = None,
+              channel_names: Sequence[str] = ("R", "G", "B"), tiled: bool = False) -> None:
+    """Write an image to an OpenEXR file atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination ``.exr`` file. It is replaced only if the write succeeds.
+    rgb : numpy.ndarray
+        (H, W, C) array with ``C == len(channel_names)`` (3 for the default
+        R, G, B), or (H, W) when there is one channel name. Converted to
+        float32; OpenImageIO rounds to half when ``pixel_type="half"``.
+    pixel_type : {"float", "half"}
+        Pixel type stored in the file.
+    compression : str
+        EXR compression (``"zip"``, ``"zips"``, ``"piz"``, ``"none"``,
+        ``"dwaa"``, ...), stored as the ``compression`` attribute.
+    attributes : mapping, optional
+        Header attributes, each applied with :func:`set_attribute` (so
+        ``spec.attribute(k, v)`` for scalars and strings), after
+        ``compression``.
+    channel_names : sequence of str
+        Names of the channels, in the order of the last axis of ``rgb``.
+    tiled : bool
+        Write a tiled file with 64x64 tiles instead of scanlines.
+
+    Raises
+    ------
+    OutputError
+        One-line message naming ``path``: a bad array shape or pixel type, a
+        missing or read-only folder, or any OpenImageIO failure (with its
+        message). No partial file is left behind.
+    """
+    display = os.fspath(path)
+    names = [str(n) for n in channel_names]
+    arr = np.asarray(rgb)
+    if arr.ndim == 2 and len(names) == 1:
+        arr = arr[:, :, None]
+    if arr.ndim != 3 or arr.shape[2] != len(names) or len(names) == 0:
+        raise OutputError(f"{display}: expected an (H, W, {len(names)}) array for channels "
+                          f"{','.join(names)}, got shape {arr.shape}")
+    if len(set(names)) != len(names):
+        raise OutputError(f"{display}: duplicate channel names {','.join(names)}")
+    if pixel_type not in PIXEL_TYPES:
+        raise OutputError(f"{display}: pixel type {pixel_type!r} is not one of {', '.join(PIXEL_TYPES)}")
+    if arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise OutputError(f"{display}: cannot write an empty {arr.shape[1]}x{arr.shape[0]} image")
+    data = np.ascontiguousarray(arr, dtype=np.float32)
+    h, w, c = data.shape
+
+    spec = oiio.ImageSpec(w, h, c, oiio.TypeDesc(pixel_type))
+    spec.channelnames = tuple(names)
+    spec.alpha_channel = names.index("A") if "A" in names else -1
+    spec.attribute("compression", str(compression))
+    if tiled:
+        spec.tile_width = 64
+        spec.tile_height = 64
+        spec.tile_depth = 1
+    for key, value in (attributes or {}).items():
+        set_attribute(spec, str(key), value)
+
+    with atomic_path(display) as tmp:
+        out = oiio.ImageOutput.create(tmp)
+        if out is None:
+            raise OutputError(f"{display}: OpenImageIO cannot create an EXR writer: "
+                              f"{_one_line(oiio.geterror())}")
+        ok = False
+        try:
+            if not out.open(tmp, spec):
+                raise OutputError(f"{display}: cannot open for writing: {_one_line(out.geterror())}")
+            if not out.write_image(data):
+                raise OutputError(f"{display}: writing the pixels failed: {_one_line(out.geterror())}")
+            ok = True
+        finally:
+            closed = out.close()
+        if ok and not closed:
+            raise OutputError(f"{display}: closing the file failed: {_one_line(out.geterror())}")

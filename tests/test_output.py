@@ -1,0 +1,256 @@
+"""Tests of clphong.output: atomic writes and write_exr."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from clphong import output
+from clphong.errors import OutputError
+from clphong.output import atomic_path, write_exr
+
+
+def _read(path):
+    inp = oiio.ImageInput.open(str(path))
+    assert inp is not None, oiio.geterror()
+    spec = inp.spec()
+    pix = inp.read_image(0, 0, 0, spec.nchannels, "float")
+    inp.close()
+    return spec, np.asarray(pix)
+
+
+def _rgb(h=5, w=7, seed=0):
+    rng = np.random.default_rng(seed)
+    return (rng.standard_normal((h, w, 3)) * 10.0 ** rng.integers(-6, 5, (h, w, 3))).astype(np.float32)
+
+
+def _listing(folder):
+    return sorted(p.name for p in folder.iterdir())
+
+
+# --------------------------------------------------------------------------- write_exr
+
+
+def test_write_exr_float_roundtrip_exact(tmp_path):
+    rgb = _rgb()
+    out = tmp_path / "out.exr"
+    write_exr(out, rgb)
+    spec, pix = _read(out)
+    assert spec.channelnames == ("R", "G", "B")
+    assert spec.format == oiio.TypeDesc("float")
+    assert spec.get_string_attribute("compression") == "zip"
+    assert spec.tile_width == 0
+    assert pix.dtype == np.float32 and np.array_equal(pix, rgb)
+    assert _listing(tmp_path) == ["out.exr"]
+
+
+def test_write_exr_half_rounds_like_numpy(tmp_path):
+    rgb = _rgb(seed=1)
+    rgb[0, 0] = [70000.0, 1e-8, -3e-6]      # overflow to inf, underflow, subnormal half
+    out = tmp_path / "half.exr"
+    with np.errstate(over="ignore"):
+        expected = rgb.astype(np.float16).astype(np.float32)
+    write_exr(out, rgb, pixel_type="half", compression="piz")
+    spec, pix = _read(out)
+    assert spec.format == oiio.TypeDesc("half")
+    assert spec.get_string_attribute("compression") == "piz"
+    assert np.array_equal(pix, expected)
+
+
+def test_write_exr_custom_channels_tiled_and_2d(tmp_path):
+    data = np.arange(5 * 7 * 4, dtype=np.float32).reshape(5, 7, 4)
+    write_exr(tmp_path / "rgba.exr", data, channel_names=("R", "G", "B", "A"), tiled=True)
+    spec, pix = _read(tmp_path / "rgba.exr")
+    assert spec.channelnames == ("R", "G", "B", "A") and spec.alpha_channel == 3
+    assert (spec.tile_width, spec.tile_height) == (64, 64)
+    assert np.array_equal(pix, data)
+    plane = np.linspace(0, 1, 35, dtype=np.float32).reshape(5, 7)
+    write_exr(tmp_path / "y.exr", plane, channel_names=("Y",))
+    spec, pix = _read(tmp_path / "y.exr")
+    assert spec.channelnames == ("Y",) and np.array_equal(pix[..., 0], plane)
+
+
+def test_write_exr_attributes(tmp_path):
+    chroma = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+    w2c = np.arange(16, dtype=np.float64).reshape(4, 4)
+    write_exr(tmp_path / "a.exr", _rgb(), attributes={
+        "chromaticities": chroma, "oiio:ColorSpace": "Linear Rec.709 (sRGB)", "Software": "clphong",
+        "clphong:int": 3, "clphong:float": 0.5, "worldToCamera": w2c, "clphong:flag": True,
+        "clphong:ints": [1, 2, 3], "clphong:strings": ("a", "b")})
+    spec, _ = _read(tmp_path / "a.exr")
+    assert np.allclose(spec.getattribute("chromaticities"), chroma)
+    assert spec.get_string_attribute("Software") == "clphong"
+    assert spec.get_int_attribute("clphong:int") == 3
+    assert spec.get_float_attribute("clphong:float") == 0.5
+    assert spec.get_int_attribute("clphong:flag") == 1
+    assert tuple(spec.getattribute("worldToCamera")) == tuple(float(v) for v in range(16))
+    assert tuple(spec.getattribute("clphong:ints")) == (1, 2, 3)
+
+
+def test_write_exr_unsupported_attribute(tmp_path):
+    with pytest.raises(OutputError, match="attribute 'bad'"):
+        write_exr(tmp_path / "a.exr", _rgb(), attributes={"bad": object()})
+    assert _listing(tmp_path) == []
+
+
+@pytest.mark.parametrize("shape,names", [((5, 7), ("R", "G", "B")), ((5, 7, 4), ("R", "G", "B")),
+                                         ((5, 7, 3, 1), ("R", "G", "B")), ((0, 7, 3), ("R", "G", "B"))])
+def test_write_exr_bad_shape(tmp_path, shape, names):
+    out = tmp_path / "bad.exr"
+    with pytest.raises(OutputError, match="bad.exr"):
+        write_exr(out, np.zeros(shape, np.float32), channel_names=names)
+    assert _listing(tmp_path) == []
+
+
+def test_write_exr_bad_pixel_type(tmp_path):
+    with pytest.raises(OutputError, match=r"x\.exr: pixel type 'uint8'"):
+        write_exr(tmp_path / "x.exr", _rgb(), pixel_type="uint8")
+    with pytest.raises(OutputError, match="duplicate channel"):
+        write_exr(tmp_path / "x.exr", _rgb(), channel_names=("R", "R", "B"))
+
+
+def test_write_exr_missing_folder(tmp_path):
+    out = tmp_path / "no" / "such" / "out.exr"
+    with pytest.raises(OutputError) as exc:
+        write_exr(out, _rgb())
+    assert str(out) in str(exc.value) and "does not exist" in str(exc.value)
+    assert "\n" not in str(exc.value)
+
+
+def test_write_exr_directory_in_the_way(tmp_path):
+    (tmp_path / "out.exr").mkdir()
+    with pytest.raises(OutputError, match="out.exr: is a directory"):
+        write_exr(tmp_path / "out.exr", _rgb())
+    assert _listing(tmp_path) == ["out.exr"] and (tmp_path / "out.exr").is_dir()
+
+
+@pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0, reason="root ignores folder permissions")
+def test_write_exr_read_only_folder(tmp_path):
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        with pytest.raises(OutputError, match="cannot write in folder"):
+            write_exr(folder / "out.exr", _rgb())
+        assert _listing(folder) == []
+    finally:
+        folder.chmod(0o755)
+
+
+def test_write_exr_unwritable_folder_simulated(tmp_path, monkeypatch):
+    real_open = os.open
+
+    def deny(name, flags, mode=0o777, *a, **k):
+        if ".tmp-" in os.fspath(name):
+            raise PermissionError(13, "Permission denied", name)
+        return real_open(name, flags, mode, *a, **k)
+
+    monkeypatch.setattr(output.os, "open", deny)
+    with pytest.raises(OutputError) as exc:
+        write_exr(tmp_path / "out.exr", _rgb())
+    assert "out.exr" in str(exc.value) and "Permission denied" in str(exc.value)
+    assert _listing(tmp_path) == []
+
+
+class _FailingOutput:
+    """Stands in for oiio.ImageOutput: opens fine, then the pixel write fails."""
+
+    stage = "write"
+
+    @classmethod
+    def create(cls, name):
+        return None if cls.stage == "create" else cls()
+
+    def open(self, name, spec):
+        with open(name, "wb") as fh:          # leave a partial file, as a real failure might
+            fh.write(b"v/1\x01partial")
+        return self.stage != "open"
+
+    def write_image(self, data):
+        return self.stage != "write"
+
+    def close(self):
+        return self.stage != "close"
+
+    def geterror(self):
+        return f"simulated {self.stage} failure\nsecond line"
+
+
+@pytest.mark.parametrize("stage", ["create", "open", "write", "close"])
+def test_write_exr_oiio_failure_leaves_nothing(tmp_path, monkeypatch, stage):
+    out = tmp_path / "out.exr"
+    write_exr(out, np.ones((5, 7, 3), np.float32))          # an existing good file
+    before = out.read_bytes()
+    monkeypatch.setattr(_FailingOutput, "stage", stage)
+    monkeypatch.setattr(output.oiio, "ImageOutput", _FailingOutput)
+    with pytest.raises(OutputError) as exc:
+        write_exr(out, _rgb())
+    msg = str(exc.value)
+    assert msg.startswith(str(out)) and "\n" not in msg
+    if stage != "create":
+        assert f"simulated {stage} failure; second line" in msg
+    assert _listing(tmp_path) == ["out.exr"]
+    assert out.read_bytes() == before
+
+
+def test_write_exr_permissions_follow_umask(tmp_path):
+    old = os.umask(0o022)
+    try:
+        write_exr(tmp_path / "p.exr", _rgb())
+    finally:
+        os.umask(old)
+    assert (tmp_path / "p.exr").stat().st_mode & 0o777 == 0o644
+
+
+# --------------------------------------------------------------------------- atomic_path
+
+
+def test_atomic_path_temp_name_and_replace(tmp_path):
+    dest = tmp_path / "result.exr"
+    dest.write_text("old")
+    with atomic_path(dest) as tmp:
+        assert os.path.dirname(tmp) == str(tmp_path)
+        name = os.path.basename(tmp)
+        assert name.startswith(".result.tmp-") and name.endswith(".exr")
+        assert os.path.exists(tmp) and dest.read_text() == "old"
+        with open(tmp, "w") as fh:
+            fh.write("new")
+    assert dest.read_text() == "new"
+    assert _listing(tmp_path) == ["result.exr"]
+
+
+def test_atomic_path_accepts_str_and_relative(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with atomic_path("rel.txt") as tmp:
+        with open(tmp, "w") as fh:
+            fh.write("x")
+    assert (tmp_path / "rel.txt").read_text() == "x"
+
+
+@pytest.mark.parametrize("exc_type", [RuntimeError, KeyboardInterrupt, OutputError])
+def test_atomic_path_exception_removes_temp(tmp_path, exc_type):
+    dest = tmp_path / "result.exr"
+    dest.write_text("old")
+    with pytest.raises(exc_type):
+        with atomic_path(dest) as tmp:
+            with open(tmp, "w") as fh:
+                fh.write("partial")
+            raise exc_type("boom")
+    assert dest.read_text() == "old"
+    assert _listing(tmp_path) == ["result.exr"]
+
+
+def test_atomic_path_temp_deleted_by_body(tmp_path):
+    with pytest.raises(OutputError, match="cannot replace"):
+        with atomic_path(tmp_path / "gone.exr") as tmp:
+            os.remove(tmp)
+    assert _listing(tmp_path) == []
+
+
+def test_atomic_path_missing_folder(tmp_path):
+    with pytest.raises(OutputError, match="missing/x.exr: folder .* does not exist"):
+        with atomic_path(tmp_path / "missing" / "x.exr"):
+            pass  # pragma: no cover
