@@ -56,10 +56,13 @@ inline weights_t shade_point_light(const pixel_t *p, float4 L, float c1, float c
 {
     const floatL dx = L.x - p->px, dy = L.y - p->py, dz = L.z - p->pz;
     const floatL d2 = MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz));
-    const floatL inv_d = rsqrt(d2);
+    /* d = 0 (the light at the shaded point): l := 0 and d := 0, so n.l = 0 and
+       nothing is added, as in the reference; rsqrt(0) = inf would give 0*inf = NaN. */
+    const intL at_light = (intL)(d2 <= 0.0f);
+    const floatL inv_d = select(rsqrt(d2), (floatL)(0.0f), at_light);
     const floatL lx = dx * inv_d, ly = dy * inv_d, lz = dz * inv_d;
     floatL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
-    NoL = select(NoL, (floatL)(0.0f), (intL)(d2 <= 0.0f));
+    NoL = select(NoL, (floatL)(0.0f), at_light);
     weights_t w = shade_direction(p, lx, ly, lz, NoL);
     const floatL att = attenuation(L.w, c1, c2, d2 * inv_d);
     w.diffuse *= att;

@@ -245,13 +245,16 @@ def test_background_pixels_take_the_background_value():
 
 # ----------------------------------------------------------------------------- the program cache
 
-def test_programs_are_built_once_per_variant():
+def test_programs_are_built_once_per_variant(monkeypatch):
     from clphong.runtime import get_runtime
 
     rt = get_runtime()
+    monkeypatch.setattr(rt, "_programs", {})     # start from an empty cache; restored afterwards
     rng = np.random.default_rng(0)
     scene = make_scene(random_lights(rng, 2, 1), h=7.0, model="blinn-phong")
+    before = rt.builds
     Renderer(scene)
+    assert rt.builds == before + 1
     before = rt.builds
     Renderer(scene).render(random_gbuffer(rng, 4, 4))
     Renderer(make_scene(random_lights(rng, 3, 1), h=9.0, model="blinn-phong")).render(random_gbuffer(rng, 4, 4))
