@@ -17,7 +17,6 @@ milliseconds; PyOpenCL skips its own binary cache for PoCL.
 from __future__ import annotations
 
 import hashlib
-import importlib.resources
 import os
 import threading
 import time
@@ -25,7 +24,6 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 
 from .errors import DeviceError
 
@@ -49,16 +47,19 @@ def kernel_dir() -> Path:
     In a wheel they are installed as the data package ``clphong.kernels``; in a
     source checkout or an editable install they are the top-level ``kernels/``.
     """
+    here = Path(__file__).resolve().parent
+    candidates = [here / "kernels", here.parent / "kernels"]
     try:
-        res = importlib.resources.files("clphong.kernels")
-        path = Path(str(res))
+        # ``kernels/`` has no __init__.py, so clphong.kernels is a namespace
+        # package: take its __path__ entries (an editable install maps it to the
+        # checkout's kernels/ folder).
+        import clphong.kernels as _k
+        candidates += [Path(p) for p in getattr(_k, "__path__", [])]
+    except ImportError:
+        pass
+    for path in candidates:
         if (path / "shade.cl").is_file():
             return path
-    except (ModuleNotFoundError, TypeError):
-        pass
-    path = Path(__file__).resolve().parent.parent / "kernels"
-    if (path / "shade.cl").is_file():
-        return path
     raise DeviceError(
         "clphong's OpenCL sources (kernels/*.cl) were not found next to the package; "
         "reinstall clphong with 'pip install .'"

@@ -1,0 +1,62 @@
+"""The kernels are found from a built wheel and from an editable install."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+
+PROBE = (
+    "import sys, clphong, clphong.runtime as rt; "
+    "print(clphong.__file__); print(rt.kernel_dir()); "
+    "s = clphong.load_scene(sys.argv[1]); g = clphong.read_gbuffer(sys.argv[2]); "
+    "print(float(clphong.render(s, g).max()))"
+)
+
+
+def _pip(*args, cwd=None):
+    r = subprocess.run([sys.executable, "-m", "pip", *args], capture_output=True, text=True,
+                       cwd=cwd, timeout=600)
+    if r.returncode != 0:
+        pytest.fail(f"pip {' '.join(args)} failed:\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}")
+    return r
+
+
+def _probe(site: Path, tmp_path: Path, *, addsitedir: bool):
+    pre = (f"import site; site.addsitedir({str(site)!r}); " if addsitedir
+           else f"import sys; sys.path.insert(0, {str(site)!r}); ")
+    # Run outside the repo so the checkout's clphong/ is not on sys.path.
+    r = subprocess.run([sys.executable, "-c", pre + PROBE, str(REPO / "gbuffers/spheres.toml"),
+                        str(REPO / "gbuffers/spheres.exr")], capture_output=True, text=True,
+                       cwd=tmp_path, timeout=300)
+    assert r.returncode == 0, r.stderr
+    module, kdir, peak = r.stdout.split("\n")[:3]
+    return Path(module), Path(kdir), float(peak)
+
+
+def test_kernels_found_from_a_built_wheel(tmp_path):
+    _pip("wheel", "--no-deps", "-q", "-w", str(tmp_path / "dist"), str(REPO))
+    wheel = next((tmp_path / "dist").glob("clphong-*.whl"))
+    import zipfile
+    names = zipfile.ZipFile(wheel).namelist()
+    assert "clphong/kernels/shade.cl" in names and "clphong/kernels/clphong.h" in names
+    site = tmp_path / "site"
+    _pip("install", "--no-deps", "-q", "--target", str(site), str(wheel))
+    module, kdir, peak = _probe(site, tmp_path, addsitedir=False)
+    assert site in module.parents and site in kdir.parents
+    assert peak > 0
+
+
+def test_kernels_found_from_an_editable_install(tmp_path):
+    # --target, not --prefix: with --prefix pip would first uninstall the
+    # clphong that the test environment itself runs.
+    site = tmp_path / "site"
+    _pip("install", "--no-deps", "-q", "-e", str(REPO), "--target", str(site))
+    module, kdir, peak = _probe(site, tmp_path, addsitedir=True)
+    assert REPO in module.parents
+    assert kdir == REPO / "kernels"
+    assert peak > 0
