@@ -61,7 +61,7 @@ def _build_parser() -> argparse.ArgumentParser:
     pl.add_argument("scene", metavar="SCENE.toml")
     pl.add_argument("gbuffer", metavar="GBUFFER.exr", nargs="?")
     _add_gbuffer_options(pl)
-    pl.add_argument("--kernel", choices=("lanes", "obvious"), default="lanes")
+    _add_device_options(pl)
 
     sub.add_parser("devices", help="list the OpenCL devices and the one chosen by default")
 
@@ -153,7 +153,11 @@ def cmd_plan(args) -> int:
     maps = ()
     if args.gbuffer or args.position or args.normal or args.albedo:
         maps = tuple(_read_gbuffer(args).maps)
-    print(make_plan(scene, maps, kernel=args.kernel))
+    from .runtime import get_runtime
+
+    # The lane width depends on the device, as in 'render'.
+    lanes = args.lanes or get_runtime(args.device).lanes
+    print(make_plan(scene, maps, kernel=args.kernel, lanes=lanes))
     return 0
 
 
