@@ -1,0 +1,808 @@
+"""Hostile input and faults: the catalogue of bad inputs, run through the CLI.
+
+Every case runs ``clphong render`` in-process (``clphong.cli.main``) and checks
+what a user sees and what is left on disk:
+
+- exactly one ``clphong: error: ...`` line on stderr (warnings aside), naming
+  the file, channel or key at fault;
+- a non-zero exit status (1 for processing errors, 128 + signal when stopped);
+- no output file, partial or otherwise, and no temporary file left behind,
+  and an output that existed before is left byte-for-byte as it was.
+
+A few cases also run as subprocesses (the real entry point, real environment).
+Cases already covered elsewhere are not repeated: a missing G-buffer or scene
+file, an unknown scene key via the API, the output overwriting the G-buffer
+and a missing output folder are in tests/test_cli.py; OpenImageIO failures at
+each stage of a write are in tests/test_output.py.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from clphong import runtime
+from clphong.cli import main
+from clphong.gbuffer import write_gbuffer
+from clphong.output import write_exr
+
+from conftest import random_gbuffer
+
+H, W = 6, 8
+
+SCENE = """\
+[camera]
+type = "perspective"
+position = [0.0, 2.0, 6.0]
+
+[material]
+model = "phong"
+k_a = 0.1
+k_d = 0.7
+k_s = 0.2
+h = 32.0
+
+[[light]]
+type = "point"
+position = [3.0, 5.0, 4.0]
+color = [1.0, 0.9, 0.8]
+intensity = 5.0
+attenuation = [1.0, 0.0, 0.02]
+
+[[light]]
+type = "directional"
+direction = [-1.0, -1.5, -1.0]
+intensity = 2.0
+
+[[light]]
+type = "ambient"
+intensity = 1.0
+"""
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+@pytest.fixture
+def work(tmp_path):
+    """inputs in tmp/in, outputs in tmp/out; a valid scene and G-buffer."""
+    src = tmp_path / "in"
+    out = tmp_path / "out"
+    src.mkdir()
+    out.mkdir()
+    (src / "scene.toml").write_text(SCENE)
+    gb = random_gbuffer(np.random.default_rng(7), H, W)
+    write_gbuffer(src / "gbuf.exr", gb.position, gb.normal, gb.albedo, coverage=gb.coverage)
+    return src, out
+
+
+def _files(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
+
+
+def cli(argv) -> int:
+    """``clphong`` in-process, with paths as strings."""
+    return main([str(a) for a in argv])
+
+
+def fails(argv, capsys, root: Path, *needles: str, code: int = 1) -> str:
+    """Run the CLI; check one error line with ``needles``, exit ``code``, nothing written."""
+    before = _files(root)
+    rc = cli(argv)
+    err = capsys.readouterr().err
+    assert rc == code, err
+    lines = err.splitlines()
+    errors = [ln for ln in lines if not ln.startswith("clphong: warning: ")]
+    assert len(errors) == 1, err
+    line = errors[0]
+    if code == 1:
+        assert line.startswith("clphong: error: "), line
+    for needle in needles:
+        assert needle in line, f"{needle!r} not in {line!r}"
+    after = _files(root)
+    assert after == before, f"left behind: {sorted(set(after) - set(before))}"
+    assert not [p for p in after if ".tmp-" in p]
+    return line
+
+
+def render_argv(src: Path, out: Path, gbuffer=None, scene=None, output=None, extra=()):
+    return ["render", scene or src / "scene.toml", gbuffer or src / "gbuf.exr",
+            "-o", output or out / "beauty.exr", *extra]
+
+
+def _raw_exr(path, planes: dict, *, window=None, display=None, pixel_type="float"):
+    """Write channels {name: (h, w)} with OpenImageIO; optional data/display windows.
+
+    ``window`` = (x, y) origin of the data window; ``display`` = (W, H) of the
+    display window (at 0, 0).
+    """
+    names = list(planes)
+    data = np.ascontiguousarray(np.stack([np.asarray(planes[n], np.float32) for n in names], -1))
+    spec = oiio.ImageSpec(data.shape[1], data.shape[0], len(names), oiio.TypeDesc(pixel_type))
+    spec.channelnames = tuple(names)
+    if window is not None:
+        spec.x, spec.y = window
+    if display is not None:
+        spec.full_x = spec.full_y = 0
+        spec.full_width, spec.full_height = display
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec), out.geterror()
+    assert out.write_image(data), out.geterror()
+    assert out.close()
+    return path
+
+
+def _vec(name, arr, comps="XYZ"):
+    return {f"{name}.{c}" if name else c: arr[..., i] for i, c in enumerate(comps)}
+
+
+# =========================================================================== bad EXR files
+
+
+def test_truncated_exr(work, capsys):
+    src, out = work
+    data = (src / "gbuf.exr").read_bytes()
+    (src / "cut.exr").write_bytes(data[: len(data) // 2])
+    fails(render_argv(src, out, gbuffer=src / "cut.exr"), capsys, src.parent, "cut.exr",
+          "missing or corrupted")
+
+
+def test_truncated_inside_the_header(work, capsys):
+    src, out = work
+    (src / "cut.exr").write_bytes((src / "gbuf.exr").read_bytes()[:60])
+    fails(render_argv(src, out, gbuffer=src / "cut.exr"), capsys, src.parent, "cut.exr",
+          "cannot read as EXR")
+
+
+def test_random_bytes_named_exr(work, capsys):
+    src, out = work
+    (src / "noise.exr").write_bytes(np.random.default_rng(1).bytes(4096))
+    fails(render_argv(src, out, gbuffer=src / "noise.exr"), capsys, src.parent, "noise.exr",
+          "cannot read as EXR", "not an OpenEXR file")
+
+
+def test_empty_file_named_exr(work, capsys):
+    src, out = work
+    (src / "empty.exr").write_bytes(b"")
+    fails(render_argv(src, out, gbuffer=src / "empty.exr"), capsys, src.parent, "empty.exr",
+          "cannot read as EXR")
+
+
+@pytest.mark.parametrize("name", ["frame.png", "frame.exr"], ids=["png", "png-renamed-exr"])
+def test_png_given_as_gbuffer(work, capsys, name):
+    src, out = work
+    png = src / "real.png"
+    o = oiio.ImageOutput.create(str(png))
+    assert o.open(str(png), oiio.ImageSpec(W, H, 3, "uint8"))
+    assert o.write_image(np.full((H, W, 3), 128, np.uint8)) and o.close()
+    shutil.copy(png, src / name)
+    fails(render_argv(src, out, gbuffer=src / name), capsys, src.parent, name,
+          "not an OpenEXR file (OpenImageIO reads it as png)")
+
+
+@pytest.mark.parametrize("missing", ["normal", "position"])
+def test_exr_missing_a_buffer(work, capsys, missing):
+    src, out = work
+    gb = random_gbuffer(np.random.default_rng(2), H, W)
+    planes = {**_vec("P", gb.position), **_vec("N", gb.normal), **_vec("albedo", gb.albedo, "RGB")}
+    drop = "P" if missing == "position" else "N"
+    planes = {k: v for k, v in planes.items() if not k.startswith(drop + ".")}
+    _raw_exr(src / "partial.exr", planes)
+    line = fails(render_argv(src, out, gbuffer=src / "partial.exr"), capsys, src.parent,
+                 "partial.exr", f"no {missing} channels found", "the file has: ")
+    assert f"--channels {missing}=" in line
+
+
+def test_separate_buffers_of_different_sizes(work, capsys):
+    src, out = work
+    write_exr(src / "P.exr", np.zeros((H, W, 3)))
+    write_exr(src / "N.exr", np.ones((H + 1, W, 3)))
+    write_exr(src / "A.exr", np.ones((H, W, 3)))
+    argv = ["render", src / "scene.toml", "--position", src / "P.exr", "--normal", src / "N.exr",
+            "--albedo", src / "A.exr", "-o", out / "beauty.exr"]
+    fails(argv, capsys, src.parent, f"position {src / 'P.exr'} is {W}x{H}",
+          f"normal {src / 'N.exr'} is {W}x{H + 1}", "same size")
+
+
+def _separate_files_with_windows(src, windows, display=(W, H)):
+    """P, N, A files whose data windows are ``windows[k]`` = (x, y, w, h) in a WxH display."""
+    rng = np.random.default_rng(3)
+    for key, (x, y, w, h) in windows.items():
+        arr = rng.uniform(0.2, 1.0, (h, w, 3))
+        if key == "N":
+            arr[..., 2] += 1.0
+        _raw_exr(src / f"{key}.exr", _vec("", arr, "RGB"), window=(x, y), display=display)
+    return ["--position", src / "P.exr", "--normal", src / "N.exr", "--albedo", src / "A.exr"]
+
+
+def test_data_windows_that_do_not_overlap(work, capsys):
+    src, out = work
+    files = _separate_files_with_windows(src, {"P": (0, 0, 3, H), "N": (4, 0, 4, H), "A": (0, 0, W, H)})
+    line = fails(["render", src / "scene.toml", *files, "-o", out / "beauty.exr"], capsys, src.parent,
+                 "data windows", "do not overlap", "P.exr", "N.exr")
+    assert "position" in line and "normal" in line
+
+
+def test_data_windows_that_overlap_in_part_shade_only_the_overlap(work, capsys):
+    """Accepted: where a buffer has no data the pixel is background (README policy)."""
+    import clphong
+
+    src, out = work
+    files = _separate_files_with_windows(src, {"P": (0, 0, 6, H), "N": (2, 1, 6, 5), "A": (0, 0, W, H)})
+    assert cli(["render", src / "scene.toml", *files, "-o", out / "b.exr"]) == 0
+    gb = clphong.read_gbuffer(position=src / "P.exr", normal=src / "N.exr", albedo=src / "A.exr")
+    bg = gb.background_mask()
+    inside = np.zeros((H, W), bool)
+    inside[1:6, 2:6] = True                   # the intersection of the three data windows
+    assert np.array_equal(~bg, inside)
+    rgb = clphong.render(clphong.load_scene(src / "scene.toml"), gb)
+    assert np.all(rgb[~inside] == 0) and np.all(rgb[inside].sum(-1) > 0)
+
+
+def test_deep_exr(work, capsys):
+    src, out = work
+    spec = oiio.ImageSpec(W, H, 2, "float")
+    spec.channelnames = ("A", "Z")
+    spec.deep = True
+    deep = oiio.DeepData()
+    deep.init(spec)
+    path = str(src / "deep.exr")
+    o = oiio.ImageOutput.create(path)
+    assert o.open(path, spec) and o.write_deep_image(deep) and o.close()
+    fails(render_argv(src, out, gbuffer=path), capsys, src.parent, "deep.exr",
+          "deep EXR files are not supported", "oiiotool --flatten")
+
+
+def test_multipart_exr(work, capsys):
+    src, out = work
+    gb = random_gbuffer(np.random.default_rng(4), H, W)
+    path = str(src / "parts.exr")
+    specs = []
+    for name, chans in (("geo", ("P.X", "P.Y", "P.Z", "N.X", "N.Y", "N.Z")),
+                        ("col", ("albedo.R", "albedo.G", "albedo.B"))):
+        s = oiio.ImageSpec(W, H, len(chans), "float")
+        s.channelnames = chans
+        s.attribute("name", name)
+        specs.append(s)
+    o = oiio.ImageOutput.create(path)
+    assert o.open(path, specs)
+    assert o.write_image(np.ascontiguousarray(np.concatenate([gb.position, gb.normal], -1)))
+    assert o.open(path, specs[1], "AppendSubimage") and o.write_image(gb.albedo) and o.close()
+    fails(render_argv(src, out, gbuffer=path), capsys, src.parent, "parts.exr",
+          "multi-part EXR files (2 parts) are not supported", "--channels")
+
+
+def _huge_display_window(src, size):
+    """A tiny file: a 2x2 data window in a size x size display window."""
+    gb = random_gbuffer(np.random.default_rng(5), 2, 2)
+    planes = {**_vec("P", gb.position), **_vec("N", gb.normal), **_vec("albedo", gb.albedo, "RGB")}
+    return _raw_exr(src / "huge.exr", planes, window=(0, 0), display=(size, size))
+
+
+def test_huge_display_window_is_refused_not_killed(work, capsys):
+    """1e5 x 1e5 pixels would need ~720 GB: refused from the header, whatever the machine."""
+    src, out = work
+    path = _huge_display_window(src, 100_000)
+    assert path.stat().st_size < 10_000
+    line = fails(render_argv(src, out, gbuffer=path), capsys, src.parent, "huge.exr",
+                 "100000x100000", "data window 2x2", "needs about", "of memory")
+    assert "crop" in line
+
+
+def test_16k_frame_over_the_memory_limit_is_refused(work, capsys, monkeypatch):
+    """16K x 16K with 9 channels needs ~18 GiB to read: refused under a 2 GiB limit."""
+    src, out = work
+    path = _huge_display_window(src, 16384)
+    monkeypatch.setenv("CLPHONG_MAX_MEMORY", "2G")
+    fails(render_argv(src, out, gbuffer=path), capsys, src.parent, "huge.exr", "16384x16384",
+          "CLPHONG_MAX_MEMORY=2G")
+
+
+# =========================================================================== bad scene files
+
+
+def _scene(src: Path, text: str, name="bad.toml") -> Path:
+    (src / name).write_text(text)
+    return src / name
+
+
+@pytest.mark.parametrize("case,text,needles", [
+    ("invalid-toml", SCENE.replace("k_d = 0.7", "k_d = = 0.7"), ["bad.toml:8:", "invalid TOML"]),
+    ("unknown-key", SCENE.replace("k_s = 0.2", "k_ss = 0.2"),
+     ["bad.toml: material.k_ss: unknown key", "did you mean 'k_s'?"]),
+    ("unknown-table", SCENE.replace("[material]", "[materials]"), ["bad.toml: materials: unknown key"]),
+    ("wrong-type", SCENE.replace("intensity = 5.0", 'intensity = "5"'),
+     ["bad.toml: light[0].intensity: expected a number", "without quotes"]),
+    ("wrong-type-vector", SCENE.replace("position = [3.0, 5.0, 4.0]", "position = 3.0"),
+     ["bad.toml: light[0].position: expected an array of 3 numbers"]),
+    ("nan", SCENE.replace("h = 32.0", "h = nan"), ["bad.toml: material.h: must be finite, got nan"]),
+    ("inf", SCENE.replace("intensity = 2.0", "intensity = -inf"),
+     ["bad.toml: light[1].intensity: must be finite, got -inf"]),
+    ("zero-direction", SCENE.replace("direction = [-1.0, -1.5, -1.0]", "direction = [0, 0.0, -0.0]"),
+     ["bad.toml: light[1].direction: zero-length vector"]),
+    ("zero-camera-direction", SCENE.replace('type = "perspective"\nposition = [0.0, 2.0, 6.0]',
+                                            'type = "orthographic"\ndirection = [0, 0, 0]'),
+     ["bad.toml: camera.direction: zero-length vector"]),
+    ("attenuation-zero", SCENE.replace("attenuation = [1.0, 0.0, 0.02]", "attenuation = [1.0, -2.0, 1.0]"),
+     ["bad.toml: light[0].attenuation: p(d) = c0 + c1*d + c2*d^2 reaches 0 at d = 1"]),
+    ("attenuation-c0-zero", SCENE.replace("attenuation = [1.0, 0.0, 0.02]", "attenuation = [0, 0, 1]"),
+     ["bad.toml: light[0].attenuation:", "c0 must be > 0"]),
+    ("not-utf8", None, ["bad.toml:6: invalid TOML: not UTF-8 (byte 80)"]),
+    # found by tests/test_fuzz.py: tomllib recurses per nesting level (RecursionError)
+    ("deeply-nested", "x = " + "[" * 2000 + "]" * 2000 + "\n" + SCENE, ["bad.toml", "nested too deeply"]),
+], ids=lambda v: v if isinstance(v, str) and len(v) < 30 else "")
+def test_bad_scene(work, capsys, case, text, needles):
+    src, out = work
+    if text is None:
+        (src / "bad.toml").write_bytes(SCENE.encode().replace(b'"phong"', b'"ph\xf6ng"'))
+    else:
+        _scene(src, text)
+    fails(render_argv(src, out, scene=src / "bad.toml"), capsys, src.parent, *needles)
+
+
+def test_scene_file_too_large_for_memory(work, capsys, monkeypatch):
+    """A million lights under a 256 MiB limit: refused from the file size, before parsing."""
+    src, out = work
+    head = SCENE.split("[[light]]")[0]
+    path = src / "million.toml"
+    path.write_text(head + '[[light]]\ntype = "point"\nposition = [1.0, 2.0, 3.0]\n' * 1_000_000)
+    monkeypatch.setenv("CLPHONG_MAX_MEMORY", "256M")
+    fails(render_argv(src, out, scene=path), capsys, src.parent, "million.toml",
+          "scene file needs about", "CLPHONG_MAX_MEMORY=256M", "fewer lights")
+
+
+def test_bad_memory_limit_setting(work, capsys, monkeypatch):
+    src, out = work
+    monkeypatch.setenv("CLPHONG_MAX_MEMORY", "lots")
+    fails(render_argv(src, out), capsys, src.parent, "CLPHONG_MAX_MEMORY='lots'", "not a size")
+
+
+def _read(path):
+    inp = oiio.ImageInput.open(str(path))
+    assert inp is not None, oiio.geterror()
+    px = np.asarray(inp.read_image(0, 0, 0, 3, "float"))
+    inp.close()
+    return px
+
+
+def test_empty_light_list_renders_black_and_says_why(work, capsys):
+    """Allowed (README): no lights, so every shaded pixel is exactly 0 and the background keeps its value."""
+    src, out = work
+    text = SCENE.split("[[light]]")[0] + "[render]\nbackground = [0.25, 0.5, 0.75]\n"
+    scene = _scene(src, text, "dark.toml")
+    assert cli(render_argv(src, out, scene=scene)) == 0
+    err = capsys.readouterr().err
+    assert "material.k_a" in err and "the ambient term is 0" in err      # k_a = 0.1 but no ambient light
+    import clphong
+
+    px = _read(out / "beauty.exr")
+    bg = clphong.read_gbuffer(src / "gbuf.exr").background_mask()
+    assert bg.any() and (~bg).any()
+    assert np.all(px[~bg] == 0.0)
+    assert np.all(px[bg] == np.float32([0.25, 0.5, 0.75]))
+
+
+def test_ambient_only_scene_matches_the_reference(work, capsys):
+    import clphong
+    from clphong import reference
+
+    src, out = work
+    text = SCENE.split("[[light]]")[0] + '[[light]]\ntype = "ambient"\ncolor = [1.0, 0.5, 0.25]\nintensity = 2.0\n'
+    scene_path = _scene(src, text, "amb.toml")
+    assert cli(render_argv(src, out, scene=scene_path)) == 0
+    px = _read(out / "beauty.exr").astype(np.float64)
+    scene = clphong.load_scene(scene_path)
+    gb = clphong.read_gbuffer(src / "gbuf.exr")
+    ref = reference.shade(scene, gb)
+    # E = C_d·k_a·A: one float32 product of float32-rounded factors, so |err|
+    # ≤ 3u·|E| (two roundings of the factors and one of the product), u = 2^-24.
+    assert np.all(np.abs(px - ref) <= 3 * 2.0 ** -24 * np.abs(ref))
+    assert np.any(ref > 0)
+
+
+def test_many_lights_accepted(work, capsys):
+    """5 000 point lights through the CLI, checked against the float64 reference.
+
+    The full million is in :func:`test_million_lights_accepted` (slow, opt-in);
+    its refusal under a memory limit is :func:`test_scene_file_too_large_for_memory`.
+    """
+    import clphong
+    from clphong import reference
+
+    src, out = work
+    rng = np.random.default_rng(11)
+    pos = rng.uniform(-20, 20, (5000, 3)) + [0, 0, 25]
+    lights = "".join(f'[[light]]\ntype = "point"\nposition = [{x:.6f}, {y:.6f}, {z:.6f}]\nintensity = 0.01\n'
+                     for x, y, z in pos)
+    head = SCENE.split("[[light]]")[0].replace("k_a = 0.1", "k_a = 0.0")
+    scene_path = _scene(src, head + lights, "many.toml")
+    assert cli(render_argv(src, out, scene=scene_path)) == 0
+    scene = clphong.load_scene(scene_path)
+    gb = clphong.read_gbuffer(src / "gbuf.exr")
+    px = _read(out / "beauty.exr").astype(np.float64)
+    r = clphong.Renderer(scene)
+    from clphong.render import prepare_frame
+    frame = prepare_frame(gb, lanes=r.lanes)
+    plan = r.plan_for(frame.map_names)
+    bound, _ = reference.error_bound(scene, gb, origin=frame.origin,
+                                     compensated=bool(plan.defines.get("COMPENSATED_SUM", 0)))
+    assert np.all(np.abs(px - reference.shade(scene, gb)) <= bound)
+
+
+@pytest.mark.skipif(not os.environ.get("CLPHONG_SLOW_TESTS"), reason="slow (about a minute): set CLPHONG_SLOW_TESTS=1")
+def test_million_lights_accepted(work, capsys):
+    src, out = work
+    head = SCENE.split("[[light]]")[0]
+    path = src / "million.toml"
+    path.write_text(head + '[[light]]\ntype = "point"\nposition = [1.0, 2.0, 3.0]\nintensity = 1e-6\n'
+                    * 1_000_000)
+    assert cli(render_argv(src, out, scene=path)) == 0
+    px = _read(out / "beauty.exr")
+    assert np.all(np.isfinite(px))
+
+
+# =========================================================================== output problems
+
+
+def test_output_folder_is_a_file(work, capsys):
+    src, out = work
+    (out / "plain").write_text("not a folder")
+    fails(render_argv(src, out, output=out / "plain" / "sub" / "beauty.exr"), capsys, src.parent,
+          f"{out / 'plain'} is a file, not a folder")
+
+
+def test_output_in_a_read_only_file_system(work, capsys):
+    """/proc takes no new files, even for root (folder permissions would not stop root)."""
+    src, out = work
+    fails(render_argv(src, out, output="/proc/beauty.exr"), capsys, src.parent,
+          "/proc/beauty.exr", "cannot write in folder /proc")
+
+
+def test_output_that_is_a_folder(work, capsys):
+    src, out = work
+    fails(render_argv(src, out, output=out), capsys, src.parent, f"{out}: is a directory")
+
+
+def test_output_not_exr_is_refused_before_work(work, capsys, monkeypatch):
+    import importlib
+
+    src, out = work
+    render = importlib.import_module("clphong.render")
+
+    def no_render(*a, **k):                     # the check comes first: nothing is shaded
+        raise AssertionError("rendered before checking the output name")
+
+    monkeypatch.setattr(render.Renderer, "render", no_render)
+    fails(render_argv(src, out, output=out / "beauty.png"), capsys, src.parent, "beauty.png",
+          "give a name ending in .exr")
+
+
+@pytest.mark.parametrize("which", ["scene", "gbuffer-symlink"])
+def test_output_identical_to_an_input(work, capsys, which):
+    src, out = work
+    before = {p: p.read_bytes() for p in src.iterdir()}
+    if which == "scene":
+        target = src / "scene.toml"
+        # .toml is refused as an overwrite before its extension is looked at
+        needles = ["output would overwrite the input", "scene.toml"]
+    else:
+        target = out / "link.exr"
+        target.symlink_to(src / "gbuf.exr")
+        needles = ["link.exr", "output would overwrite the input", "gbuf.exr"]
+    fails(render_argv(src, out, output=target), capsys, src.parent, *needles)
+    assert {p: p.read_bytes() for p in src.iterdir()} == before
+
+
+class _FileSizeLimitedOutput:
+    """oiio.ImageOutput whose writes run under RLIMIT_FSIZE: the kernel refuses the
+    bytes past the limit (EFBIG), a real write error like a full disk's ENOSPC."""
+
+    real = oiio.ImageOutput
+    limit = 4096
+
+    @classmethod
+    def create(cls, name):
+        out = cls.real.create(name)
+        return None if out is None else cls(out)
+
+    def __init__(self, out):
+        self._out = out
+
+    def __getattr__(self, name):
+        return getattr(self._out, name)
+
+    def _limited(self, fn, *args):
+        import resource
+
+        old = resource.getrlimit(resource.RLIMIT_FSIZE)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (self.limit, old[1]))
+        try:                        # Python ignores SIGXFSZ, so write() returns EFBIG
+            return fn(*args)
+        finally:
+            resource.setrlimit(resource.RLIMIT_FSIZE, old)
+
+    def write_image(self, data):
+        return self._limited(self._out.write_image, data)
+
+    def close(self):
+        return self._limited(self._out.close)
+
+
+def test_disk_full_while_writing_keeps_the_previous_output(work, capsys, monkeypatch):
+    from clphong import output
+
+    src, out = work
+    big = random_gbuffer(np.random.default_rng(9), 64, 64)          # ~48 KB of noise: > limit
+    write_gbuffer(src / "big.exr", big.position, big.normal, big.albedo, coverage=big.coverage)
+    assert cli(render_argv(src, out, gbuffer=src / "big.exr")) == 0
+    good = (out / "beauty.exr").read_bytes()
+    capsys.readouterr()
+    monkeypatch.setattr(output.oiio, "ImageOutput", _FileSizeLimitedOutput)
+    fails(render_argv(src, out, gbuffer=src / "big.exr"), capsys, src.parent, "beauty.exr",
+          "failed")
+    assert (out / "beauty.exr").read_bytes() == good
+
+
+@pytest.mark.parametrize("how,code,text", [
+    ("sigterm", 143, "clphong: terminated (SIGTERM)"),
+    ("ctrl-c", 130, "clphong: interrupted"),
+])
+def test_stopped_while_writing_leaves_nothing(work, capsys, monkeypatch, how, code, text):
+    from clphong import output
+
+    class Stopped(_FileSizeLimitedOutput):
+        limit = 2 ** 40
+
+        def write_image(self, data):
+            if how == "sigterm":
+                os.kill(os.getpid(), signal.SIGTERM)      # handled by the CLI as an interrupt
+            else:
+                raise KeyboardInterrupt
+            return True
+
+    src, out = work
+    monkeypatch.setattr(output.oiio, "ImageOutput", Stopped)
+    line = fails(render_argv(src, out), capsys, src.parent, code=code)
+    assert line.startswith(text)
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL       # restored after the command
+
+
+# =========================================================================== no usable device
+
+
+@pytest.fixture
+def fresh_runtimes(monkeypatch):
+    """No runtime cached in this process, so device selection runs again."""
+    monkeypatch.setattr(runtime, "_RUNTIMES", {})
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+
+
+def test_no_opencl_platform(work, capsys, monkeypatch, fresh_runtimes):
+    import pyopencl as cl
+
+    def none(*a, **k):
+        raise cl.LogicError("clGetPlatformIDs failed: PLATFORM_NOT_FOUND_KHR")
+
+    monkeypatch.setattr(cl, "get_platforms", none)
+    src, out = work
+    fails(render_argv(src, out), capsys, src.parent, "no OpenCL platform found",
+          "PLATFORM_NOT_FOUND_KHR", "PYOPENCL_CTX", 'pip install "pyopencl[pocl]"')
+
+
+def test_platform_without_devices(work, capsys, monkeypatch, fresh_runtimes):
+    import pyopencl as cl
+
+    monkeypatch.setattr(cl, "get_platforms", lambda: [])
+    src, out = work
+    fails(render_argv(src, out), capsys, src.parent, "no OpenCL device found", "PYOPENCL_CTX",
+          'pip install "pyopencl[pocl]"')
+
+
+def test_kernel_build_fails(work, capsys, monkeypatch, fresh_runtimes):
+    import pyopencl as cl
+
+    def broken(self, *a, **k):
+        raise cl.RuntimeError("clBuildProgram failed: BUILD_PROGRAM_FAILURE\n"
+                              "shade.cl:12:3: error: use of undeclared identifier 'floatL'")
+
+    monkeypatch.setattr(cl.Program, "build", broken)
+    src, out = work
+    fails(render_argv(src, out), capsys, src.parent, "kernels/shade.cl failed to build",
+          "undeclared identifier", "PYOPENCL_CTX", 'pip install "pyopencl[pocl]"')
+
+
+def test_pyopencl_ctx_names_no_device(work, capsys, monkeypatch, fresh_runtimes):
+    monkeypatch.setenv("PYOPENCL_CTX", "9:9")
+    src, out = work
+    line = fails(render_argv(src, out), capsys, src.parent, "PYOPENCL_CTX='9:9' names no usable",
+                 "unset it or set it to one of: 0:0", 'pip install "pyopencl[pocl]"')
+    assert "\n" not in line
+
+
+def test_device_option_names_no_device(work, capsys):
+    src, out = work
+    fails(render_argv(src, out, extra=["--device", "quantum"]), capsys, src.parent,
+          "device 'quantum': no match; available: 0:0")
+
+
+# =========================================================================== memory: row bands
+
+
+def test_frame_too_big_for_one_launch_is_shaded_in_bands(work, capsys, monkeypatch):
+    """A small frame forced into bands by a memory limit is bit-identical to one launch.
+
+    Each band is shaded with the whole frame's rebasing origin, so every pixel
+    goes through the same float32 operations: equality is exact, not within a
+    tolerance. The result is also held to the reference's error bound.
+    """
+    import clphong
+    from clphong import reference
+    from clphong.render import prepare_frame
+    from clphong.tiling import render_bytes_per_pixel
+
+    src, out = work
+    gb = random_gbuffer(np.random.default_rng(12), 96, 40, maps=("k_s", "h"))
+    write_gbuffer(src / "tall.exr", gb.position, gb.normal, gb.albedo, coverage=gb.coverage, maps=gb.maps)
+    scene = clphong.load_scene(src / "scene.toml")
+    gb = clphong.read_gbuffer(src / "tall.exr")
+    r = clphong.Renderer(scene)
+    whole = r.render(gb)
+    assert r.last_bands == 1
+    # Room for the (96, 40, 3) output and ~10 rows of shading, not the whole frame.
+    limit = 12 * 96 * 40 + render_bytes_per_pixel(3) * (r.lanes * 64 + 10 * 40) + 128 * 3
+    monkeypatch.setenv("CLPHONG_MAX_MEMORY", str(limit))
+    banded = r.render(gb)
+    assert r.last_bands > 1
+    assert np.array_equal(banded, whole)
+    frame = prepare_frame(gb, lanes=r.lanes)
+    plan = r.plan_for(frame.map_names)
+    bound, _ = reference.error_bound(scene, gb, origin=frame.origin,
+                                     compensated=bool(plan.defines.get("COMPENSATED_SUM", 0)))
+    assert np.all(np.abs(banded - reference.shade(scene, gb)) <= bound)
+    # and through the CLI, with room to read the file (8 bytes a pixel and
+    # channel, 12 channels) but not to shade it in one launch
+    from clphong import tiling
+
+    calls = []
+    real_plan = tiling.plan_bands
+    monkeypatch.setattr(tiling, "plan_bands", lambda h, rows: calls.append(rows) or real_plan(h, rows))
+    monkeypatch.setenv("CLPHONG_MAX_MEMORY", str(8 * 12 * 96 * 40 + limit))
+    assert 8 * 12 * 96 * 40 + limit < render_bytes_per_pixel(3) * 96 * 40
+    assert cli(render_argv(src, out, gbuffer=src / "tall.exr")) == 0
+    assert calls and calls[-1] < 96
+    assert np.array_equal(_read(out / "beauty.exr"), whole)
+
+
+def test_frame_over_the_devices_largest_buffer_is_shaded_in_bands(monkeypatch):
+    """The device's CL_DEVICE_MAX_MEM_ALLOC_SIZE also bounds a launch (measured with
+    POCL_MEMORY_LIMIT=1, 256 MiB: one launch of 3000x2000 failed with INVALID_BUFFER_SIZE).
+    Here the limit is lowered to a few rows of a small frame."""
+    import clphong
+    from clphong import tiling
+    from clphong.tiling import _gbuf_planes
+
+    gb = random_gbuffer(np.random.default_rng(14), 50, 30)
+    r = clphong.Renderer(_scene_of(SCENE))
+    whole = r.render(gb)
+    assert r.last_bands == 1
+    block = r.lanes * 64
+    monkeypatch.setattr(tiling, "_device_limits", lambda renderer: (4 * _gbuf_planes() * 2 * block, None))
+    banded = r.render(gb)
+    assert r.last_bands == -(-50 * 30 // (2 * block // 30 * 30)) and r.last_bands > 1
+    assert np.array_equal(banded, whole)
+
+
+def _scene_of(text):
+    from clphong.scene import parse_scene
+    import tomllib
+    return parse_scene(tomllib.loads(text), "scene.toml")
+
+
+def test_band_origin_is_the_whole_frames_origin():
+    from clphong.render import frame_origin
+    from clphong.tiling import frame_origin_banded, plan_bands
+
+    gb = random_gbuffer(np.random.default_rng(13), 37, 11)
+    gb.position[5:9] += 1000.0                                   # a far-away strip in one band
+    whole = frame_origin(gb.position, gb.background_mask().reshape(-1))
+    for rows in (1, 4, 10, 37):
+        assert np.array_equal(frame_origin_banded(gb, plan_bands(37, rows)), whole)
+
+
+def test_16k_frame_plan_respects_device_and_memory_limits():
+    """The plan for 16K x 16K with many lights, without allocating it."""
+    from clphong.render import LOCAL_SIZE
+    from clphong.tiling import band_rows, render_bytes_per_pixel
+
+    h = w = 16384
+    rows = band_rows((h, w), n_map_planes=0, lanes=16, light_bytes=128 * 10_000,
+                     budget=16 * 2 ** 30, max_alloc=2 ** 30, global_mem=4 * 2 ** 30)
+    assert 1 <= rows < h
+    stride = -(-rows * w // (16 * LOCAL_SIZE)) * 16 * LOCAL_SIZE
+    from clphong.tiling import _gbuf_planes
+    assert 4 * _gbuf_planes() * stride <= 2 ** 30                            # largest buffer
+    assert 12 * h * w + render_bytes_per_pixel(0) * stride + 128 * 10_000 <= 16 * 2 ** 30
+    # not even the output fits: 0 rows, which render_frame turns into a clear refusal
+    assert band_rows((h, w), n_map_planes=0, lanes=16, budget=2 ** 30) == 0
+
+
+def test_frame_whose_output_alone_exceeds_the_limit_is_refused(work, monkeypatch):
+    import clphong
+    from clphong.errors import GBufferError
+
+    src, _ = work
+    gb = clphong.read_gbuffer(src / "gbuf.exr")
+    r = clphong.Renderer(clphong.load_scene(src / "scene.toml"))
+    monkeypatch.setenv("CLPHONG_MAX_MEMORY", "100")       # less than the 6x8x3 float32 output
+    with pytest.raises(GBufferError) as exc:
+        r.render(gb)
+    msg = str(exc.value)
+    assert f"a {W}x{H} frame cannot be shaded here" in msg and "CLPHONG_MAX_MEMORY=100" in msg
+    assert "\n" not in msg
+
+
+# =========================================================================== as subprocesses
+
+
+def _cli():
+    exe = shutil.which("clphong")
+    return [exe] if exe else [sys.executable, "-m", "clphong"]
+
+
+def _subprocess_fails(argv, root, *needles, env=None, code=1):
+    before = _files(root)
+    r = subprocess.run(_cli() + [str(a) for a in argv], capture_output=True, text=True, timeout=300,
+                       env=env)
+    assert r.returncode == code, r.stderr
+    errors = [ln for ln in r.stderr.splitlines() if not ln.startswith("clphong: warning: ")]
+    assert len(errors) == 1 and errors[0].startswith("clphong: error: "), r.stderr
+    for n in needles:
+        assert n in errors[0]
+    assert _files(root) == before
+
+
+def test_subprocess_truncated_exr_and_bad_scene(work):
+    src, out = work
+    data = (src / "gbuf.exr").read_bytes()
+    (src / "cut.exr").write_bytes(data[: len(data) * 2 // 3])
+    _subprocess_fails(render_argv(src, out, gbuffer=src / "cut.exr"), src.parent, "cut.exr")
+    _scene(src, SCENE.replace("h = 32.0", "h = inf"))
+    _subprocess_fails(render_argv(src, out, scene=src / "bad.toml"), src.parent,
+                      "material.h: must be finite")
+
+
+def test_subprocess_pyopencl_ctx_without_a_device(work):
+    """The real environment variable, no monkeypatching: PyOpenCL finds no such platform."""
+    src, out = work
+    env = dict(os.environ, PYOPENCL_CTX="42")
+    _subprocess_fails(render_argv(src, out), src.parent, "PYOPENCL_CTX='42'",
+                      'pip install "pyopencl[pocl]"', env=env)
+
+
+def test_subprocess_huge_frame_under_an_address_space_limit(work):
+    """With RLIMIT_AS at 3 GiB and no CLPHONG_MAX_MEMORY, the 16K x 16K read is refused
+    from the rlimit, instead of dying in an allocation."""
+    import resource
+
+    src, out = work
+    path = _huge_display_window(src, 16384)
+    env = {k: v for k, v in os.environ.items() if k != "CLPHONG_MAX_MEMORY"}
+    before = _files(src.parent)
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+
+    r = subprocess.run(_cli() + [str(a) for a in render_argv(src, out, gbuffer=path)],
+                       capture_output=True, text=True, timeout=300, env=env, preexec_fn=limit)
+    assert r.returncode == 1, r.stderr
+    assert r.stderr.count("\n") == 1 and "huge.exr" in r.stderr
+    assert "address-space rlimit" in r.stderr
+    assert _files(src.parent) == before
