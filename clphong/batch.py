@@ -1,0 +1,674 @@
+"""Batch relighting: frame sequences × light rigs → one output per frame per rig.
+
+Sequences
+---------
+An input is a frame pattern or a folder:
+
+* ``shot/gbuf.####.exr``: each ``#`` is one digit of zero padding
+  (``####`` → ``0001``; longer numbers are written in full);
+* ``shot/gbuf.%04d.exr`` (printf style; ``%d`` for no padding);
+* ``shot/`` (a folder): every ``*.exr`` in it, ordered by the number at the
+  end of the file stem (by name when a file has none);
+* a single file: a one-frame sequence.
+
+Without ``frames=`` the frames are those found on disk. With it (a range
+string such as ``1-240x2``, see :func:`parse_frame_range`) exactly those
+frames are relit, and a frame whose file is missing is reported as failed.
+
+Outputs
+-------
+The output template is a path with the fields ``{frame}`` (an int: use
+``{frame:04d}``), ``{rig}``, ``{stem}`` (input file name without extension)
+and ``{name}`` (``{stem}`` without its frame number), and may use ``####`` or
+``%04d`` for the frame. Folders are created as needed. Each output is written
+to a temporary name in its folder and renamed into place, so an output path
+either holds a complete image or does not exist; an interrupted run leaves
+no partial file, and a rerun with ``skip_existing`` finishes the rest
+(temporary files left by a killed run are removed first).
+
+Execution
+---------
+``jobs=1`` relights in this process, reading the next frame in a thread while
+the current one shades (OpenImageIO and the OpenCL queue release the GIL).
+``jobs=N`` runs N worker processes. ``scheduler=ADDRESS`` sends each frame as
+a task to a Dask distributed cluster (:mod:`clphong.distributed`). Every
+worker builds its :class:`~clphong.api.Relighter` per rig once and reuses it.
+One bad frame never stops a batch: its failure is recorded with the reason,
+the others complete, and :attr:`BatchResult.failed` lists them.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import queue
+import re
+import signal
+import string
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+
+from .errors import ClphongError
+
+__all__ = ["BatchError", "Rig", "Job", "Outcome", "BatchPlan", "BatchResult", "Interrupted",
+           "parse_frame_range", "expand_sequence", "format_output", "plan_batch", "run_batch",
+           "relight_job", "stale_temporaries"]
+
+
+class BatchError(ClphongError):
+    """A batch cannot start: a bad sequence pattern, frame range, rig or output template."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM arrived during a batch; ``signum`` says which."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+# --------------------------------------------------------------------------- frames and names
+
+
+_RANGE_ITEM = re.compile(r"^\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*(?:[x:]\s*(\d+)\s*)?)?$")
+
+
+def parse_frame_range(text: str) -> list[int]:
+    """Frames of a range string, in order, without duplicates.
+
+    Parameters
+    ----------
+    text : str
+        Comma-separated items: ``N``, ``A-B`` (inclusive) or ``A-BxS``
+        (every S-th frame from A up to B), e.g. ``"1-240x2"`` or
+        ``"1-10,20,30-40x5"``.
+
+    Raises
+    ------
+    BatchError
+        Naming the bad item: not a range, ``B < A`` or a step < 1.
+
+    Examples
+    --------
+    >>> parse_frame_range("1-9x4,20")
+    [1, 5, 9, 20]
+    """
+    frames: list[int] = []
+    seen: set[int] = set()
+    if not str(text).strip():
+        raise BatchError("frame range is empty; write e.g. 1-240 or 1-240x2")
+    for item in str(text).split(","):
+        m = _RANGE_ITEM.match(item)
+        if not m:
+            raise BatchError(f"frame range {text!r}: {item.strip()!r} is not N, A-B or A-BxSTEP")
+        a = int(m.group(1))
+        b = int(m.group(2)) if m.group(2) is not None else a
+        step = int(m.group(3)) if m.group(3) is not None else 1
+        if step < 1:
+            raise BatchError(f"frame range {text!r}: step in {item.strip()!r} must be >= 1")
+        if b < a:
+            raise BatchError(f"frame range {text!r}: {item.strip()!r} ends before it starts")
+        for f in range(a, b + 1, step):
+            if f not in seen:
+                seen.add(f)
+                frames.append(f)
+    return frames
+
+
+_HASHES = re.compile(r"#+")
+_PRINTF = re.compile(r"%(0?)(\d*)d")
+
+
+def _frame_token(pattern: str) -> tuple[str, str, int] | None:
+    """(prefix, suffix, padding) of the one frame token of a file pattern, or None."""
+    base = os.path.basename(pattern)
+    hashes = list(_HASHES.finditer(base))
+    printf = list(_PRINTF.finditer(base))
+    if len(hashes) + len(printf) > 1:
+        raise BatchError(f"{pattern}: more than one frame token (#### or %04d); use exactly one")
+    if not hashes and not printf:
+        return None
+    m = (hashes or printf)[0]
+    pad = len(m.group(0)) if hashes else (int(m.group(2)) if m.group(2) else 1)
+    folder = pattern[: len(pattern) - len(base)]
+    return folder + base[: m.start()], base[m.end():], pad
+
+
+def _pad(frame: int, pad: int) -> str:
+    return f"{frame:0{pad}d}" if frame >= 0 else f"-{-frame:0{pad}d}"
+
+
+_TRAILING_NUMBER = re.compile(r"^(.*?)(\d+)$")
+
+
+def _split_stem(stem: str) -> tuple[str, int | None]:
+    """('shot', 12) for 'shot.0012' / 'shot_0012'; (stem, None) without a number."""
+    m = _TRAILING_NUMBER.match(stem)
+    if not m:
+        return stem, None
+    return m.group(1).rstrip("._-") or m.group(1), int(m.group(2))
+
+
+def expand_sequence(pattern: str, frames: Sequence[int] | None = None) -> list[tuple[int, str]]:
+    """The (frame, path) pairs of a sequence (see the module docstring).
+
+    Raises
+    ------
+    BatchError
+        No frames found, or a pattern without a frame token given ``frames``.
+    """
+    pattern = os.fspath(pattern)
+    if os.path.isdir(pattern):
+        files = [f for f in sorted(os.listdir(pattern))
+                 if f.lower().endswith(".exr") and not f.startswith(".")
+                 and os.path.isfile(os.path.join(pattern, f))]
+        numbered = [(_split_stem(os.path.splitext(f)[0])[1], f) for f in files]
+        if files and all(n is not None for n, _ in numbered) and len({n for n, _ in numbered}) == len(files):
+            pairs = sorted((n, os.path.join(pattern, f)) for n, f in numbered)
+        else:   # not all numbered (or repeated numbers): number them 1.. by name
+            pairs = [(i + 1, os.path.join(pattern, f)) for i, f in enumerate(files)]
+        if frames is not None:
+            wanted = set(frames)
+            pairs = [p for p in pairs if p[0] in wanted]
+        if not pairs:
+            what = f" in frames {_short_frames(frames)}" if frames is not None else ""
+            raise BatchError(f"{pattern}: no .exr files{what}")
+        return pairs
+    token = _frame_token(pattern)
+    if token is None:
+        if frames is not None and list(frames) != [_split_stem(os.path.splitext(os.path.basename(pattern))[0])[1]]:
+            raise BatchError(f"{pattern}: a frame range needs a sequence pattern (P.####.exr, P.%04d.exr) "
+                             "or a folder")
+        n = _split_stem(os.path.splitext(os.path.basename(pattern))[0])[1]
+        return [(n if n is not None else 1, pattern)]
+    prefix, suffix, pad = token
+    if frames is not None:
+        return [(f, f"{prefix}{_pad(f, pad)}{suffix}") for f in frames]
+    regex = re.compile(re.escape(os.path.basename(prefix)) + r"(-?\d+)" + re.escape(suffix) + r"$")
+    folder = os.path.dirname(prefix) or "."
+    found = []
+    try:
+        names = os.listdir(folder)
+    except OSError as exc:
+        raise BatchError(f"{pattern}: cannot list folder {folder}: {exc.strerror or exc}") from None
+    for fname in names:
+        m = regex.match(fname)
+        if m and _pad(int(m.group(1)), pad) == m.group(1):
+            found.append((int(m.group(1)), os.path.join(os.path.dirname(prefix), fname)))
+    if not found:
+        raise BatchError(f"{pattern}: no files match the pattern")
+    return sorted(found)
+
+
+def _short_frames(frames) -> str:
+    frames = list(frames or [])
+    return ", ".join(map(str, frames[:5])) + (", ..." if len(frames) > 5 else "")
+
+
+_FIELDS = ("frame", "rig", "stem", "name")
+
+
+def _check_template(template: str) -> None:
+    try:
+        parsed = list(string.Formatter().parse(template))
+    except ValueError as exc:
+        raise BatchError(f"output template {template!r}: {exc}") from None
+    for _, fld, _, _ in parsed:
+        if fld is not None and fld not in _FIELDS:
+            raise BatchError(f"output template {template!r}: unknown field {{{fld}}}; "
+                             f"use {', '.join('{' + f + '}' for f in _FIELDS)}")
+
+
+def format_output(template: str, *, frame: int, rig: str, source: str) -> str:
+    """The output path of one frame and rig.
+
+    Examples
+    --------
+    >>> format_output("out/{rig}/{name}.####.exr", frame=7, rig="key", source="in/shot.0007.exr")
+    'out/key/shot.0007.exr'
+    """
+    stem = os.path.splitext(os.path.basename(source))[0]
+    name = _split_stem(stem)[0]
+    text = _HASHES.sub(lambda m: _pad(frame, len(m.group(0))), template)
+    text = _PRINTF.sub(lambda m: _pad(frame, int(m.group(2)) if m.group(2) else 1), text)
+    try:
+        return text.format(frame=frame, rig=rig, stem=stem, name=name)
+    except (ValueError, KeyError, IndexError) as exc:
+        raise BatchError(f"output template {template!r}: {exc}") from None
+
+
+# --------------------------------------------------------------------------- plan
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A named light rig: a scene (camera, material, lights)."""
+
+    name: str
+    scene: object
+
+
+@dataclass(frozen=True)
+class Job:
+    """One input frame and the outputs (rig name, path) still to write for it."""
+
+    frame: int
+    source: str
+    outputs: tuple[tuple[str, str], ...]
+
+
+@dataclass
+class Outcome:
+    """What happened to one output."""
+
+    frame: int
+    source: str
+    rig: str
+    path: str
+    ok: bool
+    error: str | None = None
+    seconds: float = 0.0
+
+
+@dataclass
+class BatchPlan:
+    jobs: list[Job]
+    skipped: list[tuple[int, str, str]] = field(default_factory=list)   # (frame, rig, path)
+
+    @property
+    def outputs(self) -> int:
+        return sum(len(j.outputs) for j in self.jobs)
+
+
+def plan_batch(sequence: str, rigs: Sequence[Rig], template: str, *, frames: Sequence[int] | None = None,
+               skip_existing: bool = False) -> BatchPlan:
+    """Expand the sequence, name every output, and drop those that exist (with ``skip_existing``).
+
+    Raises
+    ------
+    BatchError
+        Two outputs with the same path (a template without ``{rig}`` for
+        several rigs, or without a frame for several frames), or an output
+        that would overwrite an input.
+    """
+    if not rigs:
+        raise BatchError("no light rig given; pass at least one scene file with --rig")
+    names = [r.name for r in rigs]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise BatchError(f"rig name {sorted(dup)[0]!r} is used twice; name rigs with --rig NAME=SCENE.toml")
+    _check_template(template)
+    pairs = expand_sequence(sequence, frames)
+    owner: dict[str, tuple[int, str]] = {}
+    inputs = {os.path.abspath(p): f for f, p in pairs}
+    jobs: list[Job] = []
+    skipped = []
+    for frame, src in pairs:
+        outs = []
+        for rig in rigs:
+            path = format_output(template, frame=frame, rig=rig.name, source=src)
+            key = os.path.abspath(path)
+            if key in owner:
+                f0, r0 = owner[key]
+                raise BatchError(f"output template {template!r} gives {path} for both frame {f0} rig "
+                                 f"{r0!r} and frame {frame} rig {rig.name!r}; add {{rig}} or #### to it")
+            owner[key] = (frame, rig.name)
+            if key in inputs:
+                raise BatchError(f"{path}: output would overwrite the input of frame {inputs[key]}; "
+                                 "choose another output template")
+            if skip_existing and os.path.isfile(path):
+                skipped.append((frame, rig.name, path))
+            else:
+                outs.append((rig.name, path))
+        if outs:
+            jobs.append(Job(frame, src, tuple(outs)))
+    return BatchPlan(jobs, skipped)
+
+
+def stale_temporaries(path: str) -> list[str]:
+    """Temporary files that :func:`clphong.output.atomic_path` left for ``path`` (a killed run)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    stem, ext = os.path.splitext(os.path.basename(path))
+    rx = re.compile(r"^\." + re.escape(stem) + r"\.tmp-[0-9a-f]{8}" + re.escape(ext) + r"$")
+    pattern = os.path.join(glob.escape(folder), "." + glob.escape(stem) + ".tmp-*" + glob.escape(ext))
+    return [p for p in glob.glob(pattern, include_hidden=True) if rx.match(os.path.basename(p))]
+
+
+# --------------------------------------------------------------------------- one job
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, ClphongError):
+        text = str(exc)
+    else:   # an unexpected failure still gets one line, with its type
+        text = f"{type(exc).__name__}: {exc}"
+    return " ".join(text.split())
+
+
+def load_job(job: Job, channels) -> object:
+    """Read a job's G-buffer; return it, or the exception that reading raised."""
+    from .gbuffer import read_gbuffer
+
+    try:
+        return read_gbuffer(job.source, channels=channels)
+    except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the batch
+        return exc
+
+
+def shade_job(job: Job, gbuffer, relighters: dict) -> list[Outcome]:
+    """Shade and write every output of a job; a failure is recorded, not raised."""
+    from .api import write_output
+
+    outcomes = []
+    for rig, path in job.outputs:
+        t0 = time.perf_counter()
+        if isinstance(gbuffer, BaseException):
+            outcomes.append(Outcome(job.frame, job.source, rig, path, False, _reason(gbuffer)))
+            continue
+        try:
+            r = relighters[rig]
+            rgb = r.renderer_for(gbuffer, source=job.source).render(gbuffer)
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+            write_output(rgb, path, r.output)
+            outcomes.append(Outcome(job.frame, job.source, rig, path, True,
+                                    seconds=time.perf_counter() - t0))
+        except Exception as exc:  # noqa: BLE001
+            outcomes.append(Outcome(job.frame, job.source, rig, path, False, _reason(exc),
+                                    time.perf_counter() - t0))
+    return outcomes
+
+
+def relight_job(job: Job, specs: dict) -> list[Outcome]:
+    """Read, shade and write one job with this process's cached relighters (worker entry point)."""
+    from .api import cached_relighter
+
+    relighters = {}
+    for rig, spec in specs.items():
+        try:
+            relighters[rig] = cached_relighter(spec)
+        except Exception as exc:  # noqa: BLE001 - e.g. no OpenCL device on this worker
+            return [Outcome(job.frame, job.source, r, p, False, _reason(exc)) for r, p in job.outputs]
+    channels = next(iter(specs.values())).channels if specs else ()
+    return shade_job(job, load_job(job, dict(channels) or None), relighters)
+
+
+# --------------------------------------------------------------------------- running
+
+
+@dataclass
+class BatchResult:
+    outcomes: list[Outcome]
+    skipped: int
+    seconds: float
+    stale_removed: int = 0
+    interrupted: int | None = None          # the signal number, if interrupted
+
+    @property
+    def written(self) -> list[Outcome]:
+        return [o for o in self.outcomes if o.ok]
+
+    @property
+    def failed(self) -> list[Outcome]:
+        return [o for o in self.outcomes if not o.ok]
+
+    def summary(self) -> list[str]:
+        """Lines for stderr: totals, then one line per failed frame with the reasons."""
+        n_ok, n_bad = len(self.written), len(self.failed)
+        rate = n_ok / self.seconds if self.seconds > 0 else 0.0
+        head = (f"{n_ok} written, {self.skipped} skipped (exist), {n_bad} failed "
+                f"in {self.seconds:.1f} s ({rate:.2f} frames/s)")
+        if self.stale_removed:
+            head += f"; removed {self.stale_removed} temporary file(s) of an interrupted run"
+        lines = [head]
+        if self.interrupted:
+            name = signal.Signals(self.interrupted).name
+            lines.append(f"interrupted by {name}: no partial files were left; rerun with "
+                         "--skip-existing to finish")
+        by_frame: dict[tuple[int, str], list[Outcome]] = {}
+        for o in self.failed:
+            by_frame.setdefault((o.frame, o.source), []).append(o)
+        if by_frame:
+            lines.append(f"failed: {n_bad} output(s) of {len(by_frame)} frame(s):")
+        for (frame, src), outs in sorted(by_frame.items()):
+            reasons = {o.error for o in outs}
+            rigs = ", ".join(o.rig for o in outs)
+            if len(reasons) == 1:
+                lines.append(f"  frame {frame} ({src}) [{rigs}]: {reasons.pop()}")
+            else:
+                for o in outs:
+                    lines.append(f"  frame {frame} ({src}) [{o.rig}]: {o.error}")
+        return lines
+
+
+class _Signals:
+    """Turn SIGTERM (and SIGINT) into :class:`Interrupted` in the main thread while active."""
+
+    def __init__(self):
+        self.old = {}
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self.old[sig] = signal.signal(sig, self._raise)
+        return self
+
+    @staticmethod
+    def _raise(signum, frame):
+        raise Interrupted(signum)
+
+    def __exit__(self, *exc):
+        for sig, handler in self.old.items():
+            signal.signal(sig, handler)
+        return False
+
+
+def _run_inline(jobs: Sequence[Job], specs: dict, on_outcomes: Callable) -> None:
+    """One process: a reader thread prefetches the next G-buffer while this thread shades and writes.
+
+    Writes happen in this (the main) thread, so an interrupt raised here
+    unwinds through :func:`clphong.output.atomic_path`, which removes the
+    temporary file.
+    """
+    from .api import cached_relighter
+
+    relighters = {rig: cached_relighter(spec) for rig, spec in specs.items()}
+    channels = dict(next(iter(specs.values())).channels) or None
+    ahead: queue.Queue = queue.Queue(maxsize=2)
+    stop = threading.Event()
+
+    def reader():
+        for job in jobs:
+            if stop.is_set():
+                return
+            item = (job, load_job(job, channels))
+            while not stop.is_set():
+                try:
+                    ahead.put(item, timeout=0.1)
+                    break
+                except queue.Full:
+                    continue
+
+    t = threading.Thread(target=reader, name="clphong-reader", daemon=True)
+    t.start()
+    try:
+        for _ in jobs:
+            while True:
+                try:
+                    job, gbuffer = ahead.get(timeout=0.1)
+                    break
+                except queue.Empty:
+                    if not t.is_alive() and ahead.empty():
+                        raise RuntimeError("the frame reader thread stopped unexpectedly")
+            on_outcomes(shade_job(job, gbuffer, relighters))
+    finally:
+        stop.set()
+        t.join(timeout=5)
+
+
+def _worker_main(tasks, results, specs, threads: int | None) -> None:  # pragma: no cover - subprocess
+    """A pool worker: relight jobs from ``tasks`` until a None arrives."""
+    if threads and "POCL_CPU_MAX_CU_NUM" not in os.environ:
+        # N workers share the machine: give each PoCL device its share of the cores.
+        os.environ["POCL_CPU_MAX_CU_NUM"] = str(threads)
+    signal.signal(signal.SIGTERM, _Signals._raise)
+    parent = os.getppid()
+    try:
+        while True:
+            if os.getppid() != parent:        # the batch process was killed: stop, do not run on orphaned
+                return
+            item = tasks.get()
+            if item is None:
+                return
+            index, job = item
+            results.put(("start", os.getpid(), index))
+            results.put(("done", os.getpid(), index, relight_job(job, specs)))
+    except KeyboardInterrupt:
+        return
+    finally:
+        # Nothing is being written any more: a late SIGTERM may simply end the process.
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _run_pool(jobs: Sequence[Job], specs: dict, n: int, on_outcomes: Callable) -> None:
+    """N worker processes (spawned: OpenCL and threads do not survive fork)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    tasks, results = ctx.Queue(), ctx.Queue()
+    for i, job in enumerate(jobs):
+        tasks.put((i, job))
+    n = max(1, min(n, len(jobs)))
+    threads = max(1, (os.cpu_count() or 1) // n)
+    procs = {}
+
+    def spawn():
+        p = ctx.Process(target=_worker_main, args=(tasks, results, specs, threads), daemon=True)
+        p.start()
+        procs[p.pid] = p
+
+    for _ in range(n):
+        tasks.put(None)
+        spawn()
+    running: dict[int, int] = {}                  # pid -> job index
+    done = 0
+    finished = False
+    try:
+        while done < len(jobs):
+            try:
+                msg = results.get(timeout=0.2)
+            except queue.Empty:
+                for pid, p in list(procs.items()):
+                    if not p.is_alive() and p.exitcode != 0:
+                        # A worker died (crash, OOM kill): fail its frame, start another.
+                        del procs[pid]
+                        idx = running.pop(pid, None)
+                        if idx is not None:
+                            job = jobs[idx]
+                            reason = f"worker process died (exit code {p.exitcode})"
+                            on_outcomes([Outcome(job.frame, job.source, r, path, False, reason)
+                                         for r, path in job.outputs])
+                            done += 1
+                        tasks.put(None)
+                        spawn()
+                continue
+            if msg[0] == "start":
+                running[msg[1]] = msg[2]
+            else:
+                running.pop(msg[1], None)
+                done += 1
+                on_outcomes(msg[3])
+        finished = True
+    finally:
+        if finished:                              # every worker got its None: let them exit
+            for p in procs.values():
+                p.join(10)
+        for p in procs.values():
+            if p.is_alive():
+                p.terminate()                     # SIGTERM: the worker unwinds and removes its temporary file
+        deadline = time.monotonic() + 10
+        for p in procs.values():
+            p.join(max(0.0, deadline - time.monotonic()))
+            if p.is_alive():
+                p.kill()
+                p.join()
+        tasks.close()
+        results.close()
+        tasks.cancel_join_thread()
+        results.cancel_join_thread()
+
+
+def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | None = None,
+              progress: bool = False, on_outcome: Callable[[Outcome], None] | None = None) -> BatchResult:
+    """Run a plan; never raises for a bad frame.
+
+    Parameters
+    ----------
+    plan : BatchPlan
+    specs : dict of str to clphong.api.RelighterSpec
+        One per rig name.
+    jobs : int
+        Local worker processes (1: in this process, with read-ahead).
+    scheduler : str, optional
+        Address of a Dask distributed scheduler (``tcp://host:8786``), or a
+        ``distributed.Client``; frames then run as tasks on its workers.
+    progress : bool
+        Show a tqdm progress bar (frames/s and ETA) on stderr.
+
+    Returns
+    -------
+    BatchResult
+        With ``interrupted`` set when SIGINT/SIGTERM stopped it.
+    """
+    t0 = time.perf_counter()
+    stale = 0
+    for job in plan.jobs:
+        for _, path in job.outputs:
+            for tmp in stale_temporaries(path):
+                try:
+                    os.remove(tmp)
+                    stale += 1
+                except OSError:
+                    pass
+    outcomes: list[Outcome] = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=plan.outputs, unit="frame", file=sys.stderr, dynamic_ncols=True,
+                   smoothing=0.1, disable=None)
+
+    def collect(outs: Iterable[Outcome]):
+        for o in outs:
+            outcomes.append(o)
+            if on_outcome is not None:
+                on_outcome(o)
+            if bar is not None:
+                bar.update(1)
+                if not o.ok:
+                    bar.set_postfix_str(f"{len([x for x in outcomes if not x.ok])} failed", refresh=False)
+
+    interrupted = None
+    try:
+        with _Signals():
+            if not plan.jobs:
+                pass
+            elif scheduler is not None:
+                from .distributed import run_on_dask
+
+                run_on_dask(plan.jobs, specs, scheduler, collect)
+            elif jobs <= 1:
+                _run_inline(plan.jobs, specs, collect)
+            else:
+                _run_pool(plan.jobs, specs, jobs, collect)
+    except Interrupted as exc:
+        interrupted = exc.signum
+    except KeyboardInterrupt:
+        interrupted = signal.SIGINT
+    finally:
+        if bar is not None:
+            bar.close()
+    return BatchResult(outcomes, skipped=len(plan.skipped), seconds=time.perf_counter() - t0,
+                       stale_removed=stale, interrupted=interrupted)

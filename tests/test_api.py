@@ -1,0 +1,217 @@
+"""The Relighter API: inputs, outputs, threads, compile-once, camera from worldToCamera."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+import clphong
+from clphong.api import Relighter, write_output
+from clphong.camera_meta import Z_UP_TO_Y_UP, eye_from_matrix
+from clphong.errors import GBufferError, OutputError
+from clphong.gbuffer import write_gbuffer
+
+from conftest import GBUFFERS, make_scene, random_gbuffer, random_lights
+
+SPHERES = (GBUFFERS / "spheres.toml", GBUFFERS / "spheres.exr")
+
+
+def _read(path):
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    assert inp, oiio.geterror()
+    px = inp.read_image(oiio.FLOAT)
+    inp.close()
+    return np.asarray(px)
+
+
+def test_path_in_array_out_equals_render():
+    r = Relighter(SPHERES[0])
+    rgb = r.relight(str(SPHERES[1]))
+    ref = clphong.render(clphong.load_scene(SPHERES[0]), clphong.read_gbuffer(SPHERES[1]))
+    assert rgb.dtype == np.float32 and rgb.shape == ref.shape
+    assert np.array_equal(rgb, ref)
+
+
+def test_numpy_float32_and_float16_inputs():
+    rng = np.random.default_rng(3)
+    scene = make_scene(random_lights(rng))
+    gb = random_gbuffer(rng, 24, 32, background_fraction=0.0)
+    r = Relighter(scene)
+    ref = clphong.Renderer(scene).render(gb)
+    assert np.array_equal(r.relight((gb.position, gb.normal, gb.albedo)), ref)
+    assert np.array_equal(r.relight({"position": gb.position, "normal": gb.normal, "albedo": gb.albedo}), ref)
+    # float16 input is widened exactly to float32: the result is that of the rounded G-buffer.
+    P16, N16, C16 = (a.astype(np.float16) for a in (gb.position, gb.normal, gb.albedo))
+    half = r.relight((P16, N16, C16))
+    rounded = clphong.GBuffer(position=P16.astype(np.float32), normal=N16.astype(np.float32),
+                              albedo=C16.astype(np.float32))
+    assert np.array_equal(half, clphong.Renderer(scene).render(rounded))
+
+
+@pytest.mark.parametrize("frame, fragment", [
+    ((np.zeros((4, 5, 3), np.int32),) * 3, "position: expected a float32 or float16 array, got dtype int32"),
+    ((np.zeros((4, 5), np.float32),) * 3, "position: expected an (H, W, 3) array"),
+    ({"position": np.zeros((4, 5, 3), np.float32)}, "lacks normal, albedo"),
+    (42, "cannot relight a int"),
+])
+def test_bad_array_input_is_one_clear_error(frame, fragment):
+    r = Relighter(make_scene())
+    with pytest.raises(GBufferError) as info:
+        r.relight(frame)
+    assert fragment in str(info.value) and "\n" not in str(info.value)
+
+
+def test_writes_file_atomically(tmp_path):
+    r = Relighter(SPHERES[0])
+    out = tmp_path / "lit.exr"
+    rgb = r.relight(str(SPHERES[1]), out=out)
+    assert np.array_equal(_read(out), rgb)
+    assert [p.name for p in tmp_path.iterdir()] == ["lit.exr"]
+    with pytest.raises(OutputError, match="overwrite the input"):
+        r.relight(str(out), out=out)
+    with pytest.raises(OutputError, match="unknown output kind 'png'"):
+        write_output(rgb, tmp_path / "x.png", clphong.OutputOptions(kind="png"))
+
+
+def test_compiles_once_for_many_frames():
+    rng = np.random.default_rng(9)
+    scene = make_scene(random_lights(rng, n_point=2))
+    r = Relighter(scene)
+    builds = r.renderer.runtime.builds
+    for _ in range(4):
+        r.relight(random_gbuffer(rng, 16, 16))
+    assert r.renderer.runtime.builds == builds
+
+
+def test_two_threads_equal_single_threaded():
+    rng = np.random.default_rng(12)
+    scene = make_scene(random_lights(rng, n_point=4, n_dir=1))
+    frames = [random_gbuffer(rng, 24, 32) for _ in range(12)]
+    r = Relighter(scene)
+    single = [r.relight(g) for g in frames]
+    results = [None] * len(frames)
+    errors = []
+    start = threading.Barrier(2)
+
+    def work(k):
+        try:
+            start.wait()
+            for i in range(k, len(frames), 2):
+                results[i] = r.relight(frames[i])
+        except BaseException as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work, args=(k,)) for k in (0, 1)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors
+    for a, b in zip(single, results):
+        assert np.array_equal(a, b)
+
+
+# ---------------------------------------------------------------- camera from metadata
+
+
+def look_at_world_to_camera(eye, target, up=(0.0, 1.0, 0.0)):
+    """OpenEXR/RenderMan world-to-camera (row vectors, left-handed, +z forward) of a look-at camera."""
+    eye = np.asarray(eye, np.float64)
+    f = np.asarray(target, np.float64) - eye
+    f /= np.linalg.norm(f)
+    r = np.cross(np.asarray(up, np.float64), f)
+    r /= np.linalg.norm(r)
+    u = np.cross(f, r)
+    R = np.stack([r, u, f], axis=1)          # columns: camera axes in world space
+    M = np.eye(4)
+    M[:3, :3] = R                            # p_cam = (p − eye) · R
+    M[3, :3] = -eye @ R
+    return M
+
+
+EYE = (1.5, 2.5, 5.0)
+
+
+def _metadata_frame(tmp_path, name, matrix, gb):
+    path = tmp_path / name
+    write_gbuffer(path, gb.position, gb.normal, gb.albedo, coverage=gb.coverage,
+                  attributes={"worldToCamera": matrix})
+    return path
+
+
+def test_eye_from_matrix_closed_form():
+    M = look_at_world_to_camera(EYE, (0, 0.5, 0))
+    # float64 matrix: the eye is recovered to rounding.
+    assert np.allclose(eye_from_matrix(M), EYE, rtol=0, atol=1e-14)
+    # column-vector layout (the transpose) gives the same eye
+    assert np.allclose(eye_from_matrix(M.T), EYE, rtol=0, atol=1e-14)
+    with pytest.raises(GBufferError, match="not an affine transform"):
+        bad = M.copy()
+        bad[0, 3] = 0.5
+        bad[3, 0] = 0.5
+        eye_from_matrix(bad, source="f.exr")
+    with pytest.raises(GBufferError, match="singular"):
+        eye_from_matrix(np.diag([1.0, 0.0, 1.0, 1.0]))
+
+
+@pytest.mark.parametrize("up", ["y", "z"])
+def test_camera_from_world_to_camera_y_and_z_up(tmp_path, up):
+    rng = np.random.default_rng(21)
+    lights = random_lights(rng, n_point=3, n_dir=0, n_amb=0)
+    gb = random_gbuffer(rng, 24, 32)
+    M_y = look_at_world_to_camera(EYE, (0, 0.5, 0))
+    if up == "y":
+        M = M_y
+    else:
+        # The same camera written in a Z-up world: p_y = R p_z, so (row vectors) M_z = R4ᵀ·M_y.
+        R4 = np.eye(4)
+        R4[:3, :3] = Z_UP_TO_Y_UP
+        M = R4.T @ M_y
+        assert not np.allclose(eye_from_matrix(M, up="y"), EYE, atol=1e-3)   # read as Y-up it is wrong
+    path = _metadata_frame(tmp_path, f"meta_{up}.exr", M, gb)
+    scene = clphong.parse_scene({"camera": {"type": "metadata", "up": up},
+                                 "material": {"model": "phong", "k_a": 0.0, "k_d": 0.7, "k_s": 0.3, "h": 40.0},
+                                 "light": [dict(lt, position=list(lt["position"])) for lt in lights]})
+    rgb = Relighter(scene).relight(str(path))
+    # The header stores M in float32 (M44f). Its eye is −t·A⁻¹ with A a rotation (condition 1):
+    # |Δeye| ≤ |Δt| + |eye|·|ΔA| ≲ 4·2⁻²⁴·(|t| + |eye|) per component.
+    M32 = M.astype(np.float32).astype(np.float64)
+    eye = eye_from_matrix(M32, up=up)
+    assert np.allclose(eye, EYE, rtol=0, atol=4 * 2.0 ** -24 * 2 * np.linalg.norm(EYE))
+    # The image is that of an explicit perspective camera at that eye.
+    explicit = make_scene(lights, k_a=0.0, k_d=0.7, k_s=0.3, h=40.0,
+                          camera=dict(type="perspective", position=tuple(eye)))
+    assert np.array_equal(rgb, clphong.Renderer(explicit).render(clphong.read_gbuffer(path)))
+
+
+def test_scene_without_camera_uses_header_and_explains_when_missing(tmp_path):
+    rng = np.random.default_rng(5)
+    gb = random_gbuffer(rng, 8, 8)
+    material = {"model": "phong", "k_a": 0.0, "k_d": 0.5, "k_s": 0.5, "h": 8.0}
+    light = [{"type": "point", "position": [0.0, 3.0, 3.0], "intensity": 5.0}]
+    scene = clphong.parse_scene({"material": material, "light": light}, "shot.toml")
+    assert scene.camera.type == "metadata" and scene.camera.up == "y"
+    r = Relighter(scene)
+    with_cam = _metadata_frame(tmp_path, "a.exr", look_at_world_to_camera(EYE, (0, 0, 0)), gb)
+    assert np.isfinite(r.relight(str(with_cam))).all()
+    bare = tmp_path / "bare.exr"
+    write_gbuffer(bare, gb.position, gb.normal, gb.albedo)
+    with pytest.raises(GBufferError) as info:
+        r.relight(str(bare))
+    assert str(info.value).startswith(f"{bare}: no worldToCamera attribute, and shot.toml has no [camera]")
+    # numpy input passes the matrix explicitly (here as the header stores it, in float32)
+    M32 = look_at_world_to_camera(EYE, (0, 0, 0)).astype(np.float32)
+    arr = r.relight({"position": gb.position, "normal": gb.normal, "albedo": gb.albedo,
+                     "coverage": gb.coverage}, world_to_camera=M32)
+    assert np.array_equal(arr, r.relight(str(with_cam)))
+
+
+def test_scene_camera_up_is_validated():
+    with pytest.raises(clphong.SceneError) as info:
+        clphong.parse_scene({"camera": {"type": "metadata", "up": "x"},
+                             "material": {"model": "phong", "k_a": 0, "k_d": 1, "k_s": 0, "h": 1}}, "s.toml")
+    assert str(info.value) == "s.toml: camera.up: invalid value 'x'; expected one of 'y', 'z'"

@@ -1,0 +1,73 @@
+"""Frames as Dask tasks on a LocalCluster of 2 workers; local batches never import Dask."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from clphong.cli import main
+
+from test_batch import _check_outputs, _no_temporaries, shot  # noqa: F401 - fixture
+
+distributed = pytest.importorskip("distributed")
+
+
+def _worker_state():
+    """On a worker: (relighters cached, programs built, rigs) of this process."""
+    from clphong.api import _CACHE
+    from clphong.runtime import _RUNTIMES
+
+    relighters = [v for k, v in _CACHE.items() if k != "__lock__"]
+    builds = sum(rt.builds for rt in _RUNTIMES.values())
+    return len(relighters), builds
+
+
+def test_dask_local_cluster_two_workers(shot, tmp_path, capsys):  # noqa: F811
+    root, expected = shot
+    out = tmp_path / "out"
+    # Worker processes (not threads), so each one really builds its own relighter;
+    # one thread each, as on a farm where PoCL uses the node's cores.
+    # The client here only inspects the workers; it is not the default client, so the
+    # CLI must work with its own (as it does on a farm).
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None, silence_logs=40) as cluster, \
+            distributed.Client(cluster, set_as_default=False) as client:
+        args = ["relight", str(root / "seq" / "shot.####.exr"), "--rig", str(root / "key.toml"),
+                "--rig", str(root / "fill.toml"), "-o", str(out / "{rig}" / "{name}.####.exr"),
+                "--scheduler", cluster.scheduler_address]
+        assert main(args) == 0
+        state = client.run(_worker_state)
+        # A second batch on the same cluster reuses the relighters: nothing new is built.
+        assert main(args[:-2] + ["--scheduler", cluster.scheduler_address, "--frames", "1-24x6",
+                                 "-o", str(tmp_path / "again" / "{rig}.####.exr")]) == 0
+        state2 = client.run(_worker_state)
+    assert "48 written, 0 skipped (exist), 0 failed" in capsys.readouterr().err
+    _check_outputs(out, expected)
+    _no_temporaries(out)
+    assert len(state) == 2
+    for addr, (relighters, builds) in state.items():
+        # Each worker that ran tasks holds one relighter per rig, compiled once: both
+        # rigs share one kernel variant, so at most 2 builds (plan variants), for 24 frames.
+        assert relighters in (0, 2) and builds <= 2, state
+        if relighters:                    # it ran tasks: the second batch reused what it built
+            assert state2[addr] == state[addr], (state, state2)
+        else:                             # it got no task (load balancing): it may build now, once
+            assert state2[addr][0] in (0, 2) and state2[addr][1] <= 2, state2
+    assert sum(r for r, _ in state.values()) >= 2
+
+
+def test_local_batch_does_not_import_dask(shot, tmp_path):  # noqa: F811
+    root, _ = shot
+    code = (
+        "import sys\n"
+        "from clphong.cli import main\n"
+        f"rc = main(['relight', {str(root / 'seq')!r}, '--rig', {str(root / 'key.toml')!r}, '-q', "
+        f"'--frames', '1-2', '-o', {str(tmp_path / '{stem}.out.exr')!r}])\n"
+        "assert rc == 0, rc\n"
+        "assert 'dask' not in sys.modules and 'distributed' not in sys.modules, 'dask was imported'\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert sorted(p.name for p in tmp_path.glob("*.out.exr")) == ["shot.0001.out.exr", "shot.0002.out.exr"]
