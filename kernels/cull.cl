@@ -1,0 +1,383 @@
+/* Error-bounded tiled light culling: per-tile point-light lists.
+ *
+ * Plain attenuation 1/(c0 + c1·d + c2·d²) never reaches zero, so a light has no
+ * radius. Instead each screen tile gets an upper bound b_j of light j's possible
+ * contribution to any of its pixels (any channel), and lights are dropped only
+ * while the sum of the dropped bounds stays within the user's budget ε (output
+ * radiance). Every pixel's culling error is then ≤ Σ dropped b_j ≤ ε.
+ *
+ * A tile is the set of work-items (LANES consecutive pixels each) whose FIRST
+ * pixel lies in a CULL_TILE × CULL_TILE block of the image; shade.cl looks a
+ * work-item's list up the same way, so a work-item that wraps onto the next row
+ * is bounded with the tile that shades it.
+ *
+ * Two levels (clphong/cull.py): super-tiles of CULL_SUPER × CULL_SUPER tiles are
+ * culled first against all lights with a share of the budget (ε/8); each tile
+ * then considers only its super-tile's list, with the rest. A pixel's dropped
+ * lights sum to ≤ ε in all.
+ *
+ * Kernels, run in this order by clphong/cull.py, once per level:
+ *   tile_bounds  one work-item per tile: world-space bounds of P (rebased), of
+ *                the unit normals, of |D| = |C_d·k_d| and |S| = |k_s·C_s| (negative
+ *                albedo may cancel a term: the budget bounds |dropped sum|), max |P|.
+ *   cull_count   LANES tiles per work-item: pass 1 over the lights. Sums the
+ *                bounds below the thresholds τ_m = ε·16^−m and picks the largest τ
+ *                whose sum fits the budget; writes τ, the budget left over, and
+ *                the number of lights at or above τ (the list's capacity).
+ *   cull_write   LANES tiles per work-item: pass 2. Drops b < τ, then greedily
+ *                drops further lights (in light order) while the budget lasts;
+ *                writes the kept indices in light order, so that with nothing
+ *                dropped the light sum is the brute-force sum, bit for bit.
+ *
+ * Bound of light j in a tile (docs/error-model.md, "Culling"):
+ *   b = (1 + 32u)·max_c L_c·(D_c·min(NoL⁺, 1) + S_c·[NoL⁺ > 0]) / p⁻
+ *   d⁻   = (1 − 16u)·distance from the light to the tile's box of P, a lower
+ *          bound of the kernel's float32 distance for every pixel;
+ *   p⁻   = p_scale·(p(d⁻), or the host's lower bound of p's minimum where d⁻ is
+ *          left of the vertex of a polynomial with c1 < 0), a lower bound of the
+ *          float32 1/attenuation the kernel computes (p_scale = 1 − 8u·κ_p);
+ *   NoL⁺ = upper bound of n·(L − P) over the boxes of n and P (interval
+ *          arithmetic), over d⁻, plus the float32 error of n·l; the specular
+ *          term is gated on n·l > 0, so it is bounded by 1 unless NoL⁺ ≤ 0.
+ * The diffuse weight is ≤ 1 + 5u and the specular power ≤ 1 + 3 ulp; the 32u
+ * covers these and the roundings of the bound itself.
+ */
+#include "clphong.h"
+
+#ifndef CULL_TILE
+#define CULL_TILE 16
+#endif
+/* Thresholds τ_m = ε·16^−m, m = 1 … CULL_LEVELS (down to ε·6·10⁻⁸). */
+#define CULL_LEVELS 6
+/* A super-tile is CULL_SUPER × CULL_SUPER tiles; its lists are the candidates
+ * of its tiles' lists (clphong/cull.py: two levels, ε/2 each). */
+#ifndef CULL_SUPER
+#define CULL_SUPER 8
+#endif
+#define U_F32 5.9604644775390625e-8f   /* 2^-24 */
+
+/* PoCL 3.0 calls its fmax, fmin, fabs, select and sqrt builtins out of line
+ * (an AVX-ABI call per use, measured with objdump on znver3), which dominated the
+ * light loops below; these inline forms compile to single vector instructions.
+ * Their NaN behaviour differs from the builtins', which the bound does not rely
+ * on: a NaN bound is turned into +inf (kept) in light_bound. */
+#define MAX_(a, b) ((a) > (b) ? (a) : (b))
+#define MIN_(a, b) ((a) < (b) ? (a) : (b))
+#define SEL_(a, b, c) ((c) ? (b) : (a))
+#if LANES == 16
+#define ABS_(x) as_float16(as_int16(x) & 0x7fffffff)
+#elif LANES == 8
+#define ABS_(x) as_float8(as_int8(x) & 0x7fffffff)
+#elif LANES == 4
+#define ABS_(x) as_float4(as_int4(x) & 0x7fffffff)
+#else
+#define ABS_(x) as_float(as_int(x) & 0x7fffffff)
+#endif
+
+/* Per-tile planes written by tile_bounds (n_tiles_pad floats each). */
+enum { T_LOX, T_LOY, T_LOZ, T_HIX, T_HIY, T_HIZ,
+       T_NLOX, T_NLOY, T_NLOZ, T_NHIX, T_NHIY, T_NHIZ,
+       T_DR, T_DG, T_DB, T_SR, T_SG, T_SB, T_R, T_PLANES };
+
+/* Cull-light records, 4 float4 each (clphong/cull.py pack_cull_lights):
+ *   (x, y, z, c0) (c1, c2, vertex, p_vertex_lo) (p_scale, r, g, b) (|L|, 0, 0, 0) */
+#define CULL_LIGHT_FLOAT4S 4
+
+__kernel void tile_bounds(__global const float *restrict gbuf,
+                          __global const float *restrict maps,
+                          const uint stride, const uint width, const uint n_pixels,
+                          const uint tile_size, const uint tiles_x, const uint n_tiles,
+                          const uint n_tiles_pad,
+                          const float4 origin, const float k_d, const float4 S_uniform,
+                          __global float *restrict tiles)
+{
+    const uint t = get_global_id(0);
+    if (t >= n_tiles_pad)
+        return;
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    float nlo[3] = {INFINITY, INFINITY, INFINITY}, nhi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    float D[3] = {0.0f, 0.0f, 0.0f}, S[3] = {0.0f, 0.0f, 0.0f}, R2 = 0.0f;
+    if (t < n_tiles) {
+        const uint x0 = (t % tiles_x) * tile_size;   /* ≥ width: a padding tile, empty */
+        const uint x1 = min(x0 + tile_size, width);
+        const uint y0 = (t / tiles_x) * tile_size;
+        for (uint y = y0; y < y0 + tile_size && x0 < x1; ++y) {
+            const ulong row = (ulong)y * width;
+            if (row + x0 >= n_pixels)
+                break;
+            /* work-items whose first pixel is in [row + x0, row + x1) */
+            const ulong first = (row + x0 + LANES - 1) / LANES;
+            const ulong last = (row + x1 + LANES - 1) / LANES;
+            for (ulong item = first; item < last; ++item) {
+                for (uint m = 0; m < LANES; ++m) {
+                    const ulong q = item * LANES + m;
+                    if (q >= stride)
+                        break;
+                    const float nx = gbuf[3 * stride + q], ny = gbuf[4 * stride + q],
+                                nz = gbuf[5 * stride + q];
+                    /* background (zero normal): not shaded, not bounded */
+                    if (nx == 0.0f && ny == 0.0f && nz == 0.0f)
+                        continue;
+                    const float p[3] = {gbuf[q] - origin.x, gbuf[stride + q] - origin.y,
+                                        gbuf[2 * stride + q] - origin.z};
+                    const float n[3] = {nx, ny, nz};
+                    for (int c = 0; c < 3; ++c) {
+                        lo[c] = MIN_(lo[c], p[c]);
+                        hi[c] = MAX_(hi[c], p[c]);
+                        nlo[c] = MIN_(nlo[c], n[c]);
+                        nhi[c] = MAX_(nhi[c], n[c]);
+                    }
+                    R2 = MAX_(R2, MUL_ADD(p[0], p[0], MUL_ADD(p[1], p[1], p[2] * p[2])));
+                    /* D and S exactly as shade.cl computes them */
+                    uint plane = 0;
+#if MAP_KD
+                    const float kd = maps[(plane++) * stride + q];
+#else
+                    const float kd = k_d;
+#endif
+                    for (int c = 0; c < 3; ++c)
+                        D[c] = MAX_(D[c], fabs(gbuf[(6 + c) * stride + q] * kd));
+#if HAS_SPECULAR
+#if MAP_KS
+                    const float ks = maps[(plane++) * stride + q];
+#else
+                    const float ks = 1.0f;
+#endif
+#if MAP_H
+                    plane++;
+#endif
+                    const float Su[3] = {S_uniform.x, S_uniform.y, S_uniform.z};
+                    for (int c = 0; c < 3; ++c) {
+#if MAP_CS
+                        const float s = ks * maps[(plane + c) * stride + q] * Su[c];
+#else
+                        const float s = ks * Su[c];
+#endif
+                        S[c] = MAX_(S[c], fabs(s));
+                    }
+#endif
+                }
+            }
+        }
+    }
+    const float v[T_PLANES] = {lo[0], lo[1], lo[2], hi[0], hi[1], hi[2],
+                               nlo[0], nlo[1], nlo[2], nhi[0], nhi[1], nhi[2],
+                               D[0], D[1], D[2], S[0], S[1], S[2],
+                               sqrt(R2) * (1.0f + 2.0f * U_F32)};   /* max |P|, rounded up */
+    for (int k = 0; k < T_PLANES; ++k)
+        tiles[k * n_tiles_pad + t] = v[k];
+}
+
+typedef struct {
+    floatL lox, loy, loz, hix, hiy, hiz;
+    floatL nlox, nloy, nloz, nhix, nhiy, nhiz;
+    floatL Dr, Dg, Db, Sr, Sg, Sb, R;
+    intL empty;
+} tile_t;
+
+inline tile_t load_tiles(__global const float *tiles, size_t i, uint n_tiles_pad)
+{
+    tile_t t;
+    t.lox = vloadL(i, tiles + T_LOX * n_tiles_pad);
+    t.loy = vloadL(i, tiles + T_LOY * n_tiles_pad);
+    t.loz = vloadL(i, tiles + T_LOZ * n_tiles_pad);
+    t.hix = vloadL(i, tiles + T_HIX * n_tiles_pad);
+    t.hiy = vloadL(i, tiles + T_HIY * n_tiles_pad);
+    t.hiz = vloadL(i, tiles + T_HIZ * n_tiles_pad);
+    t.nlox = vloadL(i, tiles + T_NLOX * n_tiles_pad);
+    t.nloy = vloadL(i, tiles + T_NLOY * n_tiles_pad);
+    t.nloz = vloadL(i, tiles + T_NLOZ * n_tiles_pad);
+    t.nhix = vloadL(i, tiles + T_NHIX * n_tiles_pad);
+    t.nhiy = vloadL(i, tiles + T_NHIY * n_tiles_pad);
+    t.nhiz = vloadL(i, tiles + T_NHIZ * n_tiles_pad);
+    t.Dr = vloadL(i, tiles + T_DR * n_tiles_pad);
+    t.Dg = vloadL(i, tiles + T_DG * n_tiles_pad);
+    t.Db = vloadL(i, tiles + T_DB * n_tiles_pad);
+    t.Sr = vloadL(i, tiles + T_SR * n_tiles_pad);
+    t.Sg = vloadL(i, tiles + T_SG * n_tiles_pad);
+    t.Sb = vloadL(i, tiles + T_SB * n_tiles_pad);
+    t.R = vloadL(i, tiles + T_R * n_tiles_pad);
+    /* an empty tile (no shaded pixel) keeps its +inf/−inf box */
+    t.empty = (intL)(t.lox > t.hix);
+    return t;
+}
+
+/* Upper bound of n_c·w_c for n_c ∈ [a, b], w_c ∈ [lo, hi]: the largest corner product. */
+inline floatL interval_product_max(floatL a, floatL b, floatL lo, floatL hi)
+{
+    return MAX_(MAX_(a * lo, a * hi), MAX_(b * lo, b * hi));
+}
+
+/* b_j: upper bound of light j's contribution to any pixel and channel of the tile
+ * (see the header comment). 0 for empty tiles; +inf where no bound holds
+ * (p⁻ ≤ 0, a light inside the box with c0 ≤ 0, non-finite data). */
+inline floatL light_bound(const tile_t *t, float4 A, float4 B, float4 C, float4 E)
+{
+    /* distance from the light to the box (0 inside it) */
+    const floatL dx = MAX_(t->lox - A.x, 0.0f) + MAX_(A.x - t->hix, 0.0f);
+    const floatL dy = MAX_(t->loy - A.y, 0.0f) + MAX_(A.y - t->hiy, 0.0f);
+    const floatL dz = MAX_(t->loz - A.z, 0.0f) + MAX_(A.z - t->hiz, 0.0f);
+    /* − 2u(|P| + |L|): the kernel may use P and L in double (DIRECTIONS_FP64), not
+       the float32 roundings the box and the records hold */
+    const floatL d_lo = MAX_(MUL_ADD(sqrt(MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz))),
+                                     (floatL)(1.0f - 16.0f * U_F32),
+                                     -2.0f * U_F32 * (t->R + E.x)), 0.0f);
+    /* p⁻: p(d⁻) right of the vertex, the host's lower bound of min p left of it */
+    const floatL p_d = MUL_ADD(d_lo, MUL_ADD(d_lo, (floatL)(B.y), (floatL)(B.x)), (floatL)(A.w));
+    const floatL p_lo = SEL_(p_d, (floatL)(B.w), (intL)(d_lo < B.z)) * C.x;
+    /* n·(L − P) ≤ Σ_c max over the corners of [nlo, nhi]×[L − hi, L − lo] */
+    const floatL ux = interval_product_max(t->nlox, t->nhix, A.x - t->hix, A.x - t->lox);
+    const floatL uy = interval_product_max(t->nloy, t->nhiy, A.y - t->hiy, A.y - t->loy);
+    const floatL uz = interval_product_max(t->nloz, t->nhiz, A.z - t->hiz, A.z - t->loz);
+    /* + the roundings of the differences, products and sum (4u of Σ|·|, doubled) */
+    const floatL ub = (ux + uy + uz) + 8.0f * U_F32 * (ABS_(ux) + ABS_(uy) + ABS_(uz));
+    /* the kernel's n·l errs by ε_NoL = η_n + η_l + 4u, η_l = u(2 + (|P| + |L|)/d),
+       doubled (docs/error-model.md) */
+    const floatL margin = U_F32 * (12.0f + 2.0f * (t->R + E.x) / d_lo);
+    const floatL NoL_hi = SEL_(MAX_(ub, 0.0f) / d_lo + margin, (floatL)(INFINITY),
+                                 (intL)(d_lo <= 0.0f));
+    const floatL w_d = MIN_(NoL_hi, 1.0f + 16.0f * U_F32);
+    const floatL w_s = SEL_((floatL)(0.0f), (floatL)(1.0f + 16.0f * U_F32), (intL)(NoL_hi > 0.0f));
+    const floatL br = C.y * MUL_ADD(t->Dr, w_d, t->Sr * w_s);
+    const floatL bg = C.z * MUL_ADD(t->Dg, w_d, t->Sg * w_s);
+    const floatL bb = C.w * MUL_ADD(t->Db, w_d, t->Sb * w_s);
+    const floatL b = MAX_(MAX_(br, bg), bb) / p_lo * (1.0f + 32.0f * U_F32);
+    /* no bound where p⁻ ≤ 0 or anything is NaN: keep the light */
+    const floatL safe = SEL_((floatL)(INFINITY), b, (intL)((p_lo > 0.0f) & (b >= 0.0f)));
+    return SEL_(safe, (floatL)(0.0f), t->empty);
+}
+
+/* The budget the float32 sums may use: computed sums of n positive terms are
+ * within (n − 1)u of the exact ones, so ε·(1 − 2n·u) keeps the exact dropped
+ * sum ≤ ε. */
+inline float usable_budget(float budget, uint n)
+{
+    return MAX_(budget * (1.0f - 2.0f * (float)n * U_F32), 0.0f);
+}
+
+/* The candidate lights of work-item i's LANES tiles, as (first, count): all
+ * n_point lights, or the list of the super-tile holding the LANES tiles (the host
+ * pads tiles_x to a multiple of CULL_SUPER ≥ LANES, so they share one). */
+inline uint2 candidates(size_t i, __global const uint2 *cand_ranges, uint use_cand, uint n_point,
+                        uint tiles_x, uint super_tiles)
+{
+    if (!use_cand)
+        return (uint2)(0, n_point);
+    const uint t = (uint)(i * LANES);
+    const uint s = (t / tiles_x / CULL_SUPER) * (tiles_x / CULL_SUPER) + (t % tiles_x) / CULL_SUPER;
+    return s < super_tiles ? cand_ranges[s] : (uint2)(0, 0);
+}
+
+__kernel void cull_count(__global const float *restrict tiles, const uint n_tiles_pad,
+                         __global const float4 *restrict lights, const uint n_point,
+                         /* candidates: with use_cand, the lights of this work-item's
+                            super-tile (a coarse pass's lists), else all n_point */
+                         __global const uint2 *restrict cand_ranges,
+                         __global const uint *restrict cand_lights, const uint use_cand,
+                         const uint tiles_x, const uint super_tiles,
+                         const float budget,
+                         __global float *restrict tau_out,
+                         __global float *restrict left_out,
+                         __global uint *restrict capacity_out)
+{
+    const size_t i = get_global_id(0);
+    if ((i + 1) * LANES > n_tiles_pad)
+        return;
+    const tile_t t = load_tiles(tiles, i, n_tiles_pad);
+    const float eps = usable_budget(budget, n_point);
+    float tau[CULL_LEVELS];
+    floatL sum[CULL_LEVELS];
+    intL below[CULL_LEVELS];
+    float level = eps;
+    for (int m = 0; m < CULL_LEVELS; ++m) {
+        level *= 0.0625f;
+        tau[m] = level;
+        sum[m] = (floatL)(0.0f);
+        below[m] = (intL)(0);
+    }
+    const uint2 range = candidates(i, cand_ranges, use_cand, n_point, tiles_x, super_tiles);
+    for (uint c = range.x; c < range.x + range.y; ++c) {
+        const uint j = use_cand ? cand_lights[c] : c;
+        const __global float4 *L = lights + CULL_LIGHT_FLOAT4S * j;
+        const floatL b = light_bound(&t, L[0], L[1], L[2], L[3]);
+        for (int m = 0; m < CULL_LEVELS; ++m) {
+            const intL is_below = (intL)(b < tau[m]);
+            sum[m] += SEL_((floatL)(0.0f), b, is_below);
+            below[m] -= is_below;            /* a true comparison is −1 per lane */
+        }
+    }
+    /* the largest τ whose dropped sum fits; none: τ = 0 (nothing below it) */
+    floatL best_tau = (floatL)(0.0f), best_sum = (floatL)(0.0f);
+    intL best_below = (intL)(0);
+    for (int m = CULL_LEVELS - 1; m >= 0; --m) {
+        const intL fits = (intL)(sum[m] <= eps);
+        best_tau = select(best_tau, (floatL)(tau[m]), fits);
+        best_sum = select(best_sum, sum[m], fits);
+        best_below = select(best_below, below[m], fits);
+    }
+#if LANES == 1
+    /* scalar comparisons give 1, not −1: `below` counted down */
+    best_below = -best_below;
+#endif
+    vstoreL(best_tau, i, tau_out);
+    vstoreL(fmax(eps - best_sum, 0.0f), i, left_out);
+    const intL cap = (intL)(range.y) - best_below;
+#if LANES == 1
+    capacity_out[i] = (uint)cap;
+#else
+    int caps[LANES];
+    vstoreL(cap, 0, caps);
+    for (int m = 0; m < LANES; ++m)
+        capacity_out[i * LANES + m] = caps[m];
+#endif
+}
+
+__kernel void cull_write(__global const float *restrict tiles, const uint n_tiles_pad,
+                         __global const float4 *restrict lights, const uint n_point,
+                         /* candidates: with use_cand, the lights of this work-item's
+                            super-tile (a coarse pass's lists), else all n_point */
+                         __global const uint2 *restrict cand_ranges,
+                         __global const uint *restrict cand_lights, const uint use_cand,
+                         const uint tiles_x, const uint super_tiles,
+                         __global const float *restrict tau_in,
+                         __global const float *restrict left_in,
+                         __global const uint *restrict offsets,
+                         __global uint *restrict counts_out,
+                         __global uint *restrict tile_lights)
+{
+    const size_t i = get_global_id(0);
+    if ((i + 1) * LANES > n_tiles_pad)
+        return;
+    const tile_t t = load_tiles(tiles, i, n_tiles_pad);
+    const floatL tau = vloadL(i, tau_in);
+    floatL left = vloadL(i, left_in);
+    uint off[LANES], cnt[LANES];
+    for (int m = 0; m < LANES; ++m) {
+        off[m] = offsets[i * LANES + m];
+        cnt[m] = 0;
+    }
+    const uint2 range = candidates(i, cand_ranges, use_cand, n_point, tiles_x, super_tiles);
+    for (uint c = range.x; c < range.x + range.y; ++c) {
+        const uint j = use_cand ? cand_lights[c] : c;
+        const __global float4 *L = lights + CULL_LIGHT_FLOAT4S * j;
+        const floatL b = light_bound(&t, L[0], L[1], L[2], L[3]);
+        const intL at_or_above = (intL)(b >= tau);   /* b is never NaN (light_bound) */
+        const intL greedy = at_or_above & (intL)(b <= left);
+        left = SEL_(left, left - b, greedy);
+        const intL keep = at_or_above & ~greedy;
+#if LANES == 1
+        if (keep)
+            tile_lights[off[0] + cnt[0]++] = j;
+#else
+        if (any(keep)) {
+            int k[LANES];
+            vstoreL(keep, 0, k);
+            for (int m = 0; m < LANES; ++m)
+                if (k[m])
+                    tile_lights[off[m] + cnt[m]++] = j;
+        }
+#endif
+    }
+    for (int m = 0; m < LANES; ++m)
+        counts_out[i * LANES + m] = cnt[m];
+}

@@ -1,0 +1,104 @@
+"""`clphong bench` produces a well-formed report on a tiny scene.
+
+Benchmarks are not timed tests: nothing here checks a speed. What is checked is
+the report's structure, that every requested case is present, that the figures
+are finite and consistent (GPLE/s = pixels·N / time, ratios from the same run),
+that the culled runs stay within their budget (error model: ε plus the brute
+force's own error, which is far below 1e-5 here), and that the numpy float32
+implementation is the same shading (compared with the float64 reference).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from clphong import bench, reference
+
+
+@pytest.fixture(scope="module")
+def tiny_report(tmp_path_factory):
+    cfg = bench.BenchConfig(sizes=((64, 40),), lights=(1, 16), small_lights=(64,),
+                            paths=("accurate", "float", "obvious"), budgets=(0.0, 1e-3),
+                            repeats=2, warmup=1, crop_pairs=1e9, error_pairs=1e6, numpy_pairs=1e9)
+    report = bench.run_bench(cfg)
+    out = tmp_path_factory.mktemp("bench")
+    bench.save_report(report, out / "r.json", out / "r.png")
+    return report, out
+
+
+def test_report_is_well_formed_json_with_every_case(tiny_report):
+    report, out = tiny_report
+    loaded = json.loads((out / "r.json").read_text())
+    assert loaded == json.loads(json.dumps(report))
+    assert loaded["flops_per_ple"] == bench.FLOPS_PER_PLE
+    assert loaded["machine"]["fp32_peak_gflops"] > 0
+    cases = {(r["scene"], r["lights"], r["path"], r["max_error"]) for r in loaded["runs"]}
+    for n in (1, 16):
+        for path in ("accurate", "float", "obvious"):
+            assert ("wide", n, path, None) in cases
+        for eps in (0.0, 1e-3):
+            assert ("wide", n, "accurate", eps) in cases
+    assert ("small", 64, "accurate", 1e-3) in cases
+    assert {x["lights"] for x in loaded["numpy"]} == {1, 16}
+
+
+def test_figures_are_consistent(tiny_report):
+    report, _ = tiny_report
+    numpy_rate = {x["lights"]: x["ple_per_s"] for x in report["numpy"]}
+    for r in report["runs"]:
+        assert len(r["times_ms"]) == 2
+        assert min(r["times_ms"]) <= np.median(r["times_ms"]) <= max(r["times_ms"])
+        w, h = r["size"]
+        frame_s = r["ms_per_frame"] * 1e-3
+        assert math.isclose(r["ple_per_s"], w * h * r["lights"] / frame_s, rel_tol=1e-9)
+        if r["scene"] == "wide":
+            assert math.isclose(r["numpy_ratio"], r["ple_per_s"] / numpy_rate[r["lights"]], rel_tol=1e-9)
+        e = r["error"]
+        for k in ("max_rel", "mean_rel", "max_abs", "band_max_rel"):
+            assert math.isfinite(e[k]) and e[k] >= 0
+        assert e["mean_rel"] <= e["max_rel"]
+        assert e["sampled_pixels"] > 0
+
+
+def test_culled_runs_stay_within_budget(tiny_report):
+    report, _ = tiny_report
+    for r in report["runs"]:
+        if r["max_error"] is not None:
+            # ε plus the brute-force kernel's error (≤ ~1e-6 of these radiances, error model)
+            assert r["error"]["max_abs"] <= r["max_error"] + 1e-5
+            assert 0.0 <= r["kept_fraction"] <= 1.0
+
+
+def test_pareto_plot_is_a_png(tiny_report):
+    _, out = tiny_report
+    assert (out / "r.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_numpy_implementation_is_the_same_shading():
+    """numpy float32 vs the float64 reference: float32 with pow(n·h, 128) loses up to
+    ~k·u = 128·6e-8 ≈ 8e-6 relative near highlights (docs/error-model.md, naive pow),
+    plus a few u elsewhere; 1e-4 relative of the value or 1e-6 of the image max."""
+    scene = bench.bench_scene("wide", 8)
+    gb = bench.bench_gbuffer(48, 27)
+    got = bench.numpy_shade(scene, gb).astype(np.float64)
+    ref = reference.shade(scene, gb)
+    assert np.all(np.abs(got - ref) <= 1e-4 * np.abs(ref) + 1e-6 * ref.max())
+
+
+def test_cli_bench_quick_options_and_bad_input(tmp_path, capsys):
+    from clphong.cli import main
+
+    rc = main(["bench", "--sizes", "32x24", "--lights", "4", "--small-lights", "16",
+               "--paths", "accurate", "--budgets", "1e-3", "--repeats", "1", "--warmup", "0",
+               "--json", str(tmp_path / "b.json"), "--plot", str(tmp_path / "b.png")])
+    assert rc == 0
+    assert json.loads((tmp_path / "b.json").read_text())["runs"]
+    assert "GPLE/s" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "--paths", "fastest", "--json", str(tmp_path / "x.json")])
+    assert exc.value.code == 2
+    assert not (tmp_path / "x.json").exists()

@@ -1,0 +1,367 @@
+"""Error-bounded tiled light culling (kernels/cull.cl, clphong/cull.py).
+
+The claim under test: for every pixel and channel, the lights a tile drops
+contribute at most ε in total. It is checked two ways, neither tuned to pass:
+
+* exactly, in float64: Σ over the dropped lights of the reference's own
+  contribution (clphong.reference, same float32 inputs) ≤ ε, per pixel and
+  channel, with the kernel's lists read back;
+* end to end: |culled kernel − reference| ≤ ε + the brute-force error bound
+  (docs/error-model.md), on top of the first.
+
+ε = 0 must give the brute-force image bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clphong import reference
+from clphong.cull import CullingError, read_tile_lists, tile_of_pixels
+from clphong.render import Renderer, prepare_frame
+
+from conftest import make_gbuffer, make_scene
+
+
+def heightfield(rng, h=37, w=45, *, offset=(0.0, 0.0, 0.0), bumps=0.3, maps=()):
+    """A wavy surface seen from above: spatially coherent P and N, so tiles are small."""
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64) * 0.1
+    z = bumps * np.sin(xs * 1.7) * np.cos(ys * 1.3)
+    P = np.stack([xs, ys, z], -1) + np.asarray(offset)
+    dzdx = bumps * 1.7 * np.cos(xs * 1.7) * np.cos(ys * 1.3)
+    dzdy = -bumps * 1.3 * np.sin(xs * 1.7) * np.sin(ys * 1.3)
+    N = np.stack([-dzdx, -dzdy, np.ones_like(z)], -1)
+    C = rng.uniform(0.1, 1.0, (h, w, 3))
+    cov = (rng.uniform(size=(h, w)) > 0.05).astype(np.float32)
+    m = {}
+    if "k_d" in maps:
+        m["k_d"] = rng.uniform(0, 1, (h, w))
+    if "k_s" in maps:
+        m["k_s"] = rng.uniform(0, 1, (h, w))
+    if "specular_color" in maps:
+        m["specular_color"] = rng.uniform(0, 1, (h, w, 3))
+    return make_gbuffer(P, N, C, cov, m)
+
+
+def point_lights(rng, n, *, extent=(4.5, 3.7), height=(0.05, 0.6), att=(1.0, 0.0, 300.0),
+                 offset=(0.0, 0.0, 0.0), intensity=(0.5, 3.0)):
+    out = []
+    for _ in range(n):
+        pos = np.array([rng.uniform(-0.3, extent[0]), rng.uniform(-0.3, extent[1]),
+                        rng.uniform(*height)]) + offset
+        out.append(dict(type="point", position=tuple(pos), color=tuple(rng.uniform(0.2, 1, 3)),
+                        intensity=float(rng.uniform(*intensity)), attenuation=att))
+    return out
+
+
+def dropped_sum(scene, gbuffer, renderer):
+    """Per pixel and channel, Σ of the float64 contributions of the lights the tile dropped."""
+    lists = read_tile_lists(renderer.runtime, renderer.last_cull)
+    tile = tile_of_pixels(gbuffer.shape, renderer.lanes).reshape(-1)
+    px, C, D, S, fg = reference._inputs(scene, gbuffer)
+    tile_fg = tile[fg]
+    n_point = len(scene.lights_of("point"))
+    kept = np.zeros((renderer.last_cull.n_tiles, n_point), bool)
+    for t, idx in enumerate(lists):
+        kept[t, idx] = True
+        assert np.all(np.diff(idx.astype(np.int64)) > 0), "lists keep the light order"
+    total = np.zeros((len(tile_fg), 3))
+    j = 0
+    # the reference's per-light weights: batches of K lights of one kind, in scene order
+    for kind, L, _, diffuse, specular in reference._light_terms(scene, px):
+        if kind != "point":
+            continue
+        for k in range(len(diffuse)):
+            contrib = L[k] * (D * diffuse[k][:, None] + S * specular[k][:, None])
+            total += np.where(kept[tile_fg, j][:, None], 0.0, contrib)
+            j += 1
+    assert j == n_point
+    return total
+
+
+def check_budget_holds(scene, gbuffer, eps):
+    brute = Renderer(scene)
+    r = Renderer(scene, max_error=eps)
+    frame = prepare_frame(gbuffer, lanes=r.lanes)
+    out = r.render(gbuffer, frame=frame).astype(np.float64)
+    assert r.last_cull is not None
+    # 1. exact: the dropped lights' float64 contributions sum to ≤ ε
+    dropped = dropped_sum(scene, gbuffer, r)
+    worst = np.abs(dropped).max(initial=0.0)
+    assert worst <= eps, f"dropped lights sum to {worst:.3g} > ε = {eps:g}"
+    # 2. end to end against the float64 reference: ε on top of the error model's bound
+    ref = reference.shade(scene, gbuffer)
+    bound, _ = reference.error_bound(scene, gbuffer, origin=frame.origin,
+                                     **_bound_kwargs(brute, frame))
+    err = np.abs(out - ref)
+    assert np.all(err <= eps + bound), f"max excess {np.max(err - eps - bound):.3g}"
+    return r, dropped
+
+
+def _bound_kwargs(renderer, frame):
+    """The error_bound options matching the kernel variant (as tests/conftest.py does)."""
+    import inspect
+
+    plan = renderer.plan_for(frame.map_names)
+    kw = dict(compensated=bool(plan.defines.get("COMPENSATED_SUM", 0)), form="delta")
+    params = inspect.signature(reference.error_bound).parameters
+    if "fp64_directions" in params:
+        kw["fp64_directions"] = bool(plan.defines.get("DIRECTIONS_FP64", 0))
+    return kw
+
+
+# ----------------------------------------------------------------------------- ε = 0
+
+@pytest.mark.parametrize("seed", range(2))
+def test_zero_budget_is_bit_identical_to_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    gb = heightfield(rng, 29, 51)
+    lights = point_lights(rng, 40, att=(1.0, 0.2, 5.0))
+    lights.append(dict(type="point", position=(1.0, 1.0, 0.3), color=(0.0, 0.0, 0.0), intensity=0.0))
+    scene = make_scene(lights, model=["phong", "blinn-phong"][seed], h=30.0)
+    brute = Renderer(scene).render(gb)
+    r = Renderer(scene, max_error=0.0)
+    assert r.plan_for(()).defines["CULLING"] == 1     # the culling kernels did run
+    culled = r.render(gb)
+    assert np.array_equal(culled, brute)
+    # only the black light (bound exactly 0) goes; every other light stays in every
+    # tile with shaded pixels (empty and padding tiles keep nothing)
+    lists = read_tile_lists(r.runtime, r.last_cull)
+    shaded = tile_of_pixels(gb.shape, r.lanes)[~gb.background_mask()]
+    assert {len(lists[t]) for t in np.unique(shaded)} == {40}
+
+
+# ------------------------------------------------------------------------- the bound holds
+
+@pytest.mark.parametrize("eps", [1e-4, 1e-3, 3e-2])
+def test_dropped_lights_sum_to_at_most_the_budget(eps):
+    rng = np.random.default_rng(7)
+    gb = heightfield(rng)
+    scene = make_scene(point_lights(rng, 120), model="blinn-phong", h=40.0,
+                       camera=dict(type="perspective", position=(2.2, 1.8, 4.0)))
+    r, dropped = check_budget_holds(scene, gb, eps)
+    if eps >= 1e-3:
+        assert r.last_cull.kept_fraction < 1.0   # something was culled
+        assert dropped.max() > 0
+
+
+def test_far_lights_are_culled():
+    """Two clusters of 60 lights, one 20 units away from the surface: each far light
+    adds at most I·(D + S)/(c2·d²) ≤ 3·1.2/(10⁴·20²) < 10⁻⁶, 60 of them < 10⁻⁴ < ε,
+    so every tile must drop the whole far cluster."""
+    rng = np.random.default_rng(4)
+    gb = heightfield(rng)
+    near = point_lights(rng, 60, att=(1.0, 0.0, 1e4))
+    far = point_lights(rng, 60, att=(1.0, 0.0, 1e4), offset=(20.0, 0.0, 0.0))
+    scene = make_scene(near + far, model="blinn-phong", h=40.0)
+    r, _ = check_budget_holds(scene, gb, 1e-3)
+    for idx in read_tile_lists(r.runtime, r.last_cull):
+        assert np.all(idx < 60)
+
+
+@pytest.mark.parametrize("case", ["dipping_polynomial", "lights_on_the_surface", "far_from_origin",
+                                  "grazing_and_behind", "maps_and_phong", "bright_and_dim"])
+def test_budget_holds_on_adversarial_scenes(case):
+    """Cases that break a careless bound: p(d) with c1 < 0 (minimum away from the
+    nearest distance), lights inside the tiles' boxes (d⁻ = 0), a scene 10⁴ units
+    from the world origin, lights behind and grazing the surface (the n·l bound and
+    the specular gate), per-pixel k_d/k_s/C_s maps, and 10⁶ dynamic range."""
+    rng = np.random.default_rng(3)
+    eps = 2e-3
+    kw = dict(model="blinn-phong", h=25.0)
+    maps = ()
+    offset = np.zeros(3)
+    if case == "dipping_polynomial":
+        # p(d) = 1 − 1.9d + d² dips to 0.0975 at d = 0.95: the nearest distance is not the worst
+        lights = point_lights(rng, 60, att=(1.0, -1.9, 1.0), intensity=(0.01, 0.05))
+    elif case == "lights_on_the_surface":
+        lights = point_lights(rng, 60, height=(-0.3, 0.3), att=(1.0, 0.0, 200.0))
+    elif case == "far_from_origin":
+        offset = np.array([1.0e4, -2.0e4, 5.0e3])
+        lights = point_lights(rng, 60, offset=offset)
+        kw["camera"] = dict(type="perspective", position=tuple(offset + [2.0, 2.0, 4.0]))
+    elif case == "grazing_and_behind":
+        lights = point_lights(rng, 60, height=(-1.0, 0.02), att=(1.0, 0.0, 100.0))
+        kw.update(model="phong", h=3.0)
+    elif case == "maps_and_phong":
+        lights = point_lights(rng, 60)
+        maps = ("k_d", "k_s", "specular_color")
+        kw.update(model="phong", h=8.0)
+    else:
+        lights = point_lights(rng, 60, att=(1e-3, 0.0, 50.0), intensity=(1e-3, 1e3))
+    gb = heightfield(rng, offset=offset, maps=maps)
+    lights.append(dict(type="directional", direction=(0.3, 0.2, -1.0), intensity=0.5))
+    lights.append(dict(type="ambient", intensity=0.2))
+    check_budget_holds(make_scene(lights, **kw), gb, eps)
+
+
+@pytest.mark.parametrize("lanes", [1, 4])
+def test_other_lane_widths_and_odd_sizes(lanes):
+    """Work-items that wrap onto the next row are bounded with the tile that shades them."""
+    rng = np.random.default_rng(5)
+    gb = heightfield(rng, 23, 35)
+    scene = make_scene(point_lights(rng, 50), model="phong", h=10.0)
+    brute = Renderer(scene, lanes=lanes).render(gb)
+    r = Renderer(scene, lanes=lanes, max_error=1e-3)
+    out = r.render(gb)
+    dropped = dropped_sum(scene, gb, r)
+    assert dropped.max(initial=0.0) <= 1e-3
+    # culled vs brute force: the dropped sum plus the two sums' roundings (2·3u·Σ|c|, error model)
+    tol = 1e-3 + 6 * reference.U * np.abs(brute).astype(np.float64) + 1e-7
+    assert np.all(np.abs(out.astype(np.float64) - brute) <= tol)
+
+
+# ------------------------------------------------------------------------- what is never culled
+
+def test_directional_and_ambient_lights_are_never_culled():
+    rng = np.random.default_rng(9)
+    gb = heightfield(rng, 20, 20)
+    lights = [dict(type="directional", direction=(0.1, 0.0, -1.0), intensity=1e-6),
+              dict(type="ambient", intensity=1e-6)]
+    scene = make_scene(lights, k_a=1.0)
+    r = Renderer(scene, max_error=1.0)     # a budget far above every term
+    assert r.plan_for(()).defines["CULLING"] == 0
+    assert np.array_equal(r.render(gb), Renderer(scene).render(gb))
+
+
+# ---------------------------------------------------------------------- options and the cache
+
+def test_negative_or_nonfinite_budget_is_an_error():
+    scene = make_scene([dict(type="point", position=(0.0, 0.0, 1.0))])
+    for bad in (-1e-3, float("nan"), float("inf")):
+        with pytest.raises(CullingError, match="--max-error"):
+            Renderer(scene, max_error=bad)
+    with pytest.raises(CullingError, match="--reference-white"):
+        Renderer(scene, max_error=1e-3, reference_white=0.0)
+
+
+def test_plan_says_why_culling_is_on():
+    from clphong.plan import make_plan
+
+    scene = make_scene([dict(type="point", position=(0.0, 0.0, 1.0))])
+    text = str(make_plan(scene, (), lanes=8, max_error=1e-3))
+    assert "-DCULLING=1" in text and "ε = 0.001" in text
+    assert "-DCULLING=0" in str(make_plan(scene, (), lanes=8))
+
+
+def test_second_render_builds_nothing():
+    from clphong.runtime import get_runtime
+
+    rng = np.random.default_rng(2)
+    gb = heightfield(rng, 16, 16)
+    scene = make_scene(point_lights(rng, 10), h=5.0)
+    Renderer(scene, max_error=1e-3).render(gb)
+    rt = get_runtime()
+    before = rt.builds
+    Renderer(scene, max_error=1e-3).render(gb)
+    assert rt.builds == before
+
+
+@pytest.mark.parametrize("case", ["diffuse", "specular", "dipping_polynomial"])
+def test_budget_holds_where_the_bound_is_tight(case):
+    """100 identical lights stacked above one pixel of a flat, uniform tile, seen from
+    above: under the light n·l = 1 and (Blinn, orthographic camera) n·h = 1, so a
+    light's contribution there equals its bound, and the culler must stop at ε. The
+    dipping polynomial p(d) = 1 − 1.9d + d² is smallest at d = 0.95, which pixels of
+    the tile reach while the nearest is 0.5 away. Each light's bound is ε/10, so
+    about 9 are dropped and the dropped sum must come close to ε without passing it
+    (an under-estimating bound, e.g. p(d⁻) for the dipping polynomial or no specular
+    term, fails here)."""
+    eps = 1e-3
+    h = w = 20
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64) * 0.1
+    P = np.stack([xs, ys, np.zeros_like(xs)], -1)
+    N = np.broadcast_to([0.0, 0.0, 1.0], P.shape)
+    gb = make_gbuffer(P, N, np.full(P.shape, 0.5))
+    k_d, k_s = (0.01, 1.0) if case == "specular" else (0.8, 0.0)
+    att, height = ((1.0, -1.9, 1.0), 0.5) if case == "dipping_polynomial" else ((1.0, 0.0, 4.0), 0.3)
+    c0, c1, c2 = att
+    p_min = c0 - c1 * c1 / (4 * c2) if c1 < 0 else c0 + c1 * height + c2 * height ** 2
+    intensity = eps / 10 * p_min / (0.5 * k_d + k_s)
+    lights = [dict(type="point", position=(0.4, 0.4, height), intensity=intensity, attenuation=att)
+              for _ in range(100)]
+    scene = make_scene(lights, model="blinn-phong", k_a=0.0, k_d=k_d, k_s=k_s, h=10.0,
+                       camera=dict(type="orthographic", direction=(0.0, 0.0, -1.0)))
+    r, dropped = check_budget_holds(scene, gb, eps)
+    # tight: 9 of the 100 go (1 within ε/8 at the super-tile level, 8 within 7ε/8 at
+    # the tile level, cull.py), so the dropped sum is ~0.9ε; under the dipping light
+    # the worst pixel sees n·l = 0.53
+    assert (0.35 if case == "dipping_polynomial" else 0.7) * eps <= dropped.max() <= eps
+
+
+def test_cli_render_with_a_budget(tmp_path, capsys):
+    """--max-error through the CLI: within ε of brute force; a bad budget is one line, exit 1."""
+    from clphong.cli import main
+    from clphong.gbuffer import read_gbuffer
+
+    from conftest import GBUFFERS
+
+    args = ["render", str(GBUFFERS / "spheres.toml"), str(GBUFFERS / "spheres.exr")]
+    assert main(args + ["-o", str(tmp_path / "brute.exr")]) == 0
+    assert main(args + ["-o", str(tmp_path / "cull.exr"), "--max-error", "1e-3", "--stats"]) == 0
+    assert "culling:" in capsys.readouterr().err
+    brute = read_gbuffer(str(tmp_path / "brute.exr"), channels={"position": "R,G,B", "normal": "R,G,B",
+                                                              "albedo": "R,G,B"}).position
+    culled = read_gbuffer(str(tmp_path / "cull.exr"), channels={"position": "R,G,B", "normal": "R,G,B",
+                                                               "albedo": "R,G,B"}).position
+    assert np.all(np.abs(culled.astype(np.float64) - brute) <= 1e-3 + 6 * reference.U * np.abs(brute))
+    assert main(args + ["-o", str(tmp_path / "float.exr"), "--path", "float", "--stats"]) == 0
+    assert "-DDIRECTIONS_FP64=0" in capsys.readouterr().err
+    assert main(args + ["-o", str(tmp_path / "bad.exr"), "--max-error", "-1"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("clphong: error: --max-error")
+    assert not (tmp_path / "bad.exr").exists()
+
+
+def test_second_culled_render_process_rebuilds_nothing(tmp_path):
+    """`clphong render --max-error` twice: the second process finds the shading and the
+    culling programs (and their compiled work-group functions) in PoCL's disk cache."""
+    import os
+    import subprocess
+    import sys
+
+    from conftest import GBUFFERS
+
+    cache = tmp_path / "pocl-cache"
+    env = dict(os.environ, POCL_CACHE_DIR=str(cache))
+    cmd = [sys.executable, "-m", "clphong", "render", str(GBUFFERS / "spheres.toml"),
+           str(GBUFFERS / "spheres.exr"), "-o", str(tmp_path / "out.exr"), "--max-error", "1e-3"]
+    runs = []
+    for _ in range(2):
+        r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        # built programs are <hash>/<hash>/program.bc, compiled kernels .../<kernel>/*/*.so
+        runs.append({str(p.relative_to(cache)): p.stat().st_mtime_ns
+                     for p in list(cache.rglob("program.bc")) + list(cache.rglob("*.so"))})
+    assert len([p for p in runs[0] if p.endswith("program.bc")]) >= 2   # shade.cl and cull.cl
+    assert any("cull_write" in p for p in runs[0])
+    assert runs[1] == runs[0], "the second process built a program again"
+
+
+def test_budget_holds_with_negative_albedo():
+    """Negative albedo (allowed by the error model, e.g. to cancel a highlight) makes
+    contributions negative: the budget bounds |dropped sum|, so |D| enters the bound."""
+    rng = np.random.default_rng(12)
+    gb = heightfield(rng)
+    gb.albedo[...] = rng.uniform(-1.0, 1.0, gb.albedo.shape).astype(np.float32)
+    r, dropped = check_budget_holds(make_scene(point_lights(rng, 60), h=12.0), gb, 1e-3)
+    assert np.abs(dropped).max() <= 1e-3
+
+
+# ------------------------------------------------------------------ plan: falloff compiled out
+
+def test_constant_falloff_compiles_the_polynomial_out():
+    """c1 = c2 = 0 for every point light: HAS_ATTENUATION=0 (1/c0 once per light),
+    still within the error model's bound of the float64 reference."""
+    from conftest import check_against_reference, random_gbuffer
+
+    rng = np.random.default_rng(21)
+    lights = [dict(type="point", position=tuple(rng.uniform(-3, 3, 3) + [0, 0, 3]),
+                   intensity=float(rng.uniform(1, 5)), attenuation=(float(c0), 0.0, 0.0))
+              for c0 in (1.0, 2.5, 0.3)]
+    scene = make_scene(lights, model="blinn-phong", h=20.0)
+    assert Renderer(scene).plan_for(()).defines["HAS_ATTENUATION"] == 0
+    check_against_reference(scene, random_gbuffer(rng, 12, 20))
+    lights[0]["attenuation"] = (1.0, 0.0, 1e-3)
+    assert Renderer(make_scene(lights)).plan_for(()).defines["HAS_ATTENUATION"] == 1
