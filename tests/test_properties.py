@@ -1,0 +1,82 @@
+"""Property-based tests (hypothesis): random small scenes and G-buffers, within
+the documented ranges, hold the error model's bound and produce no NaN or Inf.
+
+CI runs CLPHONG_PROPERTY_EXAMPLES (default 25) examples per property; set it
+higher for a longer run, e.g. CLPHONG_PROPERTY_EXAMPLES=2000.
+
+Documented ranges (docs/error-model.md): positions within 1e4 of each other,
+lights 1e-3 to 1e3 units from the pixels, normals of any non-zero length,
+intensities 1e-3..1e3, attenuation coefficients 0..10 with c0 ≥ 0.1,
+shininess 0..1e4, albedo −1..1.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from conftest import check_against_reference, make_gbuffer, make_scene
+
+EXAMPLES = int(os.environ.get("CLPHONG_PROPERTY_EXAMPLES", "25"))
+SETTINGS = settings(max_examples=EXAMPLES, deadline=None, derandomize=False,
+                    suppress_health_check=[HealthCheck.too_slow])
+
+finite = dict(allow_nan=False, allow_infinity=False)
+
+
+@st.composite
+def scenes_and_gbuffers(draw):
+    seed = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    h, w = draw(st.integers(1, 6)), draw(st.integers(1, 9))
+    center = np.array(draw(st.tuples(*[st.floats(-1e4, 1e4, **finite)] * 3)))
+    spread = draw(st.floats(1e-2, 10.0))
+    P = center + rng.uniform(-spread, spread, (h, w, 3))
+    N = rng.normal(size=(h, w, 3)) * 10.0 ** rng.uniform(-3, 3, (h, w, 1))
+    C = rng.uniform(-1.0, 1.0, (h, w, 3))
+    model = draw(st.sampled_from(["phong", "blinn-phong"]))
+    hh = draw(st.one_of(st.just(0.0), st.floats(0.0, 1e4), st.integers(1, 200).map(float)))
+    lights = []
+    for _ in range(draw(st.integers(0, 5))):
+        kind = draw(st.sampled_from(["point", "directional", "ambient"]))
+        inten = 10.0 ** draw(st.floats(-3, 3))
+        color = tuple(rng.uniform(0.0, 1.0, 3))
+        if kind == "point":
+            direction = rng.normal(size=3)
+            dist = 10.0 ** draw(st.floats(-3, 3))
+            pos = center + direction / np.linalg.norm(direction) * (dist + 2 * spread)
+            c = (draw(st.floats(0.1, 10.0)), draw(st.floats(0.0, 10.0)), draw(st.floats(0.0, 10.0)))
+            lights.append(dict(type="point", position=tuple(pos), intensity=inten, color=color,
+                               attenuation=c))
+        elif kind == "directional":
+            lights.append(dict(type="directional", direction=tuple(rng.normal(size=3) + 1e-3),
+                               intensity=inten, color=color))
+        else:
+            lights.append(dict(type="ambient", intensity=inten, color=color))
+    if draw(st.booleans()):
+        cam = dict(type="orthographic", direction=tuple(rng.normal(size=3) + 1e-3))
+    else:
+        off = rng.normal(size=3)
+        cam = dict(type="perspective", position=tuple(center + off / np.linalg.norm(off) * 3 * spread * 2))
+    scene = make_scene(lights, model=model, h=hh, k_a=draw(st.floats(0, 1)), k_d=draw(st.floats(0, 1)),
+                       k_s=draw(st.floats(0, 1)), camera=cam)
+    return scene, make_gbuffer(P, N, C)
+
+
+@SETTINGS
+@given(scenes_and_gbuffers())
+def test_default_path_holds_the_bound(case):
+    scene, gb = case
+    rgb, ref, bound, band = check_against_reference(scene, gb)
+    assert np.all(np.isfinite(rgb))
+
+
+@SETTINGS
+@given(scenes_and_gbuffers())
+def test_fp32_directions_path_holds_its_bound(case):
+    scene, gb = case
+    rgb, ref, bound, band = check_against_reference(scene, gb, fp64_directions=False)
+    assert np.all(np.isfinite(rgb))
