@@ -8,9 +8,12 @@ The Python API and the ``clphong`` command go through the same functions::
     rgb = clphong.render(scene, gbuffer)          # (H, W, 3) float32, scene-linear
     clphong.write_exr("spheres.exr", rgb)
 
-:class:`Renderer` compiles once and shades many frames.
+:class:`Renderer` compiles once and shades many frames; :class:`Relighter`
+(the pipeline-stage API) adds file and numpy input, output writing and the
+camera from EXR metadata, and is what the CLI uses.
 """
 
+from .api import OutputOptions, Relighter, write_output
 from .errors import ClphongError, DeviceError, GBufferError, OutputError, SceneError
 from .gbuffer import GBuffer, read_gbuffer
 from .output import write_exr
@@ -24,4 +27,5 @@ __all__ = [
     "ClphongError", "DeviceError", "GBufferError", "OutputError", "SceneError",
     "GBuffer", "read_gbuffer", "write_exr", "ShadingPlan", "make_plan",
     "Renderer", "render", "Scene", "load_scene", "parse_scene", "__version__",
+    "Relighter", "OutputOptions", "write_output",
 ]

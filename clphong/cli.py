@@ -8,6 +8,7 @@ every output is written to a temporary name and renamed into place.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 import time
@@ -49,9 +50,16 @@ def _build_parser() -> argparse.ArgumentParser:
     r.add_argument("gbuffer", metavar="GBUFFER.exr", nargs="?",
                    help="multichannel G-buffer EXR (omit when giving --position/--normal/--albedo)")
     _add_gbuffer_options(r)
-    r.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="output EXR path")
+    r.add_argument("-o", "--output", metavar="OUT.exr",
+                   help="scene-linear EXR output (tagged with the working space)")
+    _add_color_options(r)
     r.add_argument("--half", action="store_true", help="write half-float instead of float32")
+    r.add_argument("--nonfinite", choices=("background", "error", "pass"), default="background",
+                   help="NaN/Inf in the G-buffer: leave those pixels unshaded as background "
+                        "(default, with a warning giving the counts per buffer), stop with an "
+                        "error, or pass them through (they stay in their own pixels)")
     _add_device_options(r)
+    _add_speed_options(r)
     r.add_argument("--stats", action="store_true", help="print timings and the shading plan on stderr")
 
     pl = sub.add_parser(
@@ -62,18 +70,97 @@ def _build_parser() -> argparse.ArgumentParser:
     pl.add_argument("gbuffer", metavar="GBUFFER.exr", nargs="?")
     _add_gbuffer_options(pl)
     _add_device_options(pl)
+    _add_speed_options(pl)
+
+    _add_relight_parser(sub)
+    _add_inspect_parsers(sub)
+    _add_bench_parser(sub)
 
     sub.add_parser("devices", help="list the OpenCL devices and the one chosen by default")
+
+    dp = sub.add_parser("displays", help="list OCIO displays, views and looks, working spaces "
+                                         "and tone-mapping operators")
+    dp.add_argument("--ocio-config", metavar="PATH",
+                    help="OCIO config (default: $OCIO, else the built-in ocio://default)")
 
     s = sub.add_parser("samples", help="regenerate the sample G-buffers (spheres.exr, ortho.exr)")
     s.add_argument("folder", nargs="?", default="gbuffers")
     return p
 
 
-def _add_gbuffer_options(p):
-    p.add_argument("--position", metavar="P.exr", help="file holding world-space positions")
-    p.add_argument("--normal", metavar="N.exr", help="file holding world-space normals")
-    p.add_argument("--albedo", metavar="A.exr", help="file holding the albedo C_d")
+RELIGHT_EXAMPLES = """\
+examples:
+  # every frame on disk, two rigs, outputs named by rig and frame
+  clphong relight shot/gbuf.####.exr --rig key=key.toml --rig fill.toml -o out/{rig}/beauty.####.exr
+
+  # every other frame of 1-240, 2 local worker processes, finish an interrupted run
+  clphong relight shot/gbuf.%04d.exr --rig key.toml -o out/{rig}.{frame:04d}.exr --frames 1-240x2 --jobs 2 --skip-existing
+
+  # frames as tasks on a Dask cluster (pip install 'clphong[dask]')
+  clphong relight shot/ --rig key.toml -o out/{name}.{rig}.####.exr --scheduler tcp://farm-scheduler:8786
+"""
+
+
+def _add_relight_parser(sub):
+    r = sub.add_parser(
+        "relight", help="relight a frame sequence with one or more light rigs",
+        description="Relight every frame of SEQUENCE (P.####.exr, P.%%04d.exr or a folder of "
+                    "multichannel EXRs) with each --rig, writing one output per frame per rig. "
+                    "Outputs are written atomically; a bad frame is reported and the others "
+                    "complete (exit status 1 when any failed).",
+        epilog=RELIGHT_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    r.add_argument("sequence", metavar="SEQUENCE", help="frame pattern (#### or %%04d) or folder of EXRs")
+    r.add_argument("--rig", action="append", required=True, metavar="[NAME=]SCENE.toml",
+                   help="a light rig (scene file); repeat for several; NAME defaults to the file stem")
+    r.add_argument("-o", "--output", required=True, metavar="TEMPLATE",
+                   help="output path template: {frame} (e.g. {frame:04d}), ####, %%04d, {rig}, "
+                        "{stem} (input file name), {name} (input name without its frame number)")
+    r.add_argument("--frames", metavar="RANGE", help="frames to relight, e.g. 1-240x2 or 1-10,20 "
+                                                     "(default: every frame on disk)")
+    r.add_argument("-j", "--jobs", type=int, default=1, metavar="N",
+                   help="local worker processes (default 1: one process, reading ahead)")
+    r.add_argument("--skip-existing", "--resume", dest="skip_existing", action="store_true",
+                   help="skip outputs that exist (complete: writes are atomic); finishes an interrupted run")
+    r.add_argument("--dry-run", action="store_true", help="list what would be written, and stop")
+    r.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress bar or totals (failures are still listed)")
+    r.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run frames as tasks on this Dask distributed scheduler (tcp://host:8786)")
+    r.add_argument("--half", action="store_true", help="write half-float instead of float32")
+    _add_gbuffer_options(r, files=False)
+    _add_device_options(r)
+
+
+def _add_inspect_parsers(sub):
+    i = sub.add_parser("inspect", help="channels, sizes, pixel types, G-buffer convention, camera, NaN/Inf",
+                       description="Print what an image file holds: parts, sizes, channels and pixel "
+                                   "types, the detected G-buffer convention, the camera metadata "
+                                   "(worldToCamera) and per-channel NaN, Inf and negative counts.")
+    i.add_argument("file", metavar="FILE")
+    i.add_argument("--json", action="store_true", help="print the report as JSON")
+    i.add_argument("--no-stats", action="store_true", help="do not read the pixels")
+
+    d = sub.add_parser("diff", help="compare two images by a metric and a tolerance (exit 0 match, 1 differ)",
+                       description="Compare test image B with reference A. Exit status: 0 match, "
+                                   "1 differ, 2 trouble (unreadable file, bad option).")
+    d.add_argument("a", metavar="A", help="reference image")
+    d.add_argument("b", metavar="B", help="test image")
+    d.add_argument("--metric", choices=("max-rel", "mean-abs", "psnr", "flip"), default="max-rel",
+                   help="max-rel: max |B-A|/max(|A|, floor); mean-abs: mean |B-A|; psnr: dB "
+                        "(match when >= tol); flip: mean FLIP error (OpenImageIO FLIP_diff)")
+    d.add_argument("--tol", type=float, required=True, metavar="X",
+                   help="largest allowed error (psnr: smallest allowed dB)")
+    d.add_argument("--heatmap", metavar="OUT", help="write the per-pixel error (EXR: raw; else false colour)")
+    d.add_argument("--channels", metavar="C1,C2,...", help="channels to compare (default: all; flip: R,G,B)")
+    d.add_argument("--floor", type=float, help="max-rel denominator floor (default 1e-6 x max|A|)")
+    d.add_argument("--peak", type=float, help="psnr peak (default max|A|)")
+
+
+def _add_gbuffer_options(p, files: bool = True):
+    if files:
+        p.add_argument("--position", metavar="P.exr", help="file holding world-space positions")
+        p.add_argument("--normal", metavar="N.exr", help="file holding world-space normals")
+        p.add_argument("--albedo", metavar="A.exr", help="file holding the albedo C_d")
     p.add_argument("--channels", action="append", default=[], metavar="KEY=CHANNELS",
                    help="override channel detection: KEY is position, normal, albedo, coverage, "
                         "k_d, k_s, h or specular_color; CHANNELS a layer prefix or a comma-separated list")
@@ -87,6 +174,113 @@ def _add_device_options(p):
                    help="'lanes' (default, fast) or 'obvious' (one pixel per work-item, the baseline)")
     p.add_argument("--lanes", type=int, choices=(1, 4, 8, 16),
                    help="pixels per work-item of the lane kernel (default: chosen for the device)")
+
+
+def _add_speed_options(p):
+    p.add_argument("--max-error", type=float, metavar="EPS",
+                   help="tiled light culling: per 16x16 tile, drop point lights only while the sum "
+                        "of their upper bounds stays within EPS x reference white of output radiance "
+                        "per pixel and channel (0: bit-identical to brute force; default: no culling)")
+    p.add_argument("--reference-white", type=float, default=1.0, metavar="W",
+                   help="output radiance of reference white for --max-error (default 1.0)")
+    p.add_argument("--path", choices=("accurate", "float"), default="accurate",
+                   help="'accurate' (default: directions in double where the device has fp64) or "
+                        "'float' (float32 directions: faster, larger error near grazing light and for "
+                        "high shininess; 'clphong bench' reports both)")
+
+
+def _apply_speed_options(renderer, args):
+    """--max-error, --reference-white and --path on an existing renderer."""
+    from .cull import check_budget
+
+    renderer.max_error = check_budget(args.max_error, args.reference_white)
+    if args.path == "float":
+        renderer.fp64_directions = False
+
+
+def _add_bench_parser(sub):
+    b = sub.add_parser(
+        "bench", help="throughput against error on the fixed benchmark scenes (JSON + Pareto PNG)",
+        description="Time every path and culling budget on the documented scene set "
+                    "(1920x1080, N = 1 ... 65536 point lights, a wide-reach and a small-reach "
+                    "scene; see clphong/bench.py), against the float64 reference and a numpy "
+                    "float32 implementation measured in the same run.")
+    b.add_argument("--json", default="bench.json", metavar="REPORT.json", help="JSON report (default bench.json)")
+    b.add_argument("--plot", default="bench.png", metavar="PARETO.png",
+                   help="Pareto plot of throughput against error (default bench.png; '' for none)")
+    b.add_argument("--quick", action="store_true",
+                   help="480x270, N up to 4096, budgets 0 and 1e-3, 3 repeats: about a minute")
+    b.add_argument("--sizes", metavar="WxH[,WxH]", help="frame sizes (default 1920x1080)")
+    b.add_argument("--lights", metavar="N[,N]", help="point-light counts of the wide scene")
+    b.add_argument("--small-lights", metavar="N[,N]", help="point-light counts of the small-reach scene")
+    b.add_argument("--paths", metavar="P[,P]", help="paths: accurate, float, float-naive-sum, obvious")
+    b.add_argument("--budgets", metavar="EPS[,EPS]", help="culling budgets, relative to white 1.0")
+    b.add_argument("--repeats", type=int, metavar="R", help="timed frames per case (median)")
+    b.add_argument("--warmup", type=int, metavar="W", help="untimed frames first (default 1)")
+    b.add_argument("--crop-pairs", type=float, metavar="P",
+                   help="brute force runs on the top rows holding about P pixel-light pairs (default 1.5e8)")
+    b.add_argument("--error-pairs", type=float, metavar="P",
+                   help="float64 reference on about P/N sampled pixels (default 3e7)")
+    b.add_argument("--numpy-pairs", type=float, metavar="P",
+                   help="numpy float32 timed on about P pixel-light pairs (default 2e7)")
+    b.add_argument("--device", metavar="DEV", help="OpenCL device (see 'clphong devices')")
+
+
+def _csv(text, conv, what):
+    try:
+        return tuple(conv(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise _Usage(f"{what}: expected a comma-separated list, got {text!r}") from None
+
+
+def _size(text):
+    w, h = text.lower().split("x")
+    w, h = int(w), int(h)
+    if w <= 0 or h <= 0:
+        raise ValueError(text)
+    return (w, h)
+
+
+def cmd_bench(args) -> int:
+    from .bench import PATHS, BenchConfig, run_bench, save_report, table
+
+    kw = {}
+    if args.sizes:
+        kw["sizes"] = _csv(args.sizes, _size, "--sizes")
+    if args.lights:
+        kw["lights"] = _csv(args.lights, int, "--lights")
+    if args.small_lights:
+        kw["small_lights"] = _csv(args.small_lights, int, "--small-lights")
+    if args.paths:
+        kw["paths"] = _csv(args.paths, str, "--paths")
+        bad = [x for x in kw["paths"] if x not in PATHS]
+        if bad:
+            raise _Usage(f"--paths: unknown path {bad[0]!r}; choose from {', '.join(PATHS)}")
+    if args.budgets:
+        kw["budgets"] = _csv(args.budgets, float, "--budgets")
+    for name in ("repeats", "warmup"):
+        value = getattr(args, name)
+        if value is not None:
+            if value < (1 if name == "repeats" else 0):
+                raise _Usage(f"--{name}: {value} is too small")
+            kw[name] = value
+    if any(n <= 0 for n in kw.get("lights", ()) + kw.get("small_lights", ())):
+        raise _Usage("--lights/--small-lights: counts must be > 0")
+    for name in ("crop_pairs", "error_pairs", "numpy_pairs"):
+        value = getattr(args, name)
+        if value is not None:
+            if not value > 0:
+                raise _Usage(f"--{name.replace('_', '-')}: expected a number > 0")
+            kw[name] = value
+    kw["device"] = args.device
+    kw["log"] = lambda msg: print(msg, file=sys.stderr, flush=True)
+    cfg = BenchConfig.quick(**kw) if args.quick else BenchConfig(**kw)
+    report = run_bench(cfg)
+    save_report(report, args.json or None, args.plot or None)
+    print(table(report))
+    for k, v in report["summary"].items():
+        print(f"{k}: {v}")
+    return 0
 
 
 def _read_gbuffer(args):
@@ -115,24 +309,41 @@ def _same_file(a: str, b: str) -> bool:
 
 
 def cmd_render(args) -> int:
-    from .output import write_exr
-    from .render import Renderer
+    from .api import OutputOptions, Relighter, write_output
+    from .deliver import exr_attributes, render_outputs
     from .scene import load_scene
 
-    for src in _inputs_of(args):
-        if _same_file(src, args.output):
-            raise OutputError(f"{args.output}: output would overwrite the input {src}; choose another -o")
+    from .output import check_output_path
+    display_paths = [*args.sdr, *args.hdr, *([args.contact_sheet] if args.contact_sheet else [])]
+    if not args.output and not display_paths:
+        raise _Usage("give at least one output: -o OUT.exr, --sdr OUT.png, --hdr OUT.png or "
+                     "--contact-sheet OUT.png")
+    for out in ([args.output] if args.output else []) + display_paths:
+        for src in _inputs_of(args):
+            if _same_file(src, out):
+                raise OutputError(f"{out}: output would overwrite the input {src}; choose another name")
+        check_output_path(out, exr=out == args.output)   # fail before the work, not after
     t0 = time.perf_counter()
     scene = load_scene(args.scene)
     gbuffer = _read_gbuffer(args)
     t_read = time.perf_counter()
-    renderer = Renderer(scene, device=args.device, kernel=args.kernel, lanes=args.lanes)
-    rgb = renderer.render(gbuffer)
+    request = _output_request(args, scene)
+    relighter = Relighter(scene, device=args.device, kernel=args.kernel, lanes=args.lanes,
+                          output=OutputOptions(
+                              pixel_type="half" if args.half else args.exr_type,
+                              compression=args.exr_compression,
+                              attributes=tuple(exr_attributes(request.working_space).items())))
+    # A scene without [camera] takes this frame's worldToCamera (clphong.camera_meta).
+    renderer = relighter.renderer_for(gbuffer, source=args.gbuffer or args.position)
+    _apply_speed_options(renderer, args)
+    renderer.nonfinite = args.nonfinite            # NaN/Inf input policy (clphong.inputs)
+    if display_paths:
+        rgb, _ = render_outputs(renderer, gbuffer, request)   # SDR / HDR / contact sheet
+    else:
+        rgb = renderer.render(gbuffer)
     t_shade = time.perf_counter()
-    write_exr(args.output, rgb, pixel_type="half" if args.half else "float",
-              attributes={"chromaticities": REC709_CHROMATICITIES,
-                          "oiio:ColorSpace": SCENE_LINEAR_COLORSPACE,
-                          "Software": "clphong"})
+    if args.output:
+        write_output(rgb, args.output, relighter.output)
     t_end = time.perf_counter()
     if args.stats:
         st = renderer.last_stats
@@ -142,6 +353,10 @@ def cmd_render(args) -> int:
         print(f"{w}x{h}: read {t_read - t0:.3f} s, shade {t_shade - t_read:.3f} s "
               f"(kernel {st.kernel_seconds:.4f} s), write {t_end - t_shade:.3f} s, "
               f"total {t_end - t0:.3f} s", file=sys.stderr)
+        cull = getattr(renderer, "last_cull", None)
+        if cull is not None:
+            print(f"culling: {cull.seconds * 1e3:.1f} ms, tiles keep {cull.kept_fraction:.2%} of "
+                  f"{cull.n_point} point lights on average", file=sys.stderr)
     return 0
 
 
@@ -157,7 +372,12 @@ def cmd_plan(args) -> int:
 
     # The lane width depends on the device, as in 'render'.
     lanes = args.lanes or get_runtime(args.device).lanes
-    print(make_plan(scene, maps, kernel=args.kernel, lanes=lanes))
+    from .cull import check_budget
+
+    # As 'render': directions in double where the device has fp64, unless --path float.
+    fp64 = args.kernel == "lanes" and args.path != "float" and get_runtime(args.device).has_fp64
+    print(make_plan(scene, maps, kernel=args.kernel, lanes=lanes, fp64_directions=fp64,
+                    max_error=check_budget(args.max_error, args.reference_white)))
     return 0
 
 
@@ -179,25 +399,203 @@ def cmd_samples(args) -> int:
     return 0
 
 
-COMMANDS = {"render": cmd_render, "plan": cmd_plan, "devices": cmd_devices, "samples": cmd_samples}
+def _rig(text: str):
+    """``NAME=SCENE.toml`` or ``SCENE.toml`` (named after the file stem)."""
+    from .batch import Rig
+    from .scene import load_scene
+
+    name, sep, path = text.partition("=")
+    if not sep:
+        name, path = Path(text).stem, text
+    if not name or not path:
+        raise _Usage(f"--rig {text!r}: expected SCENE.toml or NAME=SCENE.toml")
+    return Rig(name, load_scene(path))
+
+
+def cmd_relight(args) -> int:
+    from .api import OutputOptions, RelighterSpec, _hashable_channels
+    from .batch import parse_frame_range, plan_batch, run_batch
+    from .gbuffer import parse_channel_mapping
+
+    if args.jobs < 1:
+        raise _Usage("--jobs must be >= 1")
+    rigs = [_rig(r) for r in args.rig]
+    frames = parse_frame_range(args.frames) if args.frames else None
+    plan = plan_batch(args.sequence, rigs, args.output, frames=frames, skip_existing=args.skip_existing)
+    if args.dry_run:
+        for frame, rig, path in plan.skipped:
+            print(f"skip   frame {frame} [{rig}] {path} (exists)")
+        for job in plan.jobs:
+            for rig, path in job.outputs:
+                missing = "" if os.path.isfile(job.source) else " (input missing: will fail)"
+                print(f"write  frame {job.frame} [{rig}] {job.source} -> {path}{missing}")
+        print(f"{plan.outputs} output(s) to write, {len(plan.skipped)} skipped", file=sys.stderr)
+        return 0
+    channels = _hashable_channels(parse_channel_mapping(args.channels)) if args.channels else ()
+    output = OutputOptions(pixel_type="half" if args.half else "float")
+    specs = {r.name: RelighterSpec(scene=r.scene, device=args.device, kernel=args.kernel,
+                                   lanes=args.lanes, channels=channels, output=output) for r in rigs}
+    progress = not args.quiet and sys.stderr.isatty()
+    result = run_batch(plan, specs, jobs=args.jobs, scheduler=args.scheduler, progress=progress)
+    lines = result.summary()
+    for line in (lines if not args.quiet else lines[1:]):
+        print(f"clphong relight: {line}" if line is lines[0] else line, file=sys.stderr)
+    if result.interrupted:
+        return 128 + int(result.interrupted)
+    return 1 if result.failed else 0
+
+
+def cmd_inspect(args) -> int:
+    import json
+
+    from .inspect import format_report, inspect_file
+
+    report = inspect_file(args.file, stats=not args.no_stats)
+    print(json.dumps(report, indent=2) if args.json else format_report(report))
+    return 0
+
+
+def cmd_diff(args) -> int:
+    from .inspect import DiffError, diff_images
+
+    channels = [c.strip() for c in args.channels.split(",")] if args.channels else None
+    try:
+        result = diff_images(args.a, args.b, metric=args.metric, tol=args.tol, channels=channels,
+                             heatmap=args.heatmap, floor=args.floor, peak=args.peak)
+    except (ClphongError, ValueError) as exc:
+        raise DiffError(str(exc)) from None     # exit 2: could not compare
+    print(result.line())
+    return 0 if result.match else 1
+
+
+def _add_color_options(r):
+    """Tone mapping, colour management and display-output options of 'render'."""
+    g = r.add_argument_group("tone mapping and colour (override the scene's [render] keys)")
+    g.add_argument("--exposure", type=float, metavar="EV",
+                   help="exposure in stops: display outputs see the scene-linear value x 2^EV")
+    g.add_argument("--tonemap", metavar="OP",
+                   help="operator of the SDR output without an OCIO view: none (clip), reinhard, "
+                        "reinhard-extended, hable, aces-hill, agx, pbr-neutral")
+    g.add_argument("--white", type=float, metavar="W",
+                   help="white point of reinhard-extended (default 4) and hable (default 11.2)")
+    g.add_argument("--working-space", choices=("lin_rec709", "acescg"),
+                   help="colour space of albedo, lights and the EXR (default lin_rec709)")
+    g.add_argument("--ocio-config", metavar="PATH",
+                   help="OCIO config (default: $OCIO, else the built-in ocio://default)")
+    g.add_argument("--display", help="OCIO display of the SDR output (as oiiotool --ociodisplay)")
+    g.add_argument("--view", help="OCIO view of the SDR output (default: the display's default)")
+    g.add_argument("--look", help="OCIO look(s), comma-separated")
+    o = r.add_argument_group("outputs (any combination; see 'clphong displays' for names)")
+    o.add_argument("--exr-type", choices=("float", "half"), default="float",
+                   help="EXR pixel type (--half is the same as --exr-type half)")
+    o.add_argument("--exr-compression", choices=("zip", "piz"), default="zip")
+    o.add_argument("--sdr", action="append", default=[], metavar="OUT.png|OUT.tif",
+                   help="display-referred SDR image; repeatable")
+    o.add_argument("--bits", type=int, choices=(8, 16), default=8, help="SDR bit depth")
+    o.add_argument("--no-dither", action="store_true", help="no dither before 8-bit quantisation")
+    o.add_argument("--hdr", action="append", default=[], metavar="OUT.png|OUT.jxl",
+                   help="HDR Rec.2100 PQ (1000-nit view), 16-bit PNG with cICP or JPEG XL")
+    o.add_argument("--hdr-view", help="OCIO view of the HDR output on 'Rec.2100-PQ - Display' "
+                                      "(default 'ACES 2.0 - HDR 1000 nits (Rec.2020)')")
+    o.add_argument("--contact-sheet", metavar="OUT.png",
+                   help="PNG of the frame through every operator and view, labelled")
+
+
+def _output_request(args, scene):
+    from .deliver import OutputRequest
+
+    req = OutputRequest.from_scene(
+        scene, sdr=list(args.sdr), hdr=list(args.hdr), contact_sheet=args.contact_sheet,
+        bits=args.bits, dither=not args.no_dither, working_space=args.working_space,
+        exposure=args.exposure, tonemap=args.tonemap, white=args.white, display=args.display,
+        view=args.view, look=args.look, hdr_view=args.hdr_view, ocio_config=args.ocio_config)
+    req.check()        # bad names fail before any work
+    return req
+
+
+def cmd_displays(args) -> int:
+    from .color import WORKING_SPACES, load_config
+    from .tonemap import OPERATORS
+
+    print(load_config(args.ocio_config).describe())
+    print("working spaces: " + ", ".join(f"{k} ({w.description})" for k, w in WORKING_SPACES.items()))
+    print("tone-mapping operators: " + ", ".join(f"{k} ({op.source})" for k, op in OPERATORS.items()))
+    return 0
+
+
+COMMANDS = {"displays": cmd_displays, "render": cmd_render, "plan": cmd_plan, "devices": cmd_devices, "samples": cmd_samples,
+            "relight": cmd_relight, "inspect": cmd_inspect, "diff": cmd_diff,
+            "bench": cmd_bench}
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; return the exit code."""
     parser = _build_parser()
     args = parser.parse_args(argv)
+    import warnings
+
+    def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+        # clphong's own warnings (policies applied, suspicious scenes) as one line each.
+        text = " ".join(str(message).split())
+        print(f"clphong: warning: {text}", file=sys.stderr if file is None else file)
+
     try:
-        return COMMANDS[args.command](args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line_warning
+            with _sigterm_as_interrupt():
+                return COMMANDS[args.command](args)
     except _Usage as exc:
         parser.error(str(exc))   # exits 2
     except ClphongError as exc:
         msg = " ".join(str(exc).split("\n")).strip()
         print(f"clphong: error: {msg}", file=sys.stderr)
         return exc.exit_code
+    except MemoryError:
+        # A step whose size clphong could not foresee (clphong.tiling plans the
+        # big ones); outputs are written atomically, so nothing partial is left.
+        print(f"clphong: error: out of memory in '{args.command}'; free memory, or set "
+              "CLPHONG_MAX_MEMORY lower so that large frames are shaded in smaller bands",
+              file=sys.stderr)
+        return 1
+    except _Terminated:
+        print("clphong: terminated (SIGTERM); no partial output was left", file=sys.stderr)
+        return 128 + 15
     except KeyboardInterrupt:
         print("clphong: interrupted", file=sys.stderr)
         return 130
     return 0
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that every cleanup (temporary outputs) runs."""
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """Turn SIGTERM into :class:`_Terminated` while a command runs (main thread only).
+
+    Python's default SIGTERM action ends the process at once, which would leave
+    a half-written temporary output (``.NAME.tmp-XXXX.exr``) behind.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _raise(signum, frame):
+        raise _Terminated()
+
+    try:
+        previous = signal.signal(signal.SIGTERM, _raise)
+    except (ValueError, OSError):          # no signals here (e.g. an embedded interpreter)
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover

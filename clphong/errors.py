@@ -26,3 +26,16 @@ class DeviceError(ClphongError):
 
 class OutputError(ClphongError):
     """An output file cannot be written."""
+
+
+class ClphongWarning(UserWarning):
+    """Input or output that clphong handled by a documented policy (the CLI
+    prints each as one line, ``clphong: warning: ...``)."""
+
+
+class InputWarning(ClphongWarning):
+    """Non-finite G-buffer values were handled by the input policy."""
+
+
+class OutputWarning(ClphongWarning):
+    """Output values were changed to fit the file format (e.g. the half range)."""

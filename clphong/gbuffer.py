@@ -61,7 +61,11 @@ buffers, 1 for scalars).
 Half and float pixels, scanline and tiled files are read; the result is
 always float32. Deep and multi-part EXR files are rejected. If the data
 window differs from the display window the pixels are placed in the display
-window and the rest is zero (background).
+window and the rest is zero (background). Separate files may have different
+data windows: a pixel is shaded only where position, normal and albedo all
+have data (elsewhere it is background); data windows that do not overlap at
+all are an error. Reading is refused, with the sizes, when the channels would
+not fit in memory (see :mod:`clphong.tiling`).
 """
 
 from __future__ import annotations
@@ -192,8 +196,14 @@ class GBuffer:
 # --------------------------------------------------------------------------- channel mapping
 
 
+def _show(name: str) -> str:
+    """A channel name for a message: escaped when it has control or undecodable
+    characters (a newline, found by fuzzing), so that the message stays one line."""
+    return name if name.isprintable() else repr(name)
+
+
 def _short(names: Sequence[str], limit: int = 16) -> str:
-    names = list(names)
+    names = [_show(n) for n in names]
     if not names:
         return "(no channels)"
     if len(names) <= limit:
@@ -227,9 +237,9 @@ def _normalise_mapping(channels) -> dict[str, tuple[str, object]]:
             raise GBufferError(f"channel mapping {key}: expected a string or a list of channel "
                                f"names, got {type(value).__name__}")
         if any(not p for p in parts):
-            raise GBufferError(f"channel mapping {key}={','.join(parts)} has an empty channel name")
+            raise GBufferError(f"channel mapping {key}={','.join(map(_show, parts))} has an empty channel name")
         if len(parts) != want:
-            raise GBufferError(f"channel mapping {key}={','.join(parts)}: {key} needs {want} "
+            raise GBufferError(f"channel mapping {key}={','.join(map(_show, parts))}: {key} needs {want} "
                                f"channel name{'s' if want > 1 else ''}, got {len(parts)}")
         out[key] = ("list", parts)
     return out
@@ -444,7 +454,7 @@ def _explicit(ch: _Channels, key: str, spec: tuple[str, object], path: str,
         if not required:
             return None
         raise GBufferError(f"{path}: channel {missing[0]!r} ({key}, from channels "
-                           f"{key}={','.join(value)}) not found; the file has: {_short(ch.names)}")
+                           f"{key}={','.join(map(_show, value))}) not found; the file has: {_short(ch.names)}")
     if kind == "prefix":
         chans = ch.vector(value)
         if chans or not required:
@@ -461,6 +471,15 @@ def _explicit(ch: _Channels, key: str, spec: tuple[str, object], path: str,
 # --------------------------------------------------------------------------- file access
 
 
+def _oiio_message(geterror) -> str:
+    """OpenImageIO's pending error as one line; its binding fails on non-UTF-8 text."""
+    try:
+        text = geterror()             # reading it clears it: call once
+    except UnicodeDecodeError:
+        return "OpenImageIO's message is not UTF-8 text (a corrupt file?)"
+    return _one_line(text) if text else ""
+
+
 class _ExrFile:
     """One opened EXR file: validated spec, channel names, pixel reads."""
 
@@ -473,7 +492,7 @@ class _ExrFile:
             raise GBufferError(f"{p}: is a directory, not an EXR file")
         inp = oiio.ImageInput.open(p)
         if inp is None:
-            raise GBufferError(f"{p}: cannot read as EXR: {_one_line(oiio.geterror())}")
+            raise GBufferError(f"{p}: cannot read as EXR: {_oiio_message(oiio.geterror) or 'unknown error'}")
         self.inp = inp
         try:
             fmt = inp.format_name()
@@ -496,12 +515,19 @@ class _ExrFile:
             if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
                 raise GBufferError(f"{p}: empty image ({spec.width}x{spec.height}, "
                                    f"{spec.nchannels} channels)")
+            # OpenImageIO's binding decodes header text as UTF-8 (found by fuzzing).
+            try:
+                names = spec.channelnames
+                attributes = {a.name: a.value for a in spec.extra_attribs}
+            except UnicodeDecodeError:
+                raise GBufferError(f"{p}: cannot read as EXR: the header has channel or attribute "
+                                   "names that are not UTF-8 text (a corrupt file?)") from None
         except BaseException:
             inp.close()
             raise
         self.spec = spec
-        self.channels = _Channels(spec.channelnames)
-        self.attributes = {a.name: a.value for a in spec.extra_attribs}
+        self.channels = _Channels(names)
+        self.attributes = attributes
         self.size = (int(spec.full_width) or int(spec.width), int(spec.full_height) or int(spec.height))
         self._data: dict[str, np.ndarray] = {}
 
@@ -510,8 +536,8 @@ class _ExrFile:
             self.inp.close()
             self.inp = None
 
-    def load(self, names: Sequence[str]) -> None:
-        """Read channels ``names`` (in runs of nearby channels) into the cache."""
+    def runs(self, names: Sequence[str]) -> list[list[int]]:
+        """Channel indices of ``names`` not yet loaded, grouped in runs read together."""
         index = {n: i for i, n in enumerate(self.spec.channelnames)}
         wanted = sorted({index[n] for n in names if n not in self._data})
         runs: list[list[int]] = []
@@ -520,13 +546,43 @@ class _ExrFile:
                 runs[-1].append(i)
             else:
                 runs.append([i])
-        for run in runs:
+        return runs
+
+    def window(self) -> tuple[int, int, int, int]:
+        """The data window in display-window pixels, clipped: (x0, y0, x1, y1), x1/y1 exclusive."""
+        s = self.spec
+        fw, fh = self.size
+        x0, y0 = s.x - s.full_x, s.y - s.full_y
+        return (min(max(x0, 0), fw), min(max(y0, 0), fh),
+                max(min(x0 + s.width, fw), 0), max(min(y0 + s.height, fh), 0))
+
+    def load_bytes(self, names: Sequence[str]) -> int:
+        """Peak bytes :meth:`load` allocates for ``names`` (see ``_check_read_memory``)."""
+        runs = self.runs(names)
+        if not runs:
+            return 0
+        data_px = int(self.spec.width) * int(self.spec.height)
+        lengths = [run[-1] + 1 - run[0] for run in runs]
+        s = self.spec
+        # OpenImageIO reads whole tiles, all channels, in the file's type and in
+        # float: a header claiming 10560x16384 tiles on a 4x3 image made it
+        # allocate 9 GB (found by fuzzing with atheris).
+        tile = 8 * max(int(s.tile_width), 0) * max(int(s.tile_height), 0) * max(int(s.nchannels), 1)
+        if (s.x, s.y, s.width, s.height) == (s.full_x, s.full_y, *self.size):
+            return tile + 4 * data_px * sum(lengths)   # planes stay views of the runs read
+        display_px = self.size[0] * self.size[1]       # planes are copied into the display window
+        return tile + 4 * (display_px * sum(len(r) for r in runs) + data_px * max(lengths))
+
+    def load(self, names: Sequence[str]) -> None:
+        """Read channels ``names`` (in runs of nearby channels) into the cache."""
+        for run in self.runs(names):
             lo, hi = run[0], run[-1] + 1
             pix = self.inp.read_image(0, 0, lo, hi, oiio.TypeDesc("float"))
             if pix is None:
-                msg = _one_line(self.inp.geterror() or oiio.geterror())
+                msg = (_oiio_message(self.inp.geterror) or _oiio_message(oiio.geterror)
+                       or "unknown error")
                 raise GBufferError(f"{self.path}: reading channels "
-                                   f"{','.join(self.spec.channelnames[lo:hi])} failed: {msg}")
+                                   f"{','.join(map(_show, self.spec.channelnames[lo:hi]))} failed: {msg}")
             pix = np.asarray(pix, dtype=np.float32).reshape(self.spec.height, self.spec.width, hi - lo)
             for i in run:
                 self._data[self.spec.channelnames[i]] = self._fit(pix[:, :, i - lo])
@@ -688,17 +744,19 @@ def read_gbuffer(path: str | os.PathLike | None = None, *, position: str | os.Pa
             else:
                 if key in mapping:
                     kind, value = mapping[key]
-                    shown = ",".join(value) if kind == "list" else value
+                    shown = ",".join(map(_show, value)) if kind == "list" else _show(value)
                     raise GBufferError(f"{', '.join(order)}: channel(s) {shown!r} for {key} "
                                        f"(from channels {key}={shown}) not found in any file")
 
         wanted: dict[str, list[str]] = {}
         for f, chans, _ in (*resolved.values(), *optional.values()):
             wanted.setdefault(f.path, []).extend(chans)
+        _check_read_memory(files, wanted)
         for p, names in wanted.items():
             files[p].load(names)
 
         arrays = {k: f.stack(chans) for k, (f, chans, _) in resolved.items()}
+        _background_outside_data_windows(arrays, {k: f for k, (f, _, _) in resolved.items()})
         coverage = None
         maps: dict[str, np.ndarray] = {}
         for key, (f, chans, _) in optional.items():
@@ -719,6 +777,61 @@ def read_gbuffer(path: str | os.PathLike | None = None, *, position: str | os.Pa
     return GBuffer(position=arrays["position"], normal=arrays["normal"], albedo=arrays["albedo"],
                    coverage=coverage, maps={k: maps[k] for k in MAP_KEYS if k in maps},
                    convention=convention, sources=sources, attributes=attributes)
+
+
+def _check_read_memory(files: Mapping[str, _ExrFile], wanted: Mapping[str, list[str]]) -> None:
+    """Refuse to read channels that would not fit in memory (instead of being killed).
+
+    Peak bytes: what :meth:`_ExrFile.load` keeps (the runs of channels read, or
+    display-window copies of them plus one run when the data window differs)
+    plus the float32 (H, W, k) arrays stacked from them.
+    """
+    from .tiling import require_memory
+
+    need = 0
+    channels = 0
+    for p, names in wanted.items():
+        f = files[p]
+        need += f.load_bytes(names)
+        need += 4 * f.size[0] * f.size[1] * len(names)
+        channels += len(names)
+    first = files[next(iter(wanted))]
+    w, h = first.size
+    d = first.spec
+    window = f" (data window {d.width}x{d.height})" if (d.width, d.height) != (w, h) else ""
+    if d.tile_width * d.tile_height > d.width * d.height:
+        window += f" (tiles of {d.tile_width}x{d.tile_height})"
+    require_memory(need, f"{', '.join(wanted)}: reading {channels} channels of a {w}x{h} "
+                         f"image{window}", GBufferError,
+                   "crop the image (e.g. oiiotool --crop) or free memory")
+
+
+def _background_outside_data_windows(arrays: dict[str, np.ndarray], sources: Mapping[str, _ExrFile]) -> None:
+    """Pixels outside the data window of any required buffer are background.
+
+    Within one file every channel shares the data window, and the zeros
+    outside it make a zero normal, so background. Separate files may have
+    different data windows (e.g. auto-cropped AOVs): a pixel is shaded only
+    where position, normal and albedo all have data, so elsewhere the normal
+    is set to 0. Windows that do not overlap at all leave nothing to shade:
+    an error.
+    """
+    windows = {k: f.window() for k, f in sources.items()}
+    if len(set(windows.values())) <= 1:
+        return
+    x0 = max(w[0] for w in windows.values())
+    y0 = max(w[1] for w in windows.values())
+    x1 = min(w[2] for w in windows.values())
+    y1 = min(w[3] for w in windows.values())
+    if x1 <= x0 or y1 <= y0:
+        shown = "; ".join(f"{k} {sources[k].path} ({w[0]},{w[1]})-({w[2] - 1},{w[3] - 1})"
+                          for k, w in windows.items())
+        raise GBufferError(f"the data windows of the separate buffers do not overlap, so no pixel "
+                           f"has position, normal and albedo: {shown}; render them with the same "
+                           "data window (or oiiotool --fullpixels)")
+    inside = np.zeros(arrays["normal"].shape[:2], bool)
+    inside[y0:y1, x0:x1] = True
+    arrays["normal"][~inside] = 0.0
 
 
 def _fallback_layout(f: _ExrFile) -> _Layout:

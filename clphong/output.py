@@ -9,6 +9,8 @@ good file.
 
 Public functions
 ----------------
+check_output_path
+    Check an output name and its folder before any work is done.
 atomic_path
     Context manager yielding a temporary name that is renamed into place.
 write_exr
@@ -28,7 +30,7 @@ import OpenImageIO as oiio
 
 from .errors import OutputError
 
-__all__ = ["atomic_path", "write_exr", "set_attribute", "PIXEL_TYPES"]
+__all__ = ["atomic_path", "check_output_path", "write_exr", "set_attribute", "PIXEL_TYPES"]
 
 #: Pixel types accepted by :func:`write_exr` and ``write_gbuffer``.
 PIXEL_TYPES = ("float", "half")
@@ -43,6 +45,45 @@ def _one_line(text: str) -> str:
 def _remove_quietly(name: str) -> None:
     with contextlib.suppress(OSError):
         os.remove(name)
+
+
+def check_output_path(path: str | os.PathLike, *, exr: bool = False) -> None:
+    """Check, before any work, that ``path`` can be an output file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The destination file.
+    exr : bool
+        Also require the ``.exr`` extension (OpenImageIO picks the format
+        from it: ``out.png`` would be written as 8-bit PNG, silently clipping
+        scene-linear values).
+
+    Raises
+    ------
+    OutputError
+        One line naming ``path``: not a file name, a directory, a folder that
+        is missing (or a path through a regular file), or (``exr``) a name
+        not ending in ``.exr``. Writability is checked when the temporary file
+        is created (:func:`atomic_path`).
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    name = os.path.basename(path)
+    if not name:
+        raise OutputError(f"{path}: not a file name")
+    if os.path.isdir(path):
+        raise OutputError(f"{path}: is a directory; give a file name")
+    if exr and os.path.splitext(name)[1].lower() != ".exr":
+        raise OutputError(f"{path}: output files are OpenEXR; give a name ending in .exr")
+    if not os.path.isdir(folder):
+        # Name the first part of the folder's path that is missing or not a folder.
+        part = folder
+        while not os.path.exists(part) and os.path.dirname(part) != part:
+            part = os.path.dirname(part)
+        if os.path.exists(part) and not os.path.isdir(part):
+            raise OutputError(f"{path}: {part} is a file, not a folder; choose another output folder")
+        raise OutputError(f"{path}: folder {folder} does not exist; create it first")
 
 
 @contextlib.contextmanager
@@ -84,15 +125,9 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     ...     write_the_image(tmp)
     """
     path = os.fspath(path)
+    check_output_path(path)
     folder = os.path.dirname(os.path.abspath(path))
-    name = os.path.basename(path)
-    stem, ext = os.path.splitext(name)
-    if not name:
-        raise OutputError(f"{path}: not a file name")
-    if os.path.isdir(path):
-        raise OutputError(f"{path}: is a directory; give a file name")
-    if not os.path.isdir(folder):
-        raise OutputError(f"{path}: folder {folder} does not exist; create it first")
+    stem, ext = os.path.splitext(os.path.basename(path))
     tmp = None
     for _ in range(100):
         candidate = os.path.join(folder, f".{stem}.tmp-{secrets.token_hex(4)}{ext}")
@@ -171,9 +206,60 @@ def set_attribute(spec: oiio.ImageSpec, name: str, value: object) -> None:
                       "in an image header")
 
 
+def write_image_atomically(display: str, spec, data: np.ndarray, *, what: str = "a writer") -> None:
+    """Write ``data`` with ``spec`` to ``display`` through a temporary file.
+
+    The file appears under its name only when open, write and close all
+    succeeded; otherwise an :class:`OutputError` names the step and carries
+    OpenImageIO's message, and no file (partial or temporary) is left.
+    """
+    with atomic_path(display) as tmp:
+        out = oiio.ImageOutput.create(tmp)
+        if out is None:
+            raise OutputError(f"{display}: OpenImageIO cannot create {what}: "
+                              f"{_one_line(oiio.geterror())}")
+        ok = False
+        try:
+            if not out.open(tmp, spec):
+                raise OutputError(f"{display}: cannot open for writing: {_one_line(out.geterror())}")
+            if not out.write_image(np.ascontiguousarray(data)):
+                raise OutputError(f"{display}: writing the pixels failed: {_one_line(out.geterror())}")
+            ok = True
+        finally:
+            closed = out.close()
+        if ok and not closed:
+            raise OutputError(f"{display}: closing the file failed: {_one_line(out.geterror())}")
+
+
+#: The largest finite half-float value.
+HALF_MAX = 65504.0
+
+
+def _fit_half(data: np.ndarray, display: str, policy: str) -> np.ndarray:
+    """Clamp finite values beyond ±HALF_MAX (policy "clamp") or refuse ("error")."""
+    import warnings
+
+    from .errors import OutputWarning
+
+    if policy not in ("clamp", "error"):
+        raise OutputError(f"{display}: half_overflow {policy!r} is not one of clamp, error")
+    over = np.isfinite(data) & (np.abs(data) > HALF_MAX)
+    n = int(over.sum())
+    if not n:
+        return data
+    peak = float(np.abs(data[over]).max())
+    if policy == "error":
+        raise OutputError(f"{display}: {n} value(s) exceed the half-float range (max {peak:g} > "
+                          f"{HALF_MAX:g}); write float, or lower the exposure")
+    warnings.warn(f"{display}: {n} value(s) above the half-float range (max {peak:g}) clamped to "
+                  f"±{HALF_MAX:g}", OutputWarning, stacklevel=3)
+    return np.clip(data, -HALF_MAX, HALF_MAX)
+
+
 def write_exr(path: str | os.PathLike, rgb: np.ndarray, *, pixel_type: str = "float",
               compression: str = "zip", attributes: Mapping[str, object] | None = None,
-              channel_names: Sequence[str] = ("R", "G", "B"), tiled: bool = False) -> None:
+              channel_names: Sequence[str] = ("R", "G", "B"), tiled: bool = False,
+              half_overflow: str = "clamp") -> None:
     """Write an image to an OpenEXR file atomically.
 
     Parameters
@@ -197,15 +283,21 @@ def write_exr(path: str | os.PathLike, rgb: np.ndarray, *, pixel_type: str = "fl
         Names of the channels, in the order of the last axis of ``rgb``.
     tiled : bool
         Write a tiled file with 64x64 tiles instead of scanlines.
+    half_overflow : {"clamp", "error"}
+        Finite values beyond the half range (|x| > 65504) would become ±Inf in
+        a half file. ``"clamp"`` (default) clamps them to ±65504 and warns
+        (:class:`~clphong.errors.OutputWarning`, with the count);
+        ``"error"`` refuses to write. Never an unannounced Inf.
 
     Raises
     ------
     OutputError
-        One-line message naming ``path``: a bad array shape or pixel type, a
-        missing or read-only folder, or any OpenImageIO failure (with its
+        One-line message naming ``path``: a name not ending in ``.exr``, a bad
+        array shape or pixel type, a missing or read-only folder, or any OpenImageIO failure (with its
         message). No partial file is left behind.
     """
     display = os.fspath(path)
+    check_output_path(display, exr=True)
     names = [str(n) for n in channel_names]
     arr = np.asarray(rgb)
     if arr.ndim == 2 and len(names) == 1:
@@ -220,6 +312,8 @@ def write_exr(path: str | os.PathLike, rgb: np.ndarray, *, pixel_type: str = "fl
     if arr.shape[0] == 0 or arr.shape[1] == 0:
         raise OutputError(f"{display}: cannot write an empty {arr.shape[1]}x{arr.shape[0]} image")
     data = np.ascontiguousarray(arr, dtype=np.float32)
+    if pixel_type == "half":
+        data = _fit_half(data, display, half_overflow)
     h, w, c = data.shape
 
     spec = oiio.ImageSpec(w, h, c, oiio.TypeDesc(pixel_type))
@@ -232,20 +326,9 @@ def write_exr(path: str | os.PathLike, rgb: np.ndarray, *, pixel_type: str = "fl
         spec.tile_depth = 1
     for key, value in (attributes or {}).items():
         set_attribute(spec, str(key), value)
+    # A colorInteropID copied from another image's header (OpenImageIO keeps the
+    # source's on converted buffers) would mislabel the file: drop it, and
+    # OpenImageIO writes the one that matches oiio:ColorSpace.
+    spec.erase_attribute("colorInteropID")
 
-    with atomic_path(display) as tmp:
-        out = oiio.ImageOutput.create(tmp)
-        if out is None:
-            raise OutputError(f"{display}: OpenImageIO cannot create an EXR writer: "
-                              f"{_one_line(oiio.geterror())}")
-        ok = False
-        try:
-            if not out.open(tmp, spec):
-                raise OutputError(f"{display}: cannot open for writing: {_one_line(out.geterror())}")
-            if not out.write_image(data):
-                raise OutputError(f"{display}: writing the pixels failed: {_one_line(out.geterror())}")
-            ok = True
-        finally:
-            closed = out.close()
-        if ok and not closed:
-            raise OutputError(f"{display}: closing the file failed: {_one_line(out.geterror())}")
+    write_image_atomically(display, spec, data, what="an EXR writer")

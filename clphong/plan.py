@@ -61,7 +61,8 @@ class ShadingPlan:
 
 
 def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LANES,
-              compensated: bool | None = None) -> ShadingPlan:
+              compensated: bool | None = None, fp64_directions: bool = False,
+              display=None, max_error: float | None = None) -> ShadingPlan:
     """Choose the kernel variant for ``scene`` and the material ``maps`` present.
 
     Parameters
@@ -77,6 +78,16 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     compensated : bool, optional
         Force Neumaier summation on or off; by default on above
         ``COMPENSATE_ABOVE`` lights.
+    fp64_directions : bool
+        Positions, directions, n·l and δ in double (lane kernel only); the
+        caller decides from the device (``Runtime.has_fp64``).
+    max_error : float, optional
+        Culling budget ε in output radiance (``--max-error`` × reference
+        white): with point lights, compile the per-tile light lists of
+        ``kernels/cull.cl`` (CULLING=1). None: every light shades every pixel.
+    display : clphong.display.DisplayTransform, optional
+        Fuse exposure, tone mapping and display encoding into the final store
+        (kernels/tonemap.cl); None: scene-linear output only (DISPLAY_OUT=0).
     """
     if kernel not in ("lanes", "obvious"):
         raise ValueError(f"kernel must be 'lanes' or 'obvious', not {kernel!r}")
@@ -118,6 +129,29 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         f"{n_point + n_dir} lights summed: "
         + ("Neumaier summation keeps the sum's error at ~2u" if compensated
            else f"≤ {COMPENSATE_ABOVE} terms, naive sum within {max(n_point + n_dir - 1, 0)}u"))
+    falloff = any(lt.attenuation[1] != 0 or lt.attenuation[2] != 0
+                  for lt in scene.lights_of("point"))
+    put("HAS_ATTENUATION", falloff,
+        "some point light has c1 or c2 ≠ 0: 1/(c0 + c1·d + c2·d²) per pixel" if falloff
+        else ("every point light has c1 = c2 = 0: the falloff is the constant 1/c0"
+              if n_point else "no point light"))
+    if kernel == "lanes":
+        culling = max_error is not None and n_point > 0
+        put("CULLING", culling,
+            f"--max-error budget ε = {max_error:g}: per-tile point-light lists, dropped lights "
+            "sum to ≤ ε per pixel (kernels/cull.cl)" if culling
+            else ("no point light to cull" if max_error is not None
+                  else "no --max-error budget: every light shades every pixel"))
+        put("DIRECTIONS_FP64", fp64_directions,
+            "directions, n·l and δ in double: relative error a few u at grazing light and "
+            "any shininess (docs/error-model.md)" if fp64_directions
+            else "directions in float: fast path, error grows near grazing light and with k")
+    if display is None:
+        put("DISPLAY_OUT", 0, "no fused display output (scene-linear only, or an OCIO view)")
+    else:
+        why = display.reasons()
+        for name, value in display.defines().items():
+            put(name, value, why[name])
     notes = []
     if not n_point and not n_dir:
         notes.append("no direct lights: only the ambient term is shaded")

@@ -53,10 +53,8 @@ def blinn_delta(n, l, v):
 
 def blinn_delta_const_h(n, h, undefined=False):
     """δ = |n − h|²/2 for a half vector constant per light; 1 if it is undefined."""
-    if undefined:
-        return np.ones(n.shape[:-1])
     e = n - h
-    return 0.5 * _dot(e, e)
+    return np.where(undefined, 1.0, 0.5 * _dot(e, e))
 
 
 def specular_power(delta, k):
@@ -108,25 +106,27 @@ def shade_point_light(px: Pixels, L, c0, c1, c2):
     NoL = np.where(d2 <= 0.0, 0.0, _dot(px.n, l))
     l = np.where((d2 <= 0.0)[..., None], 0.0, l)
     diffuse, specular = shade_direction(px, l, NoL)
-    att = attenuation(c0, c1, c2, d)
+    with np.errstate(divide="ignore"):
+        # d = 0: no contribution, also where c0 = 0 makes the falloff infinite.
+        att = np.where(d2 <= 0.0, 0.0, attenuation(c0, c1, c2, d))
     return diffuse * att, specular * att
 
 
 def shade_directional_light(px: Pixels, l, h=None, h_undefined=False):
     """Weights of a directional light (unit l towards it); constant h if given."""
     l = np.asarray(l, np.float64)
-    NoL = px.n @ l
+    NoL = _dot(px.n, l)
     if h is not None and px.blinn and px.specular:
         delta = blinn_delta_const_h(px.n, np.asarray(h, np.float64), h_undefined)
         return lambert(NoL), np.where(NoL > 0.0, specular_power(delta, px.k), 0.0)
-    return shade_direction(px, np.broadcast_to(l, px.n.shape), NoL)
+    return shade_direction(px, np.broadcast_to(l, NoL.shape + (3,)), NoL)
 
 
 # -------------------------------------------------------------------------- shade.cl
 
 def _inputs(scene, gbuffer):
     """Shaded-pixel inputs and per-pixel material, in float64."""
-    from .render import half_vector, view_vector  # noqa: F401  (same host maths)
+    from .render import view_vector
 
     bg = gbuffer.background_mask().reshape(-1)
     fg = ~bg
@@ -145,6 +145,9 @@ def _inputs(scene, gbuffer):
     S = Cs * (np.asarray(k_s)[..., None] if np.ndim(k_s) else k_s) * np.ones((len(P), 3))
     blinn = m.model == "blinn-phong"
     k = 4.0 * h if blinn else h
+    # The kernel's exponent is a float32 that -cl-denorms-are-zero flushes: an h
+    # below FLT_MIN is 0 there (and 0⁰ := 1), so it is here.
+    k = np.where(np.abs(k) < FLT_MIN, 0.0, k)
     v_ortho = view_vector(scene.camera)
     if v_ortho is not None:
         v = np.broadcast_to(v_ortho, P.shape)
@@ -156,33 +159,54 @@ def _inputs(scene, gbuffer):
     return px, C, D, S, fg
 
 
+#: Pixel-light pairs evaluated at once by the reference (memory ~ 100 bytes each).
+BATCH_PAIRS = 1 << 20
+
+
 def _light_terms(scene, px: Pixels):
-    """Yield (light, radiance, l or None, diffuse, specular) per direct light."""
+    """Yield (kind, L, params, diffuse, specular) per batch of K lights of one kind.
+
+    Lights run along a leading axis: ``L`` (K, 1, 3) radiance, ``diffuse`` and
+    ``specular`` (K, M) weights; ``params`` holds the batch's positions (K, 1, 3)
+    and attenuation coefficients (K, 1) for point lights, or unit l (K, 1, 3)
+    for directional ones. Every function above broadcasts over that axis.
+    """
     from .render import half_vector, view_vector
 
     v_ortho = view_vector(scene.camera)
-    for lt in scene.lights_of("directional"):
-        l = -np.asarray(lt.direction, np.float64)
+    K = max(1, BATCH_PAIRS // max(len(px.p), 1))
+    dirs = scene.lights_of("directional")
+    for a in range(0, len(dirs), K):
+        batch = dirs[a:a + K]
+        l = -np.array([lt.direction for lt in batch], np.float64)[:, None, :]
+        L = np.array([lt.radiance for lt in batch], np.float64)[:, None, :]
         if v_ortho is not None:
-            h, undefined = half_vector(l, v_ortho)
+            h, undefined = half_vector(l, v_ortho)              # (K, 1, 3), (K, 1)
             diffuse, specular = shade_directional_light(px, l, h, undefined)
         else:
             diffuse, specular = shade_directional_light(px, l)
-        yield lt, np.asarray(lt.radiance, np.float64), diffuse, specular
-    for lt in scene.lights_of("point"):
-        c0, c1, c2 = lt.attenuation
-        diffuse, specular = shade_point_light(px, lt.position, c0, c1, c2)
-        yield lt, np.asarray(lt.radiance, np.float64), diffuse, specular
+        yield "directional", L, {"l": l}, diffuse, specular
+    pts = scene.lights_of("point")
+    for a in range(0, len(pts), K):
+        batch = pts[a:a + K]
+        pos = np.array([lt.position for lt in batch], np.float64)[:, None, :]
+        L = np.array([lt.radiance for lt in batch], np.float64)[:, None, :]
+        c = np.array([lt.attenuation for lt in batch], np.float64)[:, :, None]   # (K, 3, 1)
+        diffuse, specular = shade_point_light(px, pos, c[:, 0], c[:, 1], c[:, 2])
+        yield "point", L, {"position": pos, "c": (c[:, 0], c[:, 1], c[:, 2])}, diffuse, specular
 
 
-def Lc_max(L) -> float:
-    return float(np.max(np.abs(L)))
+def Lc_max(L):
+    """The largest |radiance| channel of each light (over the last axis)."""
+    return np.max(np.abs(L), axis=-1)
 
 
-def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form):
+def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, ud=U, r_out=0.0):
     """(absolute error bound, upper bound of the value) of the specular power.
 
-    Ungated by n·l: the caller applies the terminator rule.
+    Ungated by n·l: the caller applies the terminator rule. ``ud`` is the unit
+    roundoff of the direction arithmetic (u in float, 2⁻⁴⁷ with hi+lo inputs in
+    double), ``r_out`` the rounding of δ to float afterwards (0 or u).
     """
     if px.blinn:
         delta = blinn_delta(px.n, l, px.v)
@@ -190,7 +214,7 @@ def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form):
         with np.errstate(divide="ignore"):
             # h = (l + v)/|l + v| turns direction errors of l and v into
             # (η_l + η_v)/|l + v|: Blinn's half vector is ill-conditioned as l → −v.
-            e_vec = eta_n + 2.0 * (eta_l + eta_v + 2.0 * U) / lv
+            e_vec = eta_n + 2.0 * (eta_l + eta_v + 2.0 * ud) / lv
     else:
         delta = phong_delta(px.n, l, px.v, NoL)
         # r = 2n(n·l) − l: twice the error of n·l and of n, plus l's; then − v.
@@ -199,7 +223,7 @@ def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form):
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         if form == "delta":
             # |Δδ| for δ = |e|²/2 when |Δe| ≤ e_vec and |e| = √(2δ).
-            d_delta = np.sqrt(2.0 * delta) * e_vec + 0.5 * e_vec ** 2 + 4.0 * U * delta
+            d_delta = np.sqrt(2.0 * delta) * e_vec + 0.5 * e_vec ** 2 + (4.0 * ud + r_out) * delta
             y = np.abs(k * np.log1p(-np.minimum(delta, 1.0 - 1e-300)))
             s = specular_power(delta, k)
             # log1p 2 ulp, k·(·) 1, exp 3 ulp (relative in y), k rounded to float32;
@@ -231,15 +255,25 @@ def shade(scene, gbuffer) -> np.ndarray:
     out[:] = np.asarray(scene.background, np.float64)
     px, C, D, S, fg = _inputs(scene, gbuffer)
     E = C * ambient_radiance(scene)
-    for _, L, diffuse, specular in _light_terms(scene, px):
-        E += L * (D * diffuse[:, None] + S * specular[:, None])
+    for _, L, _, diffuse, specular in _light_terms(scene, px):
+        E += np.sum(L * (D * diffuse[..., None] + S * specular[..., None]), axis=0)
     out[fg] = E
-    return out.reshape(H, W, 3)
+    return finish_sum(out).reshape(H, W, 3)
+
+
+#: The largest finite float32: shade.cl saturates its result there.
+FLT_MAX = float(np.finfo(np.float32).max)
+
+
+def finish_sum(E):
+    """Saturate at ±FLT_MAX as the kernel does (never an Inf from finite inputs); NaN stays."""
+    return np.where(np.abs(E) > FLT_MAX, np.sign(E) * FLT_MAX, E)
 
 
 # ------------------------------------------------------------------- the error model
 
-def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta"):
+def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
+                directions="fp32", plan=None):
     """Upper bound of |float32 kernel − :func:`shade`| per pixel and channel.
 
     Parameters
@@ -254,6 +288,12 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta"):
     form : {"delta", "naive"}
         ``"delta"``: the specular power as exp(k·log1p(−δ)) with δ from
         |r − v|²/2 (shade.cl). ``"naive"``: pow(r·v, k) (shade_obvious.cl).
+    directions : {"fp32", "fp64"}
+        Whether positions, directions, n·l and δ were computed in float or in
+        double from hi+lo inputs (``DIRECTIONS_FP64``).
+    plan : clphong.plan.ShadingPlan, optional
+        The plan the kernel ran with; sets ``compensated``, ``form`` and
+        ``directions`` from its defines.
 
     Returns
     -------
@@ -274,6 +314,18 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta"):
     """
     from .render import view_vector
 
+    if plan is not None:
+        lanes = plan.kernel == "lanes"
+        compensated = lanes and bool(plan.defines.get("COMPENSATED_SUM", 0))
+        form = "delta" if lanes else "naive"
+        directions = "fp64" if plan.defines.get("DIRECTIONS_FP64", 0) else "fp32"
+    if directions not in ("fp32", "fp64"):
+        raise ValueError(f"directions must be 'fp32' or 'fp64', not {directions!r}")
+    # ud: unit roundoff of the direction arithmetic. In double from float32
+    # inputs and float32 hi+lo pairs (48 significant bits), 2⁻⁴⁷ covers the pairs'
+    # truncation and the double roundings. r_out: n·l and δ rounded to float.
+    fp64 = directions == "fp64"
+    ud, r_out = (2.0 ** -47, U) if fp64 else (U, 0.0)
     H, W = gbuffer.shape
     bound = np.zeros((H * W, 3))
     band = np.zeros(H * W, bool)
@@ -282,69 +334,93 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta"):
     rp = np.sqrt(_dot(px.p - o, px.p - o))          # |P − o|
     ortho = view_vector(scene.camera) is not None
     if ortho:
-        eta_v = np.full(len(px.p), U)
+        eta_v = np.full(len(px.p), ud)
     else:
         eye = np.asarray(scene.camera.position, np.float64)
         de = np.sqrt(_dot(eye - px.p, eye - px.p))
         with np.errstate(divide="ignore"):
-            eta_v = U * (2.0 + (rp + np.linalg.norm(eye - o)) / de)
-    eta_n = np.full(len(px.p), U)                   # unit normal rounded to float32
+            eta_v = ud * (2.0 + (rp + np.linalg.norm(eye - o)) / de)
+    eta_n = np.full(len(px.p), ud)                  # unit normal rounded (or as hi+lo)
     k = np.broadcast_to(px.k, (len(px.p),))
     total = np.abs(C * ambient_radiance(scene))    # Σ|c_i|, for the summation error
-    B = 2.0 * U * total                             # ambient: two roundings
+    # ambient: two roundings; k_a·A rounded to float and C·(k_a·A) flush below FLT_MIN
+    B = 2.0 * U * total + FLT_MIN * (1.0 + np.abs(C))
     n_direct = 0
-    for lt, L, diffuse, specular in _light_terms(scene, px):
-        n_direct += 1
-        if lt.type == "point":
-            Lp = np.asarray(lt.position, np.float64)
+    unbounded = np.zeros(len(px.p), bool)
+    for kind, L, params, diffuse, specular in _light_terms(scene, px):
+        n_direct += len(L)
+        if kind == "point":
+            Lp = params["position"]                                     # (K, 1, 3)
             dv = Lp - px.p
             d = np.sqrt(_dot(dv, dv))
             with np.errstate(divide="ignore", invalid="ignore"):
-                eta_l = U * (2.0 + (rp + np.linalg.norm(Lp - o)) / d)
-                c0, c1, c2 = lt.attenuation
+                eta_l = np.where(d > 0, ud * (2.0 + (rp + np.sqrt(_dot(Lp - o, Lp - o))) / d), 0.0)
+                c0, c1, c2 = params["c"]
                 cond = (abs(c0) + abs(c1) * d + abs(c2) * d * d) / (c0 + c1 * d + c2 * d * d)
+                cond = np.where(d > 0, cond, 0.0)     # d = 0 adds nothing (shade_point_light)
+                if not fp64:
+                    # float d², c2·d² or the polynomial outside float's normal
+                    # range: flushed or infinite, the result is not bounded.
+                    terms = np.stack([d * d, np.abs(c2) * d * d, c0 + c1 * d + c2 * d * d])
+                    out_of_range = (d > 0) & np.any((terms > FLT_MAX) | ((terms > 0) & (terms < FLT_MIN)), axis=0)
+                    unbounded |= np.any(out_of_range, axis=0)
             # d from the rounded position difference and rsqrt; Horner's three
             # roundings; the coefficients rounded to float32; the division.
-            e_att = cond * (4.0 * U + 2.0 * eta_l) + 3.0 * U
+            # fp64: d and the falloff in double, att·L rounded to float once.
+            e_att = (cond * (4.0 * ud + 2.0 * eta_l) + U) if fp64 else \
+                (cond * (4.0 * U + 2.0 * eta_l) + 3.0 * U)
             with np.errstate(invalid="ignore"):
                 NoL = np.where(d > 0, _dot(px.n, dv) / d, 0.0)
-                lvec = np.where((d > 0)[:, None], dv / d[:, None], 0.0)
+                lvec = np.where((d > 0)[..., None], dv / d[..., None], 0.0)
         else:
-            eta_l = np.full(len(px.p), U)
-            e_att = np.zeros(len(px.p))
-            lvec = np.broadcast_to(-np.asarray(lt.direction, np.float64), px.n.shape)
-            NoL = px.n @ lvec[0]
+            NoL = _dot(px.n, params["l"])                               # (K, M)
+            eta_l = np.full(NoL.shape, ud)
+            e_att = np.zeros(NoL.shape)
+            lvec = np.broadcast_to(params["l"], NoL.shape + (3,))
             d = None
-        eps_NoL = eta_n + eta_l + 4.0 * U
+        eps_dir = eta_n + eta_l + 4.0 * ud
+        # n·l as the weights see it: rounded to float (flushed below FLT_MIN) when
+        # it was computed in double.
+        eps_NoL = eps_dir + (r_out * np.abs(NoL) + FLT_MIN if fp64 else 0.0)
         Lc = np.abs(L)
         # Diffuse: max(n·l, 0) is continuous, so its error is that of n·l.
         diff_abs = np.where(NoL > -eps_NoL, eps_NoL, 0.0)
-        att = np.ones(len(px.p)) if d is None else attenuation(*lt.attenuation, d)
+        if d is None:
+            att = np.ones(NoL.shape)
+        else:
+            with np.errstate(divide="ignore"):
+                att = np.where(d > 0, attenuation(c0, c1, c2, d), 0.0)
         e_diff = diffuse * e_att + att * diff_abs + diffuse * 5.0 * U
         # Specular: the error of δ (or of r·v for the naive form) through the power.
         if px.specular:
-            spec_abs, spec_upper = _specular_error(px, lvec, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form)
+            spec_abs, spec_upper = _specular_error(px, lvec, NoL, eps_dir, eta_l, eta_v, eta_n, k,
+                                                   form, ud, r_out)
             e_spec = specular * (e_att + 5.0 * U) + att * spec_abs
             # The terminator: within eps_NoL of n·l = 0 the float32 gate n·l > 0
             # may disagree with float64's, switching the whole term.
             near = (np.abs(NoL) <= eps_NoL) & (spec_upper > 0)
             e_spec = np.where(near, e_spec + att * spec_upper, e_spec)
-            band_fg = near & (np.abs(S).max(axis=1) * Lc_max(L) > 0)
+            band_fg = np.any(near & (np.abs(S).max(axis=1) * Lc_max(L) > 0), axis=0)
         else:
-            e_spec = np.zeros(len(px.p))
+            e_spec = np.zeros(NoL.shape)
             band_fg = np.zeros(len(px.p), bool)
         idx = np.flatnonzero(fg)
         band[idx[band_fg]] = True
-        # Underflow: intermediates below FLT_MIN are flushed to zero.
-        floor = FLT_MIN * 2.0 * max(1.0, float(np.max(att, initial=1.0)))
-        B += Lc * (np.abs(D) * e_diff[:, None] + np.abs(S) * e_spec[:, None]) \
-            + Lc * (np.abs(D) + np.abs(S)) * floor
-        total += Lc * (np.abs(D) * diffuse[:, None] + np.abs(S) * specular[:, None])
+        # Underflow: intermediates below FLT_MIN are flushed to zero: the weights
+        # and their products with D and S (each then scaled by att·L), and att·L
+        # itself.
+        DS = np.abs(D) + np.abs(S)
+        floor = FLT_MIN * ((2.0 + DS) * (np.maximum(att, 1.0)[..., None] * Lc) + DS)
+        B += np.sum(Lc * (np.abs(D) * e_diff[..., None] + np.abs(S) * e_spec[..., None]) + floor, axis=0)
+        total += np.sum(Lc * (np.abs(D) * diffuse[..., None] + np.abs(S) * specular[..., None]), axis=0)
     # The light sum: Neumaier's compensated sum errs by ≤ 2u|Σ| + O(n·u²)Σ|c|;
     # the naive one by (n − 1)·u·Σ|c|; plus the final rounding.
     if compensated:
         B += (3.0 * U + 2.0 * n_direct * U * U) * total
     else:
         B += (max(n_direct, 1) * U + U) * total
+    B[unbounded] = np.inf          # float path out of its range (see docs/error-model.md)
     bound[fg] = 2.0 * B
+    # Background pixels: the background value rounded to float32.
+    bound[~fg] = U * np.abs(np.asarray(scene.background, np.float64))
     return bound.reshape(H, W, 3), band.reshape(H, W)

@@ -24,6 +24,8 @@ from .runtime import float4, get_runtime
 #: Work-items per work-group. PoCL runs anything from 8 to ~1000 equally well
 #: and 1 badly (POCL-NOTES "Local size").
 LOCAL_SIZE = 64
+#: Planes of Frame.gbuf: P xyz, unit N xyz (float), C_d rgb, N's float64 remainder xyz.
+GBUF_PLANES = 12
 
 
 @dataclass
@@ -82,9 +84,12 @@ def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:
     block = lanes * LOCAL_SIZE
     stride = max(block, math.ceil(n / block) * block)
     background = gbuffer.background_mask().reshape(-1)
-    gbuf = np.zeros((9, stride), np.float32)
+    gbuf = np.zeros((GBUF_PLANES, stride), np.float32)
     gbuf[0:3, :n] = gbuffer.position.reshape(-1, 3).T
-    gbuf[3:6, :n] = unit_normals(gbuffer.normal, background).T
+    n64 = unit_normals(gbuffer.normal, background)
+    gbuf[3:6, :n] = n64.T
+    # The float64 remainder of the unit normal, for DIRECTIONS_FP64 (shade.cl).
+    gbuf[9:12, :n] = (n64 - gbuf[3:6, :n].T.astype(np.float64)).T
     gbuf[6:9, :n] = gbuffer.albedo.reshape(-1, 3).T
     names = []
     planes = []
@@ -110,9 +115,21 @@ class LightArrays:
     """The scene's lights packed as the kernels read them (see kernels/clphong.h)."""
 
     point: np.ndarray        # (n_point*3, 4) float32
-    directional: np.ndarray  # (n_dir*3, 4) float32
+    directional: np.ndarray  # (n_dir*5, 4) float32
     ambient: np.ndarray      # (3,) float64: k_a·Σ ambient radiance
     eye: np.ndarray          # (3,) float64: perspective eye − origin, or orthographic unit v
+
+    @property
+    def eye_hi_lo(self) -> tuple[np.ndarray, np.ndarray]:
+        """``eye`` as float32 hi + lo (lo = eye − hi, rounded), for DIRECTIONS_FP64."""
+        return split_hi_lo(self.eye)
+
+
+def split_hi_lo(x) -> tuple[np.ndarray, np.ndarray]:
+    """float64 ``x`` as float32 ``hi`` and ``lo = float32(x − hi)``: hi + lo carries ~48 bits."""
+    x = np.asarray(x, np.float64)
+    hi = x.astype(np.float32)
+    return hi, (x - hi.astype(np.float64)).astype(np.float32)
 
 
 def view_vector(camera) -> np.ndarray | None:
@@ -122,13 +139,19 @@ def view_vector(camera) -> np.ndarray | None:
     return -np.asarray(camera.direction, np.float64)
 
 
-def half_vector(l: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Blinn's h = (l + v)/|l + v| in float64, and whether it is undefined (l = −v)."""
-    s = l + v
-    norm = math.sqrt(float(s @ s))
-    if norm == 0.0:
-        return np.zeros(3), True
-    return s / norm, False
+def half_vector(l: np.ndarray, v: np.ndarray):
+    """Blinn's h = (l + v)/|l + v| in float64, and whether it is undefined (l = −v).
+
+    ``l`` may hold many directions (..., 3); then ``undefined`` is a bool array.
+    """
+    s = np.asarray(l, np.float64) + np.asarray(v, np.float64)
+    norm = np.sqrt(np.einsum("...i,...i->...", s, s))
+    undefined = norm == 0.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        h = np.where(undefined[..., None], 0.0, s / norm[..., None])
+    if h.ndim == 1:
+        return h, bool(undefined)
+    return h, undefined
 
 
 def pack_lights(scene, origin: np.ndarray) -> LightArrays:
@@ -146,20 +169,22 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
         rec[:, 1, :3] = rad
         rec[:, 1, 3] = att[:, 1]
         rec[:, 2, 0] = att[:, 2]
+        rec[:, 2, 1:4] = split_hi_lo(pos)[1]
         point = rec.reshape(-1, 4).astype(np.float32)
     dirs = scene.lights_of("directional")
-    directional = np.zeros((max(len(dirs), 1) * 3, 4), np.float32)
+    directional = np.zeros((max(len(dirs), 1) * 5, 4), np.float32)
     v = view_vector(scene.camera)
     if dirs:
-        rec = np.zeros((len(dirs), 3, 4))
-        for j, lt in enumerate(dirs):
-            l = -np.asarray(lt.direction, np.float64)
-            rec[j, 0, :3] = l
-            rec[j, 1, :3] = lt.radiance
-            if v is not None:
-                hv, undefined = half_vector(l, v)
-                rec[j, 2, :3] = hv
-                rec[j, 2, 3] = 1.0 if undefined else 0.0
+        rec = np.zeros((len(dirs), 5, 4))
+        l = -np.array([lt.direction for lt in dirs], np.float64)
+        rec[:, 0, :3] = l
+        rec[:, 3, :3] = split_hi_lo(l)[1]
+        rec[:, 1, :3] = np.array([lt.radiance for lt in dirs], np.float64)
+        if v is not None:
+            hv, undefined = half_vector(l, v)
+            rec[:, 2, :3] = hv
+            rec[:, 4, :3] = split_hi_lo(hv)[1]
+            rec[:, 2, 3] = np.where(undefined, 1.0, 0.0)
         directional = rec.reshape(-1, 4).astype(np.float32)
     amb = np.zeros(3)
     for lt in scene.lights_of("ambient"):
@@ -204,12 +229,31 @@ class Renderer:
         chosen for the device (:attr:`clphong.runtime.Runtime.lanes`).
     compensated : bool, optional
         Force the compensated light sum on or off (default: by light count).
+    fp64_directions : bool, optional
+        Compute positions, directions, n·l and δ in double (the accurate
+        default where the device has fp64) or all in float (faster; larger
+        error near grazing light and for large shininess, see
+        ``docs/error-model.md``).
+    nonfinite : {"background", "error", "pass"}
+        What to do with NaN/Inf G-buffer values (:mod:`clphong.inputs`); the
+        counts per buffer of the last frame are in ``last_nonfinite``.
+    max_error : float, optional
+        Error budget of tiled light culling (:mod:`clphong.cull`), relative to
+        ``reference_white``: point lights are dropped per 16×16 tile only while
+        their summed upper bounds stay within ``max_error·reference_white`` of
+        output radiance, per pixel and channel. 0 drops only lights whose bound
+        is exactly 0 (bit-identical to brute force). None (default): no culling.
+        The last frame's lists are described by ``last_cull``.
+    reference_white : float
+        Output radiance of reference white (default 1.0, scene-linear).
 
     Safe to call from several threads: launches are serialised on the queue.
     """
 
     def __init__(self, scene, *, device: str | None = None, kernel: str = "lanes",
-                 lanes: int | None = None, compensated: bool | None = None):
+                 lanes: int | None = None, compensated: bool | None = None,
+                 fp64_directions: bool | None = None, nonfinite: str = "background",
+                 max_error: float | None = None, reference_white: float = 1.0):
         self.scene = scene
         self.kernel_kind = kernel
         self.runtime = get_runtime(device)
@@ -219,24 +263,56 @@ class Renderer:
             lanes = self.runtime.lanes
         self.lanes = lanes
         self.compensated = compensated
+        from .cull import check_budget
+        self.max_error = check_budget(max_error, reference_white)   # absolute, or None
+        self.last_cull = None
+        if fp64_directions is None:
+            fp64_directions = self.runtime.has_fp64
+        elif fp64_directions and not self.runtime.has_fp64:
+            from .errors import DeviceError
+            raise DeviceError(f"{self.runtime.name} has no double precision (cl_khr_fp64); "
+                              "use the float32 directions path")
+        self.fp64_directions = bool(fp64_directions) and kernel == "lanes"
+        from .inputs import POLICIES
+        if nonfinite not in POLICIES:
+            raise ValueError(f"nonfinite must be one of {', '.join(POLICIES)}, not {nonfinite!r}")
+        self.nonfinite = nonfinite
+        self.last_nonfinite: dict[str, int] = {}
         self._lock = threading.Lock()
         self.last_stats: RenderStats | None = None
         # Compile the variant without maps now, so errors surface at construction.
         self.plan_for(())
 
+    #: A clphong.display.DisplayTransform to fuse into the kernel's store (None:
+    #: scene-linear only); its (H, W, 3) result lands in ``last_display``
+    #: (see clphong.display.render_display).
+    display = None
+    last_display = None
+
     def plan_for(self, map_names) -> ShadingPlan:
         plan = make_plan(self.scene, map_names, kernel=self.kernel_kind, lanes=self.lanes,
-                         compensated=self.compensated)
+                         compensated=self.compensated, fp64_directions=self.fp64_directions,
+                         display=self.display, max_error=self.max_error)
         self.runtime.program(plan.entry_file, plan.defines)
         return plan
 
     def render(self, gbuffer, *, frame: Frame | None = None) -> np.ndarray:
-        """Shade ``gbuffer``; return (H, W, 3) float32 scene-linear RGB."""
+        """Shade ``gbuffer``; return (H, W, 3) float32 scene-linear RGB.
+
+        Without ``frame``, :func:`clphong.tiling.render_frame` checks the memory
+        and the device's limits and shades in row bands when the frame is too
+        big for one launch (bit-identical), or refuses with a clear error.
+        """
         import pyopencl as cl
 
-        t0 = time.perf_counter()
         if frame is None:
-            frame = prepare_frame(gbuffer, lanes=max(self.lanes, 1))
+            from .inputs import apply_nonfinite_policy
+            from .tiling import render_frame
+
+            # NaN/Inf inputs: counted per buffer, then the policy (clphong.inputs).
+            gbuffer, self.last_nonfinite = apply_nonfinite_policy(gbuffer, self.nonfinite)
+            return render_frame(self, gbuffer)
+        t0 = time.perf_counter()
         plan = self.plan_for(frame.map_names)
         prog = self.runtime.program(plan.entry_file, plan.defines)
         lights = pack_lights(self.scene, frame.origin)
@@ -253,20 +329,40 @@ class Renderer:
             out = np.empty((3, frame.stride), np.float32)
             ob = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             bg = self.scene.background
+            cull_args, self.last_cull = [], None
+            if plan.defines.get("CULLING"):
+                from .cull import build_tile_lists
+                self.last_cull = build_tile_lists(self.runtime, plan, frame, lights.point,
+                                                  plan.n_point, budget=self.max_error, k_d=k_d, S=S)
+                if self.last_cull is None:   # lists too long to pay off: brute force
+                    plan = make_plan(self.scene, frame.map_names, kernel=self.kernel_kind,
+                                     lanes=self.lanes, compensated=self.compensated,
+                                     fp64_directions=self.fp64_directions, display=self.display)
+                    prog = self.runtime.program(plan.entry_file, plan.defines)
+                else:
+                    cull_args = self.last_cull.kernel_args()
             kern = cl.Kernel(prog, "shade")
+            from .display import display_kernel_args
+            disp, display_args = display_kernel_args(self.display, ctx, frame.stride)
             kern.set_args(
                 g, mp, ob, np.uint32(frame.stride),
                 pl, np.uint32(plan.n_point), dl, np.uint32(plan.n_directional),
                 float4(*frame.origin), float4(*lights.eye), float4(*lights.ambient),
-                np.float32(k_d), float4(*S), np.float32(k), float4(*bg))
+                np.float32(k_d), float4(*S), np.float32(k), float4(*bg),
+                float4(*lights.eye_hi_lo[1]),
+                *display_args, *cull_args)
             items = frame.stride // self.lanes
             evt = cl.enqueue_nd_range_kernel(queue, kern, (items,), (LOCAL_SIZE,))
             cl.enqueue_copy(queue, out, ob, wait_for=[evt])
+            if disp is not None:
+                cl.enqueue_copy(queue, disp, display_args[0], wait_for=[evt])
             queue.finish()
             t2 = time.perf_counter()
         kernel_s = (evt.profile.end - evt.profile.start) * 1e-9
         h, w = frame.shape
         rgb = np.ascontiguousarray(out[:, : h * w].T).reshape(h, w, 3)
+        self.last_display = (None if disp is None
+                             else np.ascontiguousarray(disp[:, : h * w].T).reshape(h, w, 3))
         self.last_stats = RenderStats(kernel_seconds=kernel_s, upload_seconds=t2 - t1 - kernel_s,
                                       total_seconds=time.perf_counter() - t0)
         return rgb

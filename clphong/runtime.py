@@ -157,6 +157,12 @@ class Runtime:
         return version.split("HSTR:")[1].strip().split("-")[-1]
 
     @property
+    def has_fp64(self) -> bool:
+        """Whether the device computes in double (cl_khr_fp64)."""
+        return "cl_khr_fp64" in self.device.extensions.split() or bool(
+            getattr(self.device, "double_fp_config", 0))
+
+    @property
     def lanes(self) -> int:
         """Pixels per work-item for the lane kernel on this device.
 
@@ -179,6 +185,11 @@ class Runtime:
         folder = kernel_dir()
         opts = [f"-D{k}={v}" for k, v in sorted(defines.items())]
         opts += ["-cl-denorms-are-zero", f"-I{folder}"]
+        # -w: PoCL prints clang's notes ("AVX vector argument of type double8 ...
+        # changes the ABI") straight to stderr, which would break the CLI's
+        # one-line output. Set CLPHONG_CL_WARNINGS=1 to see them when editing kernels.
+        if not os.environ.get("CLPHONG_CL_WARNINGS"):
+            opts.append("-w")
         key = (entry_file, tuple(opts), _sources_digest(folder))
         with self._lock:
             prog = self._programs.get(key)
@@ -191,12 +202,14 @@ class Runtime:
                     # PoCL reports harmless AVX ABI notes for float16 lanes on AVX2 CPUs.
                     warnings.simplefilter("ignore", cl.CompilerWarning)
                     prog = cl.Program(self.context, src).build(options=opts)
-            except cl.RuntimeError as exc:
+            except cl.Error as exc:
                 log = str(exc).strip().splitlines()
                 first = next((ln for ln in log if "error" in ln.lower()), log[-1] if log else "")
                 raise DeviceError(
-                    f"kernels/{entry_file} failed to build on {self.name}: {first.strip()}; "
-                    "set PYOPENCL_CTX or --device to use another device"
+                    f"kernels/{entry_file} failed to build on {self.name}: "
+                    f"{first.strip() or type(exc).__name__}; set PYOPENCL_CTX or --device to use "
+                    "another device, e.g. PoCL's CPU device (install it with "
+                    "'pip install \"pyopencl[pocl]\"')"
                 ) from exc
             self.build_seconds += time.perf_counter() - t0
             self.builds += 1
@@ -230,9 +243,17 @@ def get_runtime(device: str | None = None) -> Runtime:
         except DeviceError:
             raise
         except Exception as exc:  # pyopencl raises several types here
-            raise DeviceError(
-                f"could not open OpenCL device ({str(exc).strip().splitlines()[0]}); {_INSTALL_HINT}"
-            ) from exc
+            reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            if device is None and os.environ.get("PYOPENCL_CTX"):
+                try:
+                    choices = "; ".join(list_devices()) or "none"
+                except DeviceError:
+                    choices = "none"
+                raise DeviceError(
+                    f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} names no usable OpenCL device "
+                    f"({reason}); unset it or set it to one of: {choices}; {_INSTALL_HINT}"
+                ) from exc
+            raise DeviceError(f"could not open OpenCL device ({reason}); {_INSTALL_HINT}") from exc
         rt = Runtime(device=dev, context=ctx, queue=queue)
         _RUNTIMES[key] = rt
         return rt

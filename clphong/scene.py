@@ -39,7 +39,11 @@ A scene file looks like this::
 
 Rules
 -----
-* ``[camera]`` and ``[material]`` are required; ``[render]`` is optional.
+* ``[material]`` is required; ``[camera]`` and ``[render]`` are optional.
+* Without ``[camera]`` (or with ``type = "metadata"``) each frame's camera
+  is its EXR header's standard ``worldToCamera`` matrix (see
+  :mod:`clphong.camera_meta`); ``up = "y"`` (default) or ``"z"`` names the
+  up axis of the world that matrix is written in.
 * The ``[[light]]`` list may be empty or absent: the image is then black
   except for the background (no light, no shading).
 * Numbers may be written as TOML integers or floats; booleans and strings are
@@ -102,26 +106,35 @@ __all__ = [
     "parse_scene",
     "attenuation_problem",
     "CAMERA_TYPES",
+    "CAMERA_UP_AXES",
     "MATERIAL_MODELS",
     "LIGHT_TYPES",
+    "ColorSettings",
+    "WORKING_SPACE_NAMES",
 ]
 
 Vec3 = tuple[float, float, float]
 
 #: Valid ``camera.type`` values.
-CAMERA_TYPES: tuple[str, ...] = ("perspective", "orthographic")
+CAMERA_TYPES: tuple[str, ...] = ("perspective", "orthographic", "metadata")
+#: Valid ``camera.up`` values of a ``"metadata"`` camera (world up axis of worldToCamera).
+CAMERA_UP_AXES: tuple[str, ...] = ("y", "z")
 #: Valid ``material.model`` values.
 MATERIAL_MODELS: tuple[str, ...] = ("phong", "blinn-phong")
 #: Valid ``light.type`` values.
 LIGHT_TYPES: tuple[str, ...] = ("point", "directional", "ambient")
 
 _TOP_KEYS = ("camera", "material", "render", "light")
-_CAMERA_KEYS = {"perspective": ("type", "position"), "orthographic": ("type", "direction")}
+_CAMERA_KEYS = {"perspective": ("type", "position"), "orthographic": ("type", "direction"),
+                "metadata": ("type", "up")}
 _CAMERA_ALL = frozenset(k for ks in _CAMERA_KEYS.values() for k in ks)
-_CAMERA_ALL_ORDERED = ("type", "position", "direction")
+_CAMERA_ALL_ORDERED = ("type", "position", "direction", "up")
 _MATERIAL_KEYS = ("model", "k_a", "k_d", "k_s", "h", "specular_color")
 _MATERIAL_REQUIRED = ("model", "k_a", "k_d", "k_s", "h")
-_RENDER_KEYS = ("background",)
+_RENDER_KEYS = ("background", "working_space", "exposure", "tonemap", "white_point",
+                "display", "view", "look")
+#: Valid ``render.working_space`` values (clphong.color.WORKING_SPACES).
+WORKING_SPACE_NAMES: tuple[str, ...] = ("lin_rec709", "acescg")
 _LIGHT_KEYS = {
     "point": ("type", "color", "intensity", "position", "attenuation"),
     "directional": ("type", "color", "intensity", "direction"),
@@ -164,17 +177,24 @@ class Camera:
         Unit view direction (eye -> scene) of an orthographic camera, so that
         ``v = -direction``; None for a perspective camera. Normalised in
         float64 when parsed.
+    up : str or None
+        For ``type = "metadata"`` (the camera comes from each frame's
+        ``worldToCamera``): ``"y"`` or ``"z"``, the up axis of the world that
+        matrix is written in; None for other types.
     """
 
     type: str
     position: Vec3 | None = None
     direction: Vec3 | None = None
+    up: str | None = None
 
     def to_dict(self) -> dict:
         """The ``[camera]`` table as a dict that :func:`parse_scene` accepts."""
         d: dict[str, Any] = {"type": self.type}
         if self.type == "perspective":
             d["position"] = list(self.position) if self.position is not None else None
+        elif self.type == "metadata":
+            d["up"] = self.up or "y"
         else:
             d["direction"] = list(self.direction) if self.direction is not None else None
         return d
@@ -259,6 +279,43 @@ class Light:
 
 
 @dataclass(frozen=True)
+class ColorSettings:
+    """Tone mapping and colour management keys of ``[render]``.
+
+    Attributes
+    ----------
+    working_space : str
+        ``"lin_rec709"`` (default) or ``"acescg"``: the space albedo, light
+        colours and the scene-linear EXR are in.
+    exposure : float
+        Stops; display outputs see the scene-linear value times 2^exposure.
+    tonemap : str
+        Operator of the fused display path (:data:`clphong.tonemap.OPERATORS`).
+    white_point : float or None
+        White point of ``reinhard-extended`` / ``hable`` (operator default if None).
+    display, view, look : str or None
+        OCIO display, view and look(s); any of them selects the OCIO path.
+    """
+
+    working_space: str = "lin_rec709"
+    exposure: float = 0.0
+    tonemap: str = "none"
+    white_point: float | None = None
+    display: str | None = None
+    view: str | None = None
+    look: str | None = None
+
+    def to_dict(self) -> dict:
+        """The keys of ``[render]`` that are set (None has no TOML form)."""
+        d: dict[str, Any] = {"working_space": self.working_space, "exposure": self.exposure,
+                             "tonemap": self.tonemap}
+        for k in ("white_point", "display", "view", "look"):
+            if getattr(self, k) is not None:
+                d[k] = getattr(self, k)
+        return d
+
+
+@dataclass(frozen=True)
 class Scene:
     """A validated scene.
 
@@ -282,6 +339,11 @@ class Scene:
     background: Vec3 = (0.0, 0.0, 0.0)
     source: str = "<scene>"
     warnings: tuple[str, ...] = ()
+    color: "ColorSettings" = None  # type: ignore[assignment]  # set in __post_init__
+
+    def __post_init__(self):
+        if self.color is None:
+            object.__setattr__(self, "color", ColorSettings())
 
     def lights_of(self, type: str) -> tuple[Light, ...]:  # noqa: A002 - API name
         """The lights of one type, in file order.
@@ -320,7 +382,7 @@ class Scene:
         return {
             "camera": self.camera.to_dict(),
             "material": self.material.to_dict(),
-            "render": {"background": list(self.background)},
+            "render": {"background": list(self.background), **self.color.to_dict()},
             "light": [lt.to_dict() for lt in self.lights],
         }
 
@@ -646,18 +708,20 @@ class _Parser:
         if not isinstance(data, Mapping):
             self.fail("", f"expected a table of scene settings, got {_describe(data)}")
         self.check_keys(data, "", frozenset(_TOP_KEYS), _TOP_KEYS)
-        for name in ("camera", "material"):
-            if name not in data:
-                self.fail(name, f"missing required table [{name}]")
-        camera = self.camera(data["camera"])
+        if "material" not in data:
+            self.fail("material", "missing required table [material]")
+        # No [camera]: each frame's worldToCamera header attribute gives it.
+        camera = self.camera(data["camera"]) if "camera" in data else Camera("metadata", up="y")
         material = self.material(data["material"])
         background: Vec3 = (0.0, 0.0, 0.0)
+        color = ColorSettings()
         if "render" in data:
             background = self.render(data["render"])
+            color = self.color_settings(data["render"])
         lights = self.lights(data.get("light", []))
         self.check_scene(material, lights)
         return Scene(camera=camera, material=material, lights=lights, background=background,
-                     source=self.source, warnings=tuple(self.warnings))
+                     source=self.source, warnings=tuple(self.warnings), color=color)
 
     def camera(self, v: Any) -> Camera:
         t = self.table(v, "camera")
@@ -674,6 +738,9 @@ class _Parser:
                 self.fail("camera.position", "missing; a 'perspective' camera needs the eye "
                                              "position, e.g. position = [0.0, 2.0, 6.0]")
             return Camera(type_, position=self.vec3(t["position"], "camera.position"))
+        if type_ == "metadata":
+            up = self.enum(t["up"], "camera.up", CAMERA_UP_AXES) if "up" in t else "y"
+            return Camera(type_, up=up)
         if "direction" not in t:
             self.fail("camera.direction", "missing; an 'orthographic' camera needs the view "
                                           "direction (eye -> scene), e.g. direction = [0, 0, -1]")
@@ -708,6 +775,47 @@ class _Parser:
                                            f"[r, g, b], got {_describe(b)}")
         x = self.num(b, "render.background")
         return (x, x, x)
+
+    def color_settings(self, t: Mapping) -> "ColorSettings":
+        """Tone mapping and colour keys of [render] (the table is already checked)."""
+        from .tonemap import ToneMapError, operator
+
+        ws = "lin_rec709"
+        if "working_space" in t:
+            ws = self.enum(t["working_space"], "render.working_space", WORKING_SPACE_NAMES)
+        exposure = 0.0
+        if "exposure" in t:
+            exposure = self.num(t["exposure"], "render.exposure")
+            if abs(exposure) > 100:
+                self.fail("render.exposure", f"{_g(exposure)} stops is out of range "
+                                             "(2^EV must stay a float32); use -100..100")
+        op_name = "none"
+        if "tonemap" in t:
+            v = t["tonemap"]
+            if not isinstance(v, str):
+                self.fail("render.tonemap", f"expected a string, got {_describe(v)}")
+            try:
+                op_name = operator(v).name
+            except ToneMapError as exc:
+                self.fail("render.tonemap", str(exc))
+        white = None
+        if "white_point" in t:
+            white = self.num(t["white_point"], "render.white_point")
+            if white <= 0:
+                self.fail("render.white_point", f"must be > 0, got {white!r}")
+            if not operator(op_name).uses_white:
+                self.warn("render.white_point", f"{op_name!r} has no white point; only "
+                                                "'reinhard-extended' and 'hable' use it")
+        names = {}
+        for key in ("display", "view", "look"):
+            if key in t:
+                v = t[key]
+                if not isinstance(v, str) or not v.strip():
+                    self.fail(f"render.{key}", f"expected a non-empty string (an OCIO {key} "
+                                               f"name), got {_describe(v)}")
+                names[key] = v
+        return ColorSettings(working_space=ws, exposure=exposure, tonemap=op_name,
+                             white_point=white, **names)
 
     def lights(self, v: Any) -> tuple[Light, ...]:
         if not isinstance(v, (list, tuple)):
@@ -852,6 +960,7 @@ def load_scene(path: str | os.PathLike) -> Scene:
                        else os.fsdecode(path))
     try:
         with open(path, "rb") as f:
+            _check_scene_memory(source, os.fstat(f.fileno()).st_size)
             raw = f.read()
     except FileNotFoundError:
         raise SceneError(f"{source}: cannot read scene file: no such file") from None
@@ -870,9 +979,33 @@ def load_scene(path: str | os.PathLike) -> Scene:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(_toml_message(source, exc)) from None
+    except RecursionError:
+        # tomllib parses nested arrays and inline tables recursively: a few
+        # hundred levels exhaust the interpreter's stack (found by fuzzing).
+        raise SceneError(f"{source}: invalid TOML: arrays or inline tables nested too deeply "
+                         "for the parser (a scene needs at most 2 levels)") from None
+    except MemoryError:
+        raise SceneError(f"{source}: out of memory parsing a {len(raw)}-byte scene file") from None
     scene = _parse(data, source)
     _emit(scene, stacklevel=2)
     return scene
+
+
+#: Peak bytes of memory per byte of TOML while parsing (tomllib and the scene
+#: objects), an upper bound from tracemalloc measurements: 14-39 for scene-like
+#: documents (50 000 lights as [[light]] tables 18, as inline tables 23-26),
+#: 102 for the worst found, a document of empty [tN] tables.
+SCENE_BYTES_PER_BYTE = 128
+
+
+def _check_scene_memory(source: str, size: int) -> None:
+    """Refuse a scene file whose parse could exhaust memory (instead of being killed)."""
+    from .tiling import format_size, require_memory
+
+    require_memory(SCENE_BYTES_PER_BYTE * size,
+                   f"{source}: parsing a {format_size(size)} scene file", SceneError,
+                   "use fewer lights, or set CLPHONG_MAX_MEMORY (e.g. 16G) if you know "
+                   "there is more memory")
 
 
 def _toml_message(source: str, exc: tomllib.TOMLDecodeError) -> str:

@@ -15,41 +15,44 @@ inline floatL lambert(floatL NoL)
  * cancellation near the highlight peak (r·v → 1), where the naive 1 − r·v loses
  * all its digits, and the normalisation errors of r and v cancel to first order
  * (POCL-NOTES "Conditioning of pow"). */
-inline floatL phong_delta(floatL nx, floatL ny, floatL nz,
-                          floatL lx, floatL ly, floatL lz,
-                          floatL vx, floatL vy, floatL vz, floatL NoL)
+inline floatL phong_delta(dirL nx, dirL ny, dirL nz,
+                          dirL lx, dirL ly, dirL lz,
+                          dirL vx, dirL vy, dirL vz, dirL NoL)
 {
-    const floatL two_NoL = NoL + NoL;
-    const floatL ex = MUL_ADD(two_NoL, nx, -lx) - vx;   /* r − v */
-    const floatL ey = MUL_ADD(two_NoL, ny, -ly) - vy;
-    const floatL ez = MUL_ADD(two_NoL, nz, -lz) - vz;
-    return 0.5f * MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez));
+    const dirL two_NoL = NoL + NoL;
+    const dirL ex = MUL_ADD(two_NoL, nx, -lx) - vx;   /* r − v */
+    const dirL ey = MUL_ADD(two_NoL, ny, -ly) - vy;
+    const dirL ez = MUL_ADD(two_NoL, nz, -lz) - vz;
+    return TO_FLOAT(0.5f * MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez)));
 }
 
 /* Blinn-Phong: δ = 1 − n·h with h = (l + v)/|l + v|, as |n − h|²/2 (see above).
  * Guard: for l = −v the half vector is undefined; δ = 1 (n·h taken as 0) so the
  * term vanishes for h > 0. */
-inline floatL blinn_delta(floatL nx, floatL ny, floatL nz,
-                          floatL lx, floatL ly, floatL lz,
-                          floatL vx, floatL vy, floatL vz)
+inline floatL blinn_delta(dirL nx, dirL ny, dirL nz,
+                          dirL lx, dirL ly, dirL lz,
+                          dirL vx, dirL vy, dirL vz)
 {
-    const floatL hx = lx + vx, hy = ly + vy, hz = lz + vz;
-    const floatL hh = MUL_ADD(hx, hx, MUL_ADD(hy, hy, hz * hz));
-    const floatL inv = rsqrt(hh);
-    const floatL ex = nx - hx * inv, ey = ny - hy * inv, ez = nz - hz * inv;
-    const floatL delta = 0.5f * MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez));
-    return select(delta, (floatL)(1.0f), (intL)(hh <= 0.0f));
+    const dirL hx = lx + vx, hy = ly + vy, hz = lz + vz;
+    const dirL hh = MUL_ADD(hx, hx, MUL_ADD(hy, hy, hz * hz));
+    const dirL inv = rsqrt(hh);
+    const dirL ex = nx - hx * inv, ey = ny - hy * inv, ez = nz - hz * inv;
+    const dirL delta = 0.5f * MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez));
+    return TO_FLOAT(SELECT_DIR(delta, (dirL)(1.0f), hh <= (dirL)(0.0f)));
 }
 
 /* Blinn-Phong with a half vector that is constant per light (orthographic camera
  * and a directional light, Blinn 1977): δ = |n − h|²/2 with h from the host.
+ * h_lo = h − float(h) from the host (0 unless DIRECTIONS_FP64).
  * Guard: h.w ≠ 0 flags l = −v (undefined half vector): δ = 1, as above. */
-inline floatL blinn_delta_const_h(floatL nx, floatL ny, floatL nz, float4 h)
+inline floatL blinn_delta_const_h(dirL nx, dirL ny, dirL nz, float4 h, float4 h_lo)
 {
     if (h.w != 0.0f)
         return (floatL)(1.0f);
-    const floatL ex = nx - h.x, ey = ny - h.y, ez = nz - h.z;
-    return 0.5f * MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez));
+    const dirL ex = nx - ((dirS)h.x + (dirS)h_lo.x);
+    const dirL ey = ny - ((dirS)h.y + (dirS)h_lo.y);
+    const dirL ez = nz - ((dirS)h.z + (dirS)h_lo.z);
+    return TO_FLOAT(0.5f * MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez)));
 }
 
 /* max(cos, 0)^k with cos = 1 − δ, as exp(k·log1p(−δ)).

@@ -13,6 +13,13 @@
  *                    constant and precomputed on the host (Blinn 1977)
  *   MAP_KD, MAP_KS, MAP_H, MAP_CS   per-pixel material maps present
  *   COMPENSATED_SUM  Neumaier-compensated light sum (error ~2u instead of ~N·u)
+ *   HAS_ATTENUATION  some point light has c1 ≠ 0 or c2 ≠ 0; 0: the falloff is 1/c0,
+ *                    a constant per light (no distance polynomial, no division per pixel)
+ *   CULLING          point lights come from per-tile lists built by cull.cl, whose
+ *                    dropped lights sum to at most the user's budget ε (clphong/cull.py)
+ *   CULL_TILE        screen tile edge of the lists, pixels (16)
+ *   DIRECTIONS_FP64  positions, directions, n·l and δ in double (the accurate default
+ *                    where the device has cl_khr_fp64); 0: all in float
  *
  * Names follow the notes (../shared/phong-model-notes.txt): NoL, RoV, NoH, k_a,
  * k_d, k_s, h, c0, c1, c2, C_d, C_s. The float64 mirror of every function here
@@ -57,6 +64,18 @@
 #ifndef COMPENSATED_SUM
 #define COMPENSATED_SUM 1
 #endif
+#ifndef HAS_ATTENUATION
+#define HAS_ATTENUATION 1
+#endif
+#ifndef CULLING
+#define CULLING 0
+#endif
+#ifndef CULL_TILE
+#define CULL_TILE 16
+#endif
+#ifndef DIRECTIONS_FP64
+#define DIRECTIONS_FP64 0
+#endif
 
 /* floatL: one value per pixel of the work-item's LANES pixels. PoCL vectorises
  * only the innermost work-item loop, and a per-pixel loop over lights keeps it
@@ -86,12 +105,54 @@ typedef int intL;
 #error "LANES must be 1, 4, 8 or 16"
 #endif
 
+/* dirL: the type of positions, directions, n·l and δ (and dirS its scalar).
+ * float32 directions carry a rounding of ~u each; through n·l near grazing
+ * and through δ into x^k (condition number k) that becomes a relative error far
+ * above u (docs/error-model.md). With DIRECTIONS_FP64 they are computed in double
+ * from the float32 inputs and hi+lo float pairs from the host, and only n·l, δ and
+ * d are rounded to float: the error of every term is then a few u, relative. */
+#if DIRECTIONS_FP64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double dirS;
+#if LANES == 16
+typedef double16 dirL;
+#define TO_FLOAT(x) convert_float16(x)
+#define TO_DIR(x) convert_double16(x)
+#elif LANES == 8
+typedef double8 dirL;
+#define TO_FLOAT(x) convert_float8(x)
+#define TO_DIR(x) convert_double8(x)
+#elif LANES == 4
+typedef double4 dirL;
+#define TO_FLOAT(x) convert_float4(x)
+#define TO_DIR(x) convert_double4(x)
+#else
+typedef double dirL;
+#define TO_FLOAT(x) ((float)(x))
+#define TO_DIR(x) ((double)(x))
+#endif
+#else
+typedef float dirS;
+typedef floatL dirL;
+#define TO_FLOAT(x) (x)
+#define TO_DIR(x) (x)
+#endif
+
+/* select() for dirL values: vector comparisons give the matching mask type;
+ * scalars (LANES = 1) use ?: since select's scalar overloads need an exact type. */
+#if LANES == 1
+#define SELECT_DIR(a, b, c) ((c) ? (b) : (a))
+#else
+#define SELECT_DIR(a, b, c) select((a), (b), (c))
+#endif
+
 /* a·b + c. Not fma(): PoCL 3.0's LLVM cannot select fma for float16 ("Cannot
  * select: i64 = fma"); OpenCL's default FP_CONTRACT still lets it fuse. */
 #define MUL_ADD(a, b, c) ((a) * (b) + (c))
 
 /* Layout of the light records (float4 each), shared with clphong/plan.py. */
-#define POINT_LIGHT_FLOAT4S 3       /* (x, y, z, c0) (r, g, b, c1) (c2, 0, 0, 0) */
-#define DIRECTIONAL_LIGHT_FLOAT4S 3 /* (lx, ly, lz, 0) (r, g, b, 0) (hx, hy, hz, 0) */
+#define POINT_LIGHT_FLOAT4S 3       /* (x, y, z, c0) (r, g, b, c1) (c2, x − float(x), y − .., z − ..) */
+#define DIRECTIONAL_LIGHT_FLOAT4S 5 /* (lx, ly, lz, 0) (r, g, b, 0) (hx, hy, hz, undefined)
+                                       (l − float(l), 0) (h − float(h), 0) */
 
 #endif /* CLPHONG_H */

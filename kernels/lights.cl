@@ -6,18 +6,26 @@
 #include "clphong.h"
 #include "brdf.cl"
 
-/* 1/(c0 + c1·d + c2·d²), Horner form. The scene parser rejects polynomials that
- * reach zero or go negative for d ≥ 0, so the denominator is positive. */
-inline floatL attenuation(float c0, float c1, float c2, floatL d)
+/* 1/(c0 + c1·d + c2·d²), Horner form, in dirL: with DIRECTIONS_FP64 it cannot
+ * under- or overflow for float inputs (c2·d² at d = 1e-20 is 1e-40, below float's
+ * normal range). The scene parser rejects polynomials that go negative for
+ * d ≥ 0; c0 = 0 reaches 0 only at d = 0, where shade_point_light adds nothing. */
+inline dirL attenuation(float c0, float c1, float c2, dirL d)
 {
-    return 1.0f / MUL_ADD(d, MUL_ADD(d, (floatL)(c2), (floatL)(c1)), (floatL)(c0));
+#if HAS_ATTENUATION
+    return 1.0f / MUL_ADD(d, MUL_ADD(d, (dirL)((dirS)c2), (dirL)((dirS)c1)), (dirL)((dirS)c0));
+#else
+    /* every point light has c1 = c2 = 0 (plan.py): the same 1/c0, once per light
+       instead of a division per pixel */
+    return (dirL)(1.0f / (dirS)c0);
+#endif
 }
 
 /* A pixel's shading inputs, all rebased or unit as described in shade.cl. */
 typedef struct {
-    floatL px, py, pz;      /* position, minus the frame origin */
-    floatL nx, ny, nz;      /* unit normal */
-    floatL vx, vy, vz;      /* unit direction to the viewer */
+    dirL px, py, pz;        /* position, minus the frame origin */
+    dirL nx, ny, nz;        /* unit normal */
+    dirL vx, vy, vz;        /* unit direction to the viewer */
 #if HAS_SPECULAR
     floatL k;               /* specular exponent: h (Phong) or 4h (Blinn) */
 #endif
@@ -31,16 +39,18 @@ typedef struct {
 } weights_t;
 
 /* Both terms for a unit direction l towards the light. The specular term is on
- * only where n·l > 0 (the notes' E_S needs a lit side). */
-inline weights_t shade_direction(const pixel_t *p, floatL lx, floatL ly, floatL lz, floatL NoL)
+ * only where n·l > 0 (the notes' E_S needs a lit side); the gate uses n·l
+ * rounded to float, whose sign is that of the dirL value (or 0). */
+inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, dirL NoL_dir)
 {
     weights_t w;
+    const floatL NoL = TO_FLOAT(NoL_dir);
     w.diffuse = lambert(NoL);
 #if HAS_SPECULAR
 #if MODEL_BLINN
     const floatL delta = blinn_delta(p->nx, p->ny, p->nz, lx, ly, lz, p->vx, p->vy, p->vz);
 #else
-    const floatL delta = phong_delta(p->nx, p->ny, p->nz, lx, ly, lz, p->vx, p->vy, p->vz, NoL);
+    const floatL delta = phong_delta(p->nx, p->ny, p->nz, lx, ly, lz, p->vx, p->vy, p->vz, NoL_dir);
 #endif
     w.specular = select((floatL)(0.0f), specular_power(delta, p->k), (intL)(NoL > 0.0f));
 #else
@@ -49,39 +59,59 @@ inline weights_t shade_direction(const pixel_t *p, floatL lx, floatL ly, floatL 
     return w;
 }
 
-/* A point light at L (rebased): l = (L − P)/d, scaled by attenuation(d).
- * Guard: a light exactly at the shaded point (d = 0) has no direction; it
- * contributes nothing (NoL := 0 switches both terms off). */
-inline weights_t shade_point_light(const pixel_t *p, float4 L, float c1, float c2)
+/* A point light at L (rebased; L_lo = L − float(L) from the host, used with
+ * DIRECTIONS_FP64): l = (L − P)/d. Returns the unattenuated weights, and in
+ * *ar, *ag, *ab the light's radiance times attenuation(d), formed in dirL and
+ * then rounded, so that a huge falloff and a tiny intensity (or the reverse)
+ * meet before anything is rounded to float.
+ * Guards: a light exactly at the shaded point (d = 0) has no direction; it
+ * contributes nothing (l := 0, d := 0, so n·l = 0 switches both terms off), as in
+ * the reference; rsqrt(0) = inf would give 0·inf = NaN. In float, d² overflows for
+ * d ≳ 1.8e19: d := ∞ there, so the falloff is 0 (and l = 0) instead of ∞·0 = NaN. */
+inline weights_t shade_point_light(const pixel_t *p, float4 L, float4 L_lo, float c1, float c2,
+                                   float4 radiance, floatL *ar, floatL *ag, floatL *ab)
 {
-    const floatL dx = L.x - p->px, dy = L.y - p->py, dz = L.z - p->pz;
-    const floatL d2 = MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz));
-    /* d = 0 (the light at the shaded point): l := 0 and d := 0, so n.l = 0 and
-       nothing is added, as in the reference; rsqrt(0) = inf would give 0*inf = NaN. */
-    const intL at_light = (intL)(d2 <= 0.0f);
-    const floatL inv_d = select(rsqrt(d2), (floatL)(0.0f), at_light);
-    const floatL lx = dx * inv_d, ly = dy * inv_d, lz = dz * inv_d;
-    floatL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
-    NoL = select(NoL, (floatL)(0.0f), at_light);
+#if DIRECTIONS_FP64
+    const dirS Lx = (dirS)L.x + (dirS)L_lo.x, Ly = (dirS)L.y + (dirS)L_lo.y,
+               Lz = (dirS)L.z + (dirS)L_lo.z;
+#else
+    const dirS Lx = L.x, Ly = L.y, Lz = L.z;
+#endif
+    const dirL dx = Lx - p->px, dy = Ly - p->py, dz = Lz - p->pz;
+    const dirL d2 = MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz));
+    const dirL inv_d = SELECT_DIR(rsqrt(d2), (dirL)(0.0f), d2 <= (dirL)(0.0f));
+    const dirL lx = dx * inv_d, ly = dy * inv_d, lz = dz * inv_d;
+    const dirL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
     weights_t w = shade_direction(p, lx, ly, lz, NoL);
-    const floatL att = attenuation(L.w, c1, c2, d2 * inv_d);
-    w.diffuse *= att;
-    w.specular *= att;
+    const dirL d = SELECT_DIR(d2 * inv_d, d2, isinf(d2));
+    /* d = 0: no contribution, also where c0 = 0 makes the falloff infinite. */
+    const dirL att = SELECT_DIR(attenuation(L.w, c1, c2, d), (dirL)(0.0f), d2 <= (dirL)(0.0f));
+    *ar = TO_FLOAT(att * (dirS)radiance.x);
+    *ag = TO_FLOAT(att * (dirS)radiance.y);
+    *ab = TO_FLOAT(att * (dirS)radiance.z);
     return w;
 }
 
-/* A directional light: l is constant (unit, towards the light), no falloff. */
-inline weights_t shade_directional_light(const pixel_t *p, float4 l, float4 h)
+/* A directional light: l is constant (unit, towards the light; l_lo and h_lo
+ * are the host's float64 remainders, used with DIRECTIONS_FP64), no falloff. */
+inline weights_t shade_directional_light(const pixel_t *p, float4 l, float4 l_lo, float4 h, float4 h_lo)
 {
-    const floatL NoL = MUL_ADD(p->nx, l.x, MUL_ADD(p->ny, l.y, p->nz * l.z));
+#if DIRECTIONS_FP64
+    const dirS lx = (dirS)l.x + (dirS)l_lo.x, ly = (dirS)l.y + (dirS)l_lo.y,
+               lz = (dirS)l.z + (dirS)l_lo.z;
+#else
+    const dirS lx = l.x, ly = l.y, lz = l.z;
+#endif
+    const dirL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
 #if BLINN_CONST_H && HAS_SPECULAR
     weights_t w;
-    w.diffuse = lambert(NoL);
-    const floatL delta = blinn_delta_const_h(p->nx, p->ny, p->nz, h);
-    w.specular = select((floatL)(0.0f), specular_power(delta, p->k), (intL)(NoL > 0.0f));
+    const floatL NoLf = TO_FLOAT(NoL);
+    w.diffuse = lambert(NoLf);
+    const floatL delta = blinn_delta_const_h(p->nx, p->ny, p->nz, h, h_lo);
+    w.specular = select((floatL)(0.0f), specular_power(delta, p->k), (intL)(NoLf > 0.0f));
     return w;
 #else
-    return shade_direction(p, (floatL)(l.x), (floatL)(l.y), (floatL)(l.z), NoL);
+    return shade_direction(p, (dirL)(lx), (dirL)(ly), (dirL)(lz), NoL);
 #endif
 }
 

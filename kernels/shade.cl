@@ -2,12 +2,14 @@
  *
  * Data layout (structure of arrays, `stride` floats a plane, stride a multiple
  * of LANES, padding pixels are background):
- *   gbuf: Px Py Pz  Nx Ny Nz  Cr Cg Cb
+ *   gbuf: Px Py Pz  Nx Ny Nz  Cr Cg Cb  nx ny nz
  *         P is as stored (float32); the kernel subtracts `origin`, a float32
  *         point near the scene, so P − origin is exact for P within a factor 2
- *         of it (Sterbenz) and distances keep their digits far from the world
- *         origin. N is unit (normalised on the host in float64) and exactly 0 on
- *         background pixels. C is the albedo C_d.
+ *         of it (Sterbenz), and always in double with DIRECTIONS_FP64; distances
+ *         keep their digits far from the world origin. N is unit (normalised on
+ *         the host in float64, rounded to float) and exactly 0 on background
+ *         pixels; n is its float64 remainder N64 − N, used with DIRECTIONS_FP64.
+ *         C is the albedo C_d.
  *   maps: the planes named by MAP_KD, MAP_KS, MAP_H, MAP_CS (k_d, k_s, h, C_s rgb),
  *         in that order, only those present.
  *   out:  R G B.
@@ -16,6 +18,7 @@
 #include "clphong.h"
 #include "brdf.cl"
 #include "lights.cl"
+#include "tonemap.cl"   /* display_store: exposure, tone mapping, encoding (DISPLAY_OUT) */
 
 /* Add x to the running sum s; Neumaier's compensation c collects the rounding
  * error of each addition, so the sum of N lights errs by ~2u instead of ~N·u
@@ -29,6 +32,16 @@
 #define ACCUMULATE(s, c, x) ((s) += (x))
 #endif
 
+/* The sum s plus its compensation c, saturated: a value beyond the float range
+ * becomes ±FLT_MAX (documented: never an Inf from finite inputs), and an overflow
+ * inside the compensation (∞ − ∞ = NaN in c) does not turn s into NaN. A NaN in
+ * s itself (only from NaN inputs under the "pass" policy) stays NaN. */
+inline floatL finish_sum(floatL s, floatL c)
+{
+    const floatL t = select(s + c, s, isnan(c));
+    return select(t, copysign((floatL)(FLT_MAX), t), isinf(t));
+}
+
 __kernel void shade(__global const float *restrict gbuf,
                     __global const float *restrict maps,
                     __global float *restrict out,
@@ -41,16 +54,40 @@ __kernel void shade(__global const float *restrict gbuf,
                     const float k_d,         /* uniform k_d, used without MAP_KD */
                     const float4 S_uniform,  /* k_s·C_s, used without MAP_KS / MAP_CS */
                     const float k_uniform,   /* exponent h or 4h, used without MAP_H */
-                    const float4 background)
+                    const float4 background,
+                    const float4 eye_lo,     /* eye − float(eye), used with DIRECTIONS_FP64 */
+                    __global float *restrict display,  /* display R G B, with DISPLAY_OUT (tonemap.cl) */
+                    const float exposure,              /* 2^EV, with DISPLAY_OUT */
+                    const float4 tonemap_params,       /* operator parameters, with DISPLAY_OUT */
+                    const float4 display_m0, const float4 display_m1,
+                    const float4 display_m2            /* working space -> Rec.709, with DISPLAY_MATRIX */
+#if CULLING
+                    ,
+                    /* per-tile point-light lists (kernels/cull.cl): (offset, count) per
+                       tile and the kept light indices, in light order */
+                    __global const uint2 *restrict tile_ranges,
+                    __global const uint *restrict tile_lights,
+                    const uint width, const uint tiles_x, const uint n_tiles
+#endif
+                    )
 {
     const size_t i = get_global_id(0);
     pixel_t p;
-    p.px = vloadL(i, gbuf + 0 * stride) - origin.x;
-    p.py = vloadL(i, gbuf + 1 * stride) - origin.y;
-    p.pz = vloadL(i, gbuf + 2 * stride) - origin.z;
-    p.nx = vloadL(i, gbuf + 3 * stride);
-    p.ny = vloadL(i, gbuf + 4 * stride);
-    p.nz = vloadL(i, gbuf + 5 * stride);
+    p.px = TO_DIR(vloadL(i, gbuf + 0 * stride)) - (dirS)origin.x;
+    p.py = TO_DIR(vloadL(i, gbuf + 1 * stride)) - (dirS)origin.y;
+    p.pz = TO_DIR(vloadL(i, gbuf + 2 * stride)) - (dirS)origin.z;
+    const floatL Nx = vloadL(i, gbuf + 3 * stride);
+    const floatL Ny = vloadL(i, gbuf + 4 * stride);
+    const floatL Nz = vloadL(i, gbuf + 5 * stride);
+#if DIRECTIONS_FP64
+    p.nx = TO_DIR(Nx) + TO_DIR(vloadL(i, gbuf + 9 * stride));
+    p.ny = TO_DIR(Ny) + TO_DIR(vloadL(i, gbuf + 10 * stride));
+    p.nz = TO_DIR(Nz) + TO_DIR(vloadL(i, gbuf + 11 * stride));
+#else
+    p.nx = Nx;
+    p.ny = Ny;
+    p.nz = Nz;
+#endif
     const floatL Cr = vloadL(i, gbuf + 6 * stride);
     const floatL Cg = vloadL(i, gbuf + 7 * stride);
     const floatL Cb = vloadL(i, gbuf + 8 * stride);
@@ -86,14 +123,20 @@ __kernel void shade(__global const float *restrict gbuf,
 #endif
 #endif
 
+#if DIRECTIONS_FP64
+    const dirS eye_x = (dirS)eye.x + (dirS)eye_lo.x, eye_y = (dirS)eye.y + (dirS)eye_lo.y,
+               eye_z = (dirS)eye.z + (dirS)eye_lo.z;
+#else
+    const dirS eye_x = eye.x, eye_y = eye.y, eye_z = eye.z;
+#endif
 #if CAMERA_ORTHO
-    p.vx = (floatL)(eye.x);
-    p.vy = (floatL)(eye.y);
-    p.vz = (floatL)(eye.z);
+    p.vx = (dirL)(eye_x);
+    p.vy = (dirL)(eye_y);
+    p.vz = (dirL)(eye_z);
 #else
     {
-        const floatL ex = eye.x - p.px, ey = eye.y - p.py, ez = eye.z - p.pz;
-        const floatL inv = rsqrt(MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez)));
+        const dirL ex = eye_x - p.px, ey = eye_y - p.py, ez = eye_z - p.pz;
+        const dirL inv = rsqrt(MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez)));
         p.vx = ex * inv;
         p.vy = ey * inv;
         p.vz = ez * inv;
@@ -106,30 +149,50 @@ __kernel void shade(__global const float *restrict gbuf,
 
 #if HAS_DIRECTIONAL
     for (uint j = 0; j < n_directional; ++j) {
-        const float4 l = directional_lights[3 * j + 0];
-        const float4 L = directional_lights[3 * j + 1];
-        const float4 h = directional_lights[3 * j + 2];
-        const weights_t w = shade_directional_light(&p, l, h);
+        __global const float4 *rec = directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * j;
+        const float4 L = rec[1];
+        const weights_t w = shade_directional_light(&p, rec[0], rec[3], rec[2], rec[4]);
         ACCUMULATE(sr, cr, L.x * MUL_ADD(Dr, w.diffuse, Sr * w.specular));
         ACCUMULATE(sg, cg, L.y * MUL_ADD(Dg, w.diffuse, Sg * w.specular));
         ACCUMULATE(sb, cb, L.z * MUL_ADD(Db, w.diffuse, Sb * w.specular));
     }
 #endif
 #if HAS_POINT
+#if CULLING
+    /* The tile of this work-item's first pixel (as cull.cl bounds it); padding
+       work-items past the last tile shade background only. */
+    const uint q0 = (uint)(i * LANES);
+    const uint tile = (q0 / width / CULL_TILE) * tiles_x + (q0 % width) / CULL_TILE;
+    const uint2 range = tile < n_tiles ? tile_ranges[tile] : (uint2)(0, 0);
+    for (uint m = range.x; m < range.x + range.y; ++m) {
+        const uint j = tile_lights[m];
+#else
     for (uint j = 0; j < n_point; ++j) {
-        const float4 X = point_lights[3 * j + 0];   /* position, c0 */
-        const float4 L = point_lights[3 * j + 1];   /* radiance, c1 */
-        const float4 Q = point_lights[3 * j + 2];   /* c2 */
-        const weights_t w = shade_point_light(&p, X, L.w, Q.x);
-        ACCUMULATE(sr, cr, L.x * MUL_ADD(Dr, w.diffuse, Sr * w.specular));
-        ACCUMULATE(sg, cg, L.y * MUL_ADD(Dg, w.diffuse, Sg * w.specular));
-        ACCUMULATE(sb, cb, L.z * MUL_ADD(Db, w.diffuse, Sb * w.specular));
+#endif
+        __global const float4 *rec = point_lights + POINT_LIGHT_FLOAT4S * j;
+        const float4 X = rec[0];   /* position, c0 */
+        const float4 L = rec[1];   /* radiance, c1 */
+        const float4 Q = rec[2];   /* c2, position remainder */
+        floatL ar, ag, ab;         /* radiance × attenuation(d) */
+        const weights_t w = shade_point_light(&p, X, (float4)(Q.y, Q.z, Q.w, 0.0f), L.w, Q.x,
+                                              L, &ar, &ag, &ab);
+        ACCUMULATE(sr, cr, ar * MUL_ADD(Dr, w.diffuse, Sr * w.specular));
+        ACCUMULATE(sg, cg, ag * MUL_ADD(Dg, w.diffuse, Sg * w.specular));
+        ACCUMULATE(sb, cb, ab * MUL_ADD(Db, w.diffuse, Sb * w.specular));
     }
 #endif
 
     /* Background pixels (zero normal, set by the host) take the background value. */
-    const intL bg = (intL)((p.nx == 0.0f) & (p.ny == 0.0f) & (p.nz == 0.0f));
-    vstoreL(select(sr + cr, (floatL)(background.x), bg), i, out + 0 * stride);
-    vstoreL(select(sg + cg, (floatL)(background.y), bg), i, out + 1 * stride);
-    vstoreL(select(sb + cb, (floatL)(background.z), bg), i, out + 2 * stride);
+    const intL bg = (intL)((Nx == 0.0f) & (Ny == 0.0f) & (Nz == 0.0f));
+    const floatL Er = select(finish_sum(sr, cr), (floatL)(background.x), bg);
+    const floatL Eg = select(finish_sum(sg, cg), (floatL)(background.y), bg);
+    const floatL Eb = select(finish_sum(sb, cb), (floatL)(background.z), bg);
+    vstoreL(Er, i, out + 0 * stride);
+    vstoreL(Eg, i, out + 1 * stride);
+    vstoreL(Eb, i, out + 2 * stride);
+#if DISPLAY_OUT
+    /* Tone mapping fused into the store: no round trip through the host. */
+    display_store(Er, Eg, Eb, i, display, stride, exposure, tonemap_params,
+                  display_m0, display_m1, display_m2);
+#endif
 }

@@ -8,6 +8,7 @@
  */
 #define LANES 1
 #include "clphong.h"
+#include "tonemap.cl"   /* display_store (DISPLAY_OUT) */
 
 __kernel void shade(__global const float *restrict gbuf,
                     __global const float *restrict maps,
@@ -17,7 +18,11 @@ __kernel void shade(__global const float *restrict gbuf,
                     __global const float4 *restrict directional_lights, const uint n_directional,
                     const float4 origin, const float4 eye, const float4 ambient,
                     const float k_d, const float4 S_uniform, const float k_uniform,
-                    const float4 background)
+                    const float4 background,
+                    const float4 eye_lo,     /* unused: this kernel is all float */
+                    __global float *restrict display, const float exposure,
+                    const float4 tonemap_params, const float4 display_m0,
+                    const float4 display_m1, const float4 display_m2)   /* as shade.cl */
 {
     const size_t i = get_global_id(0);
     const float3 P = (float3)(gbuf[i], gbuf[stride + i], gbuf[2 * stride + i]) - origin.xyz;
@@ -25,6 +30,10 @@ __kernel void shade(__global const float *restrict gbuf,
     const float3 C_d = (float3)(gbuf[6 * stride + i], gbuf[7 * stride + i], gbuf[8 * stride + i]);
     if (n.x == 0.0f && n.y == 0.0f && n.z == 0.0f) {   /* background, zeroed on the host */
         out[i] = background.x; out[stride + i] = background.y; out[2 * stride + i] = background.z;
+#if DISPLAY_OUT
+        display_store(background.x, background.y, background.z, i, display, stride, exposure,
+                      tonemap_params, display_m0, display_m1, display_m2);
+#endif
         return;
     }
     uint plane = 0;
@@ -58,8 +67,8 @@ __kernel void shade(__global const float *restrict gbuf,
     float3 E = C_d * ambient.xyz;
 #if HAS_DIRECTIONAL
     for (uint j = 0; j < n_directional; ++j) {
-        const float3 l = directional_lights[3 * j].xyz;
-        const float3 L = directional_lights[3 * j + 1].xyz;
+        const float3 l = directional_lights[DIRECTIONAL_LIGHT_FLOAT4S * j].xyz;
+        const float3 L = directional_lights[DIRECTIONAL_LIGHT_FLOAT4S * j + 1].xyz;
         const float NoL = dot(n, l);
         float spec = 0.0f;
 #if HAS_SPECULAR
@@ -77,9 +86,9 @@ __kernel void shade(__global const float *restrict gbuf,
 #endif
 #if HAS_POINT
     for (uint j = 0; j < n_point; ++j) {
-        const float4 X = point_lights[3 * j];
-        const float4 L = point_lights[3 * j + 1];
-        const float c2 = point_lights[3 * j + 2].x;
+        const float4 X = point_lights[POINT_LIGHT_FLOAT4S * j];
+        const float4 L = point_lights[POINT_LIGHT_FLOAT4S * j + 1];
+        const float c2 = point_lights[POINT_LIGHT_FLOAT4S * j + 2].x;
         const float3 dv = X.xyz - P;
         const float d = length(dv);
         if (d <= 0.0f)            /* light at the shaded point: no direction */
@@ -102,4 +111,8 @@ __kernel void shade(__global const float *restrict gbuf,
     }
 #endif
     out[i] = E.x; out[stride + i] = E.y; out[2 * stride + i] = E.z;
+#if DISPLAY_OUT
+    display_store(E.x, E.y, E.z, i, display, stride, exposure, tonemap_params,
+                  display_m0, display_m1, display_m2);
+#endif
 }

@@ -11,41 +11,9 @@ REPO = Path(__file__).resolve().parent.parent
 GBUFFERS = REPO / "gbuffers"
 
 
-def make_gbuffer(P, N, C, coverage=None, maps=None):
-    from clphong.gbuffer import GBuffer
-
-    return GBuffer(position=np.ascontiguousarray(P, np.float32),
-                   normal=np.ascontiguousarray(N, np.float32),
-                   albedo=np.ascontiguousarray(C, np.float32),
-                   coverage=None if coverage is None else np.asarray(coverage, np.float32),
-                   maps={k: np.asarray(v, np.float32) for k, v in (maps or {}).items()})
-
-
-def make_scene(lights=(), *, model="phong", k_a=0.1, k_d=0.7, k_s=0.2, h=32.0,
-               specular_color=(1.0, 1.0, 1.0), camera=None, background=(0.0, 0.0, 0.0)):
-    """A Scene built directly (bypassing file validation, so tests may use c0 = 0)."""
-    from clphong.scene import Camera, Light, Material, Scene
-
-    if camera is None:
-        camera = Camera(type="perspective", position=(0.0, 2.0, 6.0))
-    elif isinstance(camera, dict):
-        camera = dict(camera)
-        if camera.get("direction") is not None:
-            d = np.asarray(camera["direction"], np.float64)
-            camera["direction"] = tuple(d / np.linalg.norm(d))
-        camera = Camera(**camera)
-    built = []
-    for lt in lights:
-        if isinstance(lt, dict):
-            lt = dict(lt)
-            if lt.get("direction") is not None:
-                d = np.asarray(lt["direction"], np.float64)
-                lt["direction"] = tuple(d / np.linalg.norm(d))
-            lt = Light(**lt)
-        built.append(lt)
-    return Scene(camera=camera, material=Material(model=model, k_a=k_a, k_d=k_d, k_s=k_s, h=h,
-                                                  specular_color=tuple(specular_color)),
-                 lights=tuple(built), background=tuple(background))
+# Scene and G-buffer builders shared with the hard-case suite (make_scene
+# bypasses the file validation, so tests may use c0 = 0).
+from clphong.hardcases import make_gbuffer, make_scene  # noqa: E402,F401
 
 
 def random_gbuffer(rng, h=24, w=40, *, spread=3.0, background_fraction=0.1, maps=()):
@@ -83,7 +51,8 @@ def random_lights(rng, n_point=3, n_dir=1, n_amb=1):
     return lights
 
 
-def check_against_reference(scene, gbuffer, *, kernel="lanes", lanes=None, compensated=None):
+def check_against_reference(scene, gbuffer, *, kernel="lanes", lanes=None, compensated=None,
+                            fp64_directions=None):
     """Render, compare with the float64 reference, assert |err| ≤ the error bound.
 
     Returns (rgb, ref, bound, band) for further checks.
@@ -91,15 +60,13 @@ def check_against_reference(scene, gbuffer, *, kernel="lanes", lanes=None, compe
     from clphong import reference
     from clphong.render import Renderer, prepare_frame
 
-    r = Renderer(scene, kernel=kernel, lanes=lanes, compensated=compensated)
+    r = Renderer(scene, kernel=kernel, lanes=lanes, compensated=compensated,
+                 fp64_directions=fp64_directions)
     frame = prepare_frame(gbuffer, lanes=r.lanes)
     rgb = r.render(gbuffer, frame=frame)
     plan = r.plan_for(frame.map_names)
     ref = reference.shade(scene, gbuffer)
-    bound, band = reference.error_bound(
-        scene, gbuffer, origin=frame.origin,
-        compensated=bool(plan.defines.get("COMPENSATED_SUM", 0)) and kernel == "lanes",
-        form="delta" if kernel == "lanes" else "naive")
+    bound, band = reference.error_bound(scene, gbuffer, origin=frame.origin, plan=plan)
     assert np.all(np.isfinite(rgb))
     err = np.abs(rgb.astype(np.float64) - ref)
     worst = np.unravel_index(np.argmax(err - bound), err.shape)

@@ -20,7 +20,7 @@ U = reference.U
 
 # ------------------------------------------------------------------ samples and random inputs
 
-@pytest.mark.parametrize("kernel", ["lanes", "obvious"])
+@pytest.mark.parametrize("kernel", ["lanes", "lanes-fp32", "obvious"])
 @pytest.mark.parametrize("name", ["spheres", "ortho"])
 def test_samples_match_reference_within_error_bound(name, kernel):
     from clphong.gbuffer import read_gbuffer
@@ -28,15 +28,17 @@ def test_samples_match_reference_within_error_bound(name, kernel):
 
     scene = load_scene(GBUFFERS / f"{name}.toml")
     gb = read_gbuffer(GBUFFERS / f"{name}.exr")
-    rgb, ref, bound, band = check_against_reference(scene, gb, kernel=kernel)
+    rgb, ref, bound, band = check_against_reference(
+        scene, gb, kernel=kernel.split("-")[0], fp64_directions=False if kernel == "lanes-fp32" else None)
     # Background pixels carry the background value exactly.
     bg = gb.background_mask()
     assert np.array_equal(rgb[bg], np.broadcast_to(np.float32(scene.background), rgb[bg].shape))
     assert (~bg).sum() > 0.3 * bg.size
 
 
+@pytest.mark.parametrize("fp64", [True, False], ids=["fp64-directions", "fp32-directions"])
 @pytest.mark.parametrize("seed", range(6))
-def test_random_gbuffers_match_reference(seed):
+def test_random_gbuffers_match_reference(seed, fp64):
     rng = np.random.default_rng(seed)
     model = ["phong", "blinn-phong"][seed % 2]
     camera = (dict(type="orthographic", direction=(0.3, -0.2, -1.0)) if seed % 3 == 2
@@ -45,14 +47,15 @@ def test_random_gbuffers_match_reference(seed):
     scene = make_scene(random_lights(rng, n_point=1 + seed, n_dir=seed % 3), model=model,
                        h=float(rng.choice([1.0, 8.0, 64.0, 500.0])), camera=camera,
                        specular_color=tuple(rng.uniform(0.5, 1, 3)))
-    check_against_reference(scene, random_gbuffer(rng, maps=maps))
+    check_against_reference(scene, random_gbuffer(rng, maps=maps), fp64_directions=fp64)
 
 
+@pytest.mark.parametrize("fp64", [True, False], ids=["fp64-directions", "fp32-directions"])
 @pytest.mark.parametrize("lanes", [1, 4, 8])
-def test_every_lane_width_matches_reference(lanes):
+def test_every_lane_width_matches_reference(lanes, fp64):
     rng = np.random.default_rng(11)
     scene = make_scene(random_lights(rng, 5, 1), model="blinn-phong", h=100.0)
-    check_against_reference(scene, random_gbuffer(rng, 13, 29), lanes=lanes)
+    check_against_reference(scene, random_gbuffer(rng, 13, 29), lanes=lanes, fp64_directions=fp64)
 
 
 @pytest.mark.parametrize("compensated", [False, True])
@@ -237,7 +240,9 @@ def test_background_pixels_take_the_background_value():
     cov = np.array([[1, 1, 0], [1, 1, 1]], np.float32)
     gb = make_gbuffer(P, N, np.ones_like(P), coverage=cov)
     scene = make_scene([dict(type="ambient")], background=(0.25, 0.5, 1.0))
-    rgb = Renderer(scene).render(gb)
+    from clphong.errors import InputWarning
+    with pytest.warns(InputWarning, match="normal: 1 pixel"):      # counted and reported
+        rgb = Renderer(scene).render(gb)
     bg = np.array([[False, True, True], [True, False, False]])
     assert np.all(rgb[bg] == np.float32([0.25, 0.5, 1.0]))
     assert np.all(rgb[~bg] == np.float32(0.1))
