@@ -4,13 +4,18 @@
 >>> relighter = clphong.Relighter("gbuffers/spheres.toml")      # compiles once
 >>> rgb = relighter.relight("gbuffers/spheres.exr")              # (H, W, 3) float32
 >>> relighter.relight("gbuffers/spheres.exr", out="lit.exr")     # doctest: +SKIP
+>>> relighter.relight("gbuffers/spheres.exr", sdr="lit.png", hdr="lit_pq.png")  # doctest: +SKIP
 
 A frame is a path to a multichannel EXR G-buffer, a
 :class:`~clphong.gbuffer.GBuffer`, a mapping ``{"position": P, "normal": N,
 "albedo": C}`` (optionally ``"coverage"`` and material maps) or a tuple
 ``(P, N, C)`` of (H, W, 3) float32 or float16 numpy arrays. The result is an
-(H, W, 3) float32 scene-linear array, and, with ``out=``, a file written by
-:func:`write_output` (atomically: temporary name, then rename).
+(H, W, 3) float32 scene-linear array, and, with ``out=`` (scene-linear EXR
+tagged with the working space), ``sdr=`` (PNG/TIFF), ``hdr=`` (PQ PNG or JPEG
+XL) or ``contact_sheet=``, files written by :func:`clphong.deliver.render_outputs`,
+the same output step as ``clphong render`` (atomically: temporary name, then
+rename). Tone mapping, exposure, display, view and look come from the scene's
+``[render]`` table unless ``output=OutputOptions(...)`` overrides them.
 
 A scene without a ``[camera]`` (or with ``type = "metadata"``) takes each
 frame's camera from its ``worldToCamera`` header attribute
@@ -32,74 +37,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .camera_meta import resolve_camera
+from .color import REC709_CHROMATICITIES, WORKING_SPACES
+from .deliver import OUTPUT_KINDS, OutputOptions, OutputPaths, render_outputs, write_output
 from .errors import GBufferError, OutputError
 from .gbuffer import MAP_KEYS, GBuffer, read_gbuffer
-from .output import write_exr
 
-__all__ = ["Relighter", "OutputOptions", "write_output", "as_gbuffer", "OUTPUT_KINDS",
-           "REC709_CHROMATICITIES", "SCENE_LINEAR_COLORSPACE"]
+__all__ = ["Relighter", "OutputOptions", "OutputPaths", "write_output", "as_gbuffer",
+           "OUTPUT_KINDS", "REC709_CHROMATICITIES", "SCENE_LINEAR_COLORSPACE"]
 
-#: Rec.709 primaries and D65 white: the working space of scene-linear output.
-REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
-#: OCIO name of that space, stored as ``oiio:ColorSpace``.
-SCENE_LINEAR_COLORSPACE = "Linear Rec.709 (sRGB)"
-#: Output kinds :func:`write_output` can write today. Tone-mapped and
-#: display-referred outputs (SDR PNG/TIFF, PQ) dispatch from the same function.
-OUTPUT_KINDS = ("exr",)
+#: Interop ID of the default working space (linear Rec.709), stored as ``oiio:ColorSpace``;
+#: an EXR in another working space is tagged with that space (:func:`clphong.deliver.exr_attributes`).
+SCENE_LINEAR_COLORSPACE = WORKING_SPACES["lin_rec709"].interop_id
 #: Pixel types accepted for numpy G-buffer input (anything else is an error).
 _INPUT_DTYPES = (np.float16, np.float32, np.float64)
-
-
-@dataclass(frozen=True)
-class OutputOptions:
-    """How each relit frame is written.
-
-    Attributes
-    ----------
-    kind : {"exr"}
-        ``"exr"``: scene-linear Rec.709 RGB OpenEXR.
-    pixel_type : {"float", "half"}
-        EXR pixel type.
-    compression : str
-        EXR compression.
-    attributes : tuple of (str, object) pairs
-        Extra header attributes, after the colour-space tags.
-    """
-
-    kind: str = "exr"
-    pixel_type: str = "float"
-    compression: str = "zip"
-    attributes: tuple = ()
-
-
-def write_output(rgb: np.ndarray, path: str | os.PathLike, options: OutputOptions | None = None) -> None:
-    """Write one relit frame: the single per-frame output step of the API, CLI and batch.
-
-    Parameters
-    ----------
-    rgb : numpy.ndarray
-        (H, W, 3) float32 scene-linear RGB.
-    path : str or os.PathLike
-        Destination; replaced only when the write succeeds.
-    options : OutputOptions, optional
-        Output kind and format (default: float32 scene-linear EXR).
-
-    Raises
-    ------
-    OutputError
-        Unknown output kind, or the file cannot be written (nothing is left
-        behind).
-    """
-    options = options or OutputOptions()
-    if options.kind not in OUTPUT_KINDS:
-        raise OutputError(f"{os.fspath(path)}: unknown output kind {options.kind!r}; "
-                          f"valid kinds: {', '.join(OUTPUT_KINDS)}")
-    attributes = {"chromaticities": REC709_CHROMATICITIES,
-                  "oiio:ColorSpace": SCENE_LINEAR_COLORSPACE,
-                  "Software": "clphong"}
-    attributes.update(dict(options.attributes))
-    write_exr(path, rgb, pixel_type=options.pixel_type, compression=options.compression,
-              attributes=attributes)
 
 
 def _array(value, name: str, want_channels: int | None) -> np.ndarray:
@@ -218,7 +168,10 @@ class Relighter:
     channels : mapping, optional
         Channel overrides used when reading frames from files.
     output : OutputOptions, optional
-        How :meth:`relight` writes ``out=`` files.
+        How :meth:`relight` writes files: formats, and colour settings that
+        override the scene's ``[render]`` keys (``None`` fields take the
+        scene's). Resolved and checked here: a bad operator or working space
+        fails at construction.
 
     Notes
     -----
@@ -237,7 +190,7 @@ class Relighter:
             scene = load_scene(scene)
         self.scene = scene
         self.channels = dict(channels) if channels else None
-        self.output = output or OutputOptions()
+        self.output = (output or OutputOptions()).for_scene(scene)
         self.renderer = Renderer(scene, device=device, kernel=kernel, lanes=lanes)
         self.spec = RelighterSpec(scene=scene, device=device, kernel=kernel, lanes=lanes,
                                   channels=_hashable_channels(channels), output=self.output)
@@ -267,16 +220,24 @@ class Relighter:
         view.scene = scene
         return view
 
-    def relight(self, frame, out: str | os.PathLike | None = None, *,
-                world_to_camera=None) -> np.ndarray:
-        """Relight one frame.
+    def relight(self, frame, out: str | os.PathLike | None = None, *, sdr=None, hdr=None,
+                contact_sheet=None, world_to_camera=None) -> np.ndarray:
+        """Relight one frame, and write any outputs asked for.
 
         Parameters
         ----------
         frame : str, os.PathLike, GBuffer, mapping or tuple
             The G-buffer (see the module docstring).
-        out : str or os.PathLike, optional
-            Also write the result there with :func:`write_output`.
+        out : str or os.PathLike or list of them, optional
+            Scene-linear EXR file(s), tagged with the working space.
+        sdr : str or os.PathLike or list of them, optional
+            Display-referred SDR PNG/TIFF file(s): the scene's (or
+            :attr:`output`'s) exposure and tone-mapping operator, fused in the
+            shading kernel, or its OCIO display/view/look.
+        hdr : str or os.PathLike or list of them, optional
+            Rec.2100 PQ 16-bit PNG or JPEG XL file(s).
+        contact_sheet : str or os.PathLike, optional
+            PNG of the frame through every operator and view.
         world_to_camera : array_like, optional
             (4, 4) world-to-camera matrix for a metadata-camera scene when the
             frame has no header (numpy input); overrides the header otherwise.
@@ -285,14 +246,27 @@ class Relighter:
         -------
         numpy.ndarray
             (H, W, 3) float32 scene-linear RGB.
+
+        Raises
+        ------
+        OutputError, ToneMapError, ColorError
+            A bad output name or colour setting (before shading), or a write
+            that fails (nothing partial is left).
         """
-        if out is not None and isinstance(frame, (str, os.PathLike)) and _same_file(frame, out):
-            raise OutputError(f"{os.fspath(out)}: output would overwrite the input {os.fspath(frame)}")
+        paths = OutputPaths(exr=out, sdr=sdr, hdr=hdr, contact_sheet=contact_sheet)
+        if isinstance(frame, (str, os.PathLike)):
+            for p in paths.files:
+                if _same_file(frame, p):
+                    raise OutputError(f"{p}: output would overwrite the input {os.fspath(frame)}")
         gbuffer = self.read(frame)
         source = os.fspath(frame) if isinstance(frame, (str, os.PathLike)) else None
-        rgb = self.renderer_for(gbuffer, world_to_camera=world_to_camera, source=source).render(gbuffer)
-        if out is not None:
-            write_output(rgb, out, self.output)
+        return self.deliver(gbuffer, paths, world_to_camera=world_to_camera, source=source)
+
+    def deliver(self, gbuffer: GBuffer, paths: OutputPaths, *, world_to_camera=None,
+                source: str | None = None) -> np.ndarray:
+        """Shade a G-buffer and write ``paths`` with :attr:`output`: the per-frame step of the API and batches."""
+        renderer = self.renderer_for(gbuffer, world_to_camera=world_to_camera, source=source)
+        rgb, _ = render_outputs(renderer, gbuffer, self.output, paths)
         return rgb
 
     __call__ = relight

@@ -17,14 +17,20 @@ frames are relit, and a frame whose file is missing is reported as failed.
 
 Outputs
 -------
-The output template is a path with the fields ``{frame}`` (an int: use
+Each frame and rig is delivered as any combination of a scene-linear EXR, SDR
+PNG/TIFF, HDR PQ PNG/JPEG XL and a contact sheet, all from one shading
+through :func:`clphong.deliver.render_outputs` (the output step of
+``clphong render``), with the rig's :class:`~clphong.deliver.OutputOptions`
+(its scene's ``[render]`` colour settings, overridable). Each kind has an
+output template: a path with the fields ``{frame}`` (an int: use
 ``{frame:04d}``), ``{rig}``, ``{stem}`` (input file name without extension)
-and ``{name}`` (``{stem}`` without its frame number), and may use ``####`` or
-``%04d`` for the frame. Folders are created as needed. Each output is written
+and ``{name}`` (``{stem}`` without its frame number), which may use ``####``
+or ``%04d`` for the frame. Folders are created as needed. Each file is written
 to a temporary name in its folder and renamed into place, so an output path
 either holds a complete image or does not exist; an interrupted run leaves
-no partial file, and a rerun with ``skip_existing`` finishes the rest
-(temporary files left by a killed run are removed first).
+no partial file. A frame and rig is complete when all its files exist: a
+rerun with ``skip_existing`` skips those and writes the missing files of the
+others (temporary files left by a killed run are removed first).
 
 Execution
 ---------
@@ -51,11 +57,12 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
+from .deliver import OutputPaths, check_extensions
 from .errors import ClphongError
 
 __all__ = ["BatchError", "Rig", "Job", "Outcome", "BatchPlan", "BatchResult", "Interrupted",
            "parse_frame_range", "expand_sequence", "format_output", "plan_batch", "run_batch",
-           "relight_job", "stale_temporaries"]
+           "relight_job", "stale_temporaries", "failed_outcomes"]
 
 
 class BatchError(ClphongError):
@@ -253,16 +260,19 @@ class Rig:
 
 @dataclass(frozen=True)
 class Job:
-    """One input frame and the outputs (rig name, path) still to write for it."""
+    """One input frame and, per rig, the files still to write for it: (rig name, OutputPaths)."""
 
     frame: int
     source: str
-    outputs: tuple[tuple[str, str], ...]
+    outputs: tuple[tuple[str, OutputPaths], ...]
 
 
 @dataclass
 class Outcome:
-    """What happened to one output."""
+    """What happened to the outputs of one frame and rig.
+
+    ``path`` is the first of its files (the EXR, if any); ``paths`` all of them.
+    """
 
     frame: int
     source: str
@@ -271,28 +281,71 @@ class Outcome:
     ok: bool
     error: str | None = None
     seconds: float = 0.0
+    paths: tuple[str, ...] = ()
+
+
+def _outcome(job: Job, rig: str, paths: OutputPaths, ok: bool, error: str | None = None,
+             seconds: float = 0.0) -> Outcome:
+    files = paths.files
+    return Outcome(job.frame, job.source, rig, files[0] if files else "", ok, error, seconds, files)
+
+
+def failed_outcomes(job: Job, reason: str) -> list[Outcome]:
+    """Every output of ``job`` failed for ``reason`` (a worker died, a task was lost)."""
+    return [_outcome(job, rig, paths, False, reason) for rig, paths in job.outputs]
 
 
 @dataclass
 class BatchPlan:
+    """The jobs to run, and what already exists.
+
+    ``skipped``: (frame, rig, OutputPaths) of each complete frame and rig
+    (every file exists); ``kept``: (frame, rig, path) of existing files of an
+    incomplete one (its job writes only the missing files).
+    """
+
     jobs: list[Job]
-    skipped: list[tuple[int, str, str]] = field(default_factory=list)   # (frame, rig, path)
+    skipped: list[tuple[int, str, OutputPaths]] = field(default_factory=list)
+    kept: list[tuple[int, str, str]] = field(default_factory=list)
 
     @property
     def outputs(self) -> int:
+        """Frames × rigs to deliver (the unit of progress and of the summary)."""
         return sum(len(j.outputs) for j in self.jobs)
 
+    @property
+    def files(self) -> int:
+        """Files to write."""
+        return sum(len(p) for j in self.jobs for _, p in j.outputs)
 
-def plan_batch(sequence: str, rigs: Sequence[Rig], template: str, *, frames: Sequence[int] | None = None,
-               skip_existing: bool = False) -> BatchPlan:
+
+def plan_batch(sequence: str, rigs: Sequence[Rig], template: str | None = None, *,
+               sdr: Sequence[str] = (), hdr: Sequence[str] = (), contact_sheet: Sequence[str] = (),
+               frames: Sequence[int] | None = None, skip_existing: bool = False) -> BatchPlan:
     """Expand the sequence, name every output, and drop those that exist (with ``skip_existing``).
+
+    Parameters
+    ----------
+    sequence : str
+        Frame pattern or folder (see the module docstring).
+    rigs : sequence of Rig
+    template : str, optional
+        Template of the scene-linear EXR of each frame and rig.
+    sdr, hdr, contact_sheet : sequence of str
+        Templates of the SDR (``.png``/``.tif``), HDR (``.png``/``.jxl``) and
+        contact-sheet files of each frame and rig (a single string is one template).
+    frames : sequence of int, optional
+    skip_existing : bool
+        Skip a frame and rig whose files all exist; write only the missing
+        files of one whose files partly exist.
 
     Raises
     ------
     BatchError
-        Two outputs with the same path (a template without ``{rig}`` for
-        several rigs, or without a frame for several frames), or an output
-        that would overwrite an input.
+        No output template, a template with a bad field or extension, two
+        outputs with the same path (a template without ``{rig}`` for several
+        rigs, or without a frame for several frames), or an output that would
+        overwrite an input.
     """
     if not rigs:
         raise BatchError("no light rig given; pass at least one scene file with --rig")
@@ -300,32 +353,49 @@ def plan_batch(sequence: str, rigs: Sequence[Rig], template: str, *, frames: Seq
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise BatchError(f"rig name {sorted(dup)[0]!r} is used twice; name rigs with --rig NAME=SCENE.toml")
-    _check_template(template)
+    templates = OutputPaths(exr=template, sdr=sdr, hdr=hdr, contact_sheet=contact_sheet)
+    if not templates:
+        raise BatchError("no output template given; give -o OUT.####.exr, --sdr OUT.####.png, "
+                         "--hdr OUT.####.png or --contact-sheet OUT.####.png")
+    for t in templates.files:
+        _check_template(t)
+    try:
+        check_extensions(templates)
+    except ClphongError as exc:
+        raise BatchError(f"output template {exc}") from None
     pairs = expand_sequence(sequence, frames)
     owner: dict[str, tuple[int, str]] = {}
     inputs = {os.path.abspath(p): f for f, p in pairs}
-    jobs: list[Job] = []
-    skipped = []
+    plan = BatchPlan([])
     for frame, src in pairs:
         outs = []
         for rig in rigs:
-            path = format_output(template, frame=frame, rig=rig.name, source=src)
-            key = os.path.abspath(path)
-            if key in owner:
-                f0, r0 = owner[key]
-                raise BatchError(f"output template {template!r} gives {path} for both frame {f0} rig "
-                                 f"{r0!r} and frame {frame} rig {rig.name!r}; add {{rig}} or #### to it")
-            owner[key] = (frame, rig.name)
-            if key in inputs:
-                raise BatchError(f"{path}: output would overwrite the input of frame {inputs[key]}; "
-                                 "choose another output template")
-            if skip_existing and os.path.isfile(path):
-                skipped.append((frame, rig.name, path))
-            else:
-                outs.append((rig.name, path))
+            def name(kind, tmpl):
+                return format_output(tmpl, frame=frame, rig=rig.name, source=src)
+
+            paths = templates.map(name)
+            for path, tmpl in zip(paths.files, templates.files):
+                key = os.path.abspath(path)
+                if key in owner:
+                    f0, r0 = owner[key]
+                    raise BatchError(f"output template {tmpl!r} gives {path} for both frame {f0} rig "
+                                     f"{r0!r} and frame {frame} rig {rig.name!r}; add {{rig}} or #### "
+                                     "to it (or give each output kind its own name)")
+                owner[key] = (frame, rig.name)
+                if key in inputs:
+                    raise BatchError(f"{path}: output would overwrite the input of frame {inputs[key]}; "
+                                     "choose another output template")
+            if skip_existing:
+                exist = [p for p in paths.files if os.path.isfile(p)]
+                if len(exist) == len(paths):
+                    plan.skipped.append((frame, rig.name, paths))
+                    continue
+                plan.kept.extend((frame, rig.name, p) for p in exist)
+                paths = paths.only(p for p in paths.files if p not in exist)
+            outs.append((rig.name, paths))
         if outs:
-            jobs.append(Job(frame, src, tuple(outs)))
-    return BatchPlan(jobs, skipped)
+            plan.jobs.append(Job(frame, src, tuple(outs)))
+    return plan
 
 
 def stale_temporaries(path: str) -> list[str]:
@@ -360,24 +430,19 @@ def load_job(job: Job, channels) -> object:
 
 def shade_job(job: Job, gbuffer, relighters: dict) -> list[Outcome]:
     """Shade and write every output of a job; a failure is recorded, not raised."""
-    from .api import write_output
-
     outcomes = []
-    for rig, path in job.outputs:
+    for rig, paths in job.outputs:
         t0 = time.perf_counter()
         if isinstance(gbuffer, BaseException):
-            outcomes.append(Outcome(job.frame, job.source, rig, path, False, _reason(gbuffer)))
+            outcomes.append(_outcome(job, rig, paths, False, _reason(gbuffer)))
             continue
         try:
-            r = relighters[rig]
-            rgb = r.renderer_for(gbuffer, source=job.source).render(gbuffer)
-            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-            write_output(rgb, path, r.output)
-            outcomes.append(Outcome(job.frame, job.source, rig, path, True,
-                                    seconds=time.perf_counter() - t0))
+            for folder in {os.path.dirname(os.path.abspath(p)) for p in paths.files}:
+                os.makedirs(folder, exist_ok=True)
+            relighters[rig].deliver(gbuffer, paths, source=job.source)
+            outcomes.append(_outcome(job, rig, paths, True, seconds=time.perf_counter() - t0))
         except Exception as exc:  # noqa: BLE001
-            outcomes.append(Outcome(job.frame, job.source, rig, path, False, _reason(exc),
-                                    time.perf_counter() - t0))
+            outcomes.append(_outcome(job, rig, paths, False, _reason(exc), time.perf_counter() - t0))
     return outcomes
 
 
@@ -390,7 +455,7 @@ def relight_job(job: Job, specs: dict) -> list[Outcome]:
         try:
             relighters[rig] = cached_relighter(spec)
         except Exception as exc:  # noqa: BLE001 - e.g. no OpenCL device on this worker
-            return [Outcome(job.frame, job.source, r, p, False, _reason(exc)) for r, p in job.outputs]
+            return failed_outcomes(job, _reason(exc))
     channels = next(iter(specs.values())).channels if specs else ()
     return shade_job(job, load_job(job, dict(channels) or None), relighters)
 
@@ -568,8 +633,7 @@ def _run_pool(jobs: Sequence[Job], specs: dict, n: int, on_outcomes: Callable) -
                         if idx is not None:
                             job = jobs[idx]
                             reason = f"worker process died (exit code {p.exitcode})"
-                            on_outcomes([Outcome(job.frame, job.source, r, path, False, reason)
-                                         for r, path in job.outputs])
+                            on_outcomes(failed_outcomes(job, reason))
                             done += 1
                         tasks.put(None)
                         spawn()
@@ -625,7 +689,7 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
     t0 = time.perf_counter()
     stale = 0
     for job in plan.jobs:
-        for _, path in job.outputs:
+        for path in (p for _, paths in job.outputs for p in paths.files):
             for tmp in stale_temporaries(path):
                 try:
                     os.remove(tmp)

@@ -28,11 +28,6 @@ examples:
   clphong render scene.toml frame.exr --channels position=Pworld --channels normal=Nw.X,Nw.Y,Nw.Z -o out.exr
 """
 
-#: Rec.709 primaries and D65 white: the working space of the default output.
-REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
-SCENE_LINEAR_COLORSPACE = "Linear Rec.709 (sRGB)"
-
-
 def _build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="clphong",
@@ -96,6 +91,11 @@ examples:
   # every other frame of 1-240, 2 local worker processes, finish an interrupted run
   clphong relight shot/gbuf.%04d.exr --rig key.toml -o out/{rig}.{frame:04d}.exr --frames 1-240x2 --jobs 2 --skip-existing
 
+  # also an 8-bit sRGB PNG and a PQ HDR PNG per frame; tone mapping from each rig's [render]
+  # table, here overridden: AgX at +1 EV
+  clphong relight shot/gbuf.####.exr --rig key.toml -o out/{rig}/beauty.####.exr \
+      --sdr out/{rig}/png/beauty.####.png --hdr out/{rig}/hdr/beauty.####.png --tonemap agx --exposure 1
+
   # frames as tasks on a Dask cluster (pip install 'clphong[dask]')
   clphong relight shot/ --rig key.toml -o out/{name}.{rig}.####.exr --scheduler tcp://farm-scheduler:8786
 """
@@ -112,9 +112,10 @@ def _add_relight_parser(sub):
     r.add_argument("sequence", metavar="SEQUENCE", help="frame pattern (#### or %%04d) or folder of EXRs")
     r.add_argument("--rig", action="append", required=True, metavar="[NAME=]SCENE.toml",
                    help="a light rig (scene file); repeat for several; NAME defaults to the file stem")
-    r.add_argument("-o", "--output", required=True, metavar="TEMPLATE",
-                   help="output path template: {frame} (e.g. {frame:04d}), ####, %%04d, {rig}, "
-                        "{stem} (input file name), {name} (input name without its frame number)")
+    r.add_argument("-o", "--output", metavar="TEMPLATE.exr",
+                   help="scene-linear EXR path template: {frame} (e.g. {frame:04d}), ####, %%04d, "
+                        "{rig}, {stem} (input file name), {name} (input name without its frame "
+                        "number); --sdr, --hdr and --contact-sheet take templates too")
     r.add_argument("--frames", metavar="RANGE", help="frames to relight, e.g. 1-240x2 or 1-10,20 "
                                                      "(default: every frame on disk)")
     r.add_argument("-j", "--jobs", type=int, default=1, metavar="N",
@@ -127,6 +128,7 @@ def _add_relight_parser(sub):
     r.add_argument("--scheduler", metavar="ADDRESS",
                    help="run frames as tasks on this Dask distributed scheduler (tcp://host:8786)")
     r.add_argument("--half", action="store_true", help="write half-float instead of float32")
+    _add_color_options(r, templates=True)
     _add_gbuffer_options(r, files=False)
     _add_device_options(r)
 
@@ -309,8 +311,8 @@ def _same_file(a: str, b: str) -> bool:
 
 
 def cmd_render(args) -> int:
-    from .api import OutputOptions, Relighter, write_output
-    from .deliver import exr_attributes, render_outputs
+    from .api import Relighter
+    from .deliver import check_outputs, render_outputs
     from .scene import load_scene
 
     from .output import check_output_path
@@ -325,26 +327,21 @@ def cmd_render(args) -> int:
         check_output_path(out, exr=out == args.output)   # fail before the work, not after
     t0 = time.perf_counter()
     scene = load_scene(args.scene)
+    paths = _output_paths(args, args.output)
+    options = check_outputs(_output_options(args).for_scene(scene), paths)   # bad names: before any work
     gbuffer = _read_gbuffer(args)
     t_read = time.perf_counter()
-    request = _output_request(args, scene)
     relighter = Relighter(scene, device=args.device, kernel=args.kernel, lanes=args.lanes,
-                          output=OutputOptions(
-                              pixel_type="half" if args.half else args.exr_type,
-                              compression=args.exr_compression,
-                              attributes=tuple(exr_attributes(request.working_space).items())))
+                          output=options)
     # A scene without [camera] takes this frame's worldToCamera (clphong.camera_meta).
     renderer = relighter.renderer_for(gbuffer, source=args.gbuffer or args.position)
     _apply_speed_options(renderer, args)
     renderer.nonfinite = args.nonfinite            # NaN/Inf input policy (clphong.inputs)
-    if display_paths:
-        rgb, _ = render_outputs(renderer, gbuffer, request)   # SDR / HDR / contact sheet
-    else:
-        rgb = renderer.render(gbuffer)
-    t_shade = time.perf_counter()
-    if args.output:
-        write_output(rgb, args.output, relighter.output)
+    # The one output step of render, relight and the API: EXR / SDR / HDR / contact sheet.
+    _, times = render_outputs(renderer, gbuffer, relighter.output, paths)
     t_end = time.perf_counter()
+    t_write = sum(times.values())
+    t_shade = t_end - t_write
     if args.stats:
         st = renderer.last_stats
         h, w = gbuffer.shape
@@ -413,28 +410,54 @@ def _rig(text: str):
 
 
 def cmd_relight(args) -> int:
-    from .api import OutputOptions, RelighterSpec, _hashable_channels
+    from .api import RelighterSpec, _hashable_channels
     from .batch import parse_frame_range, plan_batch, run_batch
+    from .deliver import check_outputs
     from .gbuffer import parse_channel_mapping
 
     if args.jobs < 1:
         raise _Usage("--jobs must be >= 1")
+    templates = _output_paths(args, args.output)
+    if not templates:
+        raise _Usage("give at least one output template: -o OUT.####.exr, --sdr OUT.####.png, "
+                     "--hdr OUT.####.png or --contact-sheet OUT.####.png")
     rigs = [_rig(r) for r in args.rig]
     frames = parse_frame_range(args.frames) if args.frames else None
-    plan = plan_batch(args.sequence, rigs, args.output, frames=frames, skip_existing=args.skip_existing)
+    plan = plan_batch(args.sequence, rigs, args.output, sdr=args.sdr, hdr=args.hdr,
+                      contact_sheet=args.contact_sheet, frames=frames,
+                      skip_existing=args.skip_existing)
+    # Each rig's colour settings: its scene's [render] keys, overridden by the options given;
+    # names, OCIO displays/views and extensions are checked before anything runs.
+    base = _output_options(args).checked()          # a bad option fails once, not per rig
+    options = {}
+    for rig in rigs:
+        try:
+            options[rig.name] = check_outputs(base.for_scene(rig.scene), templates)
+        except ClphongError as exc:
+            msg = f"rig {rig.name!r} ({rig.scene.source}): {exc}"
+            try:
+                named = type(exc)(msg)
+            except Exception:  # noqa: BLE001 - a subclass with another constructor
+                named = ClphongError(msg)
+            raise named from None
     if args.dry_run:
-        for frame, rig, path in plan.skipped:
-            print(f"skip   frame {frame} [{rig}] {path} (exists)")
+        for frame, rig, paths in plan.skipped:
+            for path in paths.files:
+                print(f"skip   frame {frame} [{rig}] {path} (exists)")
+        for frame, rig, path in plan.kept:
+            print(f"skip   frame {frame} [{rig}] {path} (exists; the frame's other outputs are written)")
         for job in plan.jobs:
-            for rig, path in job.outputs:
-                missing = "" if os.path.isfile(job.source) else " (input missing: will fail)"
-                print(f"write  frame {job.frame} [{rig}] {job.source} -> {path}{missing}")
-        print(f"{plan.outputs} output(s) to write, {len(plan.skipped)} skipped", file=sys.stderr)
+            missing = "" if os.path.isfile(job.source) else " (input missing: will fail)"
+            for rig, paths in job.outputs:
+                for path in paths.files:
+                    print(f"write  frame {job.frame} [{rig}] {job.source} -> {path}{missing}")
+        print(f"{plan.files} file(s) to write for {plan.outputs} frame(s) x rig(s), "
+              f"{len(plan.skipped)} skipped", file=sys.stderr)
         return 0
     channels = _hashable_channels(parse_channel_mapping(args.channels)) if args.channels else ()
-    output = OutputOptions(pixel_type="half" if args.half else "float")
     specs = {r.name: RelighterSpec(scene=r.scene, device=args.device, kernel=args.kernel,
-                                   lanes=args.lanes, channels=channels, output=output) for r in rigs}
+                                   lanes=args.lanes, channels=channels, output=options[r.name])
+             for r in rigs}
     progress = not args.quiet and sys.stderr.isatty()
     result = run_batch(plan, specs, jobs=args.jobs, scheduler=args.scheduler, progress=progress)
     lines = result.summary()
@@ -468,9 +491,12 @@ def cmd_diff(args) -> int:
     return 0 if result.match else 1
 
 
-def _add_color_options(r):
-    """Tone mapping, colour management and display-output options of 'render'."""
-    g = r.add_argument_group("tone mapping and colour (override the scene's [render] keys)")
+def _add_color_options(r, templates: bool = False):
+    """Tone mapping, colour management and output options of 'render' and 'relight'."""
+    what = "TEMPLATE" if templates else "OUT"
+    per = " per frame and rig (a path template, as -o)" if templates else ""
+    g = r.add_argument_group("tone mapping and colour (override the scene's [render] keys"
+                             + (" of each rig)" if templates else ")"))
     g.add_argument("--exposure", type=float, metavar="EV",
                    help="exposure in stops: display outputs see the scene-linear value x 2^EV")
     g.add_argument("--tonemap", metavar="OP",
@@ -489,28 +515,35 @@ def _add_color_options(r):
     o.add_argument("--exr-type", choices=("float", "half"), default="float",
                    help="EXR pixel type (--half is the same as --exr-type half)")
     o.add_argument("--exr-compression", choices=("zip", "piz"), default="zip")
-    o.add_argument("--sdr", action="append", default=[], metavar="OUT.png|OUT.tif",
-                   help="display-referred SDR image; repeatable")
+    o.add_argument("--sdr", action="append", default=[], metavar=f"{what}.png|{what}.tif",
+                   help=f"display-referred SDR image{per}; repeatable")
     o.add_argument("--bits", type=int, choices=(8, 16), default=8, help="SDR bit depth")
     o.add_argument("--no-dither", action="store_true", help="no dither before 8-bit quantisation")
-    o.add_argument("--hdr", action="append", default=[], metavar="OUT.png|OUT.jxl",
-                   help="HDR Rec.2100 PQ (1000-nit view), 16-bit PNG with cICP or JPEG XL")
+    o.add_argument("--hdr", action="append", default=[], metavar=f"{what}.png|{what}.jxl",
+                   help=f"HDR Rec.2100 PQ (1000-nit view), 16-bit PNG with cICP or JPEG XL{per}; "
+                        "repeatable")
     o.add_argument("--hdr-view", help="OCIO view of the HDR output on 'Rec.2100-PQ - Display' "
                                       "(default 'ACES 2.0 - HDR 1000 nits (Rec.2020)')")
-    o.add_argument("--contact-sheet", metavar="OUT.png",
-                   help="PNG of the frame through every operator and view, labelled")
+    o.add_argument("--contact-sheet", metavar=f"{what}.png",
+                   help=f"PNG of the frame through every operator and view, labelled{per}")
 
 
-def _output_request(args, scene):
-    from .deliver import OutputRequest
+def _output_options(args):
+    """OutputOptions of the formats and colour options; None fields take each scene's [render] value."""
+    from .deliver import OutputOptions
 
-    req = OutputRequest.from_scene(
-        scene, sdr=list(args.sdr), hdr=list(args.hdr), contact_sheet=args.contact_sheet,
+    return OutputOptions(
+        pixel_type="half" if args.half else args.exr_type, compression=args.exr_compression,
         bits=args.bits, dither=not args.no_dither, working_space=args.working_space,
         exposure=args.exposure, tonemap=args.tonemap, white=args.white, display=args.display,
         view=args.view, look=args.look, hdr_view=args.hdr_view, ocio_config=args.ocio_config)
-    req.check()        # bad names fail before any work
-    return req
+
+
+def _output_paths(args, exr):
+    """OutputPaths (or, for relight, templates) of -o, --sdr, --hdr and --contact-sheet."""
+    from .deliver import OutputPaths
+
+    return OutputPaths(exr=exr, sdr=args.sdr, hdr=args.hdr, contact_sheet=args.contact_sheet)
 
 
 def cmd_displays(args) -> int:

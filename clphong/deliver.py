@@ -1,8 +1,11 @@
-"""Display outputs of one frame: SDR, HDR and the contact sheet, in one run.
+"""Every output of one frame, in one run: scene-linear EXR, SDR, HDR and the contact sheet.
 
-:func:`render_outputs` shades a G-buffer once and writes every display output
-asked for, choosing the path for each:
+This is the one per-frame output step of ``clphong render``, ``clphong
+relight`` and :class:`clphong.Relighter`: :func:`render_outputs` shades a
+G-buffer once and writes every file asked for, choosing the path for each:
 
+* scene-linear EXR: float or half, zip or piz, tagged with the working space
+  (``chromaticities`` and ``oiio:ColorSpace``, :func:`exr_attributes`);
 * SDR without an OCIO display, view or look: exposure, the tone-mapping
   operator and sRGB encoding run fused in the shading kernel's store
   (:func:`clphong.display.render_display`), no round trip through the host;
@@ -11,22 +14,45 @@ asked for, choosing the path for each:
 * HDR: Rec.2100 PQ through the 1000-nit view (``HDR_DISPLAY``/``HDR_VIEW``);
 * contact sheet: every operator and every view of the SDR display.
 
-The scene-linear EXR is written by the caller (``clphong.api.write_output``)
-with :func:`exr_attributes` of the working space.
+Two small frozen (hashable, picklable) values describe the work:
+:class:`OutputOptions`, *how* (formats and colour settings; a colour setting
+left ``None`` is taken from the scene's ``[render]`` table by
+:meth:`OutputOptions.for_scene`), and :class:`OutputPaths`, *where* (the files
+of one frame, by kind). Every file is written atomically
+(:func:`clphong.output.atomic_path`).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import math
+import os
 import time
-from dataclasses import dataclass, field
+from collections.abc import Iterable
+from dataclasses import dataclass
 
 import numpy as np
 
 from . import color, tonemap
 from .display import DisplayTransform, render_display
-from .writers import write_hdr, write_sdr
+from .errors import OutputError
+from .output import PIXEL_TYPES
+from .writers import (EXR_COMPRESSIONS, HDR_EXTENSIONS, SDR_EXTENSIONS, jpegxl_available,
+                      write_hdr, write_scene_linear, write_sdr)
 
-__all__ = ["OutputRequest", "render_outputs", "exr_attributes"]
+__all__ = ["OutputOptions", "OutputPaths", "render_outputs", "write_output", "exr_attributes",
+           "check_outputs", "OUTPUT_KINDS"]
+
+#: The kinds of file one frame can be delivered as (fields of :class:`OutputPaths`).
+OUTPUT_KINDS = ("exr", "sdr", "hdr", "contact_sheet")
+#: The extensions each kind accepts.
+EXTENSIONS = {"exr": (".exr",), "sdr": SDR_EXTENSIONS, "hdr": HDR_EXTENSIONS,
+              "contact_sheet": SDR_EXTENSIONS}
+
+#: OutputOptions fields taken from the scene's [render] table when None (field -> ColorSettings key).
+_FROM_SCENE = {"working_space": "working_space", "exposure": "exposure", "tonemap": "tonemap",
+               "white": "white_point", "display": "display", "view": "view", "look": "look"}
 
 
 def exr_attributes(working_space: str) -> dict:
@@ -35,53 +61,254 @@ def exr_attributes(working_space: str) -> dict:
     return {"chromaticities": ws.chromaticities, "oiio:ColorSpace": ws.interop_id}
 
 
-@dataclass
-class OutputRequest:
-    """What to write and how (CLI options override the scene's ``[render]`` keys)."""
+@dataclass(frozen=True)
+class OutputOptions:
+    """How each relit frame is written (the same for every frame of a rig).
 
-    sdr: list[str] = field(default_factory=list)
-    hdr: list[str] = field(default_factory=list)
-    contact_sheet: str | None = None
+    Attributes
+    ----------
+    pixel_type : {"float", "half"}
+        EXR pixel type.
+    compression : {"zip", "piz"}
+        EXR compression.
+    attributes : tuple of (str, object) pairs
+        Extra EXR header attributes, after the colour-space tags.
+    bits : {8, 16}
+        SDR bit depth.
+    dither : bool
+        Dither before 8-bit quantisation.
+    working_space, exposure, tonemap, white, display, view, look
+        Colour settings, as the scene's ``[render]`` keys (``white`` is
+        ``white_point``); ``None`` takes the scene's value
+        (:meth:`for_scene`).
+    hdr_view : str, optional
+        OCIO view of the HDR output (default :data:`clphong.color.HDR_VIEW`).
+    ocio_config : str, optional
+        OCIO config (default ``$OCIO``, else the built-in one).
+    """
+
+    pixel_type: str = "float"
+    compression: str = "zip"
+    attributes: tuple = ()
     bits: int = 8
     dither: bool = True
-    working_space: str = "lin_rec709"
-    exposure: float = 0.0
-    tonemap: str = "none"
+    working_space: str | None = None
+    exposure: float | None = None
+    tonemap: str | None = None
     white: float | None = None
     display: str | None = None
     view: str | None = None
     look: str | None = None
-    hdr_view: str = color.HDR_VIEW
+    hdr_view: str | None = None
     ocio_config: str | None = None
 
-    @classmethod
-    def from_scene(cls, scene, **overrides) -> "OutputRequest":
+    def for_scene(self, scene) -> "OutputOptions":
+        """These options with every colour setting left ``None`` taken from ``scene.color``, checked.
+
+        Raises
+        ------
+        ToneMapError, ColorError, OutputError
+            A bad operator, working space, exposure, white point, pixel type,
+            compression or bit depth (one line; no OCIO config is opened).
+        """
         c = scene.color
-        req = cls(working_space=c.working_space, exposure=c.exposure, tonemap=c.tonemap,
-                  white=c.white_point, display=c.display, view=c.view, look=c.look)
-        for k, v in overrides.items():
-            if v is not None:
-                setattr(req, k, v)
-        return req
+        fill = {k: getattr(c, key) for k, key in _FROM_SCENE.items() if getattr(self, k) is None}
+        return dataclasses.replace(self, **fill).checked()
+
+    def checked(self) -> "OutputOptions":
+        """Validate names and values; normalise operator and working-space names."""
+        if self.pixel_type not in PIXEL_TYPES:
+            raise OutputError(f"EXR pixel type must be one of {', '.join(PIXEL_TYPES)}, "
+                              f"not {self.pixel_type!r}")
+        if self.compression not in EXR_COMPRESSIONS:
+            raise OutputError(f"EXR compression must be one of {', '.join(EXR_COMPRESSIONS)}, "
+                              f"not {self.compression!r}")
+        if self.bits not in (8, 16):
+            raise OutputError(f"SDR bit depth must be 8 or 16, not {self.bits!r}")
+        changes = {}
+        if self.tonemap is not None:
+            op = tonemap.operator(self.tonemap)
+            tonemap.operator_params(op.name, self.white)          # validates the white point
+            changes["tonemap"] = op.name
+        if self.working_space is not None:
+            changes["working_space"] = color.working_space(self.working_space).name
+        if self.exposure is not None and not math.isfinite(self.exposure):
+            raise tonemap.ToneMapError(f"exposure must be a finite number of stops, got {self.exposure!r}")
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def resolved(self) -> bool:
+        """Whether the scene's settings have been filled in (:meth:`for_scene`)."""
+        return self.working_space is not None and self.exposure is not None and self.tonemap is not None
 
     @property
     def ocio_view(self) -> bool:
         """Whether SDR goes through an OCIO view (any of display, view, look given)."""
         return bool(self.display or self.view or self.look)
 
-    def check(self) -> None:
-        """Validate names before any work; raises ToneMapError / ColorError."""
-        op = tonemap.operator(self.tonemap)
-        self.tonemap = op.name
-        color.working_space(self.working_space)
-        if self.ocio_view and op.name != "none" and self.sdr:
-            raise color.ColorError(
-                f"tone-mapping operator {op.name!r} and an OCIO view both tone-map; give "
-                "--tonemap without --display/--view/--look (fused in the kernel), or a view alone")
+
+def _paths(value) -> tuple[str, ...]:
+    if value is None:
+        return ()
+    if isinstance(value, (str, os.PathLike)):
+        return (os.fspath(value),)
+    return tuple(os.fspath(v) for v in value)
 
 
-def render_outputs(renderer, gbuffer, req: OutputRequest) -> tuple[np.ndarray, dict[str, float]]:
-    """Shade ``gbuffer`` once and write every SDR/HDR/contact-sheet output of ``req``.
+@dataclass(frozen=True)
+class OutputPaths:
+    """The files of one frame, by kind (each a tuple of paths; any may be empty).
+
+    The constructor accepts, for each kind, None, one path or a sequence of paths.
+    """
+
+    exr: tuple = ()
+    sdr: tuple = ()
+    hdr: tuple = ()
+    contact_sheet: tuple = ()
+
+    def __post_init__(self):
+        for kind in OUTPUT_KINDS:
+            object.__setattr__(self, kind, _paths(getattr(self, kind)))
+
+    def items(self) -> list[tuple[str, str]]:
+        """(kind, path) of every file, EXR first."""
+        return [(kind, p) for kind in OUTPUT_KINDS for p in getattr(self, kind)]
+
+    @property
+    def files(self) -> tuple[str, ...]:
+        return tuple(p for _, p in self.items())
+
+    def __bool__(self) -> bool:
+        return bool(self.files)
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def map(self, fn) -> "OutputPaths":
+        """A copy with ``fn(kind, path)`` applied to every path."""
+        return OutputPaths(**{k: tuple(fn(k, p) for p in getattr(self, k)) for k in OUTPUT_KINDS})
+
+    def only(self, keep: Iterable[str]) -> "OutputPaths":
+        """A copy keeping only the paths in ``keep``."""
+        keep = set(keep)
+        return OutputPaths(**{k: tuple(p for p in getattr(self, k) if p in keep) for k in OUTPUT_KINDS})
+
+
+def check_extensions(paths: OutputPaths) -> None:
+    """Each path ends in an extension its kind can be written as (before any work)."""
+    for kind, path in paths.items():
+        ext = os.path.splitext(path)[1].lower()
+        allowed = EXTENSIONS[kind]
+        what = {"exr": "scene-linear", "sdr": "SDR", "hdr": "HDR", "contact_sheet": "contact-sheet"}[kind]
+        if ext not in allowed:
+            raise OutputError(f"{path}: a {what} output must end in {' or '.join(allowed)}")
+        if ext == ".jxl" and not jpegxl_available():
+            raise OutputError(f"{path}: this OpenImageIO cannot write JPEG XL; write a .png instead")
+
+
+@functools.lru_cache(maxsize=16)
+def _config(path: str | None, env: str | None, stamp) -> color.ColorConfig:
+    # ``env`` and ``stamp`` (the file's mtime) key the cache only.
+    return color.load_config(path)
+
+
+def _load_config(path: str | None) -> color.ColorConfig:
+    """:func:`clphong.color.load_config`, opened once per process (a batch reuses it every frame)."""
+    env = os.environ.get("OCIO")
+    where = path if path is not None else env
+    try:
+        stamp = os.stat(where).st_mtime_ns if where and not where.startswith("ocio://") else None
+    except OSError:
+        stamp = None
+    return _config(path, env, stamp)
+
+
+@functools.lru_cache(maxsize=16)
+def _to_rec709(cfg: color.ColorConfig, ws_name: str):
+    m = cfg.working_to_rec709(color.working_space(ws_name))
+    return None if m is None else tuple(map(tuple, np.asarray(m, np.float64)))
+
+
+def _needs_config(options: OutputOptions, paths: OutputPaths, ws: color.WorkingSpace) -> bool:
+    return bool(paths.hdr or paths.contact_sheet
+                or (paths.sdr and (options.ocio_view or ws.name != "lin_rec709")))
+
+
+def check_outputs(options: OutputOptions, paths: OutputPaths) -> OutputOptions:
+    """Check everything about ``paths`` that can be checked before shading; return the options.
+
+    Extensions, names and values of ``options`` (which must be resolved:
+    :meth:`OutputOptions.for_scene`), and, where an output goes through OCIO,
+    that the config loads and has the display, view and looks.
+
+    Raises
+    ------
+    OutputError, ToneMapError, ColorError
+        One line naming the file, option or OCIO name at fault.
+    """
+    if not options.resolved:
+        raise OutputError("output options lack the scene's colour settings; "
+                          "call OutputOptions.for_scene(scene) first")
+    options = options.checked()
+    check_extensions(paths)
+    if options.ocio_view and options.tonemap != "none" and paths.sdr:
+        raise color.ColorError(
+            f"tone-mapping operator {options.tonemap!r} and an OCIO view both tone-map; give "
+            "--tonemap without --display/--view/--look (fused in the kernel), or a view alone")
+    if paths.sdr and not options.ocio_view:
+        DisplayTransform(options.tonemap, exposure=options.exposure, white=options.white)
+    ws = color.working_space(options.working_space)
+    if _needs_config(options, paths, ws):
+        cfg = _load_config(options.ocio_config)
+        if paths.sdr and options.ocio_view:
+            cfg.check_display_view(options.display, options.view, options.look)
+        if paths.hdr:
+            cfg.check_display_view(color.HDR_DISPLAY, options.hdr_view or color.HDR_VIEW, options.look)
+        if paths.contact_sheet or (paths.sdr and not options.ocio_view):
+            _to_rec709(cfg, ws.name)
+    return options
+
+
+def write_output(rgb: np.ndarray, path: str | os.PathLike, options: OutputOptions | None = None) -> None:
+    """Write a scene-linear (H, W, 3) frame as an EXR tagged with the options' working space.
+
+    Parameters
+    ----------
+    rgb : numpy.ndarray
+        (H, W, 3) float32 scene-linear RGB.
+    path : str or os.PathLike
+        Destination ``.exr``; replaced only when the write succeeds.
+    options : OutputOptions, optional
+        Pixel type, compression, extra attributes and working space (default:
+        float32, zip, linear Rec.709).
+
+    Raises
+    ------
+    OutputError
+        A name not ending in ``.exr``, or the file cannot be written (nothing
+        is left behind).
+    """
+    options = (options or OutputOptions()).checked()
+    ws = color.working_space(options.working_space or "lin_rec709")
+    write_scene_linear(path, rgb, ws, pixel_type=options.pixel_type,
+                       compression=options.compression, attributes=dict(options.attributes))
+
+
+def render_outputs(renderer, gbuffer, options: OutputOptions,
+                   paths: OutputPaths) -> tuple[np.ndarray, dict[str, float]]:
+    """Shade ``gbuffer`` once and write every file of ``paths``.
+
+    Parameters
+    ----------
+    renderer : clphong.Renderer
+        Not modified (the fused display path shades on a shallow copy), so
+        several threads may share it.
+    gbuffer : clphong.GBuffer
+    options : OutputOptions
+        Unresolved colour settings are taken from ``renderer.scene``.
+    paths : OutputPaths
+        May be empty: the frame is then only shaded.
 
     Returns
     -------
@@ -90,49 +317,51 @@ def render_outputs(renderer, gbuffer, req: OutputRequest) -> tuple[np.ndarray, d
         kind (tone mapping + encoding + writing; the fused SDR path's tone
         mapping is inside the shading launch and is not separable).
     """
-    req.check()
-    ws = color.working_space(req.working_space)
-    needs_config = (req.hdr or req.contact_sheet or req.ocio_view or ws.name != "lin_rec709")
-    cfg = color.load_config(req.ocio_config) if needs_config else None
-    if cfg is not None:
-        if req.ocio_view:
-            cfg.check_display_view(req.display, req.view, req.look)
-        if req.hdr:
-            cfg.check_display_view(color.HDR_DISPLAY, req.hdr_view, req.look)
+    if not options.resolved:
+        options = options.for_scene(renderer.scene)
+    options = check_outputs(options, paths)
+    ws = color.working_space(options.working_space)
+    cfg = _load_config(options.ocio_config) if _needs_config(options, paths, ws) else None
     times: dict[str, float] = {}
-    matrix = cfg.working_to_rec709(ws) if cfg is not None else None
-    if req.sdr and not req.ocio_view:
-        dt = DisplayTransform(req.tonemap, exposure=req.exposure, white=req.white, matrix=matrix)
+    if paths.sdr and not options.ocio_view:
+        matrix = _to_rec709(cfg, ws.name) if cfg is not None else None
+        dt = DisplayTransform(options.tonemap, exposure=options.exposure, white=options.white,
+                              matrix=matrix)
         rgb, shown = render_display(renderer, gbuffer, dt)
-        t0 = time.perf_counter()
-        for path in req.sdr:
-            write_sdr(path, shown, bits=req.bits, dither=req.dither,
-                      colorspace="srgb_rec709_display", cicp=color.SRGB_CICP)
-        times["sdr"] = time.perf_counter() - t0
     else:
+        shown = None
         rgb = renderer.render(gbuffer)
-    if req.sdr and req.ocio_view:
+    if paths.exr:
         t0 = time.perf_counter()
-        display, view, looks = cfg.check_display_view(req.display, req.view, req.look)
-        shown = cfg.display_view(rgb, ws, display, view, looks, exposure=req.exposure)
-        space = cfg.display_colorspace(display, view)
-        for path in req.sdr:
-            write_sdr(path, shown, bits=req.bits, dither=req.dither,
-                      colorspace=cfg.interop_id(space), cicp=cfg.cicp(space))
+        for path in paths.exr:
+            write_output(rgb, path, options)
+        times["exr"] = time.perf_counter() - t0
+    if paths.sdr:
+        t0 = time.perf_counter()
+        if shown is not None:
+            space, cicp = "srgb_rec709_display", color.SRGB_CICP
+        else:
+            display, view, looks = cfg.check_display_view(options.display, options.view, options.look)
+            shown = cfg.display_view(rgb, ws, display, view, looks, exposure=options.exposure)
+            cs = cfg.display_colorspace(display, view)
+            space, cicp = cfg.interop_id(cs), cfg.cicp(cs)
+        for path in paths.sdr:
+            write_sdr(path, shown, bits=options.bits, dither=options.dither, colorspace=space, cicp=cicp)
         times["sdr"] = time.perf_counter() - t0
-    if req.hdr:
+    if paths.hdr:
         t0 = time.perf_counter()
-        pq = cfg.display_view(rgb, ws, color.HDR_DISPLAY, req.hdr_view, req.look,
-                              exposure=req.exposure)
-        space = cfg.display_colorspace(color.HDR_DISPLAY, req.hdr_view)
-        for path in req.hdr:
+        hdr_view = options.hdr_view or color.HDR_VIEW
+        pq = cfg.display_view(rgb, ws, color.HDR_DISPLAY, hdr_view, options.look,
+                              exposure=options.exposure)
+        space = cfg.display_colorspace(color.HDR_DISPLAY, hdr_view)
+        for path in paths.hdr:
             write_hdr(path, pq, colorspace=cfg.interop_id(space), cicp=color.PQ_CICP)
         times["hdr"] = time.perf_counter() - t0
-    if req.contact_sheet:
+    if paths.contact_sheet:
         from .contact import write_contact_sheet
 
         t0 = time.perf_counter()
-        write_contact_sheet(req.contact_sheet, rgb, ws, cfg, exposure=req.exposure,
-                            white=req.white)
+        for path in paths.contact_sheet:
+            write_contact_sheet(path, rgb, ws, cfg, exposure=options.exposure, white=options.white)
         times["contact_sheet"] = time.perf_counter() - t0
     return rgb, times

@@ -149,17 +149,23 @@ def render_display(renderer, gbuffer, transform: DisplayTransform) -> tuple[np.n
     scene-linear frame with :func:`apply_display_transform` (the same device
     code, so the same values).
     """
-    previous = renderer.display
-    renderer.display = transform
-    try:
-        renderer.last_display = None
-        rgb = renderer.render(gbuffer)
-        shown = renderer.last_display
-        if getattr(renderer, "last_bands", 1) != 1 or shown is None or shown.shape != rgb.shape:
-            shown = apply_display_transform(rgb, transform, device=None, lanes=renderer.lanes
-                                            if renderer.kernel_kind == "lanes" else None)
-    finally:
-        renderer.display = previous
+    import copy
+
+    # A shallow copy carries the transform: it shares the compiled programs and
+    # the launch lock, and the settings of ``renderer`` are not modified, so
+    # several threads may call this with one renderer.
+    view = copy.copy(renderer)
+    view.display = transform
+    view.last_display = None
+    rgb = view.render(gbuffer)
+    shown = view.last_display
+    if getattr(view, "last_bands", 1) != 1 or shown is None or shown.shape != rgb.shape:
+        shown = apply_display_transform(rgb, transform, device=None, lanes=renderer.lanes
+                                        if renderer.kernel_kind == "lanes" else None)
+    # The last frame's records, as a plain render leaves them (--stats, tests).
+    for name in ("last_stats", "last_cull", "last_nonfinite", "last_bands", "last_display"):
+        if name in vars(view):
+            setattr(renderer, name, getattr(view, name))
     return rgb, shown
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from .batch import Job, Outcome, relight_job
+from .batch import Job, Outcome, failed_outcomes, relight_job
 from .errors import ClphongError
 
 __all__ = ["run_on_dask", "SchedulerError"]
@@ -83,7 +83,7 @@ def run_on_dask(jobs: Sequence[Job], specs: dict, scheduler, on_outcomes: Callab
                 outs = fut.result()
             except Exception as exc:  # noqa: BLE001 - a lost worker must not stop the batch
                 reason = f"Dask task failed: {type(exc).__name__}: {' '.join(str(exc).split())}"
-                outs = [Outcome(job.frame, job.source, r, p, False, reason) for r, p in job.outputs]
+                outs = failed_outcomes(job, reason)
             on_outcomes(outs)
             fut.release()
     finally:

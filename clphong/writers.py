@@ -56,8 +56,11 @@ def _ext(path: str, allowed: Sequence[str], kind: str) -> str:
 
 
 def write_scene_linear(path, rgb, ws: WorkingSpace, *, pixel_type: str = "float",
-                       compression: str = "zip", software: str = "clphong") -> None:
+                       compression: str = "zip", software: str = "clphong",
+                       attributes: dict | None = None) -> None:
     """Write scene-linear ``rgb`` (working space ``ws``) as an OpenEXR file.
+
+    ``attributes`` are extra header attributes, set after the colour-space tags.
 
     Raises
     ------
@@ -69,9 +72,10 @@ def write_scene_linear(path, rgb, ws: WorkingSpace, *, pixel_type: str = "float"
     if compression not in EXR_COMPRESSIONS:
         raise OutputError(f"{path}: EXR compression must be one of {', '.join(EXR_COMPRESSIONS)}, "
                           f"not {compression!r}")
-    write_exr(path, rgb, pixel_type=pixel_type, compression=compression,
-              attributes={"chromaticities": ws.chromaticities,
-                          "oiio:ColorSpace": ws.interop_id, "Software": software})
+    tags = {"chromaticities": ws.chromaticities, "oiio:ColorSpace": ws.interop_id,
+            "Software": software}
+    tags.update(attributes or {})
+    write_exr(path, rgb, pixel_type=pixel_type, compression=compression, attributes=tags)
 
 
 def _write_display(path: str, data: np.ndarray, fmt, attributes: dict, dither: bool) -> None:

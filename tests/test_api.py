@@ -73,8 +73,12 @@ def test_writes_file_atomically(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["lit.exr"]
     with pytest.raises(OutputError, match="overwrite the input"):
         r.relight(str(out), out=out)
-    with pytest.raises(OutputError, match="unknown output kind 'png'"):
-        write_output(rgb, tmp_path / "x.png", clphong.OutputOptions(kind="png"))
+    # The scene-linear writer writes EXR only: a PNG is an SDR output (sdr=).
+    with pytest.raises(OutputError, match=r"x\.png: a scene-linear output must end in \.exr"):
+        write_output(rgb, tmp_path / "x.png", clphong.OutputOptions())
+    with pytest.raises(OutputError, match=r"y\.png: a scene-linear output must end in \.exr"):
+        r.relight(str(SPHERES[1]), out=tmp_path / "y.png")
+    assert [p.name for p in tmp_path.iterdir()] == ["lit.exr"]
 
 
 def test_compiles_once_for_many_frames():
@@ -113,6 +117,108 @@ def test_two_threads_equal_single_threaded():
     assert not errors
     for a, b in zip(single, results):
         assert np.array_equal(a, b)
+
+
+# ---------------------------------------------------------------- every output kind
+
+
+def _aces_spheres(tmp_path):
+    """spheres.toml delivered in ACEScg with AgX at +1 EV by its [render] table."""
+    path = tmp_path / "aces.toml"
+    path.write_text(SPHERES[0].read_text() + '\n[render]\nworking_space = "acescg"\n'
+                    'tonemap = "agx"\nexposure = 1.0\n')
+    return path
+
+
+def _header(path):
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    assert inp, oiio.geterror()
+    spec = inp.spec()
+    inp.close()
+    return {a.name: a.value for a in spec.extra_attribs}, str(spec.format)
+
+
+def test_relighter_writes_every_kind_like_render(tmp_path):
+    from clphong.cli import main
+
+    scene = _aces_spheres(tmp_path)
+    r = Relighter(scene)
+    assert (r.output.working_space, r.output.tonemap, r.output.exposure) == ("acescg", "agx", 1.0)
+    out = tmp_path / "api"
+    out.mkdir()
+    rgb = r.relight(str(SPHERES[1]), out=out / "a.exr", sdr=[out / "a.png", out / "a.tif"],
+                    hdr=out / "a_pq.png")
+    assert sorted(p.name for p in out.iterdir()) == ["a.exr", "a.png", "a.tif", "a_pq.png"]
+    a, _ = _header(out / "a.exr")
+    assert a["oiio:ColorSpace"] == "lin_ap1_scene"
+    assert np.allclose(a["chromaticities"], clphong.color.AP1_CHROMATICITIES, atol=1e-6)
+    assert np.array_equal(_read(out / "a.exr"), rgb)
+    assert tuple(_header(out / "a_pq.png")[0]["CICP"]) == (9, 16, 0, 1)
+    # The same bytes as 'clphong render' of the same scene and frame.
+    cli = tmp_path / "cli"
+    cli.mkdir()
+    assert main(["render", str(scene), str(SPHERES[1]), "--sdr", str(cli / "a.png"),
+                 "--sdr", str(cli / "a.tif"), "--hdr", str(cli / "a_pq.png")]) == 0
+    for name in ("a.png", "a_pq.png"):
+        assert (out / name).read_bytes() == (cli / name).read_bytes(), name
+    # (TIFF headers carry the time of writing: compare pixels and the other tags.)
+    assert np.array_equal(_read(out / "a.tif"), _read(cli / "a.tif"))
+    ta, tb = (_header(p)[0] for p in (out / "a.tif", cli / "a.tif"))
+    assert ta.pop("DateTime", None) and tb.pop("DateTime", None) and ta == tb
+    # OutputOptions override the scene's [render] keys (None keeps the scene's).
+    plain = Relighter(scene, output=clphong.OutputOptions(tonemap="none", exposure=0.0, bits=16))
+    assert plain.output.working_space == "acescg"
+    plain.relight(str(SPHERES[1]), sdr=out / "plain.png")
+    assert main(["render", str(scene), str(SPHERES[1]), "--sdr", str(cli / "plain.png"),
+                 "--tonemap", "none", "--exposure", "0", "--bits", "16"]) == 0
+    assert (out / "plain.png").read_bytes() == (cli / "plain.png").read_bytes()
+    assert (out / "plain.png").read_bytes() != (out / "a.png").read_bytes()
+    assert _header(out / "plain.png")[1] == "uint16"
+
+
+def test_relighter_output_errors_are_clear_and_early(tmp_path):
+    from clphong.tonemap import ToneMapError
+
+    with pytest.raises(ToneMapError, match="filmic"):
+        Relighter(SPHERES[0], output=clphong.OutputOptions(tonemap="filmic"))
+    r = Relighter(_aces_spheres(tmp_path))
+    with pytest.raises(OutputError, match=r"x\.jpg: a SDR output must end in \.png"):
+        r.relight(str(SPHERES[1]), out=tmp_path / "x.exr", sdr=tmp_path / "x.jpg")
+    with pytest.raises(OutputError, match="overwrite the input"):
+        r.relight(str(SPHERES[1]), sdr=SPHERES[1])
+    assert not list(tmp_path.glob("x.*"))       # checked before anything was written
+
+
+def test_two_threads_writing_sdr_equal_single_threaded(tmp_path):
+    """The fused display path must not share a frame's display planes between threads."""
+    rng = np.random.default_rng(13)
+    scene = make_scene(random_lights(rng, n_point=4, n_dir=1))
+    frames = [random_gbuffer(rng, 24, 32) for _ in range(10)]
+    r = Relighter(scene, output=clphong.OutputOptions(tonemap="agx", exposure=0.5, bits=16))
+    for i, g in enumerate(frames):
+        r.relight(g, sdr=tmp_path / f"one.{i}.png")
+    errors = []
+    start = threading.Barrier(2)
+
+    def work(k):
+        try:
+            start.wait()
+            for i in range(k, len(frames), 2):
+                r.relight(frames[i], sdr=tmp_path / f"two.{i}.png")
+        except BaseException as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work, args=(k,)) for k in (0, 1)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors
+    for i in range(len(frames)):
+        assert (tmp_path / f"two.{i}.png").read_bytes() == (tmp_path / f"one.{i}.png").read_bytes(), i
+    assert r.renderer.display is None             # the shared renderer's settings are untouched
 
 
 # ---------------------------------------------------------------- camera from metadata

@@ -254,3 +254,215 @@ def test_resume_after_killed_run(shot, tmp_path, sig, jobs, capsys):
     assert f"{48 - len(written)} written, {len(written)} skipped (exist), 0 failed" in err
     _check_outputs(out, expected)
     _no_temporaries(out)              # temporaries a SIGKILL left behind are cleaned up too
+
+
+# ---------------------------------------------------------------- every output kind
+
+
+ACES_RENDER = """
+[render]
+working_space = "acescg"
+tonemap = "agx"
+exposure = 0.5
+"""
+
+
+def _attrs(path):
+    """(header attributes, pixel type name) of an image file."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    assert inp, oiio.geterror()
+    spec = inp.spec()
+    inp.close()
+    return {a.name: a.value for a in spec.extra_attribs}, str(spec.format)
+
+
+@pytest.fixture(scope="module")
+def aces_rig(shot):
+    """The key rig, delivered in ACEScg with AgX at +0.5 EV by its [render] table."""
+    root, _ = shot
+    path = root / "key_aces.toml"
+    path.write_text(SCENE.format(x=3.0) + ACES_RENDER)
+    return path
+
+
+def _kinds_args(root, rig, out, *extra):
+    return ["relight", str(root / "seq" / "shot.####.exr"), "--rig", f"key={rig}",
+            "--rig", str(root / "fill.toml"), "-o", str(out / "{rig}" / "{name}.####.exr"),
+            "--sdr", str(out / "{rig}" / "png" / "{name}.####.png"),
+            "--hdr", str(out / "{rig}" / "hdr" / "{name}.####.png"), *extra]
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_every_output_kind_per_frame_per_rig(shot, aces_rig, tmp_path, jobs, capsys):
+    root, expected = shot
+    out = tmp_path / "out"
+    assert main(_kinds_args(root, aces_rig, out, "--frames", "1-4", "--jobs", str(jobs))) == 0
+    assert "8 written, 0 skipped (exist), 0 failed" in capsys.readouterr().err
+    # The working space changes the tags, not the scene-linear values.
+    _check_outputs(out, expected, frames=range(1, 5))
+    for f in range(1, 5):
+        a, fmt = _attrs(out / "key" / f"shot.{f:04d}.exr")
+        assert a["oiio:ColorSpace"] == "lin_ap1_scene" and fmt == "float"
+        assert np.allclose(a["chromaticities"], (0.713, 0.293, 0.165, 0.830, 0.128, 0.044,
+                                                 0.32168, 0.33767), atol=1e-6)
+        a, _ = _attrs(out / "fill" / f"shot.{f:04d}.exr")
+        assert a["oiio:ColorSpace"] == "lin_rec709_scene"
+        assert np.allclose(a["chromaticities"], (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290),
+                           atol=1e-6)
+        for rig in ("key", "fill"):
+            a, fmt = _attrs(out / rig / "png" / f"shot.{f:04d}.png")
+            assert fmt == "uint8" and tuple(a["CICP"]) == (1, 13, 0, 1)
+            a, fmt = _attrs(out / rig / "hdr" / f"shot.{f:04d}.png")
+            assert fmt == "uint16" and tuple(a["CICP"]) == (9, 16, 0, 1)
+    _no_temporaries(out)
+    # One frame through 'clphong render' with the same scene gives the same bytes: the
+    # ACEScg rig's AgX at +0.5 EV from its [render] table, the fill rig's defaults.
+    for rig, scene in (("key", aces_rig), ("fill", root / "fill.toml")):
+        ref = tmp_path / f"ref_{rig}.png"
+        hdr = tmp_path / f"ref_{rig}_pq.png"
+        assert main(["render", str(scene), str(root / "seq" / "shot.0003.exr"), "--sdr", str(ref),
+                     "--hdr", str(hdr)]) == 0
+        assert (out / rig / "png" / "shot.0003.png").read_bytes() == ref.read_bytes(), rig
+        assert (out / rig / "hdr" / "shot.0003.png").read_bytes() == hdr.read_bytes(), rig
+    # ... and the scene's tone mapping was applied (it differs from the default).
+    assert (out / "key" / "png" / "shot.0003.png").read_bytes() != _render_png(
+        root / "key.toml", root, tmp_path / "plain.png")
+
+
+def _render_png(scene, root, path, *options, frame=3):
+    assert main(["render", str(scene), str(root / "seq" / f"shot.{frame:04d}.exr"),
+                 "--sdr", str(path), *options]) == 0
+    return path.read_bytes()
+
+
+def test_command_line_overrides_each_rigs_render_table(shot, aces_rig, tmp_path, capsys):
+    root, _ = shot
+    out = tmp_path / "out"
+    opts = ["--tonemap", "hable", "--white", "6", "--exposure", "-1", "--bits", "16",
+            "--working-space", "lin_rec709", "--exr-type", "half", "--exr-compression", "piz"]
+    args = ["relight", str(root / "seq" / "shot.####.exr"), "--rig", f"key={aces_rig}",
+            "--frames", "3", "-o", str(out / "{rig}.####.exr"),
+            "--sdr", str(out / "{rig}.####.png"), "--sdr", str(out / "{rig}.####.tif"), *opts]
+    assert main(args) == 0
+    ref = _render_png(aces_rig, root, tmp_path / "ref.png", *opts)
+    assert (out / "key.0003.png").read_bytes() == ref
+    _render_png(aces_rig, root, tmp_path / "ref.tif", *opts)
+    # (TIFF headers carry the time of writing: compare pixels and the other tags.)
+    assert np.array_equal(_read(out / "key.0003.tif"), _read(tmp_path / "ref.tif"))
+    ta, tb = (_attrs(p)[0] for p in (out / "key.0003.tif", tmp_path / "ref.tif"))
+    assert ta.pop("DateTime", None) and tb.pop("DateTime", None) and ta == tb
+    assert _attrs(out / "key.0003.png")[1] == "uint16"
+    a, fmt = _attrs(out / "key.0003.exr")
+    assert fmt == "half" and a["compression"] == "piz" and a["oiio:ColorSpace"] == "lin_rec709_scene"
+    # Each override matters: without them the scene's AgX +0.5 EV gives another image.
+    assert (out / "key.0003.png").read_bytes() != _render_png(aces_rig, root, tmp_path / "s.png",
+                                                              "--bits", "16")
+
+
+def test_dry_run_lists_every_file_and_resume_writes_only_the_missing_ones(shot, tmp_path, capsys):
+    root, _ = shot
+    out = tmp_path / "out"
+    args = _kinds_args(root, root / "key.toml", out, "--frames", "1-2")
+    assert main(args + ["--dry-run"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 2 * 2 * 3 and all(ln.startswith("write  frame ") for ln in lines)
+    assert sum(ln.endswith(".png") and "/hdr/" in ln for ln in lines) == 4
+    assert not out.exists()
+    assert main(args) == 0
+    capsys.readouterr()
+    png = out / "key" / "png" / "shot.0002.png"
+    exr = out / "key" / "shot.0002.exr"
+    good, exr_stat = png.read_bytes(), exr.stat()
+    png.unlink()                         # frame 2 of rig key is no longer complete
+    assert main(args + ["--skip-existing", "--dry-run"]) == 0
+    res = capsys.readouterr()
+    assert [ln for ln in res.out.splitlines() if ln.startswith("write")] == [
+        f"write  frame 2 [key] {root / 'seq' / 'shot.0002.exr'} -> {png}"]
+    assert "1 file(s) to write for 1 frame(s) x rig(s), 3 skipped" in res.err
+    assert main(args + ["--skip-existing"]) == 0
+    assert "1 written, 3 skipped (exist), 0 failed" in capsys.readouterr().err
+    assert png.read_bytes() == good
+    assert exr.stat().st_mtime_ns == exr_stat.st_mtime_ns and exr.stat().st_ino == exr_stat.st_ino
+    _no_temporaries(out)
+
+
+def test_failed_frames_leave_no_output_of_any_kind(shot, tmp_path, capsys):
+    root, expected = shot
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for f in (1, 2, 3):
+        src = root / "seq" / f"shot.{f:04d}.exr"
+        (seq / src.name).write_bytes(src.read_bytes()[:300] if f == 2 else src.read_bytes())
+    out = tmp_path / "out"
+    args = ["relight", str(seq / "shot.####.exr"), "--rig", str(root / "key.toml"),
+            "-o", str(out / "{name}.####.exr"), "--sdr", str(out / "{name}.####.png"),
+            "--hdr", str(out / "{name}.pq.####.png")]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "2 written, 0 skipped (exist), 1 failed" in err
+    assert "failed: 1 output(s) of 1 frame(s):" in err and "  frame 2 (" in err
+    assert sorted(p.name for p in out.iterdir()) == [
+        "shot.0001.exr", "shot.0001.png", "shot.0003.exr", "shot.0003.png",
+        "shot.pq.0001.png", "shot.pq.0003.png"]
+    _no_temporaries(out)
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--view", "Nope"], "rig 'key_aces' ("),
+    (["--tonemap", "filmic"], "valid: 'none'"),
+    (["--hdr", "out/{rig}.####.jpg"], "output template out/{rig}.####.jpg: a HDR output must end in"),
+    (["--sdr", "out/same.png"], "add {rig} or ####"),
+])
+def test_output_option_errors_are_one_line_before_any_work(shot, aces_rig, tmp_path, capsys,
+                                                           extra, words):
+    root, _ = shot
+    extra = [x.replace("out/", str(tmp_path / "out") + "/") for x in extra]
+    words = words.replace("out/", str(tmp_path / "out") + "/")
+    args = ["relight", str(root / "seq" / "shot.####.exr"), "--rig", str(aces_rig),
+            "-o", str(tmp_path / "out" / "{rig}.####.exr"), *extra]
+    if "--view" in extra:
+        args += ["--tonemap", "none", "--sdr", str(tmp_path / "out" / "{rig}.####.png")]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("clphong: error: ") and words in err and err.count("\n") == 1, err
+    if "--view" in extra:
+        assert "key_aces.toml" in err and "views:" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_relight_without_any_output_is_a_usage_error(shot, capsys):
+    root, _ = shot
+    with pytest.raises(SystemExit) as info:
+        main(["relight", str(root / "seq"), "--rig", str(root / "key.toml")])
+    assert info.value.code == 2
+    assert "at least one output template" in capsys.readouterr().err
+
+
+def test_resume_after_sigterm_with_sdr_outputs(shot, tmp_path, capsys):
+    """A run killed mid-batch, resumed: every EXR and PNG is that of an uninterrupted run."""
+    root, expected = shot
+    ref = tmp_path / "ref"
+    sdr = lambda out: ["--sdr", str(out / "{rig}" / "png" / "{name}.####.png")]  # noqa: E731
+    assert main(_args(root, ref, *sdr(ref))) == 0
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "clphong", *_args(root, out, *sdr(out))],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
+    _wait_for_outputs(proc, out, 4)
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60) == 128 + signal.SIGTERM
+    _no_temporaries(out)
+    pngs = sorted(out.rglob("*.png"))
+    assert len(pngs) < 48, "the kill should land mid-batch"
+    for p in pngs:                       # what exists is complete
+        assert p.read_bytes() == (ref / p.relative_to(out)).read_bytes(), p
+    capsys.readouterr()
+    assert main(_args(root, out, *sdr(out), "--skip-existing")) == 0
+    assert "0 failed" in capsys.readouterr().err
+    _check_outputs(out, expected)
+    for p in sorted(ref.rglob("*.png")):
+        assert p.read_bytes() == (out / p.relative_to(ref)).read_bytes(), p
+    assert len(list(out.rglob("*.png"))) == 48
+    _no_temporaries(out)

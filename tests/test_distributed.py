@@ -39,11 +39,20 @@ def test_dask_local_cluster_two_workers(shot, tmp_path, capsys):  # noqa: F811
                 "--scheduler", cluster.scheduler_address]
         assert main(args) == 0
         state = client.run(_worker_state)
-        # A second batch on the same cluster reuses the relighters: nothing new is built.
-        assert main(args[:-2] + ["--scheduler", cluster.scheduler_address, "--frames", "1-24x6",
-                                 "-o", str(tmp_path / "again" / "{rig}.####.exr")]) == 0
+        # A second batch on the same cluster reuses the relighters: nothing new is built
+        # but the kernel variant of the fused SDR output (tone mapping in the store).
+        again = ["--frames", "1-24x6", "-o", str(tmp_path / "again" / "{rig}.####.exr"),
+                 "--sdr", str(tmp_path / "again" / "{rig}.####.png")]
+        assert main(args[:-2] + ["--scheduler", cluster.scheduler_address, *again]) == 0
         state2 = client.run(_worker_state)
     assert "48 written, 0 skipped (exist), 0 failed" in capsys.readouterr().err
+    # The Dask path writes every output kind as a local run does, byte for byte.
+    local = [a.replace(str(tmp_path / "again"), str(tmp_path / "local")) for a in again]
+    assert main(args[:-2] + local) == 0
+    pngs = sorted((tmp_path / "again").glob("*.png"))
+    assert [p.name for p in pngs] == [f"{r}.{f:04d}.png" for r in ("fill", "key") for f in (1, 7, 13, 19)]
+    for p in pngs:
+        assert p.read_bytes() == (tmp_path / "local" / p.name).read_bytes(), p
     _check_outputs(out, expected)
     _no_temporaries(out)
     assert len(state) == 2
@@ -52,9 +61,10 @@ def test_dask_local_cluster_two_workers(shot, tmp_path, capsys):  # noqa: F811
         # rigs share one kernel variant, so at most 2 builds (plan variants), for 24 frames.
         assert relighters in (0, 2) and builds <= 2, state
         if relighters:                    # it ran tasks: the second batch reused what it built
-            assert state2[addr] == state[addr], (state, state2)
+            assert state2[addr][0] == relighters, (state, state2)
+            assert state2[addr][1] <= builds + 1, (state, state2)     # + the SDR variant
         else:                             # it got no task (load balancing): it may build now, once
-            assert state2[addr][0] in (0, 2) and state2[addr][1] <= 2, state2
+            assert state2[addr][0] in (0, 2) and state2[addr][1] <= 3, state2
     assert sum(r for r, _ in state.values()) >= 2
 
 
