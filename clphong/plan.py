@@ -109,7 +109,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         r.append((name, why))
 
     if kernel == "lanes":
-        put("LANES", lanes, "explicit SIMD lanes across pixels (POCL-NOTES: the obvious kernel runs scalar)")
+        put("LANES", lanes, "explicit SIMD lanes across pixels (PoCL vectorises no per-pixel light loop by itself)")
     put("MODEL_BLINN", blinn, f"material.model = {m.model!r}")
     put("HAS_POINT", n_point > 0, f"{n_point} point light(s)")
     put("HAS_DIRECTIONAL", n_dir > 0, f"{n_dir} directional light(s)")

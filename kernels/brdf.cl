@@ -7,7 +7,7 @@
 /* Lambert's cosine law: E_D ∝ max(n·l, 0). */
 inline floatL lambert(floatL NoL)
 {
-    return fmax(NoL, (floatL)(0.0f));
+    return MAX0(NoL);
 }
 
 /* Phong: δ = 1 − r·v with r = 2n(n·l) − l.
@@ -64,8 +64,8 @@ inline floatL blinn_delta_const_h(dirL nx, dirL ny, dirL nz, float4 h, float4 h_
 inline floatL specular_power(floatL delta, floatL k)
 {
     const floatL s = exp(k * log1p(-delta));
-    const floatL at_zero = select((floatL)(0.0f), (floatL)(1.0f), (intL)(k == 0.0f));
-    return select(s, at_zero, (intL)(delta >= 1.0f));
+    const floatL at_zero = SELECT((floatL)(0.0f), (floatL)(1.0f), k == 0.0f);
+    return SELECT(s, at_zero, delta >= 1.0f);
 }
 
 #endif /* BRDF_CL */

@@ -138,13 +138,18 @@ typedef floatL dirL;
 #define TO_DIR(x) (x)
 #endif
 
-/* select() for dirL values: vector comparisons give the matching mask type;
- * scalars (LANES = 1) use ?: since select's scalar overloads need an exact type. */
-#if LANES == 1
-#define SELECT_DIR(a, b, c) ((c) ? (b) : (a))
-#else
-#define SELECT_DIR(a, b, c) select((a), (b), (c))
-#endif
+/* SELECT(a, b, c): c ? b : a per lane, as select(a, b, c) for vector masks from
+ * comparisons (OpenCL C defines the vector ?: as select). Written as ?: because
+ * PoCL 3.0 compiles select, fmax and fabs on 8-lane vectors for znver3 as
+ * out-of-line calls with the AVX calling convention: inlined, the light loop ran
+ * 1.32× faster, bit-identical (measured: 960×540, 64 point lights, Blinn).
+ * MAX0(x) = max(x, 0) (0 for NaN, like fmax(NaN, 0)); ABS(x) = |x| (−0 stays −0,
+ * which only feeds comparisons). Also right for scalars (LANES = 1) and for
+ * dirL, whatever its mask type. */
+#define SELECT(a, b, c) ((c) ? (b) : (a))
+#define SELECT_DIR(a, b, c) SELECT(a, b, c)
+#define MAX0(x) ((x) > 0.0f ? (x) : 0.0f)
+#define ABS(x) ((x) < 0.0f ? -(x) : (x))
 
 /* a·b + c. Not fma(): PoCL 3.0's LLVM cannot select fma for float16 ("Cannot
  * select: i64 = fma"); OpenCL's default FP_CONTRACT still lets it fuse. */

@@ -52,7 +52,7 @@ inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, di
 #else
     const floatL delta = phong_delta(p->nx, p->ny, p->nz, lx, ly, lz, p->vx, p->vy, p->vz, NoL_dir);
 #endif
-    w.specular = select((floatL)(0.0f), specular_power(delta, p->k), (intL)(NoL > 0.0f));
+    w.specular = SELECT((floatL)(0.0f), specular_power(delta, p->k), NoL > 0.0f);
 #else
     w.specular = (floatL)(0.0f);
 #endif
@@ -108,7 +108,7 @@ inline weights_t shade_directional_light(const pixel_t *p, float4 l, float4 l_lo
     const floatL NoLf = TO_FLOAT(NoL);
     w.diffuse = lambert(NoLf);
     const floatL delta = blinn_delta_const_h(p->nx, p->ny, p->nz, h, h_lo);
-    w.specular = select((floatL)(0.0f), specular_power(delta, p->k), (intL)(NoLf > 0.0f));
+    w.specular = SELECT((floatL)(0.0f), specular_power(delta, p->k), NoLf > 0.0f);
     return w;
 #else
     return shade_direction(p, (dirL)(lx), (dirL)(ly), (dirL)(lz), NoL);

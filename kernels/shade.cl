@@ -26,7 +26,7 @@
 #if COMPENSATED_SUM
 #define ACCUMULATE(s, c, x) do { \
         const floatL t_ = (s) + (x); \
-        (c) += select(((x) - t_) + (s), ((s) - t_) + (x), (intL)(fabs(s) >= fabs(x))); \
+        (c) += SELECT(((x) - t_) + (s), ((s) - t_) + (x), ABS(s) >= ABS(x)); \
         (s) = t_; } while (0)
 #else
 #define ACCUMULATE(s, c, x) ((s) += (x))
