@@ -497,15 +497,23 @@ class BatchResult:
             by_frame.setdefault((o.frame, o.source), []).append(o)
         if by_frame:
             lines.append(f"failed: {n_bad} output(s) of {len(by_frame)} frame(s):")
+        listed = []
         for (frame, src), outs in sorted(by_frame.items()):
             reasons = {o.error for o in outs}
             rigs = ", ".join(o.rig for o in outs)
             if len(reasons) == 1:
-                lines.append(f"  frame {frame} ({src}) [{rigs}]: {reasons.pop()}")
+                listed.append(f"  frame {frame} ({src}) [{rigs}]: {reasons.pop()}")
             else:
                 for o in outs:
-                    lines.append(f"  frame {frame} ({src}) [{o.rig}]: {o.error}")
-        return lines
+                    listed.append(f"  frame {frame} ({src}) [{o.rig}]: {o.error}")
+        if len(listed) > MAX_FAILURES_LISTED:
+            more = len(listed) - MAX_FAILURES_LISTED
+            listed = listed[:MAX_FAILURES_LISTED] + [f"  ... and {more} more"]
+        return lines + listed
+
+
+#: Failure lines of a batch summary listed in full; the rest are counted ("... and N more").
+MAX_FAILURES_LISTED = 20
 
 
 class _Signals:

@@ -439,15 +439,43 @@ def summarise(report: dict) -> dict:
     return out
 
 
+def summary_lines(summary: dict) -> list[str]:
+    """The issue-4 targets of :func:`summarise`, as sentences a user can read."""
+    def met(ok):
+        return "met" if ok else "not met"
+
+    lines = []
+    if "accurate_256_gple_per_s" in summary:
+        g = summary["accurate_256_gple_per_s"]
+        lines.append(f"issue-4 targets: 1 GPLE/s at 256 lights (accurate path): "
+                     f"{met(summary['target_1gple_met'])} ({g:.3g} GPLE/s)")
+        ratio = summary.get("accurate_256_numpy_ratio")
+        if ratio is None:
+            lines.append("issue-4 targets: 60x numpy float32 at 256 lights: n/a (numpy not measured)")
+        else:
+            lines.append(f"issue-4 targets: 60x numpy float32 at 256 lights: "
+                         f"{met(summary['target_60x_numpy_met'])} ({ratio:.3g}x)")
+    else:
+        lines.append("issue-4 targets: not measured (the run has no 256-light wide-scene "
+                     "accurate brute-force case)")
+    if "cull_vs_256_brute_time_ratio" in summary:
+        lines.append(f"issue-4 targets: culling at eps=1e-3, small scene N={summary['cull_small_lights']}, "
+                     f"within 3x the time of 256 lights brute force: {met(summary['target_3x_met'])} "
+                     f"({summary['cull_vs_256_brute_time_ratio']:.3g}x; max abs error "
+                     f"{summary['cull_max_abs_error']:.2e})")
+    return lines
+
+
 # ---------------------------------------------------------------------------------- output
 
 def save_report(report: dict, json_path=None, plot_path=None) -> None:
-    """Write the JSON report and the Pareto PNG, each to a temporary name then renamed."""
+    """Write the JSON report and the Pareto PNG, each to a temporary name then renamed
+    (:func:`clphong.output.atomic_path`: a failed write leaves nothing behind)."""
+    from .output import atomic_path
+
     if json_path:
-        json_path = Path(json_path)
-        tmp = json_path.with_name(json_path.name + ".tmp")
-        tmp.write_text(json.dumps(report, indent=1))
-        os.replace(tmp, json_path)
+        with atomic_path(json_path) as tmp:
+            Path(tmp).write_text(json.dumps(report, indent=1))
     if plot_path:
         plot_pareto(report, plot_path)
 
@@ -489,11 +517,13 @@ def plot_pareto(report: dict, path) -> None:
     ax.set_title("tiled culling, budget ε")
     fig.suptitle(f"clphong bench: {report['machine']['device']}", fontsize=9)
     fig.tight_layout()
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    from .output import atomic_path
+
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        plt.close(fig)
 
 
 def table(report: dict) -> str:
@@ -506,7 +536,7 @@ def table(report: dict) -> str:
         lines.append(
             f"{r['scene']:6s} {r['lights']:6d} {label:16s} {r['gple_per_s']:8.3f} "
             f"{r['ms_per_frame']:10.1f}{'*' if r['extrapolated'] else ' '}"
-            f"{(r['numpy_ratio'] or float('nan')):7.1f} "
+            + (f"{r['numpy_ratio']:7.1f} " if r["numpy_ratio"] else f"{'n/a':>7s} ")
             + (f"{r['peak_fraction']:6.1%} " if r["peak_fraction"] is not None else f"{'':6s} ")
             + f"{e['max_rel']:9.2e} {e['mean_rel']:9.2e} {e['max_abs']:9.2e} {e['band_pixels']:5d} "
             + (f"{r['kept_fraction']:7.4f}" if r["kept_fraction"] is not None else f"{'':7s}"))

@@ -1,9 +1,11 @@
 """Time tone mapping + encoding + writing of a 1920×1080 frame, per output kind.
 
-Not a test: ``python -m clphong.bench_output [--runs N] [--folder DIR]`` prints the
-median of N runs for each kind. The frame is the shipped spheres sample shaded
-and resized to 1920×1080 (needs a source checkout), so only the output path is
-timed, not shading.
+Not a test: ``python -m clphong.bench_output [--runs N] [--folder DIR] [--keep]`` prints
+the median of N runs for each kind. The frame is the spheres sample
+(:mod:`clphong.samples`, built in memory: no source checkout needed), or
+``--scene S.toml --gbuffer G.exr``, shaded and resized to 1920×1080, so only the
+output path is timed, not shading. The files go to a temporary folder, removed
+at the end unless ``--keep`` (or ``--folder``, an existing folder, which is kept).
 The fused SDR path's tone mapping normally runs inside the shading kernel; here
 it is timed with the same device code run on its own (tonemap_apply.cl).
 """
@@ -11,42 +13,88 @@ it is timed with the same device code run on its own (tonemap_apply.cl).
 from __future__ import annotations
 
 import argparse
+import shutil
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from .errors import ClphongError, OutputError
 
-def _frame() -> np.ndarray:
-    """The shipped spheres sample, shaded and resized to 1920×1080 (scene-linear HDR)."""
+
+def _frame(scene_path=None, gbuffer_path=None) -> np.ndarray:
+    """The frame, shaded and resized to 1920×1080 (scene-linear HDR).
+
+    Default: the spheres sample built in memory (clphong.samples); else the
+    given scene and G-buffer files.
+    """
     import OpenImageIO as oiio
 
+    from . import samples
     from .gbuffer import read_gbuffer
     from .render import render
     from .scene import load_scene
 
-    root = Path(__file__).resolve().parent.parent / "gbuffers"
-    small = render(load_scene(root / "spheres.toml"), read_gbuffer(root / "spheres.exr"))
+    scene = load_scene(scene_path) if scene_path else samples.spheres_scene()
+    gbuffer = read_gbuffer(gbuffer_path) if gbuffer_path else samples.spheres_gbuffer()
+    small = render(scene, gbuffer)
     buf = oiio.ImageBufAlgo.resize(oiio.ImageBuf(small), roi=oiio.ROI(0, 1920, 0, 1080, 0, 1, 0, 3))
     return np.ascontiguousarray(buf.get_pixels(oiio.FLOAT))
 
 
 def main(argv=None) -> int:
+    """Run the timing; user errors are one line on stderr (exit 1; usage 2)."""
+    p = argparse.ArgumentParser(prog="python -m clphong.bench_output",
+                                description="Time tone mapping + encoding + writing of a "
+                                            "1920x1080 frame, per output kind.")
+    p.add_argument("--runs", type=int, default=5, help="runs per kind (median; default 5)")
+    p.add_argument("--folder", default=None,
+                   help="existing folder for the files (default: a temporary folder)")
+    p.add_argument("--keep", action="store_true",
+                   help="keep the temporary folder and its files (printed at the start)")
+    p.add_argument("--scene", metavar="SCENE.toml",
+                   help="scene of the frame (default: the spheres sample, built in memory)")
+    p.add_argument("--gbuffer", metavar="GBUFFER.exr",
+                   help="G-buffer of the frame (default: the spheres sample, built in memory)")
+    args = p.parse_args(argv)
+    if args.runs < 1:
+        p.error("--runs must be >= 1")
+    if bool(args.scene) != bool(args.gbuffer):
+        p.error("give --scene and --gbuffer together (or neither, for the spheres sample)")
+    try:
+        return _run(args)
+    except ClphongError as exc:
+        print(f"clphong: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return exc.exit_code
+
+
+def _run(args) -> int:
+    if args.folder is not None:
+        folder = Path(args.folder)
+        if not folder.is_dir():
+            what = "is not a folder" if folder.exists() else "does not exist; create it first"
+            raise OutputError(f"--folder {args.folder}: {what}")
+        return _time_outputs(args, folder)
+    folder = Path(tempfile.mkdtemp(prefix="clphong-bench-"))
+    try:
+        return _time_outputs(args, folder)
+    finally:
+        if not args.keep:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def _time_outputs(args, folder: Path) -> int:
     from . import color
     from .contact import write_contact_sheet
     from .display import DisplayTransform, apply_display_transform
     from .writers import jpegxl_available, write_hdr, write_scene_linear, write_sdr
 
-    p = argparse.ArgumentParser(prog="python -m clphong.bench_output")
-    p.add_argument("--runs", type=int, default=5)
-    p.add_argument("--folder", default=None)
-    args = p.parse_args(argv)
-    rgb = _frame()
+    rgb = _frame(args.scene, args.gbuffer)
     cfg = color.load_config()
     ws = color.WORKING_SPACES["lin_rec709"]
-    folder = Path(args.folder or tempfile.mkdtemp(prefix="clphong-bench-"))
     apply_display_transform(rgb[:8, :64], DisplayTransform("agx"))       # build once
 
     def fused(op, bits, ext):
@@ -79,7 +127,9 @@ def main(argv=None) -> int:
     }
     if jpegxl_available():
         cases["HDR PQ JPEG XL, ACES 2.0 HDR 1000 nits"] = hdr(".jxl")
-    print(f"1920x1080, median of {args.runs} runs, files in {folder}")
+    kept = args.folder is not None or args.keep
+    print(f"1920x1080, median of {args.runs} runs, files in {folder}"
+          + ("" if kept else " (removed at the end; --keep keeps them)"))
     for name, fn in cases.items():
         times = []
         for _ in range(args.runs):

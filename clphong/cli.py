@@ -70,6 +70,7 @@ def _build_parser() -> argparse.ArgumentParser:
     _add_relight_parser(sub)
     _add_inspect_parsers(sub)
     _add_bench_parser(sub)
+    p._clphong_commands = sub.choices      # name -> subparser (unknown options: main)
 
     sub.add_parser("devices", help="list the OpenCL devices and the one chosen by default")
 
@@ -78,8 +79,13 @@ def _build_parser() -> argparse.ArgumentParser:
     dp.add_argument("--ocio-config", metavar="PATH",
                     help="OCIO config (default: $OCIO, else the built-in ocio://default)")
 
-    s = sub.add_parser("samples", help="regenerate the sample G-buffers (spheres.exr, ortho.exr)")
-    s.add_argument("folder", nargs="?", default="gbuffers")
+    s = sub.add_parser("samples", help="regenerate the sample G-buffers (spheres.exr, ortho.exr)",
+                       description="Write spheres.exr and ortho.exr into FOLDER, which must exist "
+                                   "(as for every output) unless -p is given.")
+    s.add_argument("folder", nargs="?", default="gbuffers", metavar="FOLDER",
+                   help="destination folder (default gbuffers)")
+    s.add_argument("-p", "--parents", action="store_true",
+                   help="create FOLDER (and its missing parents) if it does not exist")
     return p
 
 
@@ -104,7 +110,7 @@ examples:
 def _add_relight_parser(sub):
     r = sub.add_parser(
         "relight", help="relight a frame sequence with one or more light rigs",
-        description="Relight every frame of SEQUENCE (P.####.exr, P.%%04d.exr or a folder of "
+        description="Relight every frame of SEQUENCE (P.####.exr, P.%04d.exr or a folder of "
                     "multichannel EXRs) with each --rig, writing one output per frame per rig. "
                     "Outputs are written atomically; a bad frame is reported and the others "
                     "complete (exit status 1 when any failed).",
@@ -244,7 +250,7 @@ def _size(text):
 
 
 def cmd_bench(args) -> int:
-    from .bench import PATHS, BenchConfig, run_bench, save_report, table
+    from .bench import PATHS, BenchConfig, run_bench, save_report, summary_lines, table
 
     kw = {}
     if args.sizes:
@@ -276,12 +282,25 @@ def cmd_bench(args) -> int:
             kw[name] = value
     kw["device"] = args.device
     kw["log"] = lambda msg: print(msg, file=sys.stderr, flush=True)
+    # The report's names are checked before the run (a minute or more), not after it.
+    from .output import check_output_path
+
+    json_path, plot_path = args.json or None, args.plot or None
+    for out in (json_path, plot_path):
+        if out:
+            check_output_path(out)
+    if json_path and plot_path and _same_file(json_path, plot_path):
+        raise _Usage(f"--json and --plot name the same file {json_path!r}")
     cfg = BenchConfig.quick(**kw) if args.quick else BenchConfig(**kw)
     report = run_bench(cfg)
-    save_report(report, args.json or None, args.plot or None)
+    save_report(report, json_path, plot_path)
     print(table(report))
-    for k, v in report["summary"].items():
-        print(f"{k}: {v}")
+    for line in summary_lines(report["summary"]):
+        print(line)
+    if json_path:
+        print(f"report: {json_path}")
+    if plot_path:
+        print(f"Pareto plot: {plot_path}")
     return 0
 
 
@@ -340,16 +359,19 @@ def cmd_render(args) -> int:
     # The one output step of render, relight and the API: EXR / SDR / HDR / contact sheet.
     _, times = render_outputs(renderer, gbuffer, relighter.output, paths)
     t_end = time.perf_counter()
-    t_write = sum(times.values())
-    t_shade = t_end - t_write
+    t_shade = times.pop("shade")            # the launch (and the fused SDR tone mapping)
+    t_write = sum(times.values())           # per output kind: tone mapping, encoding, writing
     if args.stats:
         st = renderer.last_stats
         h, w = gbuffer.shape
-        print(renderer.plan_for(tuple(gbuffer.maps)), file=sys.stderr)
+        # The plan that ran (fused display output, culling fallback), not a fresh one.
+        plan = renderer.last_plan or renderer.plan_for(tuple(gbuffer.maps))
+        print(plan, file=sys.stderr)
         print(f"device: {renderer.runtime.name}", file=sys.stderr)
-        print(f"{w}x{h}: read {t_read - t0:.3f} s, shade {t_shade - t_read:.3f} s "
-              f"(kernel {st.kernel_seconds:.4f} s), write {t_end - t_shade:.3f} s, "
-              f"total {t_end - t0:.3f} s", file=sys.stderr)
+        kinds = ", ".join(f"{k} {v:.3f} s" for k, v in times.items())
+        print(f"{w}x{h}: read {t_read - t0:.3f} s, setup {t_end - t_read - t_shade - t_write:.3f} s, "
+              f"shade {t_shade:.3f} s (kernel {st.kernel_seconds:.4f} s), write {t_write:.3f} s"
+              + (f" ({kinds})" if kinds else "") + f", total {t_end - t0:.3f} s", file=sys.stderr)
         cull = getattr(renderer, "last_cull", None)
         if cull is not None:
             print(f"culling: {cull.seconds * 1e3:.1f} ms, tiles keep {cull.kept_fraction:.2%} of "
@@ -391,7 +413,13 @@ def cmd_devices(args) -> int:
 def cmd_samples(args) -> int:
     from .samples import write_samples
 
-    for path in write_samples(args.folder):
+    try:
+        written = write_samples(args.folder, parents=args.parents)
+    except OutputError as exc:
+        if "does not exist" not in str(exc):
+            raise
+        raise OutputError(f"{exc}, or give -p to create it") from None
+    for path in written:
         print(path)
     return 0
 
@@ -561,10 +589,63 @@ COMMANDS = {"displays": cmd_displays, "render": cmd_render, "plan": cmd_plan, "d
             "bench": cmd_bench}
 
 
+def _unrecognized(parser: argparse.ArgumentParser, args, extras: list[str]) -> None:
+    """Report unknown arguments through the subcommand's own parser (its usage line),
+    with a did-you-mean from that subcommand's options; exits 2."""
+    import difflib
+
+    sub = getattr(parser, "_clphong_commands", {}).get(getattr(args, "command", None), parser)
+    options = sorted(sub._option_string_actions)
+    msg = "unrecognized arguments: " + " ".join(extras)
+    hints = []
+    for extra in extras:
+        if extra.startswith("-") and len(extra) > 1:
+            name = extra.partition("=")[0]
+            close = difflib.get_close_matches(name, options, n=1, cutoff=0.75)
+            if close:
+                hints.append((name, close[0]))
+    if len(hints) == 1:
+        msg += f"; did you mean {hints[0][1]}?"
+    elif hints:
+        msg += "; did you mean " + ", ".join(f"{good} (for {bad})" for bad, good in hints) + "?"
+    sub.error(msg)
+
+
+#: The exit status of a process killed by SIGPIPE (128 + 13), as 'yes | head' reports.
+EXIT_BROKEN_PIPE = 141
+
+
+def _stdout_to_devnull() -> None:
+    """After a broken pipe: point stdout at /dev/null, so that the interpreter's
+    final flush does not fail again (Python docs, 'Note on SIGPIPE')."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):     # no real stdout (e.g. captured in tests)
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; return the exit code."""
+    """Run the CLI; return the exit code.
+
+    A closed stdout (``clphong inspect F | head -1``) ends the command quietly
+    with :data:`EXIT_BROKEN_PIPE`, as a command killed by SIGPIPE.
+    """
+    try:
+        code = _main(argv)
+        sys.stdout.flush()        # here, where a broken pipe is still caught
+        return code
+    except BrokenPipeError:
+        _stdout_to_devnull()
+        return EXIT_BROKEN_PIPE
+
+
+def _main(argv: list[str] | None) -> int:
     parser = _build_parser()
-    args = parser.parse_args(argv)
+    args, extras = parser.parse_known_args(argv)
+    if extras:
+        _unrecognized(parser, args, extras)
     import warnings
 
     def _one_line_warning(message, category, filename, lineno, file=None, line=None):
@@ -578,7 +659,8 @@ def main(argv: list[str] | None = None) -> int:
             with _sigterm_as_interrupt():
                 return COMMANDS[args.command](args)
     except _Usage as exc:
-        parser.error(str(exc))   # exits 2
+        # exits 2, with the subcommand's usage line
+        getattr(parser, "_clphong_commands", {}).get(args.command, parser).error(str(exc))
     except ClphongError as exc:
         msg = " ".join(str(exc).split("\n")).strip()
         print(f"clphong: error: {msg}", file=sys.stderr)

@@ -313,9 +313,11 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
     Returns
     -------
     (numpy.ndarray, dict)
-        The scene-linear (H, W, 3) float32 frame, and seconds spent per output
-        kind (tone mapping + encoding + writing; the fused SDR path's tone
-        mapping is inside the shading launch and is not separable).
+        The scene-linear (H, W, 3) float32 frame, and seconds spent: ``"shade"``
+        (the shading, with the fused SDR path's tone mapping, which is inside the
+        shading launch and is not separable), then per output kind written
+        (``"exr"``, ``"sdr"``, ``"hdr"``, ``"contact_sheet"``: tone mapping +
+        encoding + writing).
     """
     if not options.resolved:
         options = options.for_scene(renderer.scene)
@@ -323,6 +325,7 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
     ws = color.working_space(options.working_space)
     cfg = _load_config(options.ocio_config) if _needs_config(options, paths, ws) else None
     times: dict[str, float] = {}
+    t_shade = time.perf_counter()
     if paths.sdr and not options.ocio_view:
         matrix = _to_rec709(cfg, ws.name) if cfg is not None else None
         dt = DisplayTransform(options.tonemap, exposure=options.exposure, white=options.white,
@@ -331,6 +334,7 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
     else:
         shown = None
         rgb = renderer.render(gbuffer)
+    times["shade"] = time.perf_counter() - t_shade
     if paths.exr:
         t0 = time.perf_counter()
         for path in paths.exr:

@@ -163,7 +163,8 @@ def render_display(renderer, gbuffer, transform: DisplayTransform) -> tuple[np.n
         shown = apply_display_transform(rgb, transform, device=None, lanes=renderer.lanes
                                         if renderer.kernel_kind == "lanes" else None)
     # The last frame's records, as a plain render leaves them (--stats, tests).
-    for name in ("last_stats", "last_cull", "last_nonfinite", "last_bands", "last_display"):
+    for name in ("last_stats", "last_cull", "last_nonfinite", "last_bands", "last_display",
+                 "last_plan"):
         if name in vars(view):
             setattr(renderer, name, getattr(view, name))
     return rgb, shown

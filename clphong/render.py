@@ -288,6 +288,9 @@ class Renderer:
     #: (see clphong.display.render_display).
     display = None
     last_display = None
+    #: The ShadingPlan of the last launch (with the fused display output, or the
+    #: brute-force fallback of culling, as it actually ran); None before any.
+    last_plan = None
 
     def plan_for(self, map_names) -> ShadingPlan:
         plan = make_plan(self.scene, map_names, kernel=self.kernel_kind, lanes=self.lanes,
@@ -341,6 +344,7 @@ class Renderer:
                     prog = self.runtime.program(plan.entry_file, plan.defines)
                 else:
                     cull_args = self.last_cull.kernel_args()
+            self.last_plan = plan           # the variant that actually runs (--stats)
             kern = cl.Kernel(prog, "shade")
             from .display import display_kernel_args
             disp, display_args = display_kernel_args(self.display, ctx, frame.stride)

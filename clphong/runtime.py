@@ -32,6 +32,14 @@ _INSTALL_HINT = (
     "with --device or the PYOPENCL_CTX environment variable (e.g. PYOPENCL_CTX=0)"
 )
 
+#: Said when --device names no device: the other ways to choose, and how to get one.
+_CHOICE_HINT = (
+    "give --device as 'P:D' indices or a name substring of one of these (see 'clphong devices'), "
+    "or set the PYOPENCL_CTX environment variable (e.g. PYOPENCL_CTX=0:0); a device that is "
+    "not listed needs its vendor's OpenCL driver (ICD); the CPU device comes with PoCL: "
+    "pip install \"pyopencl[pocl]\""
+)
+
 
 #: LLVM CPU names with avx512f (prefixes), for which 16 float lanes fill a register.
 AVX512_TARGETS = (
@@ -124,12 +132,14 @@ def _choose(spec: str | None):
                 return dev
         raise DeviceError(
             f"device '{spec}': no such OpenCL device; available: " + "; ".join(list_devices())
+            + "; " + _CHOICE_HINT
         )
     low = spec.lower()
     for _, _, plat, dev in devices:
         if low in dev.name.lower() or low in plat.name.lower():
             return dev
-    raise DeviceError(f"device '{spec}': no match; available: " + "; ".join(list_devices()))
+    raise DeviceError(f"device '{spec}': no match; available: " + "; ".join(list_devices())
+                      + "; " + _CHOICE_HINT)
 
 
 @dataclass

@@ -125,12 +125,61 @@ def ortho(width: int = 256, height: int = 256):
             A.reshape(*shp, 3).astype(np.float32), cov.reshape(shp), maps)
 
 
-def write_samples(folder) -> list[Path]:
-    """Write ``spheres.exr`` and ``ortho.exr`` into ``folder``."""
+#: The scene of ``gbuffers/spheres.toml``, as data (a test checks that they agree), so
+#: that the spheres sample can be shaded without a source checkout.
+SPHERES_SCENE = {
+    "camera": {"type": "perspective", "position": [0.0, 2.0, 6.0]},
+    "material": {"model": "phong", "k_a": 0.1, "k_d": 0.7, "k_s": 0.2, "h": 32.0},
+    "light": [
+        {"type": "point", "position": [3.0, 5.0, 4.0], "color": [1.0, 0.9, 0.8],
+         "intensity": 5.0, "attenuation": [1.0, 0.0, 0.02]},
+        {"type": "point", "position": [-4.0, 3.0, 2.0], "color": [0.6, 0.7, 1.0],
+         "intensity": 2.0, "attenuation": [1.0, 0.1, 0.0]},
+        {"type": "ambient", "color": [1.0, 1.0, 1.0], "intensity": 1.0},
+    ],
+}
+
+
+def spheres_scene():
+    """The :class:`~clphong.scene.Scene` of ``gbuffers/spheres.toml``, built in memory."""
+    from .scene import parse_scene
+
+    return parse_scene(SPHERES_SCENE, source="clphong.samples:spheres")
+
+
+def spheres_gbuffer(width: int = 384, height: int = 256):
+    """The spheres sample as a :class:`~clphong.gbuffer.GBuffer`, in memory (no file)."""
+    from .gbuffer import GBuffer
+
+    P, N, A, cov = spheres(width, height)
+    return GBuffer(position=P, normal=N, albedo=A, coverage=cov, maps={})
+
+
+def write_samples(folder, *, parents: bool = False) -> list[Path]:
+    """Write ``spheres.exr`` and ``ortho.exr`` into ``folder``.
+
+    ``folder`` must exist (as for every clphong output), unless ``parents``:
+    then it is created, with any missing parents.
+
+    Raises
+    ------
+    OutputError
+        One line naming ``folder``: missing (without ``parents``), not a
+        folder, or not creatable.
+    """
+    from .errors import OutputError
     from .gbuffer import write_gbuffer
+    from .output import check_output_path
 
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    if parents and not folder.is_dir():
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"{folder}: cannot create the folder: {exc.strerror or exc}") from None
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{folder}: is a file, not a folder; choose another output folder")
+    check_output_path(folder / "spheres.exr", exr=True)   # a missing folder: one line, nothing written
     P, N, A, cov = spheres()
     write_gbuffer(folder / "spheres.exr", P, N, A, coverage=cov)
     P, N, A, cov, maps = ortho()
@@ -139,5 +188,5 @@ def write_samples(folder) -> list[Path]:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    for path in write_samples(sys.argv[1] if len(sys.argv) > 1 else "gbuffers"):
+    for path in write_samples(sys.argv[1] if len(sys.argv) > 1 else "gbuffers", parents=True):
         print(path)

@@ -969,6 +969,10 @@ def load_scene(path: str | os.PathLike) -> Scene:
     except OSError as exc:
         reason = exc.strerror or str(exc)
         raise SceneError(_one_line(f"{source}: cannot read scene file: {reason}")) from None
+    image = _image_kind(source, raw)
+    if image:
+        raise SceneError(f"{source}: this is {image} image, not a scene file; give the scene "
+                         ".toml first: clphong render SCENE.toml GBUFFER.exr ...")
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -989,6 +993,33 @@ def load_scene(path: str | os.PathLike) -> Scene:
     scene = _parse(data, source)
     _emit(scene, stacklevel=2)
     return scene
+
+
+#: Magic numbers of the image files a scene argument is most often confused with.
+_IMAGE_MAGIC = (
+    (b"\x76\x2f\x31\x01", "an OpenEXR"),
+    (b"\x89PNG\r\n\x1a\n", "a PNG"),
+    (b"II*\x00", "a TIFF"), (b"MM\x00*", "a TIFF"),
+    (b"\xff\xd8\xff", "a JPEG"),
+    (b"\xff\x0a", "a JPEG XL"), (b"\x00\x00\x00\x0cJXL \r\n\x87\n", "a JPEG XL"),
+)
+_IMAGE_EXTENSIONS = {".exr": "an OpenEXR", ".png": "a PNG", ".tif": "a TIFF", ".tiff": "a TIFF",
+                     ".jpg": "a JPEG", ".jpeg": "a JPEG", ".jxl": "a JPEG XL", ".hdr": "a Radiance HDR"}
+
+
+def _image_kind(source: str, raw: bytes) -> str | None:
+    """'an OpenEXR' (etc.) when ``raw`` is an image file (magic bytes), or is not
+    UTF-8 and named like one; None otherwise (a scene, or a bad scene)."""
+    for magic, kind in _IMAGE_MAGIC:
+        if raw.startswith(magic):
+            return kind
+    kind = _IMAGE_EXTENSIONS.get(os.path.splitext(source)[1].lower())
+    if kind is not None:
+        try:
+            raw.decode("utf-8")
+        except UnicodeDecodeError:
+            return kind
+    return None
 
 
 #: Peak bytes of memory per byte of TOML while parsing (tomllib and the scene

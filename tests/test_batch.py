@@ -466,3 +466,51 @@ def test_resume_after_sigterm_with_sdr_outputs(shot, tmp_path, capsys):
         assert p.read_bytes() == (out / p.relative_to(ref)).read_bytes(), p
     assert len(list(out.rglob("*.png"))) == 48
     _no_temporaries(out)
+
+
+def test_exr_template_with_another_extension_fails_once_before_any_frame(shot, tmp_path, capsys,
+                                                                         monkeypatch):
+    """-o out/{rig}.####.png: one line naming the template, exit 1, before any frame runs
+    (not one 'give a name ending in .exr' per frame)."""
+    import clphong.batch
+
+    def no_frames(*a, **k):
+        raise AssertionError("frames ran before the templates were checked")
+
+    monkeypatch.setattr(clphong.batch, "run_batch", no_frames)
+    root, _ = shot
+    out = tmp_path / "out"
+    tmpl = str(out / "{rig}.####.png")
+    assert main(["relight", str(root / "seq" / "shot.####.exr"), "--rig", str(root / "key.toml"),
+                 "-o", tmpl]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert err == f"clphong: error: output template {tmpl}: a scene-linear output must end in .exr\n"
+    assert not out.exists()
+
+
+def test_failure_summary_lists_at_most_20_then_counts_the_rest():
+    from clphong.batch import MAX_FAILURES_LISTED, BatchResult, Outcome
+
+    outcomes = [Outcome(f, f"in.{f:04d}.exr", "key", f"out.{f:04d}.exr", ok=False, error="bad frame")
+                for f in range(1, 101)]
+    outcomes.append(Outcome(101, "in.0101.exr", "key", "out.0101.exr", ok=True))
+    lines = BatchResult(outcomes, skipped=0, seconds=1.0).summary()
+    assert lines[0].startswith("1 written, 0 skipped (exist), 100 failed")
+    assert lines[1] == "failed: 100 output(s) of 100 frame(s):"
+    frames = [ln for ln in lines if ln.startswith("  frame ")]
+    assert len(frames) == MAX_FAILURES_LISTED == 20
+    assert frames[0].startswith("  frame 1 (in.0001.exr) [key]: bad frame")
+    assert lines[-1] == "  ... and 80 more"
+    # at the limit, nothing is elided
+    lines = BatchResult(outcomes[:20], skipped=0, seconds=1.0).summary()
+    assert len([ln for ln in lines if ln.startswith("  frame ")]) == 20
+    assert not any("more" in ln for ln in lines)
+
+
+def test_relight_help_shows_percent_patterns_once(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["relight", "--help"])
+    assert info.value.code == 0
+    out = capsys.readouterr().out
+    assert "P.%04d.exr" in out and "%%" not in out

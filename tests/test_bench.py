@@ -102,3 +102,52 @@ def test_cli_bench_quick_options_and_bad_input(tmp_path, capsys):
         main(["bench", "--paths", "fastest", "--json", str(tmp_path / "x.json")])
     assert exc.value.code == 2
     assert not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.parametrize("option", ["--json", "--plot"])
+def test_cli_bench_checks_report_paths_before_running(option, tmp_path, capsys, monkeypatch):
+    """A missing folder for --json/--plot is one line, exit 1, before the (minute-long) run."""
+    from clphong.cli import main
+
+    def no_run(cfg):
+        raise AssertionError("the benchmark ran before the output paths were checked")
+
+    monkeypatch.setattr(bench, "run_bench", no_run)
+    bad = tmp_path / "nodir" / "b.out"
+    argv = ["bench", "--quick", "--json", str(tmp_path / "b.json"), "--plot", str(tmp_path / "b.png")]
+    argv[argv.index(option) + 1] = str(bad)
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("clphong: error: ") and err.count("\n") == 1, err
+    assert str(bad) in err and "does not exist" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_bench_prints_readable_targets_and_where_files_went(tmp_path, capsys):
+    from clphong.cli import main
+
+    rc = main(["bench", "--sizes", "32x24", "--lights", "4", "--small-lights", "16",
+               "--paths", "accurate", "--budgets", "1e-3", "--repeats", "1", "--warmup", "0",
+               "--json", str(tmp_path / "b.json"), "--plot", str(tmp_path / "b.png")])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert f"report: {tmp_path / 'b.json'}" in out
+    assert f"Pareto plot: {tmp_path / 'b.png'}" in out
+    assert "target_" not in out and ": False" not in out and ": True" not in out
+    # the small-reach scene has no numpy measurement: 'n/a', never 'nan'
+    assert " nan" not in out and "n/a" in out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.json", "b.png"]
+
+
+def test_summary_lines_are_sentences():
+    lines = bench.summary_lines({"accurate_256_gple_per_s": 0.0912, "accurate_256_numpy_ratio": None,
+                                 "target_1gple_met": False, "target_60x_numpy_met": False})
+    assert lines[0] == ("issue-4 targets: 1 GPLE/s at 256 lights (accurate path): not met "
+                        "(0.0912 GPLE/s)")
+    assert "n/a" in lines[1]
+    lines = bench.summary_lines({"accurate_256_gple_per_s": 2.0, "accurate_256_numpy_ratio": 75.0,
+                                 "target_1gple_met": True, "target_60x_numpy_met": True,
+                                 "cull_small_lights": 4096, "cull_vs_256_brute_time_ratio": 1.5,
+                                 "cull_max_abs_error": 2e-4, "target_3x_met": True})
+    assert lines[1].endswith("met (75x)") and "N=4096" in lines[2] and ": met (1.5x" in lines[2]
+    assert "not measured" in bench.summary_lines({})[0]

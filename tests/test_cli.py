@@ -155,3 +155,168 @@ def test_programs_come_from_pocls_cache_in_a_second_process(tmp_path):
                      for p in cache.rglob("program.bc")})
     assert runs[0], "PoCL wrote no program to its cache"
     assert runs[1] == runs[0], "the second process built the program again"
+
+
+# ------------------------------------------------------------------ first-use problems
+
+
+def _one_error_line(err: str) -> str:
+    assert err.startswith("clphong: error: ") and err.count("\n") == 1, err
+    return err
+
+
+@pytest.mark.parametrize("command", ["render", "plan"])
+def test_scene_and_gbuffer_swapped_says_so(command, tmp_path, capsys):
+    scene, gbuf = SPHERES
+    argv = [command, gbuf, scene] + (["-o", str(tmp_path / "x.exr")] if command == "render" else [])
+    assert main(argv) == 1
+    err = _one_error_line(capsys.readouterr().err)
+    assert (f"{gbuf}: this is an OpenEXR image, not a scene file; give the scene .toml first: "
+            "clphong render SCENE.toml GBUFFER.exr") in err
+    assert "invalid TOML" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_relight_rig_that_is_an_image_says_so(tmp_path, capsys):
+    gbuf = SPHERES[1]
+    assert main(["relight", gbuf, "--rig", gbuf, "-o", str(tmp_path / "{rig}.####.exr")]) == 1
+    assert "this is an OpenEXR image, not a scene file" in _one_error_line(capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("argv, usage, hint", [
+    (["render", "s.toml", "g.exr", "--tonemapp", "agx"], "usage: clphong render ",
+     "unrecognized arguments: --tonemapp agx; did you mean --tonemap?"),
+    (["render", "s.toml", "g.exr", "--tonemapp=agx", "--sdrr", "x.png"], "usage: clphong render ",
+     "did you mean --tonemap (for --tonemapp), --sdr (for --sdrr)?"),
+    (["relight", "seq", "--rig", "k.toml", "-o", "o.exr", "--skip-exisitng"], "usage: clphong relight ",
+     "did you mean --skip-existing?"),
+    (["inspect", "f.exr", "--jsno"], "usage: clphong inspect ", "did you mean --json?"),
+    (["render", "s.toml", "g.exr", "--frobnicate"], "usage: clphong render ",
+     "unrecognized arguments: --frobnicate\n"),
+])
+def test_unknown_option_is_reported_by_the_subcommand_with_a_suggestion(argv, usage, hint, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(usage), err
+    assert "usage: clphong [-h] COMMAND" not in err
+    assert hint in err, err
+
+
+def test_stats_prints_the_plan_that_ran_and_splits_shade_and_write(tmp_path, capsys):
+    png = tmp_path / "agx.png"
+    assert main(["render", *SPHERES, "--sdr", str(png), "--tonemap", "agx", "--stats"]) == 0
+    err = capsys.readouterr().err
+    assert "-DDISPLAY_OUT=1" in err and "-DDISPLAY_OUT=0" not in err
+    assert "-DTONEMAP=" in err
+    timing = [ln for ln in err.splitlines() if ln.startswith("384x256: ")]
+    assert len(timing) == 1, err
+    import re
+    fields = dict(re.findall(r"(read|setup|shade|write|total) ([0-9.]+) s", timing[0]))
+    assert set(fields) == {"read", "setup", "shade", "write", "total"}, timing
+    assert "(sdr " in timing[0]
+    assert float(fields["write"]) > 0          # the PNG's encoding and write, not under shade
+    parts = sum(float(fields[k]) for k in ("read", "setup", "shade", "write"))
+    assert abs(parts - float(fields["total"])) < 0.01, timing
+    assert png.exists()
+
+
+def test_stats_without_display_output_shows_display_off(tmp_path, capsys):
+    assert main(["render", *SPHERES, "-o", str(tmp_path / "o.exr"), "--stats"]) == 0
+    err = capsys.readouterr().err
+    assert "-DDISPLAY_OUT=0" in err and "(exr " in err
+
+
+def test_samples_refuses_a_missing_folder_unless_parents(tmp_path, capsys):
+    target = tmp_path / "no" / "such"
+    assert main(["samples", str(target)]) == 1
+    err = _one_error_line(capsys.readouterr().err)
+    assert f"folder {target} does not exist; create it first, or give -p" in err
+    assert list(tmp_path.iterdir()) == []
+    assert main(["samples", "-p", str(target)]) == 0
+    assert sorted(p.name for p in target.iterdir()) == ["ortho.exr", "spheres.exr"]
+    capsys.readouterr()
+    afile = tmp_path / "file"
+    afile.write_text("x")
+    assert main(["samples", str(afile)]) == 1
+    assert "is a file, not a folder" in _one_error_line(capsys.readouterr().err)
+
+
+class _ClosedPipe:
+    """A stdout whose reader has gone (``| head -1`` after its line)."""
+
+    def write(self, text):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    def flush(self):
+        raise BrokenPipeError(32, "Broken pipe")
+
+
+@pytest.mark.parametrize("argv", [["inspect", SPHERES[1]], ["inspect", "--json", SPHERES[1]],
+                                  ["plan", SPHERES[0]], ["devices"], ["displays"]])
+def test_broken_pipe_ends_quietly_in_process(argv, capsys, monkeypatch):
+    from clphong.cli import EXIT_BROKEN_PIPE
+
+    monkeypatch.setattr(sys, "stdout", _ClosedPipe())
+    assert main(argv) == EXIT_BROKEN_PIPE == 141
+    assert capsys.readouterr().err == ""
+
+
+def test_broken_pipe_ends_quietly_as_a_subprocess():
+    """The reader closes the pipe before clphong writes: no traceback, exit 141."""
+    exe = shutil.which("clphong") or None
+    cmd = [exe] if exe else [sys.executable, "-m", "clphong"]
+    p = subprocess.Popen(cmd + ["inspect", "--json", SPHERES[1]], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    p.stdout.close()                   # no reader left: every write fails with EPIPE
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=300) == 141, err
+    assert err == "", err
+
+
+def test_bench_output_runs_without_a_checkout_and_cleans_up(tmp_path, monkeypatch, capsys):
+    """python -m clphong.bench_output: its frame is built from clphong.samples (no gbuffers/
+    folder needed); its temporary folder is removed unless --keep; a bad --folder is one line."""
+    from clphong import bench_output
+
+    made = []
+
+    def mkdtemp(prefix=""):
+        made.append(tmp_path / f"{prefix}{len(made)}")
+        made[-1].mkdir()
+        return str(made[-1])
+
+    def fake_time(args, folder):          # the timing itself is not a test
+        (folder / "a.exr").write_bytes(b"x")
+        return 0
+
+    monkeypatch.setattr(bench_output.tempfile, "mkdtemp", mkdtemp)
+    monkeypatch.setattr(bench_output, "_time_outputs", fake_time)
+    assert bench_output.main([]) == 0
+    assert not made[0].exists()
+    assert bench_output.main(["--keep"]) == 0
+    assert (made[1] / "a.exr").exists()
+    capsys.readouterr()
+    assert bench_output.main(["--folder", str(tmp_path / "nodir")]) == 1
+    err = _one_error_line(capsys.readouterr().err)
+    assert f"--folder {tmp_path / 'nodir'}: does not exist" in err
+    with pytest.raises(SystemExit) as info:
+        bench_output.main(["--scene", SPHERES[0]])
+    assert info.value.code == 2
+
+
+def test_bench_output_frame_is_the_spheres_sample_from_memory(monkeypatch):
+    import clphong
+    from clphong import bench_output, samples
+    from clphong.scene import load_scene
+
+    # the in-memory scene and G-buffer are those of gbuffers/ (so no checkout is needed)
+    assert samples.spheres_scene().to_dict() == load_scene(SPHERES[0]).to_dict()
+    gb, disk = samples.spheres_gbuffer(), clphong.read_gbuffer(SPHERES[1])
+    for name in ("position", "normal", "albedo"):
+        assert np.array_equal(getattr(gb, name), getattr(disk, name)), name
+    # and the frame does not read gbuffers/ at all
+    monkeypatch.setattr(clphong.gbuffer, "read_gbuffer", None)
+    frame = bench_output._frame()
+    assert frame.shape == (1080, 1920, 3) and np.isfinite(frame).all() and frame.max() > 0

@@ -630,7 +630,11 @@ def test_pyopencl_ctx_names_no_device(work, capsys, monkeypatch, fresh_runtimes)
 def test_device_option_names_no_device(work, capsys):
     src, out = work
     fails(render_argv(src, out, extra=["--device", "quantum"]), capsys, src.parent,
-          "device 'quantum': no match; available: 0:0")
+          "device 'quantum': no match; available: 0:0",
+          # the other ways to choose a device, and how to get one (README, 'No usable device')
+          "PYOPENCL_CTX", 'pip install "pyopencl[pocl]"')
+    fails(render_argv(src, out, extra=["--device", "7:3"]), capsys, src.parent,
+          "device '7:3': no such OpenCL device", "PYOPENCL_CTX", 'pip install "pyopencl[pocl]"')
 
 
 # =========================================================================== memory: row bands

@@ -464,6 +464,30 @@ def test_non_utf8_file(tmp_path):
     assert msg.startswith(f"{f}:2: invalid TOML: not UTF-8")
 
 
+@pytest.mark.parametrize("name, data, kind", [
+    ("frame.exr", b"\x76\x2f\x31\x01\x02\x00\x00\x00channels\x00chlist\x00", "an OpenEXR"),
+    ("frame.bin", b"\x76\x2f\x31\x01\x02\x00\x00\x00", "an OpenEXR"),   # by its magic bytes
+    ("beauty.png", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR", "a PNG"),
+    ("broken.exr", b"\x00\xff\xfe garbage", "an OpenEXR"),            # not UTF-8, named .exr
+])
+def test_an_image_given_as_the_scene_is_named_as_such(tmp_path, name, data, kind):
+    f = tmp_path / name
+    f.write_bytes(data)
+    with pytest.raises(SceneError) as info:
+        load_scene(f)
+    msg = str(info.value)
+    assert_one_line(msg)
+    assert msg == (f"{f}: this is {kind} image, not a scene file; give the scene .toml first: "
+                   "clphong render SCENE.toml GBUFFER.exr ...")
+
+
+def test_a_text_scene_named_like_an_image_is_still_parsed(tmp_path):
+    f = tmp_path / "scene.exr"
+    from conftest import GBUFFERS
+    f.write_text((GBUFFERS / "spheres.toml").read_text())
+    assert load_scene(f).material.k_d == 0.7
+
+
 def test_empty_file_reports_missing_material(tmp_path):
     # [camera] is optional (taken from the EXR's worldToCamera); [material] is not.
     f = tmp_path / "empty.toml"
