@@ -134,10 +134,44 @@ class RelighterSpec:
     lanes: int | None = None
     channels: tuple = ()
     output: OutputOptions = field(default_factory=OutputOptions)
+    #: Renderer options (see :class:`Relighter`); part of the cache key, so
+    #: workers build a relighter with exactly these.
+    fp64_directions: bool | None = None
+    max_error: float | None = None
+    reference_white: float = 1.0
+    nonfinite: str = "background"
+
+    def __post_init__(self):
+        check_renderer_options(fp64_directions=self.fp64_directions, max_error=self.max_error,
+                               reference_white=self.reference_white, nonfinite=self.nonfinite)
 
     def build(self) -> Relighter:
         return Relighter(self.scene, device=self.device, kernel=self.kernel, lanes=self.lanes,
-                         channels=dict(self.channels) or None, output=self.output)
+                         channels=dict(self.channels) or None, output=self.output,
+                         fp64_directions=self.fp64_directions, max_error=self.max_error,
+                         reference_white=self.reference_white, nonfinite=self.nonfinite)
+
+
+def check_renderer_options(*, fp64_directions=None, max_error=None, reference_white=1.0,
+                           nonfinite="background") -> None:
+    """Check the renderer options of a :class:`Relighter` without compiling anything.
+
+    Raises
+    ------
+    clphong.cull.CullingError
+        A negative or non-finite ``max_error``, or a ``reference_white`` that
+        is not a finite number > 0.
+    ValueError
+        An unknown ``nonfinite`` policy, or ``fp64_directions`` not None/bool.
+    """
+    from .cull import check_budget
+    from .inputs import POLICIES
+
+    if fp64_directions is not None and not isinstance(fp64_directions, bool):
+        raise ValueError(f"fp64_directions must be None, True or False, not {fp64_directions!r}")
+    check_budget(max_error, reference_white)
+    if nonfinite not in POLICIES:
+        raise ValueError(f"nonfinite must be one of {', '.join(POLICIES)}, not {nonfinite!r}")
 
 
 _CACHE: dict = {}
@@ -165,6 +199,19 @@ class Relighter:
         The scene (camera, material, lights), or its TOML file.
     device, kernel, lanes
         As for :class:`clphong.Renderer`.
+    fp64_directions : bool, optional
+        None (default): directions in double where the device has fp64 (the
+        accurate path); False: float32 directions (``--path float``); True:
+        require fp64.
+    max_error : float, optional
+        Tiled light culling budget relative to ``reference_white``
+        (``--max-error``); None (default): no culling.
+    reference_white : float
+        Output radiance of reference white for ``max_error`` (default 1.0).
+    nonfinite : {"background", "error", "pass"}
+        NaN/Inf input policy (:mod:`clphong.inputs`); under ``"error"`` a
+        frame with a non-finite value raises
+        :class:`~clphong.errors.GBufferError` (in a batch: that frame fails).
     channels : mapping, optional
         Channel overrides used when reading frames from files.
     output : OutputOptions, optional
@@ -182,18 +229,27 @@ class Relighter:
 
     def __init__(self, scene, *, device: str | None = None, kernel: str = "lanes",
                  lanes: int | None = None, channels: Mapping | None = None,
-                 output: OutputOptions | None = None):
+                 output: OutputOptions | None = None, fp64_directions: bool | None = None,
+                 max_error: float | None = None, reference_white: float = 1.0,
+                 nonfinite: str = "background"):
         from .render import Renderer
         from .scene import Scene, load_scene
 
+        # Renderer options first: a bad value fails before the scene is read or compiled.
+        check_renderer_options(fp64_directions=fp64_directions, max_error=max_error,
+                               reference_white=reference_white, nonfinite=nonfinite)
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
         self.scene = scene
         self.channels = dict(channels) if channels else None
         self.output = (output or OutputOptions()).for_scene(scene)
-        self.renderer = Renderer(scene, device=device, kernel=kernel, lanes=lanes)
+        self.renderer = Renderer(scene, device=device, kernel=kernel, lanes=lanes,
+                                 fp64_directions=fp64_directions, max_error=max_error,
+                                 reference_white=reference_white, nonfinite=nonfinite)
         self.spec = RelighterSpec(scene=scene, device=device, kernel=kernel, lanes=lanes,
-                                  channels=_hashable_channels(channels), output=self.output)
+                                  channels=_hashable_channels(channels), output=self.output,
+                                  fp64_directions=fp64_directions, max_error=max_error,
+                                  reference_white=reference_white, nonfinite=nonfinite)
 
     @property
     def camera_from_metadata(self) -> bool:

@@ -49,12 +49,8 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="scene-linear EXR output (tagged with the working space)")
     _add_color_options(r)
     r.add_argument("--half", action="store_true", help="write half-float instead of float32")
-    r.add_argument("--nonfinite", choices=("background", "error", "pass"), default="background",
-                   help="NaN/Inf in the G-buffer: leave those pixels unshaded as background "
-                        "(default, with a warning giving the counts per buffer), stop with an "
-                        "error, or pass them through (they stay in their own pixels)")
     _add_device_options(r)
-    _add_speed_options(r)
+    _add_renderer_options(r)
     r.add_argument("--stats", action="store_true", help="print timings and the shading plan on stderr")
 
     pl = sub.add_parser(
@@ -137,6 +133,7 @@ def _add_relight_parser(sub):
     _add_color_options(r, templates=True)
     _add_gbuffer_options(r, files=False)
     _add_device_options(r)
+    _add_renderer_options(r)
 
 
 def _add_inspect_parsers(sub):
@@ -197,13 +194,25 @@ def _add_speed_options(p):
                         "high shininess; 'clphong bench' reports both)")
 
 
-def _apply_speed_options(renderer, args):
-    """--max-error, --reference-white and --path on an existing renderer."""
-    from .cull import check_budget
+def _add_renderer_options(p):
+    """The renderer options of 'render' and 'relight': one definition, the same help."""
+    p.add_argument("--nonfinite", choices=("background", "error", "pass"), default="background",
+                   help="NaN/Inf in the G-buffer: leave those pixels unshaded as background "
+                        "(default, with a warning giving the counts per buffer), stop with an "
+                        "error (relight: that frame fails, the others complete), or pass them "
+                        "through (they stay in their own pixels)")
+    _add_speed_options(p)
 
-    renderer.max_error = check_budget(args.max_error, args.reference_white)
-    if args.path == "float":
-        renderer.fp64_directions = False
+
+def _renderer_options(args) -> dict:
+    """Relighter/Renderer keyword arguments from the renderer options, validated (one-line errors)."""
+    from .api import check_renderer_options
+
+    opts = dict(fp64_directions=False if args.path == "float" else None,
+                max_error=args.max_error, reference_white=args.reference_white,
+                nonfinite=getattr(args, "nonfinite", "background"))
+    check_renderer_options(**opts)
+    return opts
 
 
 def _add_bench_parser(sub):
@@ -335,6 +344,7 @@ def cmd_render(args) -> int:
     from .scene import load_scene
 
     from .output import check_output_path
+    renderer_options = _renderer_options(args)       # bad values: before any file is touched
     display_paths = [*args.sdr, *args.hdr, *([args.contact_sheet] if args.contact_sheet else [])]
     if not args.output and not display_paths:
         raise _Usage("give at least one output: -o OUT.exr, --sdr OUT.png, --hdr OUT.png or "
@@ -350,12 +360,11 @@ def cmd_render(args) -> int:
     options = check_outputs(_output_options(args).for_scene(scene), paths)   # bad names: before any work
     gbuffer = _read_gbuffer(args)
     t_read = time.perf_counter()
+    # The same constructor path as 'relight' and the API (--path, --max-error, --nonfinite).
     relighter = Relighter(scene, device=args.device, kernel=args.kernel, lanes=args.lanes,
-                          output=options)
+                          output=options, **renderer_options)
     # A scene without [camera] takes this frame's worldToCamera (clphong.camera_meta).
     renderer = relighter.renderer_for(gbuffer, source=args.gbuffer or args.position)
-    _apply_speed_options(renderer, args)
-    renderer.nonfinite = args.nonfinite            # NaN/Inf input policy (clphong.inputs)
     # The one output step of render, relight and the API: EXR / SDR / HDR / contact sheet.
     _, times = render_outputs(renderer, gbuffer, relighter.output, paths)
     t_end = time.perf_counter()
@@ -383,6 +392,7 @@ def cmd_plan(args) -> int:
     from .plan import make_plan
     from .scene import load_scene
 
+    opts = _renderer_options(args)
     scene = load_scene(args.scene)
     maps = ()
     if args.gbuffer or args.position or args.normal or args.albedo:
@@ -394,9 +404,10 @@ def cmd_plan(args) -> int:
     from .cull import check_budget
 
     # As 'render': directions in double where the device has fp64, unless --path float.
-    fp64 = args.kernel == "lanes" and args.path != "float" and get_runtime(args.device).has_fp64
+    fp64 = (args.kernel == "lanes" and opts["fp64_directions"] is not False
+            and get_runtime(args.device).has_fp64)
     print(make_plan(scene, maps, kernel=args.kernel, lanes=lanes, fp64_directions=fp64,
-                    max_error=check_budget(args.max_error, args.reference_white)))
+                    max_error=check_budget(opts["max_error"], opts["reference_white"])))
     return 0
 
 
@@ -445,6 +456,7 @@ def cmd_relight(args) -> int:
 
     if args.jobs < 1:
         raise _Usage("--jobs must be >= 1")
+    renderer_options = _renderer_options(args)       # bad values: once, before any frame
     templates = _output_paths(args, args.output)
     if not templates:
         raise _Usage("give at least one output template: -o OUT.####.exr, --sdr OUT.####.png, "
@@ -484,7 +496,8 @@ def cmd_relight(args) -> int:
         return 0
     channels = _hashable_channels(parse_channel_mapping(args.channels)) if args.channels else ()
     specs = {r.name: RelighterSpec(scene=r.scene, device=args.device, kernel=args.kernel,
-                                   lanes=args.lanes, channels=channels, output=options[r.name])
+                                   lanes=args.lanes, channels=channels, output=options[r.name],
+                                   **renderer_options)
              for r in rigs}
     progress = not args.quiet and sys.stderr.isatty()
     result = run_batch(plan, specs, jobs=args.jobs, scheduler=args.scheduler, progress=progress)

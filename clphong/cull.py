@@ -49,14 +49,21 @@ class CullingError(ClphongError):
 
 
 def check_budget(max_error, reference_white=1.0) -> float | None:
-    """The absolute budget ``max_error·reference_white``, validated; None: no culling."""
-    if max_error is None:
-        return None
-    for name, x in (("--max-error", max_error), ("--reference-white", reference_white)):
-        if not (isinstance(x, (int, float)) and math.isfinite(x) and x >= 0):
+    """The absolute budget ``max_error·reference_white``, validated; None: no culling.
+
+    ``reference_white`` is checked even without a budget, so a bad value fails
+    the same way whether or not culling is on.
+    """
+    checks = [("--reference-white", reference_white)]
+    if max_error is not None:
+        checks.insert(0, ("--max-error", max_error))
+    for name, x in checks:
+        if not (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x >= 0):
             raise CullingError(f"{name}: expected a finite number ≥ 0, got {x!r}")
     if reference_white <= 0:
         raise CullingError(f"--reference-white: expected a number > 0, got {reference_white!r}")
+    if max_error is None:
+        return None
     return float(max_error) * float(reference_white)
 
 

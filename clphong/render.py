@@ -247,6 +247,11 @@ class Renderer:
     reference_white : float
         Output radiance of reference white (default 1.0, scene-linear).
 
+    The attributes ``max_error`` (the *absolute* budget
+    ``max_error·reference_white``, or None), ``fp64_directions`` and
+    ``nonfinite`` may still be changed after construction; the next frame
+    compiles the variant they select.
+
     Safe to call from several threads: launches are serialised on the queue.
     """
 
@@ -265,6 +270,7 @@ class Renderer:
         self.compensated = compensated
         from .cull import check_budget
         self.max_error = check_budget(max_error, reference_white)   # absolute, or None
+        self.reference_white = float(reference_white)
         self.last_cull = None
         if fp64_directions is None:
             fp64_directions = self.runtime.has_fp64

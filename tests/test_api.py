@@ -321,3 +321,105 @@ def test_scene_camera_up_is_validated():
         clphong.parse_scene({"camera": {"type": "metadata", "up": "x"},
                              "material": {"model": "phong", "k_a": 0, "k_d": 1, "k_s": 0, "h": 1}}, "s.toml")
     assert str(info.value) == "s.toml: camera.up: invalid value 'x'; expected one of 'y', 'z'"
+
+
+# ---------------------------------------------------------------- renderer options
+
+
+def test_renderer_options_are_constructor_arguments_and_part_of_the_spec():
+    import pickle
+
+    from clphong.api import RelighterSpec, cached_relighter
+    from clphong.render import Renderer
+
+    rng = np.random.default_rng(21)
+    scene = make_scene(random_lights(rng, n_point=4))
+    opts = dict(fp64_directions=False, max_error=1e-3, reference_white=2.0, nonfinite="error")
+    r = Relighter(scene, **opts)
+    rr = r.renderer
+    assert (rr.fp64_directions, rr.max_error, rr.reference_white, rr.nonfinite) == (False, 2e-3, 2.0, "error")
+    plan = rr.plan_for(())
+    assert plan.defines["DIRECTIONS_FP64"] == 0 and plan.defines["CULLING"] == 1
+    assert {k: getattr(r.spec, k) for k in opts} == opts
+    # A worker rebuilds an identical relighter from the pickled spec.
+    spec = pickle.loads(pickle.dumps(r.spec))
+    assert spec == r.spec and hash(spec) == hash(r.spec)
+    w = spec.build().renderer
+    assert (w.fp64_directions, w.max_error, w.reference_white, w.nonfinite) == (False, 2e-3, 2.0, "error")
+    assert w.plan_for(()).defines == plan.defines
+    # Same images as a Renderer given the same options directly.
+    g = random_gbuffer(rng, 20, 24)
+    assert np.array_equal(r.relight(g), Renderer(scene, fp64_directions=False, max_error=1e-3,
+                                                 reference_white=2.0, nonfinite="error").render(g))
+    # The per-process cache keys on the options: another option, another relighter.
+    base = RelighterSpec(scene=scene)
+    assert cached_relighter(base) is cached_relighter(RelighterSpec(scene=scene))
+    for change in (dict(fp64_directions=False), dict(max_error=1e-3), dict(nonfinite="pass"),
+                   dict(max_error=1e-3, reference_white=2.0)):
+        other = cached_relighter(RelighterSpec(scene=scene, **change))
+        assert other is not cached_relighter(base), change
+        for k, v in change.items():
+            assert getattr(other.spec, k) == v
+    assert cached_relighter(RelighterSpec(scene=scene, fp64_directions=False)).renderer.fp64_directions is False
+
+
+def test_renderer_attributes_still_work_after_construction():
+    rng = np.random.default_rng(22)
+    scene = make_scene(random_lights(rng, n_point=3))
+    g = random_gbuffer(rng, 16, 16)
+    poked = Relighter(scene)
+    poked.renderer.fp64_directions = False
+    poked.renderer.max_error = 1e-3
+    built = Relighter(scene, fp64_directions=False, max_error=1e-3)
+    assert np.array_equal(poked.relight(g), built.relight(g))
+    assert poked.renderer.last_plan.defines == built.renderer.last_plan.defines
+
+
+def test_accurate_and_float_paths_differ():
+    rng = np.random.default_rng(23)
+    scene = make_scene(random_lights(rng, n_point=3))
+    g = random_gbuffer(rng, 24, 32)
+    accurate, fast = Relighter(scene), Relighter(scene, fp64_directions=False)
+    if accurate.renderer.runtime.has_fp64:
+        assert accurate.renderer.plan_for(()).defines["DIRECTIONS_FP64"] == 1
+        assert not np.array_equal(accurate.relight(g), fast.relight(g))
+    assert fast.renderer.plan_for(()).defines["DIRECTIONS_FP64"] == 0
+
+
+@pytest.mark.parametrize("kwargs, exc, fragment", [
+    (dict(max_error=-1.0), "CullingError", "--max-error: expected a finite number ≥ 0"),
+    (dict(max_error=float("inf")), "CullingError", "--max-error: expected a finite number ≥ 0"),
+    (dict(reference_white=0.0), "CullingError", "--reference-white: expected a number > 0"),
+    (dict(nonfinite="ignore"), "ValueError", "nonfinite must be one of background, error, pass"),
+    (dict(fp64_directions="no"), "ValueError", "fp64_directions must be None, True or False"),
+])
+def test_bad_renderer_options_fail_before_compiling(kwargs, exc, fragment, monkeypatch):
+    import sys
+
+    from clphong.api import RelighterSpec
+
+    def no_renderer(*a, **k):
+        raise AssertionError("a renderer was built before the options were checked")
+
+    # (clphong.render is also the name of a function: patch the module itself)
+    monkeypatch.setattr(sys.modules["clphong.render"], "Renderer", no_renderer)
+    scene = make_scene(random_lights(np.random.default_rng(1), n_point=1))
+    for make in (lambda: Relighter(scene, **kwargs), lambda: RelighterSpec(scene=scene, **kwargs)):
+        with pytest.raises(Exception) as info:
+            make()
+        assert type(info.value).__name__ == exc and fragment in str(info.value)
+        assert "\n" not in str(info.value)
+
+
+def test_nonfinite_error_policy_raises_naming_the_buffer():
+    rng = np.random.default_rng(24)
+    scene = make_scene(random_lights(rng, n_point=2))
+    g = random_gbuffer(rng, 16, 16, background_fraction=0.0)
+    P = g.position.copy()
+    P[2, 3, 0] = np.inf
+    frame = {"position": P, "normal": g.normal, "albedo": g.albedo}
+    with pytest.raises(GBufferError, match=r"non-finite .*position: 1 pixel\(s\)"):
+        Relighter(scene, nonfinite="error").relight(frame)
+    with pytest.warns(clphong.errors.InputWarning):
+        rgb = Relighter(scene).relight(frame)
+    assert np.all(np.isfinite(rgb)) and np.all(rgb[2, 3] == 0)

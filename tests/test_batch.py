@@ -514,3 +514,197 @@ def test_relight_help_shows_percent_patterns_once(capsys):
     assert info.value.code == 0
     out = capsys.readouterr().out
     assert "P.%04d.exr" in out and "%%" not in out
+
+
+# ---------------------------------------------------------------- renderer options
+
+
+def _recording_run_batch(monkeypatch):
+    """Wrap clphong.batch.run_batch to keep the RelighterSpecs the command built."""
+    import clphong.batch
+
+    seen = []
+    real = clphong.batch.run_batch
+
+    def record(plan, specs, **kw):
+        seen.append(specs)
+        return real(plan, specs, **kw)
+
+    monkeypatch.setattr(clphong.batch, "run_batch", record)
+    return seen
+
+
+def _as_worker_builds(spec):
+    """The relighter a worker builds: from the spec after pickling (spawn pools, Dask)."""
+    import pickle
+
+    again = pickle.loads(pickle.dumps(spec))
+    assert again == spec and hash(again) == hash(spec)
+    return again.build()
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_relight_path_float_equals_render_path_float(shot, tmp_path, jobs, capsys, monkeypatch):
+    root, expected = shot
+    seen = _recording_run_batch(monkeypatch)
+    out = tmp_path / "out"
+    assert main(_args(root, out, "--frames", "1-4", "--path", "float", "--jobs", str(jobs))) == 0
+    differs = False
+    for f in range(1, 5):
+        for rig in ("key", "fill"):
+            single = tmp_path / f"render.{rig}.{f}.exr"
+            assert main(["render", str(root / f"{rig}.toml"), str(root / "seq" / f"shot.{f:04d}.exr"),
+                         "-o", str(single), "--path", "float"]) == 0
+            batch = _read(out / rig / f"shot.{f:04d}.exr")
+            assert np.array_equal(batch, _read(single)), (f, rig)      # bit-identical
+            differs |= not np.array_equal(batch, expected[(f, rig)])   # expected: accurate path
+    assert differs, "--path float gave the accurate path's images: the option did not reach the kernel"
+    [specs] = seen
+    for spec in specs.values():
+        assert spec.fp64_directions is False
+        r = _as_worker_builds(spec)
+        assert r.renderer.fp64_directions is False
+        assert r.renderer.plan_for(()).defines["DIRECTIONS_FP64"] == 0
+
+
+MANY_LIGHTS_HEAD = """\
+[camera]
+type = "orthographic"
+direction = [0.0, 0.0, -1.0]
+[material]
+model = "phong"
+k_a = 0.0
+k_d = 0.7
+k_s = 0.3
+h = 24.0
+"""
+
+
+@pytest.fixture(scope="module")
+def culled_shot(tmp_path_factory):
+    """4 frames of a 96x48 wavy surface and a rig of 60 small-reach point lights (culling prunes)."""
+    from clphong.gbuffer import write_gbuffer
+    from test_cull import heightfield, point_lights
+
+    root = tmp_path_factory.mktemp("culled")
+    (root / "seq").mkdir()
+    rng = np.random.default_rng(11)
+    for f in range(1, 5):
+        g = heightfield(rng, h=48, w=96, bumps=0.1 * f)
+        write_gbuffer(root / "seq" / f"wave.{f:04d}.exr", g.position, g.normal, g.albedo,
+                      coverage=g.coverage)
+    text = [MANY_LIGHTS_HEAD]
+    for light in point_lights(rng, 60, extent=(9.5, 4.7)):
+        text.append("[[light]]\ntype = \"point\"\n"
+                    f"position = [{', '.join(f'{x:.6f}' for x in light['position'])}]\n"
+                    f"color = [{', '.join(f'{x:.6f}' for x in light['color'])}]\n"
+                    f"intensity = {light['intensity']:.6f}\n"
+                    f"attenuation = [{', '.join(f'{x:.1f}' for x in light['attenuation'])}]\n")
+    (root / "many.toml").write_text("\n".join(text))
+    return root
+
+
+def test_relight_max_error_equals_render_max_error(culled_shot, tmp_path, capsys, monkeypatch):
+    import clphong
+
+    root = culled_shot
+    seen = _recording_run_batch(monkeypatch)
+    out = tmp_path / "out"
+    cull = ["--max-error", "1e-3", "--reference-white", "2"]
+    assert main(["relight", str(root / "seq" / "wave.####.exr"), "--rig", str(root / "many.toml"),
+                 "-o", str(out / "{rig}.####.exr"), "--jobs", "2", *cull]) == 0
+    for f in range(1, 5):
+        single = tmp_path / f"render.{f}.exr"
+        assert main(["render", str(root / "many.toml"), str(root / "seq" / f"wave.{f:04d}.exr"),
+                     "-o", str(single), *cull]) == 0
+        assert np.array_equal(_read(out / f"many.{f:04d}.exr"), _read(single)), f
+    [specs] = seen
+    spec = specs["many"]
+    assert (spec.max_error, spec.reference_white) == (1e-3, 2.0)
+    r = _as_worker_builds(spec)
+    assert r.renderer.max_error == pytest.approx(2e-3)          # absolute: eps x reference white
+    # The rig really is culled (so equal images are not just brute force twice).
+    rgb = r.relight(str(root / "seq" / "wave.0001.exr"))
+    assert r.renderer.last_plan.defines["CULLING"] == 1
+    assert r.renderer.last_cull.kept_fraction < 0.8, r.renderer.last_cull
+    brute = clphong.Relighter(str(root / "many.toml")).relight(str(root / "seq" / "wave.0001.exr"))
+    assert not np.array_equal(rgb, brute)
+    assert np.array_equal(rgb, _read(out / "many.0001.exr"))
+
+
+def test_nonfinite_error_fails_only_the_nan_frame(shot, tmp_path, capsys):
+    import clphong
+    from clphong.gbuffer import write_gbuffer
+
+    root, expected = shot
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for f in range(1, 5):
+        src = root / "seq" / f"shot.{f:04d}.exr"
+        if f == 3:
+            g = clphong.read_gbuffer(src)
+            P = g.position.copy()
+            y, x = np.argwhere(g.coverage > 0)[0]
+            P[y, x, 1] = np.nan
+            write_gbuffer(seq / src.name, P, g.normal, g.albedo, coverage=g.coverage)
+        else:
+            (seq / src.name).write_bytes(src.read_bytes())
+    out = tmp_path / "out"
+    args = ["relight", str(seq / "shot.####.exr"), "--rig", str(root / "key.toml"), "--rig",
+            str(root / "fill.toml"), "-o", str(out / "{rig}" / "{name}.####.exr")]
+    assert main(args + ["--nonfinite", "error", "--jobs", "2"]) == 1
+    err = capsys.readouterr().err
+    _check_outputs(out, expected, frames=(1, 2, 4))
+    assert not (out / "key" / "shot.0003.exr").exists() and not (out / "fill" / "shot.0003.exr").exists()
+    assert "6 written, 0 skipped (exist), 2 failed" in err
+    [line] = [ln for ln in err.splitlines() if ln.startswith("  frame ")]
+    assert line.startswith(f"  frame 3 ({seq / 'shot.0003.exr'}) [key, fill]: non-finite"), line
+    assert "P.X,P.Y,P.Z: 1 pixel(s)" in line                   # the buffer, and the count
+    _no_temporaries(out)
+    # The default policy shades the frame, that pixel as background.
+    assert main(args + ["--skip-existing"]) == 0
+    assert "2 written, 6 skipped (exist), 0 failed" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("option, fragment", [
+    (["--max-error", "-1"], "--max-error: expected a finite number ≥ 0, got -1.0"),
+    (["--max-error", "nan"], "--max-error: expected a finite number ≥ 0, got nan"),
+    (["--max-error", "1e-3", "--reference-white", "0"], "--reference-white: expected a number > 0"),
+    (["--reference-white", "-2"], "--reference-white: expected a finite number ≥ 0, got -2.0"),
+])
+@pytest.mark.parametrize("command", ["relight", "render"])
+def test_bad_renderer_options_are_one_line_before_any_frame(shot, tmp_path, capsys, monkeypatch,
+                                                            option, fragment, command):
+    import clphong.gbuffer
+
+    def no_frames(*a, **k):
+        raise AssertionError("a frame was read before the options were checked")
+
+    monkeypatch.setattr(clphong.gbuffer, "read_gbuffer", no_frames)
+    root, _ = shot
+    out = tmp_path / "out"
+    if command == "relight":
+        args = _args(root, out, *option)
+    else:
+        args = ["render", str(root / "key.toml"), str(root / "seq" / "shot.0001.exr"),
+                "-o", str(out / "x.exr"), *option]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert err == f"clphong: error: {fragment}" + err[len(f"clphong: error: {fragment}"):]
+    assert err.count("\n") == 1, err
+    assert not out.exists()
+
+
+def test_render_and_relight_share_the_renderer_options():
+    """One definition: the same flags, choices, defaults and help in both parsers."""
+    from clphong.cli import _build_parser
+
+    parser = _build_parser()
+    subs = next(a for a in parser._actions if a.dest == "command").choices
+    flags = ("--nonfinite", "--max-error", "--reference-white", "--path")
+
+    def options(name):
+        acts = {s: a for a in subs[name]._actions for s in a.option_strings}
+        return {f: (acts[f].choices, acts[f].default, acts[f].help, acts[f].type) for f in flags}
+
+    assert options("render") == options("relight")

@@ -5,11 +5,12 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from clphong.cli import main
 
-from test_batch import _check_outputs, _no_temporaries, shot  # noqa: F401 - fixture
+from test_batch import _check_outputs, _no_temporaries, _read, shot  # noqa: F401 - fixture
 
 distributed = pytest.importorskip("distributed")
 
@@ -81,3 +82,29 @@ def test_local_batch_does_not_import_dask(shot, tmp_path):  # noqa: F811
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert sorted(p.name for p in tmp_path.glob("*.out.exr")) == ["shot.0001.out.exr", "shot.0002.out.exr"]
+
+
+def _worker_renderers():
+    """On a worker: the renderer options of every relighter this process cached."""
+    from clphong.api import _CACHE
+
+    return sorted((r.renderer.fp64_directions, r.renderer.plan_for(()).defines["DIRECTIONS_FP64"],
+                   r.renderer.max_error, r.renderer.nonfinite)
+                  for k, r in _CACHE.items() if k != "__lock__")
+
+
+def test_dask_workers_get_the_renderer_options(shot, tmp_path, capsys):  # noqa: F811
+    root, _ = shot
+    out, local = tmp_path / "dask", tmp_path / "local"
+    args = ["relight", str(root / "seq" / "shot.####.exr"), "--rig", str(root / "key.toml"),
+            "--frames", "1-6", "--path", "float", "--max-error", "0", "--nonfinite", "error"]
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None, silence_logs=40) as cluster, \
+            distributed.Client(cluster, set_as_default=False) as client:
+        assert main(args + ["-o", str(out / "{rig}.####.exr"), "--scheduler", cluster.scheduler_address]) == 0
+        state = client.run(_worker_renderers)
+    assert main(args + ["-o", str(local / "{rig}.####.exr")]) == 0
+    seen = [r for rs in state.values() for r in rs]
+    assert seen and set(seen) == {(False, 0, 0.0, "error")}, state
+    for f in range(1, 7):        # the pixels (the EXR header holds a time stamp)
+        assert np.array_equal(*(_read(d / f"key.{f:04d}.exr") for d in (out, local))), f
