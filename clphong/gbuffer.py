@@ -480,19 +480,30 @@ def _oiio_message(geterror) -> str:
     return _one_line(text) if text else ""
 
 
+def open_image(path: str, *, what: str = "an EXR file", verb: str = "read as EXR"):
+    """``oiio.ImageInput.open(path)`` with one-line errors naming the file.
+
+    Raises :class:`GBufferError` for a missing path, a folder (``"is a
+    directory, not {what}"``) or a file OpenImageIO cannot open (``"cannot
+    {verb}: …"``). Shared by the G-buffer reader and ``clphong inspect``.
+    """
+    if not os.path.exists(path):
+        raise GBufferError(f"{path}: file not found")
+    if os.path.isdir(path):
+        raise GBufferError(f"{path}: is a directory, not {what}")
+    inp = oiio.ImageInput.open(path)
+    if inp is None:
+        raise GBufferError(f"{path}: cannot {verb}: {_oiio_message(oiio.geterror) or 'unknown error'}")
+    return inp
+
+
 class _ExrFile:
     """One opened EXR file: validated spec, channel names, pixel reads."""
 
     def __init__(self, path: str | os.PathLike):
         self.path = os.fspath(path)
         p = self.path
-        if not os.path.exists(p):
-            raise GBufferError(f"{p}: file not found")
-        if os.path.isdir(p):
-            raise GBufferError(f"{p}: is a directory, not an EXR file")
-        inp = oiio.ImageInput.open(p)
-        if inp is None:
-            raise GBufferError(f"{p}: cannot read as EXR: {_oiio_message(oiio.geterror) or 'unknown error'}")
+        inp = open_image(p)
         self.inp = inp
         try:
             fmt = inp.format_name()

@@ -63,14 +63,9 @@ class DiffError(ClphongError):
 
 
 def _open(path: str):
-    if not os.path.exists(path):
-        raise GBufferError(f"{path}: file not found")
-    if os.path.isdir(path):
-        raise GBufferError(f"{path}: is a directory, not an image")
-    inp = oiio.ImageInput.open(path)
-    if inp is None:
-        raise GBufferError(f"{path}: cannot read: {_one_line(oiio.geterror())}")
-    return inp
+    from .gbuffer import open_image
+
+    return open_image(path, what="an image", verb="read")
 
 
 def _read_pixels(inp, path: str, subimage: int, spec) -> np.ndarray:
