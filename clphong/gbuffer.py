@@ -363,28 +363,27 @@ def _is_rgb(chans: list[str] | None) -> bool:
 
 def _candidate_layouts(ch: _Channels, attributes: Mapping[str, object]) -> list[_Layout]:
     """Every convention's view of a multichannel file, in detection order."""
+    def first_present(candidates: Mapping[str, Sequence[str]]) -> dict:
+        """For each buffer, the channels of the first candidate layer present."""
+        found = {}
+        for key, layers in candidates.items():
+            for layer in layers:
+                chans = ch.vector(layer)
+                if chans:
+                    found[key] = chans
+                    break
+        return found
+
     layouts = []
     # generic / arnold
-    found = {}
-    for key, layers in _GENERIC_LAYERS.items():
-        for layer in layers:
-            chans = ch.vector(layer)
-            if chans:
-                found[key] = chans
-                break
+    found = first_present(_GENERIC_LAYERS)
     arnold = (found.get("albedo", [""])[0].startswith("diffuse_albedo.")
               or _is_rgb(found.get("position")) or _is_rgb(found.get("normal"))
               or any(str(k).startswith("arnold/") for k in attributes))
     layouts.append(_Layout("arnold" if arnold else "generic", "", found,
                            _layer_of(found["albedo"]) if "albedo" in found else None))
     # mitsuba
-    found = {}
-    for key, layers in _MITSUBA_LAYERS.items():
-        for layer in layers:
-            chans = ch.vector(layer)
-            if chans:
-                found[key] = chans
-                break
+    found = first_present(_MITSUBA_LAYERS)
     layouts.append(_Layout("mitsuba", "", found, "albedo" if "albedo" in found else None))
     # blender, one layout per view layer
     for prefix in ch.blender_prefixes():
