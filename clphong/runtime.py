@@ -74,12 +74,23 @@ def kernel_dir() -> Path:
     )
 
 
+_DIGESTS: dict[tuple, str] = {}
+
+
 def _sources_digest(folder: Path) -> str:
-    h = hashlib.sha256()
-    for f in sorted(folder.glob("*.cl")) + sorted(folder.glob("*.h")):
-        h.update(f.name.encode())
-        h.update(f.read_bytes())
-    return h.hexdigest()
+    """SHA-256 of every kernel source, part of the program cache key (an edited
+    header rebuilds). Called on every render: the files are re-read only when
+    a name, size or modification time changes."""
+    files = sorted(folder.glob("*.cl")) + sorted(folder.glob("*.h"))
+    stamp = tuple((str(f), st.st_size, st.st_mtime_ns) for f in files for st in [f.stat()])
+    digest = _DIGESTS.get(stamp)
+    if digest is None:
+        h = hashlib.sha256()
+        for f in files:
+            h.update(f.name.encode())
+            h.update(f.read_bytes())
+        digest = _DIGESTS[stamp] = h.hexdigest()
+    return digest
 
 
 def _cl():
