@@ -25,16 +25,14 @@ def random_gbuffer(rng, h=24, w=40, *, spread=3.0, background_fraction=0.1, maps
     N *= rng.uniform(0.5, 2.0, (h, w, 1))            # not unit: the host normalises
     C = rng.uniform(0.0, 1.0, (h, w, 3))
     cov = (rng.uniform(size=(h, w)) > background_fraction).astype(np.float32)
-    m = {}
-    if "k_d" in maps:
-        m["k_d"] = rng.uniform(0, 1, (h, w))
-    if "k_s" in maps:
-        m["k_s"] = rng.uniform(0, 1, (h, w))
-    if "h" in maps:
-        m["h"] = rng.uniform(0, 200, (h, w))
-    if "specular_color" in maps:
-        m["specular_color"] = rng.uniform(0, 1, (h, w, 3))
-    return make_gbuffer(P, N, C, cov, m)
+    return make_gbuffer(P, N, C, cov, random_maps(rng, h, w, maps))
+
+
+def random_maps(rng, h, w, maps):
+    """Random material maps, only those named in ``maps``."""
+    ranges = {"k_d": (1.0, ()), "k_s": (1.0, ()), "h": (200.0, ()), "specular_color": (1.0, (3,))}
+    return {name: rng.uniform(0, top, (h, w) + extra)
+            for name, (top, extra) in ranges.items() if name in maps}
 
 
 def random_lights(rng, n_point=3, n_dir=1, n_amb=1):

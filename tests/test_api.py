@@ -91,22 +91,18 @@ def test_compiles_once_for_many_frames():
     assert r.renderer.runtime.builds == builds
 
 
-def test_two_threads_equal_single_threaded():
-    rng = np.random.default_rng(12)
-    scene = make_scene(random_lights(rng, n_point=4, n_dir=1))
-    frames = [random_gbuffer(rng, 24, 32) for _ in range(12)]
-    r = Relighter(scene)
-    single = [r.relight(g) for g in frames]
-    results = [None] * len(frames)
+def in_two_threads(n, task):
+    """Run task(i) for i < n, even i on one thread and odd i on another, started together;
+    re-raise the first exception either thread met."""
     errors = []
     start = threading.Barrier(2)
 
     def work(k):
         try:
             start.wait()
-            for i in range(k, len(frames), 2):
-                results[i] = r.relight(frames[i])
-        except BaseException as exc:  # noqa: BLE001 - reported below
+            for i in range(k, n, 2):
+                task(i)
+        except BaseException as exc:  # noqa: BLE001 - re-raised below
             errors.append(exc)
 
     threads = [threading.Thread(target=work, args=(k,)) for k in (0, 1)]
@@ -114,7 +110,22 @@ def test_two_threads_equal_single_threaded():
         t.start()
     for t in threads:
         t.join()
-    assert not errors
+    if errors:
+        raise errors[0]
+
+
+def test_two_threads_equal_single_threaded():
+    rng = np.random.default_rng(12)
+    scene = make_scene(random_lights(rng, n_point=4, n_dir=1))
+    frames = [random_gbuffer(rng, 24, 32) for _ in range(12)]
+    r = Relighter(scene)
+    single = [r.relight(g) for g in frames]
+    results = [None] * len(frames)
+
+    def task(i):
+        results[i] = r.relight(frames[i])
+
+    in_two_threads(len(frames), task)
     for a, b in zip(single, results):
         assert np.array_equal(a, b)
 
@@ -199,23 +210,7 @@ def test_two_threads_writing_sdr_equal_single_threaded(tmp_path):
     r = Relighter(scene, output=clphong.OutputOptions(tonemap="agx", exposure=0.5, bits=16))
     for i, g in enumerate(frames):
         r.relight(g, sdr=tmp_path / f"one.{i}.png")
-    errors = []
-    start = threading.Barrier(2)
-
-    def work(k):
-        try:
-            start.wait()
-            for i in range(k, len(frames), 2):
-                r.relight(frames[i], sdr=tmp_path / f"two.{i}.png")
-        except BaseException as exc:  # noqa: BLE001 - reported below
-            errors.append(exc)
-
-    threads = [threading.Thread(target=work, args=(k,)) for k in (0, 1)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    assert not errors
+    in_two_threads(len(frames), lambda i: r.relight(frames[i], sdr=tmp_path / f"two.{i}.png"))
     for i in range(len(frames)):
         assert (tmp_path / f"two.{i}.png").read_bytes() == (tmp_path / f"one.{i}.png").read_bytes(), i
     assert r.renderer.display is None             # the shared renderer's settings are untouched

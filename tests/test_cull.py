@@ -21,7 +21,7 @@ from clphong import reference
 from clphong.cull import CullingError, read_tile_lists, tile_of_pixels
 from clphong.render import Renderer, prepare_frame
 
-from conftest import make_gbuffer, make_scene
+from conftest import make_gbuffer, make_scene, random_maps
 
 
 def heightfield(rng, h=37, w=45, *, offset=(0.0, 0.0, 0.0), bumps=0.3, maps=()):
@@ -34,14 +34,7 @@ def heightfield(rng, h=37, w=45, *, offset=(0.0, 0.0, 0.0), bumps=0.3, maps=()):
     N = np.stack([-dzdx, -dzdy, np.ones_like(z)], -1)
     C = rng.uniform(0.1, 1.0, (h, w, 3))
     cov = (rng.uniform(size=(h, w)) > 0.05).astype(np.float32)
-    m = {}
-    if "k_d" in maps:
-        m["k_d"] = rng.uniform(0, 1, (h, w))
-    if "k_s" in maps:
-        m["k_s"] = rng.uniform(0, 1, (h, w))
-    if "specular_color" in maps:
-        m["specular_color"] = rng.uniform(0, 1, (h, w, 3))
-    return make_gbuffer(P, N, C, cov, m)
+    return make_gbuffer(P, N, C, cov, random_maps(rng, h, w, maps))
 
 
 def point_lights(rng, n, *, extent=(4.5, 3.7), height=(0.05, 0.6), att=(1.0, 0.0, 300.0),
