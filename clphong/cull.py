@@ -194,20 +194,28 @@ def _cull_level(runtime, prog, frame, g, mp, lb, n_point, *, budget, k_d, S, til
     return ranges, lists, int(counts[:n_tiles].sum(dtype=np.int64)), seconds
 
 
-def build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k_d, S):
+#: The plan defines kernels/cull.cl reads; passing only these keeps one cull
+#: program per material layout, whatever the shading variant (path, tone mapping).
+CULL_DEFINES = ("HAS_SPECULAR", "MAP_KD", "MAP_KS", "MAP_H", "MAP_CS")
+
+
+def build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k_d, S,
+                     gbuf_buffer=None, maps_buffer=None):
     """Run kernels/cull.cl for one frame; return :class:`TileLists`, or None when
     culling cannot pay off (the lists would exceed ``MAX_LIST_ENTRIES``).
 
     Two levels: super-tiles of ``SUPER × SUPER`` tiles against every light with
     ``COARSE_SHARE`` of the budget, then each tile against its super-tile's list
-    with the rest.
+    with the rest. ``gbuf_buffer`` and ``maps_buffer``: the frame's planes already
+    on the device (the shading launch's), so they are not uploaded twice.
     """
     import pyopencl as cl
 
     ctx = runtime.context
     lanes = max(plan.lanes, 1)
     sup = max(SUPER, lanes)
-    prog = runtime.program("cull.cl", {**plan.defines, "CULL_TILE": TILE, "CULL_SUPER": sup,
+    defines = {k: v for k, v in plan.defines.items() if k in CULL_DEFINES}
+    prog = runtime.program("cull.cl", {**defines, "CULL_TILE": TILE, "CULL_SUPER": sup,
                                        "LANES": lanes})
     h, w = frame.shape
     # tiles_x padded to a multiple of the super-tile, so that a work-item's LANES
@@ -217,8 +225,8 @@ def build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k_
     super_x, super_y = tiles_x // sup, -(-tiles_y // sup)
     mf = cl.mem_flags
     ro = mf.READ_ONLY | mf.COPY_HOST_PTR
-    g = cl.Buffer(ctx, ro, hostbuf=frame.gbuf)
-    mp = cl.Buffer(ctx, ro, hostbuf=frame.maps)
+    g = gbuf_buffer if gbuf_buffer is not None else cl.Buffer(ctx, ro, hostbuf=frame.gbuf)
+    mp = maps_buffer if maps_buffer is not None else cl.Buffer(ctx, ro, hostbuf=frame.maps)
     lb = cl.Buffer(ctx, ro, hostbuf=pack_cull_lights(point_records, n_point))
     common = dict(k_d=k_d, S=S, lanes=lanes)
     coarse_budget = budget * COARSE_SHARE

@@ -492,7 +492,7 @@ def evaluate(hc: HardCase, **renderer_kwargs) -> CaseResult:
     r = Renderer(scene, **renderer_kwargs)
     frame = prepare_frame(gb, lanes=max(r.lanes, 1))
     rgb = r.render(gb, frame=frame)
-    plan = r.plan_for(frame.map_names)
+    plan = r.last_plan                  # the variant that ran
     ref = reference.shade(scene, gb)
     bound, band = reference.error_bound(scene, gb, origin=frame.origin, plan=plan)
     err = np.abs(rgb.astype(np.float64) - ref)

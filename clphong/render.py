@@ -298,12 +298,17 @@ class Renderer:
     #: brute-force fallback of culling, as it actually ran); None before any.
     last_plan = None
 
-    def plan_for(self, map_names) -> ShadingPlan:
+    def plan_for(self, map_names, *, culling: bool = True) -> ShadingPlan:
+        """The plan for frames with these material maps (its program built and cached);
+        ``culling=False``: the same variant without culling (the brute-force fallback)."""
+        plan, _ = self._plan_and_program(map_names, culling=culling)
+        return plan
+
+    def _plan_and_program(self, map_names, *, culling: bool = True):
         plan = make_plan(self.scene, map_names, kernel=self.kernel_kind, lanes=self.lanes,
                          compensated=self.compensated, fp64_directions=self.fp64_directions,
-                         display=self.display, max_error=self.max_error)
-        self.runtime.program(plan.entry_file, plan.defines)
-        return plan
+                         display=self.display, max_error=self.max_error if culling else None)
+        return plan, self.runtime.program(plan.entry_file, plan.defines)
 
     def render(self, gbuffer, *, frame: Frame | None = None) -> np.ndarray:
         """Shade ``gbuffer``; return (H, W, 3) float32 scene-linear RGB.
@@ -322,8 +327,7 @@ class Renderer:
             gbuffer, self.last_nonfinite = apply_nonfinite_policy(gbuffer, self.nonfinite)
             return render_frame(self, gbuffer)
         t0 = time.perf_counter()
-        plan = self.plan_for(frame.map_names)
-        prog = self.runtime.program(plan.entry_file, plan.defines)
+        plan, prog = self._plan_and_program(frame.map_names)
         lights = pack_lights(self.scene, frame.origin)
         k_d, S, k = material_uniforms(self.scene, frame.map_names)
         ctx, queue = self.runtime.context, self.runtime.queue
@@ -342,12 +346,10 @@ class Renderer:
             if plan.defines.get("CULLING"):
                 from .cull import build_tile_lists
                 self.last_cull = build_tile_lists(self.runtime, plan, frame, lights.point,
-                                                  plan.n_point, budget=self.max_error, k_d=k_d, S=S)
+                                                  plan.n_point, budget=self.max_error, k_d=k_d, S=S,
+                                                  gbuf_buffer=g, maps_buffer=mp)
                 if self.last_cull is None:   # lists too long to pay off: brute force
-                    plan = make_plan(self.scene, frame.map_names, kernel=self.kernel_kind,
-                                     lanes=self.lanes, compensated=self.compensated,
-                                     fp64_directions=self.fp64_directions, display=self.display)
-                    prog = self.runtime.program(plan.entry_file, plan.defines)
+                    plan, prog = self._plan_and_program(frame.map_names, culling=False)
                 else:
                     cull_args = self.last_cull.kernel_args()
             self.last_plan = plan           # the variant that actually runs (--stats)
