@@ -329,7 +329,6 @@ class Relighter:
 
 
 def _same_file(a, b) -> bool:
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return os.path.abspath(a) == os.path.abspath(b)
+    from .output import same_file
+
+    return same_file(a, b)

@@ -332,10 +332,9 @@ def _inputs_of(args) -> list[str]:
 
 
 def _same_file(a: str, b: str) -> bool:
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return os.path.abspath(a) == os.path.abspath(b)
+    from .output import same_file
+
+    return same_file(a, b)
 
 
 def cmd_render(args) -> int:

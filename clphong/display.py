@@ -160,8 +160,8 @@ def render_display(renderer, gbuffer, transform: DisplayTransform) -> tuple[np.n
     rgb = view.render(gbuffer)
     shown = view.last_display
     if getattr(view, "last_bands", 1) != 1 or shown is None or shown.shape != rgb.shape:
-        shown = apply_display_transform(rgb, transform, device=None, lanes=renderer.lanes
-                                        if renderer.kernel_kind == "lanes" else None)
+        shown = apply_display_transform(rgb, transform, runtime=renderer.runtime,
+                                        lanes=renderer.lanes if renderer.kernel_kind == "lanes" else None)
     # The last frame's records, as a plain render leaves them (--stats, tests).
     for name in ("last_stats", "last_cull", "last_nonfinite", "last_bands", "last_display",
                  "last_plan"):
@@ -171,7 +171,7 @@ def render_display(renderer, gbuffer, transform: DisplayTransform) -> tuple[np.n
 
 
 def apply_display_transform(rgb, transform: DisplayTransform, *, device: str | None = None,
-                            lanes: int | None = None) -> np.ndarray:
+                            lanes: int | None = None, runtime=None) -> np.ndarray:
     """Run ``kernels/tonemap_apply.cl`` on an (H, W, 3) scene-linear image.
 
     Returns
@@ -184,7 +184,7 @@ def apply_display_transform(rgb, transform: DisplayTransform, *, device: str | N
     from .render import LOCAL_SIZE
     from .runtime import get_runtime
 
-    rt = get_runtime(device)
+    rt = runtime if runtime is not None else get_runtime(device)   # a renderer's own device
     lanes = lanes or rt.lanes
     rgb = np.asarray(rgb, np.float32)
     if rgb.ndim != 3 or rgb.shape[2] != 3:

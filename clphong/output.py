@@ -36,6 +36,15 @@ __all__ = ["atomic_path", "check_output_path", "write_exr", "set_attribute", "PI
 PIXEL_TYPES = ("float", "half")
 
 
+def same_file(a, b) -> bool:
+    """Whether two paths name the same file (through links too); by absolute path
+    when either does not exist yet."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.abspath(a) == os.path.abspath(b)
+
+
 def _one_line(text: str) -> str:
     """Collapse a (possibly multi-line) library message onto one line."""
     parts = [p.strip() for p in str(text).splitlines() if p.strip()]

@@ -249,10 +249,9 @@ def require_memory(need: int, what: str, error: type[ClphongError], hint: str) -
 
 
 def _gbuf_planes() -> int:
-    # clphong.render is also the name of a function in the package namespace,
-    # so take the module from importlib.
-    import importlib
-    return int(getattr(importlib.import_module("clphong.render"), "GBUF_PLANES", 9))
+    from .render import GBUF_PLANES
+
+    return GBUF_PLANES
 
 
 def map_planes(gbuffer) -> int:
