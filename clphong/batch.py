@@ -59,6 +59,7 @@ from dataclasses import dataclass, field
 
 from .deliver import OutputPaths, check_extensions
 from .errors import ClphongError
+from .output import remove_live_temporaries
 
 __all__ = ["BatchError", "Rig", "Job", "Outcome", "BatchPlan", "BatchResult", "Interrupted",
            "parse_frame_range", "expand_sequence", "format_output", "plan_batch", "run_batch",
@@ -599,6 +600,7 @@ def _worker_main(tasks, results, specs, threads: int | None) -> None:  # pragma:
             results.put(("start", os.getpid(), index))
             results.put(("done", os.getpid(), index, relight_job(job, specs)))
     except KeyboardInterrupt:
+        remove_live_temporaries()     # a write the interrupt caught before its own cleanup could
         return
     finally:
         # Nothing is being written any more: a late SIGTERM may simply end the process.
@@ -740,6 +742,8 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
     except KeyboardInterrupt:
         interrupted = signal.SIGINT
     finally:
+        if interrupted is not None:
+            remove_live_temporaries()   # a write (inline mode) the interrupt caught before its own cleanup could
         if bar is not None:
             bar.close()
     return BatchResult(outcomes, skipped=len(plan.skipped), seconds=time.perf_counter() - t0,

@@ -13,6 +13,8 @@ check_output_path
     Check an output name and its folder before any work is done.
 atomic_path
     Context manager yielding a temporary name that is renamed into place.
+remove_live_temporaries
+    After an interrupt, remove the temporary files of this thread's writes in flight.
 write_exr
     Write an (H, W, C) array to an OpenEXR file with explicit channel names,
     pixel type, compression and header attributes.
@@ -23,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
+import threading
 from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
@@ -30,7 +33,7 @@ import OpenImageIO as oiio
 
 from .errors import OutputError
 
-__all__ = ["atomic_path", "check_output_path", "write_exr", "set_attribute", "PIXEL_TYPES"]
+__all__ = ["atomic_path", "remove_live_temporaries", "check_output_path", "write_exr", "set_attribute", "PIXEL_TYPES"]
 
 #: Pixel types accepted by :func:`write_exr` and ``write_gbuffer``.
 PIXEL_TYPES = ("float", "half")
@@ -54,6 +57,34 @@ def _one_line(text: str) -> str:
 def _remove_quietly(name: str) -> None:
     with contextlib.suppress(OSError):
         os.remove(name)
+
+
+#: Temporary names :func:`atomic_path` has reserved and not yet renamed or
+#: removed, each with the thread that owns it. A name is registered *before*
+#: the file is created and dropped only *after* the rename, so an interrupt that
+#: lands between two bytecodes of ``atomic_path`` (where its own ``except``
+#: cannot see the file yet) still leaves the name here for
+#: :func:`remove_live_temporaries`.
+_LIVE: dict[str, int] = {}
+
+
+def remove_live_temporaries() -> int:
+    """Remove the temporary files of this thread's writes in flight; return how many existed.
+
+    Call it where an interrupt (``KeyboardInterrupt``, SIGTERM turned into an
+    exception) is caught. Other threads' writes are left alone: they may still
+    finish. A name whose file is already gone (renamed into place, or never
+    created) is simply forgotten.
+    """
+    me = threading.get_ident()
+    removed = 0
+    for name, owner in list(_LIVE.items()):
+        if owner == me:
+            with contextlib.suppress(OSError):
+                os.remove(name)
+                removed += 1
+            _LIVE.pop(name, None)
+    return removed
 
 
 def check_output_path(path: str | os.PathLike, *, exr: bool = False) -> None:
@@ -126,7 +157,11 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     -----
     On any exception raised inside the ``with`` block (including
     ``KeyboardInterrupt``) the temporary file is deleted and the exception
-    re-raised; ``path`` is left untouched.
+    re-raised; ``path`` is left untouched. An interrupt can also land in the
+    few bytecodes between creating the temporary file and entering the
+    ``with`` block, where no ``except`` sees it; the name is registered before
+    the file is created, so the code that catches the interrupt removes it
+    with :func:`remove_live_temporaries`.
 
     Examples
     --------
@@ -137,14 +172,18 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     check_output_path(path)
     folder = os.path.dirname(os.path.abspath(path))
     stem, ext = os.path.splitext(os.path.basename(path))
+    me = threading.get_ident()
     tmp = None
     for _ in range(100):
         candidate = os.path.join(folder, f".{stem}.tmp-{secrets.token_hex(4)}{ext}")
+        _LIVE[candidate] = me                 # before the file exists: see _LIVE
         try:
             fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         except FileExistsError:
+            _LIVE.pop(candidate, None)        # someone else's file: never ours to remove
             continue
         except OSError as exc:
+            _LIVE.pop(candidate, None)
             raise OutputError(f"{path}: cannot write in folder {folder}: {exc.strerror or exc}") from exc
         os.close(fd)
         tmp = candidate
@@ -152,15 +191,18 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     if tmp is None:  # pragma: no cover - 100 collisions of 32 random bits
         raise OutputError(f"{path}: could not create a temporary file in {folder}")
     try:
-        yield tmp
-    except BaseException:
-        _remove_quietly(tmp)
-        raise
-    try:
-        os.replace(tmp, path)
-    except OSError as exc:
-        _remove_quietly(tmp)
-        raise OutputError(f"{path}: cannot replace the file: {exc.strerror or exc}") from exc
+        try:
+            yield tmp
+        except BaseException:
+            _remove_quietly(tmp)
+            raise
+        try:
+            os.replace(tmp, path)
+        except OSError as exc:
+            _remove_quietly(tmp)
+            raise OutputError(f"{path}: cannot replace the file: {exc.strerror or exc}") from exc
+    finally:
+        _LIVE.pop(tmp, None)
 
 
 def set_attribute(spec: oiio.ImageSpec, name: str, value: object) -> None:

@@ -246,6 +246,52 @@ def test_atomic_path_exception_removes_temp(tmp_path, exc_type):
     assert _listing(tmp_path) == ["result.exr"]
 
 
+def test_interrupt_between_create_and_with_block_is_cleaned_up(tmp_path, monkeypatch):
+    """An interrupt that lands after the temporary file exists but before the
+    ``with`` body runs (where atomic_path's own except cannot see it) -- the
+    window a batch SIGTERM hit in CI -- leaves a name remove_live_temporaries()
+    knows; another thread's write in flight is left alone."""
+    import threading
+
+    real_close = os.close
+    calls = []
+
+    def close_then_interrupt(fd):
+        real_close(fd)
+        calls.append(fd)
+        raise KeyboardInterrupt          # as a signal handler would, right after the create
+
+    other_ready, other_go = threading.Event(), threading.Event()
+    other = {}
+
+    def other_writer():
+        with atomic_path(tmp_path / "other.exr") as tmp:
+            other["tmp"] = tmp
+            other_ready.set()
+            other_go.wait(10)
+            with open(tmp, "w") as fh:
+                fh.write("other")
+
+    t = threading.Thread(target=other_writer)
+    t.start()
+    assert other_ready.wait(10)
+    monkeypatch.setattr(output.os, "close", close_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_path(tmp_path / "result.exr"):
+            pass  # pragma: no cover - never entered
+    monkeypatch.setattr(output.os, "close", real_close)
+    assert calls
+    mine = [n for n in _listing(tmp_path) if n.startswith(".result.tmp-")]
+    assert len(mine) == 1                # the window is real: the file exists, nothing removed it
+    assert output.remove_live_temporaries() == 1
+    assert output.remove_live_temporaries() == 0
+    assert os.path.exists(other["tmp"])  # another thread's write is not this interrupt's business
+    other_go.set()
+    t.join(10)
+    assert _listing(tmp_path) == ["other.exr"]
+    assert not output._LIVE
+
+
 def test_atomic_path_temp_deleted_by_body(tmp_path):
     with pytest.raises(OutputError, match="cannot replace"):
         with atomic_path(tmp_path / "gone.exr") as tmp:
