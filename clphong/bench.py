@@ -45,7 +45,9 @@ What is measured
   timed on a crop in the same run; ``numpy_ratio`` = kernel PLE/s / numpy PLE/s.
 * FP32 peak: ``kernels/peak.cl`` (independent multiply-add chains) measures the
   device's peak GFLOP/s in the same run; ``peak_fraction`` =
-  PLE/s × ``FLOPS_PER_PLE`` / peak.
+  PLE/s × ``flops_per_ple`` / peak, with the run's own flop count
+  (:func:`flops_per_ple`: 104 with exp/log1p, 83 with the integer power at
+  k = 128; the integer power's multiplies are in double).
 
 The report is JSON (``--json``) and a Pareto plot PNG (``--plot``, matplotlib)
 of throughput against error. A benchmark, not a test: the tests only check that
@@ -72,12 +74,30 @@ import numpy as np
 #: k·log 1, gates 2; attenuation 4 + division 1; D·w + S·w and ×L: 3·4;
 #: compensated sums 3·4. Total 104; comparisons and selects not counted.
 FLOPS_PER_PLE = 104
+#: The exp/log1p share of FLOPS_PER_PLE (log1p 15, exp 15, k·log 1). A plan
+#: with SPEC_INT_POW does 1 − δ and the binary powering's multiplies instead
+#: (:func:`flops_per_ple`).
+FLOPS_EXP_FORM = 31
+
+
+def flops_per_ple(plan, k: float) -> int:
+    """Flops per pixel-light evaluation of ``plan`` for the exponent ``k``.
+
+    ``FLOPS_PER_PLE`` with exp(k·log1p(−δ)); with SPEC_INT_POW, one
+    subtraction plus one squaring per bit of k and one product per set bit
+    (double multiplies, each counted as one flop, as the float ones are).
+    """
+    if not plan.defines.get("SPEC_INT_POW"):
+        return FLOPS_PER_PLE
+    K = int(k)
+    return FLOPS_PER_PLE - FLOPS_EXP_FORM + 1 + K.bit_length() + bin(K).count("1")
 
 DEFAULT_SIZES = ((1920, 1080),)
 DEFAULT_LIGHTS = (1, 16, 256, 4096, 65536)
 #: The paths: name -> Renderer options.
 PATHS = {
     "accurate": {},                                         # the default: double directions where fp64 exists
+    "accurate-exp": {"int_pow": False},                     # the same, exp(k·log1p(−δ)) for a whole k too
     "float": {"fp64_directions": False},                    # float32 directions
     "float-naive-sum": {"fp64_directions": False, "compensated": False},
     "obvious": {"kernel": "obvious"},                       # one pixel per work-item, pow()
@@ -387,6 +407,8 @@ def run_bench(cfg: BenchConfig) -> dict:
                 err = oracle_cache[key].errors(rgb)
                 pixels = W * rows
                 rate = pixels * n / med
+                m = scene.material
+                flops = flops_per_ple(r.last_plan, 4.0 * m.h if m.model == "blinn-phong" else m.h)
                 entry = {
                     "scene": kind, "size": [W, H], "lights": n, "path": path,
                     "max_error": budget, "crop_rows": rows, "extrapolated": rows != H,
@@ -395,7 +417,8 @@ def run_bench(cfg: BenchConfig) -> dict:
                     "ple_per_s": rate, "gple_per_s": rate / 1e9,
                     "numpy_ratio": rate / np_rate if np_rate else None,
                     # culled runs evaluate fewer pairs than W·H·N: no peak fraction
-                    "peak_fraction": rate * FLOPS_PER_PLE / (peak * 1e9) if brute else None,
+                    "flops_per_ple": flops,
+                    "peak_fraction": rate * flops / (peak * 1e9) if brute else None,
                     "kept_fraction": r.last_cull.kept_fraction if r.last_cull else None,
                     "error": err,
                 }

@@ -230,7 +230,7 @@ def _add_bench_parser(sub):
     b.add_argument("--sizes", metavar="WxH[,WxH]", help="frame sizes (default 1920x1080)")
     b.add_argument("--lights", metavar="N[,N]", help="point-light counts of the wide scene")
     b.add_argument("--small-lights", metavar="N[,N]", help="point-light counts of the small-reach scene")
-    b.add_argument("--paths", metavar="P[,P]", help="paths: accurate, float, float-naive-sum, obvious")
+    b.add_argument("--paths", metavar="P[,P]", help="paths: accurate, accurate-exp, float, float-naive-sum, obvious")
     b.add_argument("--budgets", metavar="EPS[,EPS]", help="culling budgets, relative to white 1.0")
     b.add_argument("--repeats", type=int, metavar="R", help="timed frames per case (median)")
     b.add_argument("--warmup", type=int, metavar="W", help="untimed frames first (default 1)")
@@ -403,10 +403,11 @@ def cmd_plan(args) -> int:
     from .cull import check_budget
 
     # As 'render': directions in double where the device has fp64, unless --path float.
-    fp64 = (args.kernel == "lanes" and opts["fp64_directions"] is not False
-            and get_runtime(args.device).has_fp64)
+    has_fp64 = get_runtime(args.device).has_fp64
+    fp64 = args.kernel == "lanes" and opts["fp64_directions"] is not False and has_fp64
     print(make_plan(scene, maps, kernel=args.kernel, lanes=lanes, fp64_directions=fp64,
-                    max_error=check_budget(opts["max_error"], opts["reference_white"])))
+                    max_error=check_budget(opts["max_error"], opts["reference_white"]),
+                    has_fp64=has_fp64))
     return 0
 
 

@@ -65,6 +65,27 @@ def specular_power(delta, k):
     return np.where(delta >= 1.0, np.where(k == 0.0, 1.0, 0.0), s)
 
 
+def specular_power_int(delta, K: int):
+    """max(1 − δ, 0)^K by binary powering, K a whole number ≥ 0 (SPEC_INT_POW); 0⁰ := 1.
+
+    The same function as :func:`specular_power` (to float64 rounding); the
+    kernel's twin computes it this way, in double.
+    """
+    K = int(K)
+    if K < 0:
+        raise ValueError(f"K must be a whole number ≥ 0, not {K}")
+    delta = np.asarray(delta, np.float64)
+    x = np.where(delta >= 1.0, 0.0, 1.0 - delta)
+    s = np.ones_like(x)
+    e = K
+    while e:
+        if e & 1:
+            s = s * x
+        x = x * x
+        e >>= 1
+    return s
+
+
 # ------------------------------------------------------------------------- lights.cl
 
 def attenuation(c0, c1, c2, d):
@@ -221,14 +242,22 @@ def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, u
         e_vec = 3.0 * eps_NoL + eta_v
     delta = np.minimum(delta, 2.0)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        if form == "delta":
-            # |Δδ| for δ = |e|²/2 when |Δe| ≤ e_vec and |e| = √(2δ).
-            d_delta = np.sqrt(2.0 * delta) * e_vec + 0.5 * e_vec ** 2 + (4.0 * ud + r_out) * delta
-            y = np.abs(k * np.log1p(-np.minimum(delta, 1.0 - 1e-300)))
+        if form in ("delta", "int"):
+            # |Δδ| for δ = |e|²/2 when |Δe| ≤ e_vec and |e| = √(2δ); the exp form
+            # rounds δ to float first (r_out), the integer power takes it as it is.
+            r_delta = r_out if form == "delta" else 0.0
+            d_delta = np.sqrt(2.0 * delta) * e_vec + 0.5 * e_vec ** 2 + (4.0 * ud + r_delta) * delta
             s = specular_power(delta, k)
-            # log1p 2 ulp, k·(·) 1, exp 3 ulp (relative in y), k rounded to float32;
-            # then Δδ through d/dδ of k·log1p(−δ) = −k/(1 − δ).
-            rel = 4.0 * U + 4.0 * U * y + k * d_delta / np.maximum(1.0 - delta, 1e-300)
+            if form == "delta":
+                y = np.abs(k * np.log1p(-np.minimum(delta, 1.0 - 1e-300)))
+                # log1p 2 ulp, k·(·) 1, exp 3 ulp (relative in y), k rounded to float32;
+                # then Δδ through d/dδ of k·log1p(−δ) = −k/(1 − δ).
+                rel = 4.0 * U + 4.0 * U * y + k * d_delta / np.maximum(1.0 - delta, 1e-300)
+            else:
+                # x = 1 − δ in double (≤ 2⁻⁵³ absolute), binary powering of a whole k
+                # (≤ 2k·2⁻⁵³ relative), one rounding to float; Δδ through k·x^(k−1).
+                ud53 = 2.0 ** -53
+                rel = U + k * (d_delta + ud53) / np.maximum(1.0 - delta, 1e-300) + 2.0 * k * ud53
         else:
             # pow(x, k) with x = r·v: |Δx| ≤ e_vec + 4u, pow 16 ulp: relative k·|Δx|/x.
             d_delta = e_vec + 4.0 * U
@@ -285,9 +314,11 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
         omitted.
     compensated : bool
         Whether the kernel summed the lights with Neumaier compensation.
-    form : {"delta", "naive"}
+    form : {"delta", "int", "naive"}
         ``"delta"``: the specular power as exp(k·log1p(−δ)) with δ from
-        |r − v|²/2 (shade.cl). ``"naive"``: pow(r·v, k) (shade_obvious.cl).
+        |r − v|²/2 (shade.cl). ``"int"``: (1 − δ)^k by binary powering in
+        double, k whole (SPEC_INT_POW). ``"naive"``: pow(r·v, k)
+        (shade_obvious.cl).
     directions : {"fp32", "fp64"}
         Whether positions, directions, n·l and δ were computed in float or in
         double from hi+lo inputs (``DIRECTIONS_FP64``).
@@ -317,7 +348,7 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     if plan is not None:
         lanes = plan.kernel == "lanes"
         compensated = lanes and bool(plan.defines.get("COMPENSATED_SUM", 0))
-        form = "delta" if lanes else "naive"
+        form = ("int" if plan.defines.get("SPEC_INT_POW", 0) else "delta") if lanes else "naive"
         directions = "fp64" if plan.defines.get("DIRECTIONS_FP64", 0) else "fp32"
     if directions not in ("fp32", "fp64"):
         raise ValueError(f"directions must be 'fp32' or 'fp64', not {directions!r}")

@@ -15,44 +15,44 @@ inline floatL lambert(floatL NoL)
  * cancellation near the highlight peak (r·v → 1), where the naive 1 − r·v loses
  * all its digits, and the normalisation errors of r and v cancel to first order
  * (POCL-NOTES "Conditioning of pow"). */
-inline floatL phong_delta(dirL nx, dirL ny, dirL nz,
-                          dirL lx, dirL ly, dirL lz,
-                          dirL vx, dirL vy, dirL vz, dirL NoL)
+inline dirL phong_delta(dirL nx, dirL ny, dirL nz,
+                        dirL lx, dirL ly, dirL lz,
+                        dirL vx, dirL vy, dirL vz, dirL NoL)
 {
     const dirL two_NoL = NoL + NoL;
     const dirL ex = MUL_ADD(two_NoL, nx, -lx) - vx;   /* r − v */
     const dirL ey = MUL_ADD(two_NoL, ny, -ly) - vy;
     const dirL ez = MUL_ADD(two_NoL, nz, -lz) - vz;
-    return TO_FLOAT(0.5f * MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez)));
+    return 0.5f * MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez));
 }
 
 /* Blinn-Phong: δ = 1 − n·h with h = (l + v)/|l + v|, as |n − h|²/2 (see above).
  * Guard: for l = −v the half vector is undefined; δ = 1 (n·h taken as 0) so the
  * term vanishes for h > 0. */
-inline floatL blinn_delta(dirL nx, dirL ny, dirL nz,
-                          dirL lx, dirL ly, dirL lz,
-                          dirL vx, dirL vy, dirL vz)
+inline dirL blinn_delta(dirL nx, dirL ny, dirL nz,
+                        dirL lx, dirL ly, dirL lz,
+                        dirL vx, dirL vy, dirL vz)
 {
     const dirL hx = lx + vx, hy = ly + vy, hz = lz + vz;
     const dirL hh = MUL_ADD(hx, hx, MUL_ADD(hy, hy, hz * hz));
     const dirL inv = rsqrt(hh);
     const dirL ex = nx - hx * inv, ey = ny - hy * inv, ez = nz - hz * inv;
     const dirL delta = 0.5f * MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez));
-    return TO_FLOAT(SELECT_DIR(delta, (dirL)(1.0f), hh <= (dirL)(0.0f)));
+    return SELECT_DIR(delta, (dirL)(1.0f), hh <= (dirL)(0.0f));
 }
 
 /* Blinn-Phong with a half vector that is constant per light (orthographic camera
  * and a directional light, Blinn 1977): δ = |n − h|²/2 with h from the host.
  * h_lo = h − float(h) from the host (0 unless DIRECTIONS_FP64).
  * Guard: h.w ≠ 0 flags l = −v (undefined half vector): δ = 1, as above. */
-inline floatL blinn_delta_const_h(dirL nx, dirL ny, dirL nz, float4 h, float4 h_lo)
+inline dirL blinn_delta_const_h(dirL nx, dirL ny, dirL nz, float4 h, float4 h_lo)
 {
     if (h.w != 0.0f)
-        return (floatL)(1.0f);
+        return (dirL)(1.0f);
     const dirL ex = nx - ((dirS)h.x + (dirS)h_lo.x);
     const dirL ey = ny - ((dirS)h.y + (dirS)h_lo.y);
     const dirL ez = nz - ((dirS)h.z + (dirS)h_lo.z);
-    return TO_FLOAT(0.5f * MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez)));
+    return 0.5f * MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez));
 }
 
 /* max(cos, 0)^k with cos = 1 − δ, as exp(k·log1p(−δ)).
@@ -67,5 +67,31 @@ inline floatL specular_power(floatL delta, floatL k)
     const floatL at_zero = SELECT((floatL)(0.0f), (floatL)(1.0f), k == 0.0f);
     return SELECT(s, at_zero, delta >= 1.0f);
 }
+
+#if SPEC_INT_POW
+/* max(1 − δ, 0)^K for a whole exponent K ≤ 65536 (the plan's SPEC_INT_POW),
+ * by binary powering of x = 1 − δ in double, then rounded once to float.
+ * δ ≥ 0 is exact in double (from float, or dirL already), and so is 1 − δ to
+ * within 2⁻⁵³; the ≤ 2·log2(K) products add at most ~K·2⁻⁵³ relative. The
+ * result therefore errs by u plus K·|Δδ|/(1 − δ) from δ itself: the exp/log1p
+ * form's bound without its ulps and without its 4u·|k·log1p(−δ)| (the rounding
+ * of y = k·log1p(−δ) before exp), at the cost of ~2·log2(K) double multiplies
+ * instead of two out-of-line builtins (docs/error-model.md).
+ * Guards, as specular_power: δ ≥ 1 gives x = 0, so 0 for K > 0; K = 0 gives
+ * 1 (the loop does not run: 0⁰ := 1, and NaN⁰ = 1 as C's pow has it); for
+ * K > 0 a NaN δ stays NaN. */
+inline floatL specular_power_int(dirL delta, uint K)
+{
+    const powL d = TO_POW(delta);
+    powL x = SELECT_DIR(1.0 - d, (powL)(0.0), d >= 1.0);
+    powL s = (powL)(1.0);
+    for (uint e = K; e != 0u; e >>= 1) {
+        if (e & 1u)
+            s *= x;
+        x *= x;
+    }
+    return POW_TO_FLOAT(s);
+}
+#endif
 
 #endif /* BRDF_CL */

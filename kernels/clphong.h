@@ -20,6 +20,9 @@
  *   CULL_TILE        screen tile edge of the lists, pixels (16)
  *   DIRECTIONS_FP64  positions, directions, n·l and δ in double (the accurate default
  *                    where the device has cl_khr_fp64); 0: all in float
+ *   SPEC_INT_POW     the specular exponent k (h, or 4h for Blinn) is one whole number
+ *                    K ≤ 65536 for every pixel: x^K by binary powering in double
+ *                    (needs cl_khr_fp64) instead of exp(k·log1p(−δ))
  *
  * Names follow the notes (../shared/phong-model-notes.txt): NoL, RoV, NoH, k_a,
  * k_d, k_s, h, c0, c1, c2, C_d, C_s. The float64 mirror of every function here
@@ -75,6 +78,9 @@
 #endif
 #ifndef DIRECTIONS_FP64
 #define DIRECTIONS_FP64 0
+#endif
+#ifndef SPEC_INT_POW
+#define SPEC_INT_POW 0
 #endif
 
 /* floatL: one value per pixel of the work-item's LANES pixels. PoCL vectorises
@@ -136,6 +142,35 @@ typedef float dirS;
 typedef floatL dirL;
 #define TO_FLOAT(x) (x)
 #define TO_DIR(x) (x)
+#endif
+
+/* powL: the type of x = 1 − δ and its powers with SPEC_INT_POW (double; dirL
+ * itself when the directions are in double already); POW_TO_FLOAT rounds. */
+#if SPEC_INT_POW
+#if DIRECTIONS_FP64
+typedef dirL powL;
+#define TO_POW(x) (x)
+#define POW_TO_FLOAT(x) TO_FLOAT(x)
+#else
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#if LANES == 16
+typedef double16 powL;
+#define TO_POW(x) convert_double16(x)
+#define POW_TO_FLOAT(x) convert_float16(x)
+#elif LANES == 8
+typedef double8 powL;
+#define TO_POW(x) convert_double8(x)
+#define POW_TO_FLOAT(x) convert_float8(x)
+#elif LANES == 4
+typedef double4 powL;
+#define TO_POW(x) convert_double4(x)
+#define POW_TO_FLOAT(x) convert_float4(x)
+#else
+typedef double powL;
+#define TO_POW(x) ((double)(x))
+#define POW_TO_FLOAT(x) ((float)(x))
+#endif
+#endif
 #endif
 
 /* SELECT(a, b, c): c ? b : a per lane, as select(a, b, c) for vector masks from

@@ -26,10 +26,19 @@ typedef struct {
     dirL px, py, pz;        /* position, minus the frame origin */
     dirL nx, ny, nz;        /* unit normal */
     dirL vx, vy, vz;        /* unit direction to the viewer */
-#if HAS_SPECULAR
+#if HAS_SPECULAR && SPEC_INT_POW
+    uint K;                 /* the whole specular exponent, the same for every pixel */
+#elif HAS_SPECULAR
     floatL k;               /* specular exponent: h (Phong) or 4h (Blinn) */
 #endif
 } pixel_t;
+
+/* The specular power of δ at pixel p in the plan's form (brdf.cl). */
+#if SPEC_INT_POW
+#define SPECULAR_POWER(delta, p) specular_power_int((delta), (p)->K)
+#else
+#define SPECULAR_POWER(delta, p) specular_power(TO_FLOAT(delta), (p)->k)
+#endif
 
 /* Diffuse and specular weights of one light at a pixel: the factors of
  * C_d·k_d and C_s·k_s, before the light's radiance and falloff. */
@@ -48,11 +57,11 @@ inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, di
     w.diffuse = lambert(NoL);
 #if HAS_SPECULAR
 #if MODEL_BLINN
-    const floatL delta = blinn_delta(p->nx, p->ny, p->nz, lx, ly, lz, p->vx, p->vy, p->vz);
+    const dirL delta = blinn_delta(p->nx, p->ny, p->nz, lx, ly, lz, p->vx, p->vy, p->vz);
 #else
-    const floatL delta = phong_delta(p->nx, p->ny, p->nz, lx, ly, lz, p->vx, p->vy, p->vz, NoL_dir);
+    const dirL delta = phong_delta(p->nx, p->ny, p->nz, lx, ly, lz, p->vx, p->vy, p->vz, NoL_dir);
 #endif
-    w.specular = SELECT((floatL)(0.0f), specular_power(delta, p->k), NoL > 0.0f);
+    w.specular = SELECT((floatL)(0.0f), SPECULAR_POWER(delta, p), NoL > 0.0f);
 #else
     w.specular = (floatL)(0.0f);
 #endif
@@ -107,8 +116,8 @@ inline weights_t shade_directional_light(const pixel_t *p, float4 l, float4 l_lo
     weights_t w;
     const floatL NoLf = TO_FLOAT(NoL);
     w.diffuse = lambert(NoLf);
-    const floatL delta = blinn_delta_const_h(p->nx, p->ny, p->nz, h, h_lo);
-    w.specular = SELECT((floatL)(0.0f), specular_power(delta, p->k), NoLf > 0.0f);
+    const dirL delta = blinn_delta_const_h(p->nx, p->ny, p->nz, h, h_lo);
+    w.specular = SELECT((floatL)(0.0f), SPECULAR_POWER(delta, p), NoLf > 0.0f);
     return w;
 #else
     return shade_direction(p, (dirL)(lx), (dirL)(ly), (dirL)(lz), NoL);

@@ -116,7 +116,9 @@ __kernel void shade(__global const float *restrict gbuf,
     const floatL Sr = ks * S_uniform.x, Sg = ks * S_uniform.y, Sb = ks * S_uniform.z;
 #endif
 #if HAS_SPECULAR
-#if MAP_H
+#if SPEC_INT_POW
+    p.K = (uint)k_uniform;                       /* a whole number (plan.py) */
+#elif MAP_H
     p.k = MODEL_BLINN ? 4.0f * k_map : k_map;   /* the map holds h; Blinn uses 4h */
 #else
     p.k = (floatL)(k_uniform);

@@ -50,7 +50,7 @@ def random_lights(rng, n_point=3, n_dir=1, n_amb=1):
 
 
 def check_against_reference(scene, gbuffer, *, kernel="lanes", lanes=None, compensated=None,
-                            fp64_directions=None):
+                            fp64_directions=None, int_pow=None):
     """Render, compare with the float64 reference, assert |err| ≤ the error bound.
 
     Returns (rgb, ref, bound, band) for further checks.
@@ -59,7 +59,7 @@ def check_against_reference(scene, gbuffer, *, kernel="lanes", lanes=None, compe
     from clphong.render import Renderer, prepare_frame
 
     r = Renderer(scene, kernel=kernel, lanes=lanes, compensated=compensated,
-                 fp64_directions=fp64_directions)
+                 fp64_directions=fp64_directions, int_pow=int_pow)
     frame = prepare_frame(gbuffer, lanes=r.lanes)
     rgb = r.render(gbuffer, frame=frame)
     plan = r.last_plan                  # the variant that ran

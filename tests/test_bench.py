@@ -22,7 +22,7 @@ from clphong import bench, reference
 @pytest.fixture(scope="module")
 def tiny_report(tmp_path_factory):
     cfg = bench.BenchConfig(sizes=((64, 40),), lights=(1, 16), small_lights=(64,),
-                            paths=("accurate", "float", "obvious"), budgets=(0.0, 1e-3),
+                            paths=("accurate", "accurate-exp", "float", "obvious"), budgets=(0.0, 1e-3),
                             repeats=2, warmup=1, crop_pairs=1e9, error_pairs=1e6, numpy_pairs=1e9)
     report = bench.run_bench(cfg)
     out = tmp_path_factory.mktemp("bench")
@@ -43,6 +43,11 @@ def test_report_is_well_formed_json_with_every_case(tiny_report):
         for eps in (0.0, 1e-3):
             assert ("wide", n, "accurate", eps) in cases
     assert ("small", 64, "accurate", 1e-3) in cases
+    # Flops per evaluation follow the specular form that ran: the bench material is
+    # Blinn h = 32, k = 128 = 2⁷: exp/log1p's 31 flops become 1 − δ, 8 squarings, 1 product.
+    flops = {r["path"]: r["flops_per_ple"] for r in loaded["runs"] if r["max_error"] is None}
+    assert flops["accurate-exp"] == bench.FLOPS_PER_PLE == 104
+    assert flops["accurate"] == flops["float"] == 104 - 31 + 1 + 8 + 1
     assert {x["lights"] for x in loaded["numpy"]} == {1, 16}
 
 

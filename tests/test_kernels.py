@@ -101,6 +101,96 @@ def test_delta_form_beats_naive_pow_on_sharp_highlights():
     assert e_lanes * 10 < e_naive
 
 
+def _highlight(h, model):
+    """A directional light and an orthographic viewer, normals spread around the
+    highlight peak: the specular term alone, from 1 down to far below 1e-6."""
+    scene = make_scene([dict(type="directional", direction=(0.2, 0.1, -1), color=(1, 1, 1), intensity=1.0)],
+                       k_a=0.0, k_d=0.0, k_s=1.0, h=h, model=model,
+                       camera=dict(type="orthographic", direction=(-0.2, -0.1, -1)))
+    spread = 0.5 / np.sqrt(h if model == "phong" else 4 * h)     # a few widths of the lobe
+    ys, xs = np.mgrid[-1:1:48j, -1:1:48j] * spread
+    N = np.stack([xs, ys, np.ones_like(xs)], axis=-1)
+    return scene, make_gbuffer(np.zeros_like(N), N, np.ones_like(N))
+
+
+@pytest.mark.parametrize("fp64", [True, False], ids=["fp64-directions", "fp32-directions"])
+@pytest.mark.parametrize("int_pow", [None, False], ids=["int-pow", "exp-log1p"])
+@pytest.mark.parametrize("model, h", [("phong", 1.0), ("phong", 37.0), ("blinn-phong", 32.0),
+                                      ("phong", 2000.0), ("blinn-phong", 1.0e4)])
+def test_both_specular_power_forms_hold_their_bound(model, h, int_pow, fp64):
+    """A whole exponent k (h, or 4h for Blinn) is raised by binary powering in double
+    (SPEC_INT_POW) unless turned off; both forms hold the error model's bound, and on
+    the default fp64 path both meet issue 5's 5e-6 relative up to k = 4·10⁴."""
+    scene, gb = _highlight(h, model)
+    r = Renderer(scene, fp64_directions=fp64, int_pow=int_pow)
+    assert r.plan_for(()).defines["SPEC_INT_POW"] == (int_pow is None)
+    rgb, ref, bound, band = check_against_reference(scene, gb, fp64_directions=fp64, int_pow=int_pow)
+    big = ref > 1e-6 * ref.max()
+    rel = np.max(np.abs(rgb - ref)[big] / ref[big])
+    if fp64:
+        assert rel <= 5e-6, rel
+
+
+def test_integer_power_bound_is_tighter_than_the_exp_form():
+    """Same inputs, same δ: the integer form's bound drops exp/log1p's ulps and the
+    4u·|k·log1p(−δ)| rounding, so it is never looser (docs/error-model.md)."""
+    from clphong.render import prepare_frame
+
+    scene, gb = _highlight(500.0, "blinn-phong")
+    bounds = {}
+    for int_pow in (None, False):
+        r = Renderer(scene, int_pow=int_pow)
+        frame = prepare_frame(gb, lanes=r.lanes)
+        r.render(gb, frame=frame)
+        bounds[int_pow], _ = reference.error_bound(scene, gb, origin=frame.origin, plan=r.last_plan)
+    ref = reference.shade(scene, gb)
+    lit = ref > 1e-6 * ref.max()                 # where the specular value itself is not negligible
+    assert np.all(bounds[None] <= bounds[False])
+    assert np.all(bounds[None][lit] < bounds[False][lit])
+
+
+@pytest.mark.parametrize("K", [0, 1, 2, 3, 7, 32, 128, 1000, 40000, 65536])
+def test_reference_integer_power_is_the_same_function(K):
+    """reference.specular_power_int (the kernel's twin) against exp(k·log1p(−δ)) in
+    float64: both are max(1 − δ, 0)^K; binary powering errs by ≤ 2K·2⁻⁵³ and the exp
+    form by ~(2 + |y|)·2⁻⁵³ relative, y = K·log1p(−δ); 0⁰ := 1 and δ ≥ 1 give 0 in both."""
+    delta = np.concatenate([[0.0, 1e-300, 1e-12, 1e-6, 0.5, 1.0 - 1e-12, 1.0, 1.5, 2.0],
+                            np.geomspace(1e-9, 0.9, 200)])
+    a = reference.specular_power_int(delta, K)
+    b = reference.specular_power(delta, float(K))
+    tiny = b < 1e-290                            # deep underflow: both 0 or denormal
+    y = np.abs(K * np.log1p(-np.where(delta < 1.0, delta, 0.0)))     # exp's argument
+    tol = (2 * K + 8 + 4 * y) * 2.0 ** -53
+    assert np.all(np.abs(a - b)[~tiny] <= tol[~tiny] * b[~tiny])
+    assert np.all(a[delta >= 1.0] == (1.0 if K == 0 else 0.0))
+    # NaN δ (NaN inputs under the "pass" policy): NaN for K > 0; 1 for K = 0, as C's pow(NaN, 0).
+    nan = reference.specular_power_int(np.array([np.nan]), K)[0]
+    assert (nan == 1.0) if K == 0 else np.isnan(nan)
+
+
+def test_plan_uses_the_integer_power_only_where_it_applies():
+    from clphong.plan import INT_POW_MAX, make_plan
+
+    def flag(h, model="phong", maps=(), **kw):
+        scene = make_scene([dict(type="point", position=(0, 0, 3))], h=h, model=model)
+        kw.setdefault("fp64_directions", True)
+        return make_plan(scene, maps, lanes=8, **kw).defines["SPEC_INT_POW"]
+
+    assert flag(32.0) == 1 and flag(0.0) == 1
+    assert flag(0.25, "blinn-phong") == 1                # k = 4h = 1
+    assert flag(0.3, "blinn-phong") == 0 and flag(37.5) == 0
+    assert flag(INT_POW_MAX) == 1 and flag(INT_POW_MAX + 1.0) == 0
+    assert flag(32.0, maps=("h",)) == 0                  # a shininess map: per-pixel k
+    assert flag(32.0, fp64_directions=False, has_fp64=True) == 1   # float directions, double powers
+    assert flag(32.0, fp64_directions=False, has_fp64=False) == 0  # no cl_khr_fp64
+    assert flag(32.0, int_pow=False) == 0
+    scene = make_scene([dict(type="point", position=(0, 0, 3))], k_s=0.0)
+    assert make_plan(scene, (), lanes=8, fp64_directions=True).defines["SPEC_INT_POW"] == 0
+    text = str(make_plan(make_scene([dict(type="point", position=(0, 0, 3))], h=37.5), (), lanes=8,
+                         fp64_directions=True))
+    assert "k = h = 37.5 is not a whole number" in text
+
+
 # ------------------------------------------------------------------------------ closed forms
 
 def _ortho_plane(normals, albedo=(0.8, 0.5, 0.25)):
