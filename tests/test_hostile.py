@@ -693,14 +693,15 @@ def test_frame_over_the_devices_largest_buffer_is_shaded_in_bands(monkeypatch):
     from clphong import tiling
     from clphong.tiling import _gbuf_planes
 
-    gb = random_gbuffer(np.random.default_rng(14), 50, 30)
     r = clphong.Renderer(_scene_of(SCENE))
+    block = r.lanes * 64
+    rows = 3 * 2 * block // 30                     # three bands of two blocks, whatever the lanes
+    gb = random_gbuffer(np.random.default_rng(14), rows, 30)
     whole = r.render(gb)
     assert r.last_bands == 1
-    block = r.lanes * 64
     monkeypatch.setattr(tiling, "_device_limits", lambda renderer: (4 * _gbuf_planes() * 2 * block, None))
     banded = r.render(gb)
-    assert r.last_bands == -(-50 * 30 // (2 * block // 30 * 30)) and r.last_bands > 1
+    assert r.last_bands == -(-rows * 30 // (2 * block // 30 * 30)) and r.last_bands > 1
     assert np.array_equal(banded, whole)
 
 

@@ -51,7 +51,7 @@ def test_random_gbuffers_match_reference(seed, fp64):
 
 
 @pytest.mark.parametrize("fp64", [True, False], ids=["fp64-directions", "fp32-directions"])
-@pytest.mark.parametrize("lanes", [1, 4, 8])
+@pytest.mark.parametrize("lanes", [1, 4, 8, 16])
 def test_every_lane_width_matches_reference(lanes, fp64):
     rng = np.random.default_rng(11)
     scene = make_scene(random_lights(rng, 5, 1), model="blinn-phong", h=100.0)
