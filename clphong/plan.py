@@ -143,8 +143,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         f"{n_point + n_dir} lights summed: "
         + ("Neumaier summation keeps the sum's error at ~2u" if compensated
            else f"≤ {COMPENSATE_ABOVE} terms, naive sum within {max(n_point + n_dir - 1, 0)}u"))
-    falloff = any(lt.attenuation[1] != 0 or lt.attenuation[2] != 0
-                  for lt in scene.lights_of("point"))
+    falloff = bool((scene.light_arrays["point_attenuation"][:, 1:] != 0).any())
     put("HAS_ATTENUATION", falloff,
         "some point light has c1 or c2 ≠ 0: 1/(c0 + c1·d + c2·d²) per pixel" if falloff
         else ("every point light has c1 = c2 = 0: the falloff is the constant 1/c0"

@@ -157,13 +157,14 @@ def half_vector(l: np.ndarray, v: np.ndarray):
 def pack_lights(scene, origin: np.ndarray) -> LightArrays:
     """Rebase the lights on ``origin`` in float64, then round to float32 records."""
     o = np.asarray(origin, np.float64)
-    pts = scene.lights_of("point")
-    point = np.zeros((max(len(pts), 1) * 3, 4), np.float32)
-    if pts:
-        pos = np.array([lt.position for lt in pts], np.float64) - o
-        rad = np.array([lt.radiance for lt in pts], np.float64)
-        att = np.array([lt.attenuation for lt in pts], np.float64)
-        rec = np.zeros((len(pts), 3, 4))
+    arrays = scene.light_arrays
+    n_pts = len(arrays["point_position"])
+    point = np.zeros((max(n_pts, 1) * 3, 4), np.float32)
+    if n_pts:
+        pos = arrays["point_position"] - o
+        rad = arrays["point_radiance"]
+        att = arrays["point_attenuation"]
+        rec = np.zeros((n_pts, 3, 4))
         rec[:, 0, :3] = pos
         rec[:, 0, 3] = att[:, 0]
         rec[:, 1, :3] = rad
@@ -171,25 +172,22 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
         rec[:, 2, 0] = att[:, 2]
         rec[:, 2, 1:4] = split_hi_lo(pos)[1]
         point = rec.reshape(-1, 4).astype(np.float32)
-    dirs = scene.lights_of("directional")
-    directional = np.zeros((max(len(dirs), 1) * 5, 4), np.float32)
+    n_dirs = len(arrays["directional_direction"])
+    directional = np.zeros((max(n_dirs, 1) * 5, 4), np.float32)
     v = view_vector(scene.camera)
-    if dirs:
-        rec = np.zeros((len(dirs), 5, 4))
-        l = -np.array([lt.direction for lt in dirs], np.float64)
+    if n_dirs:
+        rec = np.zeros((n_dirs, 5, 4))
+        l = -arrays["directional_direction"]
         rec[:, 0, :3] = l
         rec[:, 3, :3] = split_hi_lo(l)[1]
-        rec[:, 1, :3] = np.array([lt.radiance for lt in dirs], np.float64)
+        rec[:, 1, :3] = arrays["directional_radiance"]
         if v is not None:
             hv, undefined = half_vector(l, v)
             rec[:, 2, :3] = hv
             rec[:, 4, :3] = split_hi_lo(hv)[1]
             rec[:, 2, 3] = np.where(undefined, 1.0, 0.0)
         directional = rec.reshape(-1, 4).astype(np.float32)
-    amb = np.zeros(3)
-    for lt in scene.lights_of("ambient"):
-        amb += np.asarray(lt.radiance, np.float64)
-    amb *= scene.material.k_a
+    amb = arrays["ambient_radiance"] * scene.material.k_a
     if v is not None:
         eye = v
     else:
