@@ -23,12 +23,16 @@ What is measured
   frames; the report gives the median, and every time. Time is device time from
   OpenCL profiling events: the shading kernel, plus the culling kernels when
   culling is on (both reported).
-* PLE/s counts pixel-light evaluations: ``W·H·N / time`` (brute-force
-  equivalent for culled runs, so speed-ups read directly).
+* PLE/s counts pixel-light evaluations of shaded pixels: ``S·N / time``, S
+  the pixels that are not background (``shaded_pixels``; the kernel skips the
+  lights for work-items of background pixels only, and the numpy baseline
+  shades only S too). Brute-force equivalent for culled runs, so speed-ups
+  read directly.
 * Brute force at large N would take minutes a frame; it runs on a crop of the
   frame's top rows (``crop_rows`` in the report, at least 16 rows and about
   ``crop_pairs`` pixel-light pairs). Throughput does not depend on the frame
-  height; ``ms_per_frame`` is then scaled to the full frame (``extrapolated``).
+  height; ``ms_per_frame`` is then scaled to the full frame by its shaded
+  pixels (``extrapolated``: the top rows hold more background than the frame).
   Culled runs that evaluate nearly every pair (the wide scene, where nothing
   can be dropped, and ε = 0) use the same crop, but at least 16 rows (one row
   of tiles); the small-reach scene's culled runs at ε > 0 always shade the
@@ -163,16 +167,17 @@ def numpy_shade(scene, gbuffer) -> np.ndarray:
     """The same shading in plain numpy float32 (SoA planes, a loop over lights).
 
     Blinn-Phong with ``np.power(n·h, k)``, point lights with attenuation,
-    directional lights, ambient; background pixels take the background value.
+    directional lights, ambient, on the shaded pixels only; background pixels
+    take the background value.
     """
     f = np.float32
     H, W = gbuffer.shape
     bg = gbuffer.background_mask().reshape(-1)
-    P = gbuffer.position.reshape(-1, 3).T.astype(f)
-    Nv = gbuffer.normal.reshape(-1, 3).T.astype(f)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        Nv = Nv / np.sqrt((Nv * Nv).sum(axis=0))
-    Cd = gbuffer.albedo.reshape(-1, 3).T.astype(f)
+    fg = ~bg                                   # shade only the shaded pixels, as the kernel does
+    P = gbuffer.position.reshape(-1, 3)[fg].T.astype(f)
+    Nv = gbuffer.normal.reshape(-1, 3)[fg].T.astype(f)
+    Nv = Nv / np.sqrt((Nv * Nv).sum(axis=0))
+    Cd = gbuffer.albedo.reshape(-1, 3)[fg].T.astype(f)
     m = scene.material
     D = Cd * f(m.k_d)
     S = (np.asarray(m.specular_color, f) * f(m.k_s))[:, None]
@@ -199,11 +204,18 @@ def numpy_shade(scene, gbuffer) -> np.ndarray:
         att = f(1) / (c0 + dist * (c1 + dist * c2))
         E += np.asarray(lt.radiance, f)[:, None] * (D * (np.maximum(NoL, f(0)) * att)
                                                     + S * (spec * att))
-    E[:, bg] = np.asarray(scene.background, f)[:, None]
-    return E.T.reshape(H, W, 3)
+    out = np.empty((H * W, 3), f)
+    out[bg] = np.asarray(scene.background, f)
+    out[fg] = E.T
+    return out.reshape(H, W, 3)
 
 
 # ------------------------------------------------------------------------------- errors
+
+def shaded_pixels(gbuffer) -> int:
+    """How many pixels of ``gbuffer`` are shaded (not background)."""
+    return int(np.count_nonzero(~gbuffer.background_mask()))
+
 
 def sample_pixels(gbuffer, n: int, seed: int = SEED) -> np.ndarray:
     """Flat indices of ``n`` shaded pixels, seeded (all of them if fewer)."""
@@ -373,7 +385,7 @@ def run_bench(cfg: BenchConfig) -> dict:
                 rows = _crop_rows(W, H, n, cfg.numpy_pairs)
                 crop = bench_gbuffer(W, H, rows)
                 t = time_numpy(scene, crop, min(cfg.repeats, 3))
-                np_rate = W * rows * n / t
+                np_rate = shaded_pixels(crop) * n / t
                 report["numpy"].append({"scene": kind, "lights": n, "crop_rows": rows,
                                         "seconds": t, "ple_per_s": np_rate})
                 log(f"numpy float32  {kind:5s} N={n:<6d} {np_rate / 1e6:8.2f} MPLE/s ({W}x{rows})")
@@ -405,15 +417,19 @@ def run_bench(cfg: BenchConfig) -> dict:
                     m = max(500, int(cfg.error_pairs // max(n, 1)))
                     oracle_cache[key] = make_oracle(scene, gb, frame, m)
                 err = oracle_cache[key].errors(rgb)
-                pixels = W * rows
-                rate = pixels * n / med
+                # shaded pixel-light evaluations: background pixels cost no light
+                # (kernel, culling and numpy alike), so they are not counted
+                shaded, shaded_full = shaded_pixels(gb), shaded_pixels(full)
+                rate = shaded * n / med
                 m = scene.material
                 flops = flops_per_ple(r.last_plan, 4.0 * m.h if m.model == "blinn-phong" else m.h)
                 entry = {
                     "scene": kind, "size": [W, H], "lights": n, "path": path,
                     "max_error": budget, "crop_rows": rows, "extrapolated": rows != H,
-                    "ms_per_frame": med * 1e3 * H / rows, "times_ms": [t * 1e3 for t in times],
-                    "cull_ms": cull_s * 1e3 * H / rows,
+                    "shaded_pixels": shaded_full,
+                    "ms_per_frame": med * 1e3 * shaded_full / shaded,
+                    "times_ms": [t * 1e3 for t in times],
+                    "cull_ms": cull_s * 1e3 * shaded_full / shaded,
                     "ple_per_s": rate, "gple_per_s": rate / 1e9,
                     "numpy_ratio": rate / np_rate if np_rate else None,
                     # culled runs evaluate fewer pairs than W·H·N: no peak fraction

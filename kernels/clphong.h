@@ -182,6 +182,12 @@ typedef double powL;
  * which only feeds comparisons). Also right for scalars (LANES = 1) and for
  * dirL, whatever its mask type. */
 #define SELECT(a, b, c) ((c) ? (b) : (a))
+/* ALL_LANES(m): every lane of the intL mask m is true (all() for vectors). */
+#if LANES == 1
+#define ALL_LANES(m) ((m) != 0)
+#else
+#define ALL_LANES(m) all(m)
+#endif
 #define SELECT_DIR(a, b, c) SELECT(a, b, c)
 #define MAX0(x) ((x) > 0.0f ? (x) : 0.0f)
 #define ABS(x) ((x) < 0.0f ? -(x) : (x))

@@ -149,8 +149,14 @@ __kernel void shade(__global const float *restrict gbuf,
     floatL sr = Cr * ambient.x, sg = Cg * ambient.y, sb = Cb * ambient.z;
     floatL cr = (floatL)(0.0f), cg = (floatL)(0.0f), cb = (floatL)(0.0f);
 
+    /* Background pixels (zero normal, set by the host) take the background value
+       below; a work-item of background pixels only skips the lights (the sky of
+       a render, or a frame's padding, costs nothing per light). */
+    const intL bg = (intL)((Nx == 0.0f) & (Ny == 0.0f) & (Nz == 0.0f));
+    const uint lit = !ALL_LANES(bg);
+
 #if HAS_DIRECTIONAL
-    for (uint j = 0; j < n_directional; ++j) {
+    for (uint j = 0; j < (lit ? n_directional : 0u); ++j) {
         __global const float4 *rec = directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * j;
         const float4 L = rec[1];
         const weights_t w = shade_directional_light(&p, rec[0], rec[3], rec[2], rec[4]);
@@ -165,11 +171,11 @@ __kernel void shade(__global const float *restrict gbuf,
        work-items past the last tile shade background only. */
     const uint q0 = (uint)(i * LANES);
     const uint tile = (q0 / width / CULL_TILE) * tiles_x + (q0 % width) / CULL_TILE;
-    const uint2 range = tile < n_tiles ? tile_ranges[tile] : (uint2)(0, 0);
+    const uint2 range = tile < n_tiles && lit ? tile_ranges[tile] : (uint2)(0, 0);
     for (uint m = range.x; m < range.x + range.y; ++m) {
         const uint j = tile_lights[m];
 #else
-    for (uint j = 0; j < n_point; ++j) {
+    for (uint j = 0; j < (lit ? n_point : 0u); ++j) {
 #endif
         __global const float4 *rec = point_lights + POINT_LIGHT_FLOAT4S * j;
         const float4 X = rec[0];   /* position, c0 */
@@ -184,8 +190,6 @@ __kernel void shade(__global const float *restrict gbuf,
     }
 #endif
 
-    /* Background pixels (zero normal, set by the host) take the background value. */
-    const intL bg = (intL)((Nx == 0.0f) & (Ny == 0.0f) & (Nz == 0.0f));
     const floatL Er = select(finish_sum(sr, cr), (floatL)(background.x), bg);
     const floatL Eg = select(finish_sum(sg, cg), (floatL)(background.y), bg);
     const floatL Eb = select(finish_sum(sb, cb), (floatL)(background.z), bg);
