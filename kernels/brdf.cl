@@ -35,7 +35,7 @@ inline dirL blinn_delta(dirL nx, dirL ny, dirL nz,
 {
     const dirL hx = lx + vx, hy = ly + vy, hz = lz + vz;
     const dirL hh = MUL_ADD(hx, hx, MUL_ADD(hy, hy, hz * hz));
-    const dirL inv = rsqrt(hh);
+    const dirL inv = RSQRT_DIR(hh);
     const dirL ex = nx - hx * inv, ey = ny - hy * inv, ez = nz - hz * inv;
     const dirL delta = 0.5f * MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez));
     return SELECT_DIR(delta, (dirL)(1.0f), hh <= (dirL)(0.0f));

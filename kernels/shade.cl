@@ -138,7 +138,7 @@ __kernel void shade(__global const float *restrict gbuf,
 #else
     {
         const dirL ex = eye_x - p.px, ey = eye_y - p.py, ez = eye_z - p.pz;
-        const dirL inv = rsqrt(MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez)));
+        const dirL inv = RSQRT_DIR(MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez)));
         p.vx = ex * inv;
         p.vy = ey * inv;
         p.vz = ez * inv;
