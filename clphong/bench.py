@@ -91,10 +91,11 @@ def flops_per_ple(plan, k: float) -> int:
     subtraction plus one squaring per bit of k and one product per set bit
     (double multiplies, each counted as one flop, as the float ones are).
     """
+    from .plan import int_pow_multiplies
+
     if not plan.defines.get("SPEC_INT_POW"):
         return FLOPS_PER_PLE
-    K = int(k)
-    return FLOPS_PER_PLE - FLOPS_EXP_FORM + 1 + K.bit_length() + bin(K).count("1")
+    return FLOPS_PER_PLE - FLOPS_EXP_FORM + 1 + int_pow_multiplies(k)
 
 DEFAULT_SIZES = ((1920, 1080),)
 DEFAULT_LIGHTS = (1, 16, 256, 4096, 65536)
@@ -371,7 +372,6 @@ def run_bench(cfg: BenchConfig) -> dict:
                      "error_pairs": cfg.error_pairs, "numpy_pairs": cfg.numpy_pairs,
                      "small_lights": list(cfg.small_lights), "seed": SEED,
                      "reference_white": 1.0},
-        "flops_per_ple": FLOPS_PER_PLE,
         "numpy": [],
         "runs": [],
     }
@@ -432,7 +432,7 @@ def run_bench(cfg: BenchConfig) -> dict:
                     "cull_ms": cull_s * 1e3 * shaded_full / shaded,
                     "ple_per_s": rate, "gple_per_s": rate / 1e9,
                     "numpy_ratio": rate / np_rate if np_rate else None,
-                    # culled runs evaluate fewer pairs than W·H·N: no peak fraction
+                    # culled runs evaluate fewer pairs than S·N: no peak fraction
                     "flops_per_ple": flops,
                     "peak_fraction": rate * flops / (peak * 1e9) if brute else None,
                     "kept_fraction": r.last_cull.kept_fraction if r.last_cull else None,

@@ -403,11 +403,11 @@ def cmd_plan(args) -> int:
     from .cull import check_budget
 
     # As 'render': directions in double where the device has fp64, unless --path float.
-    has_fp64 = get_runtime(args.device).has_fp64
-    fp64 = args.kernel == "lanes" and opts["fp64_directions"] is not False and has_fp64
+    rt = get_runtime(args.device)
+    fp64 = args.kernel == "lanes" and opts["fp64_directions"] is not False and rt.has_fp64
     print(make_plan(scene, maps, kernel=args.kernel, lanes=lanes, fp64_directions=fp64,
                     max_error=check_budget(opts["max_error"], opts["reference_white"]),
-                    has_fp64=has_fp64))
+                    has_fp64=rt.fast_fp64))
     return 0
 
 

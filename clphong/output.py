@@ -180,7 +180,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
         try:
             fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         except FileExistsError:
-            _LIVE.pop(candidate, None)        # someone else's file: never ours to remove
+            # someone else's file: never ours to remove. (An interrupt between the
+            # failed open and this pop would leave it registered: that needs a
+            # 32-bit name collision as well, and is accepted.)
+            _LIVE.pop(candidate, None)
             continue
         except OSError as exc:
             _LIVE.pop(candidate, None)

@@ -24,9 +24,16 @@ DEFAULT_LANES = 16
 MAP_NAMES = ("k_d", "k_s", "h", "specular_color")
 
 #: The largest whole exponent k (h, or 4h for Blinn-Phong) raised by binary
-#: powering (SPEC_INT_POW): at most 17 squarings and 17 products per light.
+#: powering (SPEC_INT_POW): at most 17 squarings and 16 products per light.
 #: Blinn-Phong with h = 10⁴ (k = 4·10⁴) is inside.
 INT_POW_MAX = 65536
+
+
+def int_pow_multiplies(k: int) -> int:
+    """Double multiplies of ``specular_power_int`` (kernels/brdf.cl) for the
+    whole exponent ``k``: one squaring per bit, one product per set bit."""
+    k = int(k)
+    return k.bit_length() + bin(k).count("1")
 
 
 @dataclass(frozen=True)
@@ -69,7 +76,7 @@ class ShadingPlan:
 def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LANES,
               compensated: bool | None = None, fp64_directions: bool = False,
               display=None, max_error: float | None = None, has_fp64: bool | None = None,
-              int_pow: bool | None = None) -> ShadingPlan:
+              int_pow: bool = True) -> ShadingPlan:
     """Choose the kernel variant for ``scene`` and the material ``maps`` present.
 
     Parameters
@@ -89,12 +96,13 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         Positions, directions, n·l and δ in double (lane kernel only); the
         caller decides from the device (``Runtime.has_fp64``).
     has_fp64 : bool, optional
-        Whether the device has ``cl_khr_fp64`` (``Runtime.has_fp64``); by
-        default as ``fp64_directions``. The integer power needs it.
-    int_pow : bool, optional
-        None (default): raise a whole uniform exponent k ≤ ``INT_POW_MAX`` by
-        binary powering in double (SPEC_INT_POW) where the device has fp64;
-        False: always exp(k·log1p(−δ)) (to measure one against the other).
+        Whether the device runs double at a useful speed: ``cl_khr_fp64`` on a
+        CPU (``Runtime.fast_fp64``); by default as ``fp64_directions``. The
+        integer power needs it.
+    int_pow : bool
+        True (default): raise a whole uniform exponent k ≤ ``INT_POW_MAX`` by
+        binary powering in double (SPEC_INT_POW) where ``has_fp64``; False:
+        always exp(k·log1p(−δ)) (to measure one against the other).
     max_error : float, optional
         Culling budget ε in output radiance (``--max-error`` × reference
         white): with point lights, compile the per-tile light lists of
@@ -162,16 +170,16 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         k = 4.0 * m.h if blinn else m.h
         whole = float(k).is_integer() and 0 <= k <= INT_POW_MAX
         fp64 = fp64_directions if has_fp64 is None else has_fp64
-        use = specular and "h" not in maps and whole and fp64 and int_pow is not False
+        use = specular and "h" not in maps and whole and fp64 and int_pow
         exponent = f"k = {'4h' if blinn else 'h'} = {k:g}"
         put("SPEC_INT_POW", use,
             f"{exponent} is a whole number: binary powering of 1 − δ in double, "
-            f"{int(k).bit_length() + bin(int(k)).count('1')} double multiplies per light "
+            f"{int_pow_multiplies(k)} double multiplies per light "
             "instead of exp(k·log1p(−δ)), and no rounding of k·log1p(−δ) (docs/error-model.md)" if use
             else ("no specular term" if not specular
                   else "per-pixel shininess map: exp(k·log1p(−δ))" if "h" in maps
                   else f"{exponent} is not a whole number ≤ {INT_POW_MAX}: exp(k·log1p(−δ))" if not whole
-                  else "the device has no cl_khr_fp64: exp(k·log1p(−δ))" if not fp64
+                  else "no fast double on this device (cl_khr_fp64 on a CPU): exp(k·log1p(−δ))" if not fp64
                   else "integer power turned off: exp(k·log1p(−δ))"))
     if display is None:
         put("DISPLAY_OUT", 0, "no fused display output (scene-linear only, or an OCIO view)")

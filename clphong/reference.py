@@ -76,7 +76,7 @@ def specular_power_int(delta, K: int):
         raise ValueError(f"K must be a whole number ≥ 0, not {K}")
     delta = np.asarray(delta, np.float64)
     x = np.where(delta >= 1.0, 0.0, 1.0 - delta)
-    s = np.ones_like(x)
+    s = np.where(np.isnan(delta), np.nan, 1.0)        # a NaN δ stays NaN, also for K = 0
     e = K
     while e:
         if e & 1:
@@ -196,23 +196,22 @@ def _light_terms(scene, px: Pixels):
 
     v_ortho = view_vector(scene.camera)
     K = max(1, BATCH_PAIRS // max(len(px.p), 1))
-    dirs = scene.lights_of("directional")
+    arrays = scene.light_arrays
+    dirs, dir_L = arrays["directional_direction"], arrays["directional_radiance"]
     for a in range(0, len(dirs), K):
-        batch = dirs[a:a + K]
-        l = -np.array([lt.direction for lt in batch], np.float64)[:, None, :]
-        L = np.array([lt.radiance for lt in batch], np.float64)[:, None, :]
+        l = -dirs[a:a + K, None, :]
+        L = dir_L[a:a + K, None, :]
         if v_ortho is not None:
             h, undefined = half_vector(l, v_ortho)              # (K, 1, 3), (K, 1)
             diffuse, specular = shade_directional_light(px, l, h, undefined)
         else:
             diffuse, specular = shade_directional_light(px, l)
         yield "directional", L, {"l": l}, diffuse, specular
-    pts = scene.lights_of("point")
+    pts, pt_L, pt_c = arrays["point_position"], arrays["point_radiance"], arrays["point_attenuation"]
     for a in range(0, len(pts), K):
-        batch = pts[a:a + K]
-        pos = np.array([lt.position for lt in batch], np.float64)[:, None, :]
-        L = np.array([lt.radiance for lt in batch], np.float64)[:, None, :]
-        c = np.array([lt.attenuation for lt in batch], np.float64)[:, :, None]   # (K, 3, 1)
+        pos = pts[a:a + K, None, :]
+        L = pt_L[a:a + K, None, :]
+        c = pt_c[a:a + K, :, None]                                                 # (K, 3, 1)
         diffuse, specular = shade_point_light(px, pos, c[:, 0], c[:, 1], c[:, 2])
         yield "point", L, {"position": pos, "c": (c[:, 0], c[:, 1], c[:, 2])}, diffuse, specular
 
@@ -271,10 +270,7 @@ def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, u
 
 def ambient_radiance(scene) -> np.ndarray:
     """k_a·Σ ambient radiance (rgb)."""
-    amb = np.zeros(3)
-    for lt in scene.lights_of("ambient"):
-        amb += np.asarray(lt.radiance, np.float64)
-    return amb * scene.material.k_a
+    return scene.light_arrays["ambient_radiance"] * scene.material.k_a
 
 
 def shade(scene, gbuffer) -> np.ndarray:

@@ -244,11 +244,12 @@ class Renderer:
         The last frame's lists are described by ``last_cull``.
     reference_white : float
         Output radiance of reference white (default 1.0, scene-linear).
-    int_pow : bool, optional
-        None (default): a whole specular exponent (h, or 4h for Blinn-Phong,
-        ≤ 65536, no shininess map) is raised by binary powering in double where
-        the device has fp64 (faster, and within the exp/log1p form's error
-        bound); False: always exp(k·log1p(−δ)). See :func:`clphong.plan.make_plan`.
+    int_pow : bool
+        True (default): a whole specular exponent (h, or 4h for Blinn-Phong,
+        ≤ 65536, no shininess map) is raised by binary powering in double on
+        CPU devices with fp64, on either path (faster, and within the exp/log1p
+        form's error bound); False: always exp(k·log1p(−δ)). See
+        :func:`clphong.plan.make_plan`.
 
     The attributes ``max_error`` (the *absolute* budget
     ``max_error·reference_white``, or None), ``fp64_directions`` and
@@ -262,10 +263,10 @@ class Renderer:
                  lanes: int | None = None, compensated: bool | None = None,
                  fp64_directions: bool | None = None, nonfinite: str = "background",
                  max_error: float | None = None, reference_white: float = 1.0,
-                 int_pow: bool | None = None):
+                 int_pow: bool = True):
         self.scene = scene
-        if int_pow not in (None, False, True):
-            raise ValueError(f"int_pow must be None, True or False, not {int_pow!r}")
+        if not isinstance(int_pow, bool):
+            raise ValueError(f"int_pow must be True or False, not {int_pow!r}")
         self.int_pow = int_pow
         self.kernel_kind = kernel
         self.runtime = get_runtime(device)
@@ -315,7 +316,7 @@ class Renderer:
         plan = make_plan(self.scene, map_names, kernel=self.kernel_kind, lanes=self.lanes,
                          compensated=self.compensated, fp64_directions=self.fp64_directions,
                          display=self.display, max_error=self.max_error if culling else None,
-                         has_fp64=self.runtime.has_fp64, int_pow=self.int_pow)
+                         has_fp64=self.runtime.fast_fp64, int_pow=self.int_pow)
         return plan, self.runtime.program(plan.entry_file, plan.defines)
 
     def render(self, gbuffer, *, frame: Frame | None = None) -> np.ndarray:

@@ -190,6 +190,14 @@ class Runtime:
             getattr(self.device, "double_fp_config", 0))
 
     @property
+    def fast_fp64(self) -> bool:
+        """Double precision at a useful speed: cl_khr_fp64 on a CPU device (half
+        float's vector rate). GPUs with fp64 often run it at 1/16–1/64 of float,
+        so double is used there only where accuracy needs it (directions), not
+        for speed (the integer specular power, ``plan.SPEC_INT_POW``)."""
+        return self.has_fp64 and bool(self.device.type & _cl().device_type.CPU)
+
+    @property
     def lanes(self) -> int:
         """Pixels per work-item for the lane kernel on this device.
 

@@ -78,13 +78,13 @@ inline floatL specular_power(floatL delta, floatL k)
  * of y = k·log1p(−δ) before exp), at the cost of ~2·log2(K) double multiplies
  * instead of two out-of-line builtins (docs/error-model.md).
  * Guards, as specular_power: δ ≥ 1 gives x = 0, so 0 for K > 0; K = 0 gives
- * 1 (the loop does not run: 0⁰ := 1, and NaN⁰ = 1 as C's pow has it); for
- * K > 0 a NaN δ stays NaN. */
+ * 1 (the loop does not run: 0⁰ := 1); a NaN δ (NaN inputs under the "pass"
+ * policy) gives NaN, for K = 0 too. */
 inline floatL specular_power_int(dirL delta, uint K)
 {
     const powL d = TO_POW(delta);
     powL x = SELECT_DIR(1.0 - d, (powL)(0.0), d >= 1.0);
-    powL s = (powL)(1.0);
+    powL s = SELECT_DIR((powL)(1.0), d, isnan(d));     /* a NaN δ stays NaN, also for K = 0 */
     for (uint e = K; e != 0u; e >>= 1) {
         if (e & 1u)
             s *= x;

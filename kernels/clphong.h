@@ -19,7 +19,8 @@
  *                    dropped lights sum to at most the user's budget ε (clphong/cull.py)
  *   CULL_TILE        screen tile edge of the lists, pixels (16)
  *   DIRECTIONS_FP64  positions, directions, n·l and δ in double (the accurate default
- *                    where the device has cl_khr_fp64); 0: all in float
+ *                    where the device has cl_khr_fp64); 0: in float (only the integer
+ *                    specular power below may still run in double)
  *   SPEC_INT_POW     the specular exponent k (h, or 4h for Blinn) is one whole number
  *                    K ≤ 65536 for every pixel: x^K by binary powering in double
  *                    (needs cl_khr_fp64) instead of exp(k·log1p(−δ))
@@ -115,8 +116,9 @@ typedef int intL;
  * float32 directions carry a rounding of ~u each; through n·l near grazing
  * and through δ into x^k (condition number k) that becomes a relative error far
  * above u (docs/error-model.md). With DIRECTIONS_FP64 they are computed in double
- * from the float32 inputs and hi+lo float pairs from the host, and only n·l, δ and
- * d are rounded to float: the error of every term is then a few u, relative. */
+ * from the float32 inputs and hi+lo float pairs from the host, and only n·l, δ
+ * (for exp/log1p; the integer power takes δ in double) and att·L are rounded to
+ * float: the error of every term is then a few u, relative. */
 #if DIRECTIONS_FP64
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 typedef double dirS;
@@ -151,6 +153,7 @@ typedef floatL dirL;
  * error ≤ 3.4e-2) reach ≤ 2.5 double ulp: measured 2.44·2⁻⁵³ over x = 1e-90 ..
  * 1e90 and 10⁶ random x in [0.5, 4] against long double (steps 1-4: 1.8e-3,
  * 4.6e-6, 3.2e-11, 2.7e-16), far inside the 2⁻⁴⁷ unit of the fp64 error model.
+ * x = 0 gives +inf, as rsqrt does.
  * The lights loop ran 1.12× faster (bench scene, 16 lanes). In float, the
  * builtin (2 ulp, as the error model assumes). */
 #if DIRECTIONS_FP64
@@ -179,7 +182,7 @@ inline dirL rsqrt_dir(dirL x)
     y = y * (1.5 - h * y * y);
     y = y * (1.5 - h * y * y);
     y = y * (1.5 - h * y * y);
-    return y;
+    return x == 0.0 ? (dirL)(INFINITY) : y;   /* as rsqrt(0) = +inf */
 }
 #define RSQRT_DIR(x) rsqrt_dir(x)
 #else

@@ -50,7 +50,7 @@ def random_lights(rng, n_point=3, n_dir=1, n_amb=1):
 
 
 def check_against_reference(scene, gbuffer, *, kernel="lanes", lanes=None, compensated=None,
-                            fp64_directions=None, int_pow=None):
+                            fp64_directions=None, int_pow=True):
     """Render, compare with the float64 reference, assert |err| ≤ the error bound.
 
     Returns (rgb, ref, bound, band) for further checks.

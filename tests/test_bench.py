@@ -34,7 +34,6 @@ def test_report_is_well_formed_json_with_every_case(tiny_report):
     report, out = tiny_report
     loaded = json.loads((out / "r.json").read_text())
     assert loaded == json.loads(json.dumps(report))
-    assert loaded["flops_per_ple"] == bench.FLOPS_PER_PLE
     assert loaded["machine"]["fp32_peak_gflops"] > 0
     cases = {(r["scene"], r["lights"], r["path"], r["max_error"]) for r in loaded["runs"]}
     for n in (1, 16):

@@ -841,3 +841,27 @@ def test_many_lights_parse_and_a_late_error_is_named():
 
 def test_light_types_constant():
     assert LIGHT_TYPES == ("point", "directional", "ambient")
+
+
+def test_light_arrays_are_cached_read_only_and_not_pickled():
+    """Scene.light_arrays is computed once per scene (the renderer asks every frame),
+    cannot be changed by a caller, and does not travel in pickles to workers."""
+    import pickle
+
+    import numpy as np
+
+    from clphong.hardcases import make_scene
+
+    scene = make_scene([dict(type="point", position=(0, 0, 3), intensity=2.0),
+                        dict(type="directional", direction=(0, 0, -1)), dict(type="ambient")])
+    a = scene.light_arrays
+    assert a is scene.light_arrays
+    assert np.array_equal(a["point_position"], [[0.0, 0.0, 3.0]])
+    assert np.array_equal(a["point_radiance"], [scene.lights_of("point")[0].radiance])
+    with pytest.raises(ValueError):
+        a["point_position"][0, 0] = 1.0
+    with pytest.raises(TypeError):
+        a["point_position"] = None
+    copy = pickle.loads(pickle.dumps(scene))
+    assert copy == scene and "light_arrays" not in copy.__dict__
+    assert np.array_equal(copy.light_arrays["point_attenuation"], a["point_attenuation"])
