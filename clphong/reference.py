@@ -173,8 +173,11 @@ def _inputs(scene, gbuffer):
     if v_ortho is not None:
         v = np.broadcast_to(v_ortho, P.shape)
     else:
+        # A pixel exactly at the eye is seen head-on: v := n (shade.cl's guard).
         e = np.asarray(scene.camera.position, np.float64) - P
-        v = e / np.sqrt(_dot(e, e))[..., None]
+        de = np.sqrt(_dot(e, e))[..., None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v = np.where(de > 0, e / de, n)
     specular = m.k_s > 0 or "k_s" in maps
     px = Pixels(p=P, n=n, v=v, k=k, blinn=blinn, specular=specular)
     return px, C, D, S, fg

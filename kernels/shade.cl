@@ -137,11 +137,14 @@ __kernel void shade(__global const float *restrict gbuf,
     p.vz = (dirL)(eye_z);
 #else
     {
+        /* Guard: a pixel exactly at the eye has no view direction; it is seen
+           head-on, v := n (as the reference), not 0·rsqrt(0) = NaN. */
         const dirL ex = eye_x - p.px, ey = eye_y - p.py, ez = eye_z - p.pz;
-        const dirL inv = RSQRT_DIR(MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez)));
-        p.vx = ex * inv;
-        p.vy = ey * inv;
-        p.vz = ez * inv;
+        const dirL ee = MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez));
+        const dirL inv = RSQRT_DIR(ee);
+        p.vx = SELECT_DIR(ex * inv, p.nx, ee <= (dirL)(0.0f));
+        p.vy = SELECT_DIR(ey * inv, p.ny, ee <= (dirL)(0.0f));
+        p.vz = SELECT_DIR(ez * inv, p.nz, ee <= (dirL)(0.0f));
     }
 #endif
 

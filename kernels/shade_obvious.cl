@@ -62,7 +62,8 @@ __kernel void shade(__global const float *restrict gbuf,
 #if CAMERA_ORTHO
     const float3 v = eye.xyz;
 #else
-    const float3 v = normalize(eye.xyz - P);
+    const float3 e = eye.xyz - P;
+    const float3 v = dot(e, e) > 0.0f ? normalize(e) : n;   /* at the eye: head-on, as shade.cl */
 #endif
     float3 E = C_d * ambient.xyz;
 #if HAS_DIRECTIONAL

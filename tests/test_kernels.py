@@ -390,3 +390,21 @@ def test_inline_double_rsqrt_is_within_three_ulp():
     ref = 1.0 / np.sqrt(x.astype(np.longdouble))
     rel = np.abs((y.astype(np.longdouble) - ref) / ref)
     assert float(rel.max()) <= 3 * 2.0 ** -53, float(rel.max())
+
+
+@pytest.mark.parametrize("kernel, fp64", [("lanes", True), ("lanes", False), ("obvious", None)])
+def test_pixel_at_the_eye_is_seen_head_on(kernel, fp64):
+    """A shaded point exactly at a perspective eye has no view direction: v := n
+    (kernel and reference), never NaN from finite inputs."""
+    scene = make_scene([dict(type="point", position=(0.3, 0.0, 3.0), intensity=4.0)], model="blinn-phong",
+                       h=8.0, camera=dict(type="perspective", position=(0.0, 0.0, 1.0)))
+    P = np.array([[[0.0, 0.0, 1.0], [0.1, 0.0, 1.0]]])
+    N = np.array([[[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]])
+    gb = make_gbuffer(P, N, np.ones_like(P))
+    rgb, ref, _, _ = check_against_reference(scene, gb, kernel=kernel, fp64_directions=fp64)
+    assert np.all(np.isfinite(ref))
+    with np.errstate(invalid="ignore"):
+        v = reference._inputs(scene, gb)[0].v
+    assert np.array_equal(v[0], [0.0, 0.0, 1.0])
+    # n, the eye and the point are exact in float32: every path has v = n there.
+    assert np.allclose(rgb[0, 0], ref[0, 0], rtol=1e-5)
