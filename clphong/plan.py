@@ -90,8 +90,10 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         ``pow()``, kept as the baseline that ``clphong bench`` measures against.
     lanes : {1, 4, 8, 16}
     compensated : bool, optional
-        Force Neumaier summation on or off; by default on above
-        ``COMPENSATE_ABOVE`` lights.
+        Force Neumaier summation in float on (True) or a naive float sum
+        (False). By default (None) the lane kernel sums in double where the
+        device has fast double (SUM_FP64, ``has_fp64``), and otherwise uses
+        Neumaier above ``COMPENSATE_ABOVE`` lights.
     fp64_directions : bool
         Positions, directions, n·l and δ in double (lane kernel only); the
         caller decides from the device (``Runtime.has_fp64``).
@@ -121,8 +123,10 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     blinn = m.model == "blinn-phong"
     ortho = scene.camera.type == "orthographic"
     specular = m.k_s > 0 or "k_s" in maps
+    fp64 = fp64_directions if has_fp64 is None else has_fp64
+    sum_fp64 = kernel == "lanes" and fp64 and compensated is None
     if compensated is None:
-        compensated = n_point + n_dir > COMPENSATE_ABOVE
+        compensated = not sum_fp64 and n_point + n_dir > COMPENSATE_ABOVE
     d: dict[str, int] = {}
     r: list[tuple[str, str]] = []
 
@@ -147,10 +151,15 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     put("MAP_H", "h" in maps and specular, "per-pixel shininess map" if "h" in maps else "uniform h")
     put("MAP_CS", "specular_color" in maps and specular,
         "per-pixel specular colour map" if "specular_color" in maps else "uniform specular_color")
+    if kernel == "lanes":
+        put("SUM_FP64", sum_fp64,
+            f"{n_point + n_dir} lights summed in double, rounded once: error ≤ u + n·2⁻⁵³"
+            if sum_fp64 else "no fast double on this device, or a float sum was asked for")
     put("COMPENSATED_SUM", compensated,
         f"{n_point + n_dir} lights summed: "
         + ("Neumaier summation keeps the sum's error at ~2u" if compensated
-           else f"≤ {COMPENSATE_ABOVE} terms, naive sum within {max(n_point + n_dir - 1, 0)}u"))
+           else "in double (SUM_FP64)" if sum_fp64
+           else f"naive float sum within {max(n_point + n_dir - 1, 0)}u"))
     falloff = bool((scene.light_arrays["point_attenuation"][:, 1:] != 0).any())
     put("HAS_ATTENUATION", falloff,
         "some point light has c1 or c2 ≠ 0: 1/(c0 + c1·d + c2·d²) per pixel" if falloff
@@ -169,7 +178,6 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
             else "directions in float: fast path, error grows near grazing light and with k")
         k = 4.0 * m.h if blinn else m.h
         whole = float(k).is_integer() and 0 <= k <= INT_POW_MAX
-        fp64 = fp64_directions if has_fp64 is None else has_fp64
         use = specular and "h" not in maps and whole and fp64 and int_pow
         exponent = f"k = {'4h' if blinn else 'h'} = {k:g}"
         put("SPEC_INT_POW", use,

@@ -301,7 +301,7 @@ def finish_sum(E):
 # ------------------------------------------------------------------- the error model
 
 def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
-                directions="fp32", plan=None):
+                directions="fp32", plan=None, sum_fp64=False):
     """Upper bound of |float32 kernel − :func:`shade`| per pixel and channel.
 
     Parameters
@@ -313,6 +313,9 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
         omitted.
     compensated : bool
         Whether the kernel summed the lights with Neumaier compensation.
+    sum_fp64 : bool
+        Whether it summed them in double, rounded once (SUM_FP64; overrides
+        ``compensated``).
     form : {"delta", "int", "naive"}
         ``"delta"``: the specular power as exp(k·log1p(−δ)) with δ from
         |r − v|²/2 (shade.cl). ``"int"``: (1 − δ)^k by binary powering in
@@ -322,7 +325,7 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
         Whether positions, directions, n·l and δ were computed in float or in
         double from hi+lo inputs (``DIRECTIONS_FP64``).
     plan : clphong.plan.ShadingPlan, optional
-        The plan the kernel ran with; sets ``compensated``, ``form`` and
+        The plan the kernel ran with; sets ``compensated``, ``sum_fp64``, ``form`` and
         ``directions`` from its defines.
 
     Returns
@@ -347,6 +350,7 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     if plan is not None:
         lanes = plan.kernel == "lanes"
         compensated = lanes and bool(plan.defines.get("COMPENSATED_SUM", 0))
+        sum_fp64 = lanes and bool(plan.defines.get("SUM_FP64", 0))
         form = ("int" if plan.defines.get("SPEC_INT_POW", 0) else "delta") if lanes else "naive"
         directions = "fp64" if plan.defines.get("DIRECTIONS_FP64", 0) else "fp32"
     if directions not in ("fp32", "fp64"):
@@ -443,9 +447,12 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
         floor = FLT_MIN * ((2.0 + DS) * (np.maximum(att, 1.0)[..., None] * Lc) + DS)
         B += np.sum(Lc * (np.abs(D) * e_diff[..., None] + np.abs(S) * e_spec[..., None]) + floor, axis=0)
         total += np.sum(Lc * (np.abs(D) * diffuse[..., None] + np.abs(S) * specular[..., None]), axis=0)
-    # The light sum: Neumaier's compensated sum errs by ≤ 2u|Σ| + O(n·u²)Σ|c|;
-    # the naive one by (n − 1)·u·Σ|c|; plus the final rounding.
-    if compensated:
+    # The light sum: in double (SUM_FP64) by ≤ n·2⁻⁵³·Σ|c| before the one final
+    # rounding; Neumaier's compensated sum by ≤ 2u|Σ| + O(n·u²)Σ|c|; the naive
+    # one by (n − 1)·u·Σ|c|; plus the final rounding.
+    if sum_fp64:
+        B += (U + (n_direct + 1) * 2.0 ** -53) * total
+    elif compensated:
         B += (3.0 * U + 2.0 * n_direct * U * U) * total
     else:
         B += (max(n_direct, 1) * U + U) * total

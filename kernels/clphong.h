@@ -21,6 +21,8 @@
  *   DIRECTIONS_FP64  positions, directions, n·l and δ in double (the accurate default
  *                    where the device has cl_khr_fp64); 0: in float (only the integer
  *                    specular power below may still run in double)
+ *   SUM_FP64         the light sum in double, rounded once (devices with fast double);
+ *                    0: COMPENSATED_SUM decides (Neumaier or naive, in float)
  *   SPEC_INT_POW     the specular exponent k (h, or 4h for Blinn) is one whole number
  *                    K ≤ 65536 for every pixel: x^K by binary powering in double
  *                    (needs cl_khr_fp64) instead of exp(k·log1p(−δ))
@@ -82,6 +84,9 @@
 #endif
 #ifndef SPEC_INT_POW
 #define SPEC_INT_POW 0
+#endif
+#ifndef SUM_FP64
+#define SUM_FP64 0
 #endif
 
 /* floatL: one value per pixel of the work-item's LANES pixels. PoCL vectorises
@@ -187,6 +192,32 @@ inline dirL rsqrt_dir(dirL x)
 #define RSQRT_DIR(x) rsqrt_dir(x)
 #else
 #define RSQRT_DIR(x) rsqrt(x)
+#endif
+
+/* sumL: the type of the running light sums; double with SUM_FP64. */
+#if SUM_FP64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#if LANES == 16
+typedef double16 sumL;
+#define TO_SUM(x) convert_double16(x)
+#define SUM_TO_FLOAT(x) convert_float16(x)
+#elif LANES == 8
+typedef double8 sumL;
+#define TO_SUM(x) convert_double8(x)
+#define SUM_TO_FLOAT(x) convert_float8(x)
+#elif LANES == 4
+typedef double4 sumL;
+#define TO_SUM(x) convert_double4(x)
+#define SUM_TO_FLOAT(x) convert_float4(x)
+#else
+typedef double sumL;
+#define TO_SUM(x) ((double)(x))
+#define SUM_TO_FLOAT(x) ((float)(x))
+#endif
+#else
+typedef floatL sumL;
+#define TO_SUM(x) (x)
+#define SUM_TO_FLOAT(x) (x)
 #endif
 
 /* powL: the type of x = 1 − δ and its powers with SPEC_INT_POW (double; dirL

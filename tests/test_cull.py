@@ -93,15 +93,8 @@ def check_budget_holds(scene, gbuffer, eps):
 
 
 def _bound_kwargs(renderer, frame):
-    """The error_bound options matching the kernel variant (as tests/conftest.py does)."""
-    import inspect
-
-    plan = renderer.plan_for(frame.map_names)
-    kw = dict(compensated=bool(plan.defines.get("COMPENSATED_SUM", 0)), form="delta")
-    params = inspect.signature(reference.error_bound).parameters
-    if "fp64_directions" in params:
-        kw["fp64_directions"] = bool(plan.defines.get("DIRECTIONS_FP64", 0))
-    return kw
+    """The error_bound options of the brute-force variant that would run (its plan)."""
+    return dict(plan=renderer.plan_for(frame.map_names, culling=False))
 
 
 # ----------------------------------------------------------------------------- ε = 0

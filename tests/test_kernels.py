@@ -58,10 +58,17 @@ def test_every_lane_width_matches_reference(lanes, fp64):
     check_against_reference(scene, random_gbuffer(rng, 13, 29), lanes=lanes, fp64_directions=fp64)
 
 
-@pytest.mark.parametrize("compensated", [False, True])
+@pytest.mark.parametrize("compensated", [False, True, None], ids=["naive", "neumaier", "default"])
 def test_many_lights_with_and_without_compensation(compensated):
+    from clphong.runtime import get_runtime
+
     rng = np.random.default_rng(5)
     scene = make_scene(random_lights(rng, 300, 2), h=16.0)
+    r = Renderer(scene, compensated=compensated)
+    d = r.plan_for(()).defines
+    # The default sums in double where double is fast (a CPU with fp64), else Neumaier.
+    assert d["SUM_FP64"] == (compensated is None and get_runtime().fast_fp64)
+    assert d["COMPENSATED_SUM"] == (compensated is True or (compensated is None and not d["SUM_FP64"]))
     check_against_reference(scene, random_gbuffer(rng, 8, 16), compensated=compensated)
 
 
@@ -78,10 +85,13 @@ def test_compensated_sum_is_more_accurate_for_many_lights():
     ref = reference.shade(scene, gb)
     naive = Renderer(scene, compensated=False).render(gb)
     comp = Renderer(scene, compensated=True).render(gb)
+    double = Renderer(scene).render(gb)      # SUM_FP64 on a CPU with fp64
     e_naive = np.max(np.abs(naive - ref) / ref)
     e_comp = np.max(np.abs(comp - ref) / ref)
+    e_double = np.max(np.abs(double - ref) / ref)
     assert e_comp <= 4 * U          # error model: 3u from the sum and the products
-    assert e_comp < e_naive
+    assert e_double <= 4 * U        # u from the one rounding, 3u from the products D·w·L
+    assert e_comp < e_naive and e_double < e_naive
 
 
 def test_delta_form_beats_naive_pow_on_sharp_highlights():
