@@ -20,7 +20,10 @@ G-buffer
 What is measured
 ----------------
 * Each (scene, N, path, budget) runs ``warmup`` frames, then ``repeats``
-  frames; the report gives the median, and every time. Time is device time from
+  frames; the report gives the median, and every time. The runs of one
+  (scene, N) take turns, one frame each per round, the numpy baseline too
+  (up to 3 of its rounds): a burst of load from another tenant then falls on
+  every path alike, and the ratios within a report hold. Time is device time from
   OpenCL profiling events: the shading kernel, plus the culling kernels when
   culling is on (both reported).
 * PLE/s counts pixel-light evaluations of shaded pixels: ``S·N / time``, S
@@ -299,26 +302,11 @@ def measure_peak_gflops(runtime, repeats: int = 5) -> float:
     return flops / statistics.median(times[1:]) / 1e9
 
 
-def time_renderer(renderer, gbuffer, frame, warmup: int, repeats: int):
-    """Median and all device times (s) of shading + culling, and the last image."""
-    times, cull = [], []
-    rgb = None
-    for n in range(warmup + repeats):
-        rgb = renderer.render(gbuffer, frame=frame)
-        c = renderer.last_cull.seconds if renderer.last_cull is not None else 0.0
-        if n >= warmup:
-            times.append(renderer.last_stats.kernel_seconds + c)
-            cull.append(c)
-    return statistics.median(times), times, statistics.median(cull), rgb
-
-
-def time_numpy(scene, gbuffer, repeats: int) -> float:
-    times = []
-    for _ in range(max(repeats, 1)):
-        t0 = time.perf_counter()
-        numpy_shade(scene, gbuffer)
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+def time_frame(renderer, gbuffer, frame):
+    """One frame: (device seconds of shading + culling, of culling alone, the image)."""
+    rgb = renderer.render(gbuffer, frame=frame)
+    c = renderer.last_cull.seconds if renderer.last_cull is not None else 0.0
+    return renderer.last_stats.kernel_seconds + c, c, rgb
 
 
 # --------------------------------------------------------------------------------- the run
@@ -380,20 +368,13 @@ def run_bench(cfg: BenchConfig) -> dict:
         cases = [("wide", n) for n in cfg.lights] + [("small", n) for n in cfg.small_lights]
         for kind, n in cases:
             scene = bench_scene(kind, n)
-            # numpy float32, on a crop, in the same run (wide scene only: same shading)
-            if kind == "wide":
-                rows = _crop_rows(W, H, n, cfg.numpy_pairs)
-                crop = bench_gbuffer(W, H, rows)
-                t = time_numpy(scene, crop, min(cfg.repeats, 3))
-                np_rate = shaded_pixels(crop) * n / t
-                report["numpy"].append({"scene": kind, "lights": n, "crop_rows": rows,
-                                        "seconds": t, "ple_per_s": np_rate})
-                log(f"numpy float32  {kind:5s} N={n:<6d} {np_rate / 1e6:8.2f} MPLE/s ({W}x{rows})")
-            else:
-                np_rate = None
             oracle_cache: dict = {}
             runs = [(p, None) for p in cfg.paths] if kind == "wide" else []
             runs += [("accurate", b) for b in cfg.budgets]
+            # Set every run of this case up first, then time them round-robin (one
+            # frame of each per round, numpy included), so that the other tenants'
+            # load falls on every path alike and the ratios hold.
+            slots = []
             for path, budget in runs:
                 opts = dict(PATHS[path])
                 brute = budget is None
@@ -411,7 +392,34 @@ def run_bench(cfg: BenchConfig) -> dict:
                 gb = full if rows == H else bench_gbuffer(W, H, rows)
                 r = Renderer(scene, device=cfg.device, max_error=budget, **opts)
                 frame = prepare_frame(gb, lanes=max(r.lanes, 1))
-                med, times, cull_s, rgb = time_renderer(r, gb, frame, cfg.warmup, cfg.repeats)
+                slots.append({"path": path, "budget": budget, "rows": rows, "gb": gb, "r": r,
+                              "frame": frame, "times": [], "cull": []})
+            crop = None
+            if kind == "wide":      # numpy float32, on a crop (wide scene only: same shading)
+                np_rows = _crop_rows(W, H, n, cfg.numpy_pairs)
+                crop, np_times = bench_gbuffer(W, H, np_rows), []
+            for round_ in range(cfg.warmup + cfg.repeats):
+                for slot in slots:
+                    t, c, slot["rgb"] = time_frame(slot["r"], slot["gb"], slot["frame"])
+                    if round_ >= cfg.warmup:
+                        slot["times"].append(t)
+                        slot["cull"].append(c)
+                if crop is not None and round_ >= cfg.warmup and round_ - cfg.warmup < 3:
+                    t0 = time.perf_counter()
+                    numpy_shade(scene, crop)
+                    np_times.append(time.perf_counter() - t0)
+            np_rate = None
+            if crop is not None:
+                t = statistics.median(np_times)
+                np_rate = shaded_pixels(crop) * n / t
+                report["numpy"].append({"scene": kind, "lights": n, "crop_rows": np_rows,
+                                        "seconds": t, "ple_per_s": np_rate})
+                log(f"numpy float32  {kind:5s} N={n:<6d} {np_rate / 1e6:8.2f} MPLE/s ({W}x{np_rows})")
+            for slot in slots:
+                path, budget, rows, gb, r, frame = (slot[k] for k in ("path", "budget", "rows", "gb", "r", "frame"))
+                brute = budget is None
+                times, rgb = slot["times"], slot["rgb"]
+                med, cull_s = statistics.median(times), statistics.median(slot["cull"])
                 key = rows
                 if key not in oracle_cache:
                     m = max(500, int(cfg.error_pairs // max(n, 1)))

@@ -157,3 +157,19 @@ def test_summary_lines_are_sentences():
                                  "cull_max_abs_error": 2e-4, "target_3x_met": True})
     assert lines[1].endswith("met (75x)") and "N=4096" in lines[2] and ": met (1.5x" in lines[2]
     assert "not measured" in bench.summary_lines({})[0]
+
+
+def test_runs_of_a_case_take_turns(monkeypatch):
+    """Paths and budgets of one (scene, N) are timed round-robin, one frame each per
+    round, so a burst of load from another tenant falls on all of them alike."""
+    calls = []
+    real = bench.time_frame
+    monkeypatch.setattr(bench, "time_frame", lambda r, gb, frame: calls.append(id(r)) or real(r, gb, frame))
+    cfg = bench.BenchConfig(sizes=((32, 16),), lights=(2,), small_lights=(), paths=("accurate", "float"),
+                            budgets=(0.0,), repeats=3, warmup=1, crop_pairs=1e9, error_pairs=1e5,
+                            numpy_pairs=1e9)
+    bench.run_bench(cfg)
+    slots = len(set(calls))
+    assert slots == 3 and len(calls) == 3 * (1 + 3)
+    rounds = [calls[i:i + slots] for i in range(0, len(calls), slots)]
+    assert all(sorted(r) == sorted(rounds[0]) for r in rounds)
