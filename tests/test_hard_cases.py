@@ -75,8 +75,10 @@ def test_c2_only_at_extreme_distances_is_I_over_d_squared():
         assert np.allclose(r.rgb[0, :, 0], expect, rtol=16 * reference.U, atol=0)
 
 
-def test_beyond_float_range_saturates_at_flt_max():
-    r = evaluate(_by_name("beyond-float-range"))
+@pytest.mark.parametrize("compensated", [None, True, False], ids=["double-sum", "neumaier", "naive"])
+def test_beyond_float_range_saturates_at_flt_max(compensated):
+    """Every light-sum variant's finish_sum saturates at FLT_MAX, never Inf."""
+    r = evaluate(_by_name("beyond-float-range"), compensated=compensated)
     assert np.all(r.rgb == np.finfo(np.float32).max)
 
 
