@@ -183,11 +183,15 @@ class GBuffer:
             normal is *not* background), or where any normal component is
             not finite.
         """
-        n = np.asarray(self.normal, dtype=np.float64)
-        nonfinite = ~np.all(np.isfinite(n), axis=-1)
-        with np.errstate(over="ignore", invalid="ignore"):
-            zero = np.einsum("...i,...i->...", n, n) == 0.0
-        mask = nonfinite | zero
+        n = np.asarray(self.normal)
+        x, y, z = n[..., 0], n[..., 1], n[..., 2]
+        # |N|² = 0 in float64 exactly where every component is 0 (the square of
+        # the smallest float32 or half denormal, about 2e-90, is a normal float64).
+        mask = (x == 0) & (y == 0) & (z == 0)
+        from .inputs import all_finite
+
+        if not all_finite(n):                              # the common case, cheaply
+            mask |= ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(z))
         if self.coverage is not None:
             mask |= np.asarray(self.coverage) == 0
         return mask

@@ -34,11 +34,25 @@ from .errors import GBufferError, InputWarning
 POLICIES = ("background", "error", "pass")
 
 
+def all_finite(array) -> bool:
+    """Whether every value is finite: one float64 sum (a sum of float32 or half
+    values cannot overflow float64), far cheaper than a per-pixel mask."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        return bool(np.isfinite(np.asarray(array).sum(dtype=np.float64)))
+
+
 def _nonfinite_pixels(array: np.ndarray) -> np.ndarray:
     """(H, W) bool: any component of the pixel is NaN or ±Inf."""
     a = np.asarray(array)
-    bad = ~np.isfinite(a)
-    return bad.any(axis=-1) if a.ndim == 3 else bad
+    shape = a.shape[:2]
+    if all_finite(a):                       # the common case, cheaply
+        return np.zeros(shape, bool)
+    if a.ndim == 2:
+        return ~np.isfinite(a)
+    ok = np.ones(shape, bool)
+    for c in range(a.shape[-1]):
+        ok &= np.isfinite(a[..., c])
+    return ~ok
 
 
 def _buffers(gbuffer):

@@ -61,6 +61,31 @@ def unit_normals(normal: np.ndarray, background: np.ndarray) -> np.ndarray:
     return n
 
 
+def position_bounds(position: np.ndarray, background: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi), float64 per axis, of the finite, shaded positions; ±inf if there are none.
+
+    Masked reductions per axis (no boolean-indexed copy of the frame).
+    """
+    p = position.reshape(-1, 3)
+    axes = [p[:, a] for a in range(3)]
+    ok = ~background.reshape(-1)
+    for c in axes:
+        ok &= np.isfinite(c)
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    if ok.any():
+        for a, c in enumerate(axes):
+            lo[a] = c.min(where=ok, initial=np.inf)
+            hi[a] = c.max(where=ok, initial=-np.inf)
+    return lo, hi
+
+
+def origin_of_bounds(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The float32 centre of a bounding box; 0 for an empty one."""
+    if not np.all(np.isfinite(lo)):
+        return np.zeros(3, np.float32)
+    return ((lo + hi) / 2).astype(np.float32)
+
+
 def frame_origin(position: np.ndarray, background: np.ndarray) -> np.ndarray:
     """A float32 point at the centre of the finite, shaded positions (0 if none).
 
@@ -68,13 +93,7 @@ def frame_origin(position: np.ndarray, background: np.ndarray) -> np.ndarray:
     it the difference is exact (Sterbenz), so a scene far from the world origin
     keeps the digits of its distances.
     """
-    p = position.reshape(-1, 3)[~background]
-    p = p[np.isfinite(p).all(axis=1)] if p.size else p
-    if not p.size:
-        return np.zeros(3, np.float32)
-    lo = p.min(axis=0).astype(np.float64)
-    hi = p.max(axis=0).astype(np.float64)
-    return ((lo + hi) / 2).astype(np.float32)
+    return origin_of_bounds(*position_bounds(position, background))
 
 
 def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:

@@ -399,18 +399,15 @@ def frame_origin_banded(gbuffer, bands: list[tuple[int, int]]) -> np.ndarray:
     ``frame_origin(position, background_mask())`` of the whole frame without
     the whole frame's temporaries.
     """
+    from .render import origin_of_bounds, position_bounds
+
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
     for y0, y1 in bands:
         part = _band(gbuffer, y0, y1)
-        p = part.position.reshape(-1, 3)[~part.background_mask().reshape(-1)]
-        p = p[np.isfinite(p).all(axis=1)] if p.size else p
-        if p.size:
-            lo = np.minimum(lo, p.min(axis=0).astype(np.float64))
-            hi = np.maximum(hi, p.max(axis=0).astype(np.float64))
-    if not np.all(np.isfinite(lo)):
-        return np.zeros(3, np.float32)
-    return ((lo + hi) / 2).astype(np.float32)
+        b_lo, b_hi = position_bounds(part.position, part.background_mask())
+        lo, hi = np.minimum(lo, b_lo), np.maximum(hi, b_hi)
+    return origin_of_bounds(lo, hi)
 
 
 def _launch(renderer, gbuffer, frame):
