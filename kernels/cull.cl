@@ -64,6 +64,7 @@
 #define MAX_(a, b) ((a) > (b) ? (a) : (b))
 #define MIN_(a, b) ((a) < (b) ? (a) : (b))
 #define SEL_(a, b, c) ((c) ? (b) : (a))
+#define ABS1_(x) ((x) < 0.0f ? -(x) : (x))     /* scalar |x| (−0 stays −0: only fed to MAX_ with 0) */
 #if LANES == 16
 #define ABS_(x) as_float16(as_int16(x) & 0x7fffffff)
 #elif LANES == 8
@@ -136,7 +137,7 @@ __kernel void tile_bounds(__global const float *restrict gbuf,
                     const float kd = k_d;
 #endif
                     for (int c = 0; c < 3; ++c)
-                        D[c] = MAX_(D[c], fabs(gbuf[(6 + c) * stride + q] * kd));
+                        D[c] = MAX_(D[c], ABS1_(gbuf[(6 + c) * stride + q] * kd));
 #if HAS_SPECULAR
 #if MAP_KS
                     const float ks = maps[(plane++) * stride + q];
@@ -153,7 +154,7 @@ __kernel void tile_bounds(__global const float *restrict gbuf,
 #else
                         const float s = ks * Su[c];
 #endif
-                        S[c] = MAX_(S[c], fabs(s));
+                        S[c] = MAX_(S[c], ABS1_(s));
                     }
 #endif
                 }
