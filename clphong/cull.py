@@ -138,21 +138,59 @@ class TileLists:
                 np.uint32(self.n_tiles)]
 
 
-def _cull_level(runtime, prog, frame, g, mp, lb, n_point, *, budget, k_d, S, tile_size,
-                tiles_x, tiles_y, lanes, candidates=None, super_tiles=0):
-    """One level: tile bounds, capacities, lists. Returns (ranges (n, 2) uint32 host
-    array, lists buffer, total kept, device seconds), or None when too long."""
+#: Floats per tile record (T_PLANES in kernels/cull.cl).
+T_PLANES = 19
+
+
+def _n_pad(n_tiles: int, lanes: int) -> int:
+    block = lanes * CULL_LOCAL
+    return -(-n_tiles // block) * block
+
+
+def _tile_bounds(runtime, prog, frame, g, mp, *, k_d, S, tile_size, tiles_x, tiles_y, lanes):
+    """kernels/cull.cl tile_bounds: (tiles buffer, its event)."""
     import pyopencl as cl
 
     from .runtime import float4
 
-    ctx, queue = runtime.context, runtime.queue
-    mf = cl.mem_flags
     h, w = frame.shape
     n_tiles = tiles_x * tiles_y
-    block = lanes * CULL_LOCAL
-    n_pad = -(-n_tiles // block) * block
-    tiles = cl.Buffer(ctx, mf.READ_WRITE, 19 * n_pad * 4)
+    n_pad = _n_pad(n_tiles, lanes)
+    tiles = cl.Buffer(runtime.context, cl.mem_flags.READ_WRITE, T_PLANES * n_pad * 4)
+    k0 = cl.Kernel(prog, "tile_bounds")
+    k0.set_args(g, mp, np.uint32(frame.stride), np.uint32(w), np.uint32(h * w),
+                np.uint32(tile_size), np.uint32(tiles_x), np.uint32(n_tiles), np.uint32(n_pad),
+                float4(*frame.origin), np.float32(k_d), float4(*S), tiles)
+    return tiles, cl.enqueue_nd_range_kernel(runtime.queue, k0, (n_pad,), (CULL_LOCAL,))
+
+
+def _merge_bounds(runtime, prog, fine, *, fine_tiles_x, fine_tiles_y, sup, tiles_x, tiles_y,
+                  lanes, wait_for):
+    """kernels/cull.cl merge_bounds: super-tile records from the tiles' (bit-identical
+    to tile_bounds on the super-tiles, without reading the frame again)."""
+    import pyopencl as cl
+
+    n_tiles = tiles_x * tiles_y
+    n_pad = _n_pad(n_tiles, lanes)
+    tiles = cl.Buffer(runtime.context, cl.mem_flags.READ_WRITE, T_PLANES * n_pad * 4)
+    k = cl.Kernel(prog, "merge_bounds")
+    k.set_args(fine, np.uint32(fine_tiles_x), np.uint32(fine_tiles_y),
+               np.uint32(_n_pad(fine_tiles_x * fine_tiles_y, lanes)), np.uint32(sup),
+               np.uint32(tiles_x), np.uint32(n_tiles), np.uint32(n_pad), tiles)
+    return tiles, cl.enqueue_nd_range_kernel(runtime.queue, k, (n_pad,), (CULL_LOCAL,),
+                                             wait_for=wait_for)
+
+
+def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, tiles_x, tiles_y,
+                lanes, candidates=None, super_tiles=0):
+    """One level, from its tile records: capacities, lists. Returns (ranges (n, 2) uint32
+    host array, lists buffer, total kept, device seconds), or None when too long."""
+    import pyopencl as cl
+
+    ctx, queue = runtime.context, runtime.queue
+    mf = cl.mem_flags
+    n_tiles = tiles_x * tiles_y
+    n_pad = _n_pad(n_tiles, lanes)
     tau = cl.Buffer(ctx, mf.READ_WRITE, n_pad * 4)
     left = cl.Buffer(ctx, mf.READ_WRITE, n_pad * 4)
     cap = np.zeros(n_pad, np.uint32)
@@ -163,12 +201,7 @@ def _cull_level(runtime, prog, frame, g, mp, lb, n_point, *, budget, k_d, S, til
     else:
         cand = (candidates[0], candidates[1], np.uint32(1))
     cand_args = (*cand, np.uint32(tiles_x), np.uint32(super_tiles))
-    events = []
-    k0 = cl.Kernel(prog, "tile_bounds")
-    k0.set_args(g, mp, np.uint32(frame.stride), np.uint32(w), np.uint32(h * w),
-                np.uint32(tile_size), np.uint32(tiles_x), np.uint32(n_tiles), np.uint32(n_pad),
-                float4(*frame.origin), np.float32(k_d), float4(*S), tiles)
-    events.append(cl.enqueue_nd_range_kernel(queue, k0, (n_pad,), (CULL_LOCAL,)))
+    events = list(bounds_events)
     k1 = cl.Kernel(prog, "cull_count")
     k1.set_args(tiles, np.uint32(n_pad), lb, np.uint32(n_point), *cand_args,
                 np.float32(budget), tau, left, capb)
@@ -228,19 +261,24 @@ def build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k_
     g = gbuf_buffer if gbuf_buffer is not None else cl.Buffer(ctx, ro, hostbuf=frame.gbuf)
     mp = maps_buffer if maps_buffer is not None else cl.Buffer(ctx, ro, hostbuf=frame.maps)
     lb = cl.Buffer(ctx, ro, hostbuf=pack_cull_lights(point_records, n_point))
-    common = dict(k_d=k_d, S=S, lanes=lanes)
+    # The tiles' bounds, then the super-tiles' merged from them (one pass over the frame).
+    fine_tiles, e_fine = _tile_bounds(runtime, prog, frame, g, mp, k_d=k_d, S=S, tile_size=TILE,
+                                      tiles_x=tiles_x, tiles_y=tiles_y, lanes=lanes)
+    coarse_tiles, e_coarse = _merge_bounds(runtime, prog, fine_tiles, fine_tiles_x=tiles_x,
+                                           fine_tiles_y=tiles_y, sup=sup, tiles_x=super_x,
+                                           tiles_y=super_y, lanes=lanes, wait_for=[e_fine])
     coarse_budget = budget * COARSE_SHARE
-    coarse = _cull_level(runtime, prog, frame, g, mp, lb, n_point, budget=coarse_budget,
-                         tile_size=TILE * sup, tiles_x=super_x, tiles_y=super_y, **common)
+    coarse = _cull_level(runtime, prog, coarse_tiles, [e_fine, e_coarse], lb, n_point,
+                         budget=coarse_budget, tiles_x=super_x, tiles_y=super_y, lanes=lanes)
     if coarse is None:
         return None
     c_ranges, c_lists, _, c_seconds = coarse
     crb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(c_ranges))
     # the rest of the budget, rounded down so that the two parts never sum past it
     fine_budget = float(np.nextafter(np.float32(budget - coarse_budget), np.float32(0)))
-    fine = _cull_level(runtime, prog, frame, g, mp, lb, n_point, budget=max(fine_budget, 0.0),
-                       tile_size=TILE, tiles_x=tiles_x, tiles_y=tiles_y,
-                       candidates=(crb, c_lists), super_tiles=super_x * super_y, **common)
+    fine = _cull_level(runtime, prog, fine_tiles, [], lb, n_point, budget=max(fine_budget, 0.0),
+                       tiles_x=tiles_x, tiles_y=tiles_y, lanes=lanes,
+                       candidates=(crb, c_lists), super_tiles=super_x * super_y)
     if fine is None:
         return None
     ranges, lists, kept, seconds = fine

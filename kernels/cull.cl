@@ -169,6 +169,41 @@ __kernel void tile_bounds(__global const float *restrict gbuf,
         tiles[k * n_tiles_pad + t] = v[k];
 }
 
+/* The bounds of super-tiles of super × super tiles, merged from the tiles'
+ * (tile_bounds at the finer level): a super-tile's pixels are exactly the union
+ * of its tiles' (the same first-pixel rule, tiles_x a multiple of super), every
+ * field is a min or a max, and R (sqrt, then ×(1 + 2u)) is monotone in R², so
+ * the result is bit-identical to tile_bounds run on the super-tiles, without
+ * reading the frame a second time. Tiles past fine_tiles_y, and padding
+ * super-tiles, contribute the empty record (±∞ bounds, zeros). */
+__kernel void merge_bounds(__global const float *restrict fine, const uint fine_tiles_x,
+                           const uint fine_tiles_y, const uint fine_pad, const uint super,
+                           const uint tiles_x, const uint n_tiles, const uint n_tiles_pad,
+                           __global float *restrict tiles)
+{
+    const uint t = get_global_id(0);
+    if (t >= n_tiles_pad)
+        return;
+    float v[T_PLANES];
+    for (int k = 0; k < T_PLANES; ++k)
+        v[k] = k < T_HIX ? INFINITY : (k < T_NLOX ? -INFINITY : (k < T_NHIX ? INFINITY
+               : (k < T_DR ? -INFINITY : 0.0f)));
+    if (t < n_tiles) {
+        const uint fx0 = (t % tiles_x) * super, fy0 = (t / tiles_x) * super;
+        for (uint fy = fy0; fy < min(fy0 + super, fine_tiles_y); ++fy)
+            for (uint fx = fx0; fx < fx0 + super; ++fx) {
+                const uint f = fy * fine_tiles_x + fx;
+                for (int k = 0; k < T_PLANES; ++k) {
+                    const float x = fine[k * fine_pad + f];
+                    const int is_min = k < T_HIX || (k >= T_NLOX && k < T_NHIX);
+                    v[k] = is_min ? MIN_(v[k], x) : MAX_(v[k], x);
+                }
+            }
+    }
+    for (int k = 0; k < T_PLANES; ++k)
+        tiles[k * n_tiles_pad + t] = v[k];
+}
+
 typedef struct {
     floatL lox, loy, loz, hix, hiy, hiz;
     floatL nlox, nloy, nloz, nhix, nhiy, nhiz;

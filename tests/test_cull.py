@@ -351,3 +351,46 @@ def test_constant_falloff_compiles_the_polynomial_out():
     check_against_reference(scene, random_gbuffer(rng, 12, 20))
     lights[0]["attenuation"] = (1.0, 0.0, 1e-3)
     assert Renderer(make_scene(lights)).plan_for(()).defines["HAS_ATTENUATION"] == 1
+
+
+@pytest.mark.parametrize("maps", [(), ("k_d", "k_s", "h", "specular_color")])
+def test_super_tile_bounds_merged_from_tiles_equal_direct_bounds(maps):
+    """merge_bounds (super-tiles from the tiles' records, one pass over the frame) is
+    bit-identical to tile_bounds run on the super-tiles themselves."""
+    import pyopencl as cl
+
+    from clphong import cull
+
+    rng = np.random.default_rng(21)
+    gb = heightfield(rng, 70, 203, maps=maps)           # odd sizes: partial tiles and super-tiles
+    scene = make_scene([dict(type="point", position=(1.0, 1.0, 0.5))], k_s=0.3)
+    r = Renderer(scene, max_error=1e-3)
+    frame = prepare_frame(gb, lanes=r.lanes)
+    plan = r.plan_for(frame.map_names)
+    rt = r.runtime
+    lanes = max(plan.lanes, 1)
+    sup = max(cull.SUPER, lanes)
+    defines = {k: v for k, v in plan.defines.items() if k in cull.CULL_DEFINES}
+    prog = rt.program("cull.cl", {**defines, "CULL_TILE": cull.TILE, "CULL_SUPER": sup, "LANES": lanes})
+    h, w = frame.shape
+    tiles_x = -(-(-(-w // cull.TILE)) // sup) * sup
+    tiles_y = -(-h // cull.TILE)
+    super_x, super_y = tiles_x // sup, -(-tiles_y // sup)
+    mf = cl.mem_flags
+    g = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=frame.gbuf)
+    mp = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=frame.maps)
+    k_d, S = 0.7, np.array([0.3, 0.3, 0.3])
+    fine, _ = cull._tile_bounds(rt, prog, frame, g, mp, k_d=k_d, S=S, tile_size=cull.TILE,
+                                tiles_x=tiles_x, tiles_y=tiles_y, lanes=lanes)
+    merged, _ = cull._merge_bounds(rt, prog, fine, fine_tiles_x=tiles_x, fine_tiles_y=tiles_y,
+                                   sup=sup, tiles_x=super_x, tiles_y=super_y, lanes=lanes, wait_for=None)
+    direct, _ = cull._tile_bounds(rt, prog, frame, g, mp, k_d=k_d, S=S, tile_size=cull.TILE * sup,
+                                  tiles_x=super_x, tiles_y=super_y, lanes=lanes)
+    n_pad = cull._n_pad(super_x * super_y, lanes)
+    a = np.empty(cull.T_PLANES * n_pad, np.float32)
+    b = np.empty_like(a)
+    cl.enqueue_copy(rt.queue, a, merged)
+    cl.enqueue_copy(rt.queue, b, direct)
+    rt.queue.finish()
+    assert np.isfinite(a[: super_x * super_y]).all()     # at least the lo.x plane of real tiles
+    assert np.array_equal(a.view(np.uint32), b.view(np.uint32))
