@@ -117,38 +117,62 @@ typedef int intL;
 #error "LANES must be 1, 4, 8 or 16"
 #endif
 
+/* doubleL: LANES doubles, for whatever the plan computes in double
+ * (DIRECTIONS_FP64, SPEC_INT_POW, SUM_FP64); longL its same-size integers. */
+#if DIRECTIONS_FP64 || SPEC_INT_POW || SUM_FP64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#if LANES == 16
+typedef double16 doubleL;
+typedef long16 longL;
+#define TO_DOUBLE(x) convert_double16(x)
+#define DOUBLE_TO_FLOAT(x) convert_float16(x)
+#define AS_DOUBLE_L(x) as_double16(x)
+#define AS_LONG_L(x) as_long16(x)
+#elif LANES == 8
+typedef double8 doubleL;
+typedef long8 longL;
+#define TO_DOUBLE(x) convert_double8(x)
+#define DOUBLE_TO_FLOAT(x) convert_float8(x)
+#define AS_DOUBLE_L(x) as_double8(x)
+#define AS_LONG_L(x) as_long8(x)
+#elif LANES == 4
+typedef double4 doubleL;
+typedef long4 longL;
+#define TO_DOUBLE(x) convert_double4(x)
+#define DOUBLE_TO_FLOAT(x) convert_float4(x)
+#define AS_DOUBLE_L(x) as_double4(x)
+#define AS_LONG_L(x) as_long4(x)
+#else
+typedef double doubleL;
+typedef long longL;
+#define TO_DOUBLE(x) ((double)(x))
+#define DOUBLE_TO_FLOAT(x) ((float)(x))
+#define AS_DOUBLE_L(x) as_double(x)
+#define AS_LONG_L(x) as_long(x)
+#endif
+#endif
+
 /* dirL: the type of positions, directions, n·l and δ (and dirS its scalar).
  * float32 directions carry a rounding of ~u each; through n·l near grazing
  * and through δ into x^k (condition number k) that becomes a relative error far
  * above u (docs/error-model.md). With DIRECTIONS_FP64 they are computed in double
  * from the float32 inputs and hi+lo float pairs from the host, and only n·l, δ
  * (for exp/log1p; the integer power takes δ in double) and att·L are rounded to
- * float: the error of every term is then a few u, relative. */
+ * float: the error of every term is then a few u, relative.
+ * HI_LO(hi, lo): a host float64 value sent as float hi + lo, in dirS (hi alone
+ * in float). */
 #if DIRECTIONS_FP64
-#pragma OPENCL EXTENSION cl_khr_fp64 : enable
 typedef double dirS;
-#if LANES == 16
-typedef double16 dirL;
-#define TO_FLOAT(x) convert_float16(x)
-#define TO_DIR(x) convert_double16(x)
-#elif LANES == 8
-typedef double8 dirL;
-#define TO_FLOAT(x) convert_float8(x)
-#define TO_DIR(x) convert_double8(x)
-#elif LANES == 4
-typedef double4 dirL;
-#define TO_FLOAT(x) convert_float4(x)
-#define TO_DIR(x) convert_double4(x)
-#else
-typedef double dirL;
-#define TO_FLOAT(x) ((float)(x))
-#define TO_DIR(x) ((double)(x))
-#endif
+typedef doubleL dirL;
+#define TO_FLOAT(x) DOUBLE_TO_FLOAT(x)
+#define TO_DIR(x) TO_DOUBLE(x)
+#define HI_LO(hi, lo) ((dirS)(hi) + (dirS)(lo))
 #else
 typedef float dirS;
 typedef floatL dirL;
 #define TO_FLOAT(x) (x)
 #define TO_DIR(x) (x)
+#define HI_LO(hi, lo) (hi)
 #endif
 
 /* RSQRT_DIR(x): 1/√x for dirL, x > 0 (callers select their own value for 0).
@@ -162,26 +186,9 @@ typedef floatL dirL;
  * The lights loop ran 1.12× faster (bench scene, 16 lanes). In float, the
  * builtin (2 ulp, as the error model assumes). */
 #if DIRECTIONS_FP64
-#if LANES == 16
-typedef long16 dirI;
-#define AS_DIR(x) as_double16(x)
-#define AS_DIRI(x) as_long16(x)
-#elif LANES == 8
-typedef long8 dirI;
-#define AS_DIR(x) as_double8(x)
-#define AS_DIRI(x) as_long8(x)
-#elif LANES == 4
-typedef long4 dirI;
-#define AS_DIR(x) as_double4(x)
-#define AS_DIRI(x) as_long4(x)
-#else
-typedef long dirI;
-#define AS_DIR(x) as_double(x)
-#define AS_DIRI(x) as_long(x)
-#endif
 inline dirL rsqrt_dir(dirL x)
 {
-    dirL y = AS_DIR((dirI)(0x5FE6EB50C7B537A9L) - (AS_DIRI(x) >> 1));
+    dirL y = AS_DOUBLE_L((longL)(0x5FE6EB50C7B537A9L) - (AS_LONG_L(x) >> 1));
     const dirL h = 0.5 * x;
     y = y * (1.5 - h * y * y);
     y = y * (1.5 - h * y * y);
@@ -196,57 +203,21 @@ inline dirL rsqrt_dir(dirL x)
 
 /* sumL: the type of the running light sums; double with SUM_FP64. */
 #if SUM_FP64
-#pragma OPENCL EXTENSION cl_khr_fp64 : enable
-#if LANES == 16
-typedef double16 sumL;
-#define TO_SUM(x) convert_double16(x)
-#define SUM_TO_FLOAT(x) convert_float16(x)
-#elif LANES == 8
-typedef double8 sumL;
-#define TO_SUM(x) convert_double8(x)
-#define SUM_TO_FLOAT(x) convert_float8(x)
-#elif LANES == 4
-typedef double4 sumL;
-#define TO_SUM(x) convert_double4(x)
-#define SUM_TO_FLOAT(x) convert_float4(x)
-#else
-typedef double sumL;
-#define TO_SUM(x) ((double)(x))
-#define SUM_TO_FLOAT(x) ((float)(x))
-#endif
+typedef doubleL sumL;
+#define TO_SUM(x) TO_DOUBLE(x)
+#define SUM_TO_FLOAT(x) DOUBLE_TO_FLOAT(x)
 #else
 typedef floatL sumL;
 #define TO_SUM(x) (x)
 #define SUM_TO_FLOAT(x) (x)
 #endif
 
-/* powL: the type of x = 1 − δ and its powers with SPEC_INT_POW (double; dirL
- * itself when the directions are in double already); POW_TO_FLOAT rounds. */
+/* powL: the type of x = 1 − δ and its powers with SPEC_INT_POW (double; from
+ * dirL, a conversion to the same type where the directions are in double). */
 #if SPEC_INT_POW
-#if DIRECTIONS_FP64
-typedef dirL powL;
-#define TO_POW(x) (x)
-#define POW_TO_FLOAT(x) TO_FLOAT(x)
-#else
-#pragma OPENCL EXTENSION cl_khr_fp64 : enable
-#if LANES == 16
-typedef double16 powL;
-#define TO_POW(x) convert_double16(x)
-#define POW_TO_FLOAT(x) convert_float16(x)
-#elif LANES == 8
-typedef double8 powL;
-#define TO_POW(x) convert_double8(x)
-#define POW_TO_FLOAT(x) convert_float8(x)
-#elif LANES == 4
-typedef double4 powL;
-#define TO_POW(x) convert_double4(x)
-#define POW_TO_FLOAT(x) convert_float4(x)
-#else
-typedef double powL;
-#define TO_POW(x) ((double)(x))
-#define POW_TO_FLOAT(x) ((float)(x))
-#endif
-#endif
+typedef doubleL powL;
+#define TO_POW(x) TO_DOUBLE(x)
+#define POW_TO_FLOAT(x) DOUBLE_TO_FLOAT(x)
 #endif
 
 /* SELECT(a, b, c): c ? b : a per lane, as select(a, b, c) for vector masks from

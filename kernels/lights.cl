@@ -80,12 +80,7 @@ inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, di
 inline weights_t shade_point_light(const pixel_t *p, float4 L, float4 L_lo, float c1, float c2,
                                    float4 radiance, floatL *ar, floatL *ag, floatL *ab)
 {
-#if DIRECTIONS_FP64
-    const dirS Lx = (dirS)L.x + (dirS)L_lo.x, Ly = (dirS)L.y + (dirS)L_lo.y,
-               Lz = (dirS)L.z + (dirS)L_lo.z;
-#else
-    const dirS Lx = L.x, Ly = L.y, Lz = L.z;
-#endif
+    const dirS Lx = HI_LO(L.x, L_lo.x), Ly = HI_LO(L.y, L_lo.y), Lz = HI_LO(L.z, L_lo.z);
     const dirL dx = Lx - p->px, dy = Ly - p->py, dz = Lz - p->pz;
     const dirL d2 = MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz));
     const dirL inv_d = SELECT_DIR(RSQRT_DIR(d2), (dirL)(0.0f), d2 <= (dirL)(0.0f));
@@ -105,12 +100,7 @@ inline weights_t shade_point_light(const pixel_t *p, float4 L, float4 L_lo, floa
  * are the host's float64 remainders, used with DIRECTIONS_FP64), no falloff. */
 inline weights_t shade_directional_light(const pixel_t *p, float4 l, float4 l_lo, float4 h, float4 h_lo)
 {
-#if DIRECTIONS_FP64
-    const dirS lx = (dirS)l.x + (dirS)l_lo.x, ly = (dirS)l.y + (dirS)l_lo.y,
-               lz = (dirS)l.z + (dirS)l_lo.z;
-#else
-    const dirS lx = l.x, ly = l.y, lz = l.z;
-#endif
+    const dirS lx = HI_LO(l.x, l_lo.x), ly = HI_LO(l.y, l_lo.y), lz = HI_LO(l.z, l_lo.z);
     const dirL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
 #if BLINN_CONST_H && HAS_SPECULAR
     weights_t w;

@@ -146,12 +146,8 @@ __kernel void shade(__global const float *restrict gbuf,
 #endif
 #endif
 
-#if DIRECTIONS_FP64
-    const dirS eye_x = (dirS)eye.x + (dirS)eye_lo.x, eye_y = (dirS)eye.y + (dirS)eye_lo.y,
-               eye_z = (dirS)eye.z + (dirS)eye_lo.z;
-#else
-    const dirS eye_x = eye.x, eye_y = eye.y, eye_z = eye.z;
-#endif
+    const dirS eye_x = HI_LO(eye.x, eye_lo.x), eye_y = HI_LO(eye.y, eye_lo.y),
+               eye_z = HI_LO(eye.z, eye_lo.z);
 #if CAMERA_ORTHO
     p.vx = (dirL)(eye_x);
     p.vy = (dirL)(eye_y);
