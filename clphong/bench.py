@@ -185,8 +185,7 @@ def numpy_shade(scene, gbuffer) -> np.ndarray:
     m = scene.material
     D = Cd * f(m.k_d)
     S = (np.asarray(m.specular_color, f) * f(m.k_s))[:, None]
-    blinn = m.model == "blinn-phong"
-    k = f(4 * m.h if blinn else m.h)
+    k = f(m.exponent)
     eye = np.asarray(scene.camera.position, f)[:, None]
     V = eye - P
     V = V / np.sqrt((V * V).sum(axis=0))
@@ -365,6 +364,7 @@ def run_bench(cfg: BenchConfig) -> dict:
     }
     for (W, H) in cfg.sizes:
         full = bench_gbuffer(W, H)
+        shaded_full = shaded_pixels(full)
         cases = [("wide", n) for n in cfg.lights] + [("small", n) for n in cfg.small_lights]
         for kind, n in cases:
             scene = bench_scene(kind, n)
@@ -427,10 +427,9 @@ def run_bench(cfg: BenchConfig) -> dict:
                 err = oracle_cache[key].errors(rgb)
                 # shaded pixel-light evaluations: background pixels cost no light
                 # (kernel, culling and numpy alike), so they are not counted
-                shaded, shaded_full = shaded_pixels(gb), shaded_pixels(full)
+                shaded = shaded_pixels(gb)
                 rate = shaded * n / med
-                m = scene.material
-                flops = flops_per_ple(r.last_plan, 4.0 * m.h if m.model == "blinn-phong" else m.h)
+                flops = flops_per_ple(r.last_plan, scene.material.exponent)
                 entry = {
                     "scene": kind, "size": [W, H], "lights": n, "path": path,
                     "max_error": budget, "crop_rows": rows, "extrapolated": rows != H,

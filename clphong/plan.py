@@ -176,7 +176,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
             "directions, n·l and δ in double: relative error a few u at grazing light and "
             "any shininess (docs/error-model.md)" if fp64_directions
             else "directions in float: fast path, error grows near grazing light and with k")
-        k = 4.0 * m.h if blinn else m.h
+        k = m.exponent
         whole = float(k).is_integer() and 0 <= k <= INT_POW_MAX
         use = specular and "h" not in maps and whole and fp64 and int_pow
         exponent = f"k = {'4h' if blinn else 'h'} = {k:g}"

@@ -220,8 +220,7 @@ def material_uniforms(scene, map_names) -> tuple[float, np.ndarray, float]:
     cs = np.asarray(m.specular_color, np.float64)
     ks = 1.0 if "k_s" in map_names else m.k_s
     S = (np.ones(3) if "specular_color" in map_names else cs) * ks
-    k = 4.0 * m.h if m.model == "blinn-phong" else m.h
-    return m.k_d, S, k
+    return m.k_d, S, m.exponent
 
 
 @dataclass

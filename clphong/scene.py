@@ -226,6 +226,11 @@ class Material:
     h: float
     specular_color: Vec3 = _WHITE
 
+    @property
+    def exponent(self) -> float:
+        """The specular exponent the kernels raise to: h for Phong, 4h for Blinn-Phong."""
+        return 4.0 * self.h if self.model == "blinn-phong" else self.h
+
     def to_dict(self) -> dict:
         """The ``[material]`` table as a dict that :func:`parse_scene` accepts."""
         return {"model": self.model, "k_a": self.k_a, "k_d": self.k_d, "k_s": self.k_s,
