@@ -53,8 +53,10 @@ What is measured
 * FP32 peak: ``kernels/peak.cl`` (independent multiply-add chains) measures the
   device's peak GFLOP/s in the same run; ``peak_fraction`` =
   PLE/s × ``flops_per_ple`` / peak, with the run's own flop count
-  (:func:`flops_per_ple`: 104 with exp/log1p, 83 with the integer power at
-  k = 128; the integer power's multiplies are in double).
+  (:func:`flops_per_ple`, itemised in :data:`FLOPS`; on the bench scene 59 on
+  the default path, 72 on the float paths (the integer power of 1 − δ), 93
+  with exp/log1p, 89 for the obvious kernel; double operations count as one
+  flop each).
 
 The report is JSON (``--json``) and a Pareto plot PNG (``--plot``, matplotlib)
 of throughput against error. A benchmark, not a test: the tests only check that
@@ -74,31 +76,56 @@ from pathlib import Path
 
 import numpy as np
 
-#: Flops per pixel-light evaluation of a Blinn-Phong point light with
-#: attenuation, counted on kernels/lights.cl + brdf.cl as written (float path):
-#: L − P 3, d² 5, rsqrt 2 (as sqrt + div), l 3, n·l 5; half vector 3, |h|² 5,
-#: rsqrt 2, h 3, n − h 3, δ 6; log1p ≈ 15 and exp ≈ 15 (their polynomial steps),
-#: k·log 1, gates 2; attenuation 4 + division 1; D·w + S·w and ×L: 3·4;
-#: compensated sums 3·4. Total 104; comparisons and selects not counted.
-FLOPS_PER_PLE = 104
-#: The exp/log1p share of FLOPS_PER_PLE (log1p 15, exp 15, k·log 1). A plan
-#: with SPEC_INT_POW does 1 − δ and the binary powering's multiplies instead
-#: (:func:`flops_per_ple`).
-FLOPS_EXP_FORM = 31
+#: Flops per pixel-light evaluation of a point light with attenuation, by part,
+#: counted on kernels/lights.cl + brdf.cl (shade_obvious.cl for the naive
+#: forms) as written. Comparisons, selects and float/double conversions are
+#: not counted; a double operation counts as one flop, as a float one does.
+FLOPS = {
+    "direction": 18,        # L − P 3, d² 5, rsqrt 2 (as sqrt + div), l 3, n·l 5
+    "falloff": 5,           # Horner 4, division 1
+    "gates": 2,             # max(n·l, 0), n·l > 0
+    "product": 12,          # L·(D·w_d + S·w_s): 3 channels × (2 products, 1 add, 1 product)
+    "sum": 3,               # 3 additions (in double with SUM_FP64, or a naive float sum)
+    "sum_compensated": 12,  # Neumaier: 3 channels × 4
+    "blinn_delta": 22,      # l + v 3, |h|² 5, rsqrt 2, h 3, n − h 3, δ 6
+    "phong_delta": 16,      # 2(n·l) 1, r − v 9, δ 6
+    "blinn_cos": 11,        # l + v 3, |l + v|² 5, n·l + n·v 1, q² 1, ÷ 1 (SPEC_COS)
+    "phong_cos": 8,         # l·v 5, 2(n·l) 1, ×(n·v) − l·v 2 (SPEC_COS)
+    "blinn_naive": 18,      # l + v 3, |h|² 5, normalize 5, n·h 5 (shade_obvious.cl)
+    "phong_naive": 12,      # 2(n·l)·n − l 7, r·v 5 (shade_obvious.cl)
+    "exp_form": 31,         # log1p ≈ 15 and exp ≈ 15 (their polynomial steps), k·log 1; pow alike
+    "int_base": 1,          # 1 − δ before the integer power
+}
 
 
 def flops_per_ple(plan, k: float) -> int:
-    """Flops per pixel-light evaluation of ``plan`` for the exponent ``k``.
+    """Flops per pixel-light evaluation of ``plan`` (a point light with
+    attenuation) for the exponent ``k``, itemised by :data:`FLOPS`.
 
-    ``FLOPS_PER_PLE`` with exp(k·log1p(−δ)); with SPEC_INT_POW, one
-    subtraction plus one squaring per bit of k and one product per set bit
-    (double multiplies, each counted as one flop, as the float ones are).
+    The specular power costs exp/log1p's 31, or with SPEC_INT_POW one squaring
+    per bit of the exponent and one product per set bit
+    (:func:`clphong.plan.int_pow_multiplies`): of k, or of k/2 where SPEC_COS
+    raises Blinn's (n·h)².
     """
     from .plan import int_pow_multiplies
 
-    if not plan.defines.get("SPEC_INT_POW"):
-        return FLOPS_PER_PLE
-    return FLOPS_PER_PLE - FLOPS_EXP_FORM + 1 + int_pow_multiplies(k)
+    d = plan.defines
+    n = FLOPS["direction"] + FLOPS["falloff"] + FLOPS["gates"] + FLOPS["product"]
+    # the obvious kernel sums naively in float whatever the plan says
+    compensated = d.get("COMPENSATED_SUM") and plan.kernel != "obvious"
+    n += FLOPS["sum_compensated"] if compensated else FLOPS["sum"]
+    if not d.get("HAS_SPECULAR", 1):
+        return n
+    blinn = bool(d.get("MODEL_BLINN"))
+    if plan.kernel == "obvious":
+        return n + FLOPS["blinn_naive" if blinn else "phong_naive"] + FLOPS["exp_form"]
+    if d.get("SPEC_COS"):
+        return n + (FLOPS["blinn_cos"] + int_pow_multiplies(int(k) // 2) if blinn
+                    else FLOPS["phong_cos"] + int_pow_multiplies(k))
+    n += FLOPS["blinn_delta" if blinn else "phong_delta"]
+    if d.get("SPEC_INT_POW"):
+        return n + FLOPS["int_base"] + int_pow_multiplies(k)
+    return n + FLOPS["exp_form"]
 
 DEFAULT_SIZES = ((1920, 1080),)
 DEFAULT_LIGHTS = (1, 16, 256, 4096, 65536)

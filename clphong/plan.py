@@ -180,15 +180,32 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         whole = float(k).is_integer() and 0 <= k <= INT_POW_MAX
         use = specular and "h" not in maps and whole and fp64 and int_pow
         exponent = f"k = {'4h' if blinn else 'h'} = {k:g}"
+        cos_form = use and fp64_directions and (not blinn or int(k) % 2 == 0)
         put("SPEC_INT_POW", use,
-            f"{exponent} is a whole number: binary powering of 1 − δ in double, "
-            f"{int_pow_multiplies(k)} double multiplies per light "
+            f"{exponent} is a whole number: binary powering in double, "
+            f"{int_pow_multiplies(int(k) // 2 if cos_form and blinn else k)} double multiplies "
+            "per light "
             "instead of exp(k·log1p(−δ)), and no rounding of k·log1p(−δ) (docs/error-model.md)" if use
             else ("no specular term" if not specular
                   else "per-pixel shininess map: exp(k·log1p(−δ))" if "h" in maps
                   else f"{exponent} is not a whole number ≤ {INT_POW_MAX}: exp(k·log1p(−δ))" if not whole
                   else "no fast double on this device (cl_khr_fp64 on a CPU): exp(k·log1p(−δ))" if not fp64
                   else "integer power turned off: exp(k·log1p(−δ))"))
+        put("SPEC_COS", cos_form,
+            ("the power's base is (n·h)² = (n·l + n·v)²/|l + v|² in double, raised to "
+             f"K/2 = {int(k) // 2}: no square root and no |n − h|²/2 (docs/error-model.md)" if blinn
+             else "the power's base is r·v = 2(n·l)(n·v) − l·v in double: no |r − v|²/2 "
+                  "(docs/error-model.md)") if cos_form
+            else ("no integer power" if not use
+                  else "directions in float: the base stays 1 − δ with δ = |·|²/2, free of cancellation"
+                  if not fp64_directions
+                  else f"Blinn with an odd K = {int(k)}: 1 − δ with δ = |n − h|²/2"))
+        weights = fp64_directions and sum_fp64
+        put("WEIGHTS_FP64", weights,
+            "weights, falloff and each light's L·att·(D·w_d + S·w_s) in double, into the double "
+            "sum: nothing rounded to float before the result" if weights
+            else ("directions in float: weights in float" if not fp64_directions
+                  else "light sum in float: weights rounded to float"))
     if display is None:
         put("DISPLAY_OUT", 0, "no fused display output (scene-linear only, or an OCIO view)")
     else:

@@ -65,25 +65,53 @@ def specular_power(delta, k):
     return np.where(delta >= 1.0, np.where(k == 0.0, 1.0, 0.0), s)
 
 
+def phong_cos(l, v, NoL, NoV):
+    """r·v = 2(n·l)(n·v) − l·v (SPEC_COS: the cosine itself, in double)."""
+    return 2.0 * NoL * NoV - _dot(l, v)
+
+
+def blinn_cos_sq(l, v, NoL, NoV):
+    """(n·h)² = (n·l + n·v)²/|l + v|² where n·h > 0, else 0; 0 where l = −v (SPEC_COS)."""
+    hv = l + v
+    hh = _dot(hv, hv)
+    q = NoL + NoV
+    with np.errstate(invalid="ignore", divide="ignore"):
+        y = q * q / hh
+    return np.where((q > 0.0) & (hh > 0.0), y, 0.0)
+
+
+def blinn_cos_sq_const_h(n, h, undefined=False):
+    """(n·h)² where n·h > 0, else 0, for a half vector constant per light; 0 if undefined."""
+    x = _dot(n, h)
+    return np.where(undefined | ~(x > 0.0), 0.0, x * x)
+
+
+def specular_power_cos(x, K: int):
+    """max(x, 0)^K by binary powering, K a whole number ≥ 0 (SPEC_INT_POW); 0⁰ := 1;
+    a NaN x stays NaN, also for K = 0."""
+    K = int(K)
+    if K < 0:
+        raise ValueError(f"K must be a whole number ≥ 0, not {K}")
+    x = np.asarray(x, np.float64)
+    b = np.where(x <= 0.0, 0.0, x)
+    s = np.where(np.isnan(x), np.nan, 1.0)
+    e = K
+    while e:
+        if e & 1:
+            s = s * b
+        b = b * b
+        e >>= 1
+    return s
+
+
 def specular_power_int(delta, K: int):
-    """max(1 − δ, 0)^K by binary powering, K a whole number ≥ 0 (SPEC_INT_POW); 0⁰ := 1.
+    """max(1 − δ, 0)^K: :func:`specular_power_cos` of 1 − δ (0 for δ ≥ 1; NaN stays NaN).
 
     The same function as :func:`specular_power` (to float64 rounding); the
     kernel's twin computes it this way, in double.
     """
-    K = int(K)
-    if K < 0:
-        raise ValueError(f"K must be a whole number ≥ 0, not {K}")
     delta = np.asarray(delta, np.float64)
-    x = np.where(delta >= 1.0, 0.0, 1.0 - delta)
-    s = np.where(np.isnan(delta), np.nan, 1.0)        # a NaN δ stays NaN, also for K = 0
-    e = K
-    while e:
-        if e & 1:
-            s = s * x
-        x = x * x
-        e >>= 1
-    return s
+    return specular_power_cos(np.where(delta >= 1.0, 0.0, 1.0 - delta), K)
 
 
 # ------------------------------------------------------------------------- lights.cl
@@ -224,12 +252,15 @@ def Lc_max(L):
     return np.max(np.abs(L), axis=-1)
 
 
-def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, ud=U, r_out=0.0):
+def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, ud=U, r_out=0.0,
+                    uw=U):
     """(absolute error bound, upper bound of the value) of the specular power.
 
     Ungated by n·l: the caller applies the terminator rule. ``ud`` is the unit
     roundoff of the direction arithmetic (u in float, 2⁻⁴⁷ with hi+lo inputs in
-    double), ``r_out`` the rounding of δ to float afterwards (0 or u).
+    double), ``r_out`` the rounding of δ to float afterwards (0 or u), ``uw``
+    the rounding of the integer power's result (u to float, 2⁻⁵³ with
+    WEIGHTS_FP64).
     """
     if px.blinn:
         delta = blinn_delta(px.n, l, px.v)
@@ -238,13 +269,28 @@ def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, u
             # h = (l + v)/|l + v| turns direction errors of l and v into
             # (η_l + η_v)/|l + v|: Blinn's half vector is ill-conditioned as l → −v.
             e_vec = eta_n + 2.0 * (eta_l + eta_v + 2.0 * ud) / lv
+            # SPEC_COS: n·(l + v) and |l + v|² in double, off by the roundings and
+            # the unit vectors' length errors (≤ ud each), ≤ 4ud/|l + v| in x = n·h.
+            e_cos = 8.0 * ud / lv
     else:
         delta = phong_delta(px.n, l, px.v, NoL)
         # r = 2n(n·l) − l: twice the error of n·l and of n, plus l's; then − v.
         e_vec = 3.0 * eps_NoL + eta_v
+        # SPEC_COS: 2(n·l)(n·v) − l·v in double, terms ≤ 3: length errors of n, l, v
+        # (≤ 4ud + 6ud) and ~20 roundings of 2⁻⁵³.
+        e_cos = np.full(np.shape(delta), 8.0 * ud)
     delta = np.minimum(delta, 2.0)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        if form in ("delta", "int"):
+        if form == "cos":
+            # x = 1 − δ formed directly, in double: the directions' first-order
+            # error √(2δ)·e (as for δ, the same quantity for unit vectors) plus
+            # the absolute e_cos; x^k relative k·|Δx|/x; the powering (Blinn:
+            # (x²)^(k/2), one division more) ≤ 4k·2⁻⁵³; one rounding uw.
+            d_delta = np.sqrt(2.0 * delta) * e_vec + 0.5 * e_vec ** 2 + e_cos
+            s = specular_power(delta, k)
+            ud53 = 2.0 ** -53
+            rel = uw + k * d_delta / np.maximum(1.0 - delta, 1e-300) + 4.0 * k * ud53
+        elif form in ("delta", "int"):
             # |Δδ| for δ = |e|²/2 when |Δe| ≤ e_vec and |e| = √(2δ); the exp form
             # rounds δ to float first (r_out), the integer power takes it as it is.
             r_delta = r_out if form == "delta" else 0.0
@@ -259,7 +305,7 @@ def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, u
                 # x = 1 − δ in double (≤ 2⁻⁵³ absolute), binary powering of a whole k
                 # (≤ 2k·2⁻⁵³ relative), one rounding to float; Δδ through k·x^(k−1).
                 ud53 = 2.0 ** -53
-                rel = U + k * (d_delta + ud53) / np.maximum(1.0 - delta, 1e-300) + 2.0 * k * ud53
+                rel = uw + k * (d_delta + ud53) / np.maximum(1.0 - delta, 1e-300) + 2.0 * k * ud53
         else:
             # pow(x, k) with x = r·v: |Δx| ≤ e_vec + 4u, pow 16 ulp: relative k·|Δx|/x.
             d_delta = e_vec + 4.0 * U
@@ -301,7 +347,7 @@ def finish_sum(E):
 # ------------------------------------------------------------------- the error model
 
 def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
-                directions="fp32", plan=None, sum_fp64=False):
+                directions="fp32", plan=None, sum_fp64=False, weights="fp32"):
     """Upper bound of |float32 kernel − :func:`shade`| per pixel and channel.
 
     Parameters
@@ -316,17 +362,22 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     sum_fp64 : bool
         Whether it summed them in double, rounded once (SUM_FP64; overrides
         ``compensated``).
-    form : {"delta", "int", "naive"}
+    form : {"delta", "int", "cos", "naive"}
         ``"delta"``: the specular power as exp(k·log1p(−δ)) with δ from
         |r − v|²/2 (shade.cl). ``"int"``: (1 − δ)^k by binary powering in
-        double, k whole (SPEC_INT_POW). ``"naive"``: pow(r·v, k)
-        (shade_obvious.cl).
+        double, k whole (SPEC_INT_POW). ``"cos"``: the same powering of the
+        cosine formed in double (SPEC_COS: :func:`phong_cos`,
+        :func:`blinn_cos_sq`). ``"naive"``: pow(r·v, k) (shade_obvious.cl).
     directions : {"fp32", "fp64"}
         Whether positions, directions, n·l and δ were computed in float or in
         double from hi+lo inputs (``DIRECTIONS_FP64``).
+    weights : {"fp32", "fp64"}
+        Whether the weights, the falloff and each light's product were rounded
+        to float (``"fp32"``) or kept in double into the double sum
+        (``WEIGHTS_FP64``).
     plan : clphong.plan.ShadingPlan, optional
-        The plan the kernel ran with; sets ``compensated``, ``sum_fp64``, ``form`` and
-        ``directions`` from its defines.
+        The plan the kernel ran with; sets ``compensated``, ``sum_fp64``, ``form``,
+        ``directions`` and ``weights`` from its defines.
 
     Returns
     -------
@@ -351,15 +402,24 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
         lanes = plan.kernel == "lanes"
         compensated = lanes and bool(plan.defines.get("COMPENSATED_SUM", 0))
         sum_fp64 = lanes and bool(plan.defines.get("SUM_FP64", 0))
-        form = ("int" if plan.defines.get("SPEC_INT_POW", 0) else "delta") if lanes else "naive"
+        form = (("cos" if plan.defines.get("SPEC_COS", 0) else "int")
+                if plan.defines.get("SPEC_INT_POW", 0) else "delta") if lanes else "naive"
         directions = "fp64" if plan.defines.get("DIRECTIONS_FP64", 0) else "fp32"
+        weights = "fp64" if lanes and plan.defines.get("WEIGHTS_FP64", 0) else "fp32"
     if directions not in ("fp32", "fp64"):
         raise ValueError(f"directions must be 'fp32' or 'fp64', not {directions!r}")
     # ud: unit roundoff of the direction arithmetic. In double from float32
     # inputs and float32 hi+lo pairs (48 significant bits), 2⁻⁴⁷ covers the pairs'
     # truncation and the double roundings. r_out: n·l and δ rounded to float.
+    if weights not in ("fp32", "fp64") or (weights == "fp64" and directions != "fp64"):
+        raise ValueError(f"weights must be 'fp32', or 'fp64' with fp64 directions, not {weights!r}")
     fp64 = directions == "fp64"
     ud, r_out = (2.0 ** -47, U) if fp64 else (U, 0.0)
+    # uw: the rounding of each weight, falloff and light product: to float, or
+    # 2⁻⁵³ in double with WEIGHTS_FP64 (then n·l is not rounded to float either).
+    w64 = weights == "fp64"
+    uw = 2.0 ** -53 if w64 else U
+    r_nol = 0.0 if w64 else r_out
     H, W = gbuffer.shape
     bound = np.zeros((H * W, 3))
     band = np.zeros(H * W, bool)
@@ -401,7 +461,7 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
             # d from the rounded position difference and rsqrt; Horner's three
             # roundings; the coefficients rounded to float32; the division.
             # fp64: d and the falloff in double, att·L rounded to float once.
-            e_att = (cond * (4.0 * ud + 2.0 * eta_l) + U) if fp64 else \
+            e_att = (cond * (4.0 * ud + 2.0 * eta_l) + uw) if fp64 else \
                 (cond * (4.0 * U + 2.0 * eta_l) + 3.0 * U)
             with np.errstate(invalid="ignore"):
                 NoL = np.where(d > 0, _dot(px.n, dv) / d, 0.0)
@@ -414,8 +474,8 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
             d = None
         eps_dir = eta_n + eta_l + 4.0 * ud
         # n·l as the weights see it: rounded to float (flushed below FLT_MIN) when
-        # it was computed in double.
-        eps_NoL = eps_dir + (r_out * np.abs(NoL) + FLT_MIN if fp64 else 0.0)
+        # it was computed in double and the weights are float.
+        eps_NoL = eps_dir + (r_nol * np.abs(NoL) + FLT_MIN if fp64 and not w64 else 0.0)
         Lc = np.abs(L)
         # Diffuse: max(n·l, 0) is continuous, so its error is that of n·l.
         diff_abs = np.where(NoL > -eps_NoL, eps_NoL, 0.0)
@@ -424,12 +484,16 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
         else:
             with np.errstate(divide="ignore"):
                 att = np.where(d > 0, attenuation(c0, c1, c2, d), 0.0)
-        e_diff = diffuse * e_att + att * diff_abs + diffuse * 5.0 * U
+        # The product L·(D·w_d + S·w_s): five roundings, in float or (WEIGHTS_FP64)
+        # in double; D = C·k_d and S = k_s·C_s are formed in float either way
+        # (k_d, k_s rounded to float, up to two products: 3u).
+        e_prod = 5.0 * U if not w64 else 3.0 * U + 5.0 * uw
+        e_diff = diffuse * e_att + att * diff_abs + diffuse * e_prod
         # Specular: the error of δ (or of r·v for the naive form) through the power.
         if px.specular:
             spec_abs, spec_upper = _specular_error(px, lvec, NoL, eps_dir, eta_l, eta_v, eta_n, k,
-                                                   form, ud, r_out)
-            e_spec = specular * (e_att + 5.0 * U) + att * spec_abs
+                                                   form, ud, r_out, uw)
+            e_spec = specular * (e_att + e_prod) + att * spec_abs
             # The terminator: within eps_NoL of n·l = 0 the float32 gate n·l > 0
             # may disagree with float64's, switching the whole term.
             near = (np.abs(NoL) <= eps_NoL) & (spec_upper > 0)

@@ -5,7 +5,7 @@
 #include "clphong.h"
 
 /* Lambert's cosine law: E_D ∝ max(n·l, 0). */
-inline floatL lambert(floatL NoL)
+inline wL lambert(wL NoL)
 {
     return MAX0(NoL);
 }
@@ -68,29 +68,81 @@ inline floatL specular_power(floatL delta, floatL k)
     return SELECT(s, at_zero, delta >= 1.0f);
 }
 
-#if SPEC_INT_POW
-/* max(1 − δ, 0)^K for a whole exponent K ≤ 65536 (the plan's SPEC_INT_POW),
- * by binary powering of x = 1 − δ in double, then rounded once to float.
- * δ ≥ 0 is exact in double (from float, or dirL already), and so is 1 − δ to
- * within 2⁻⁵³; the ≤ 2·log2(K) products add at most ~K·2⁻⁵³ relative. The
- * result therefore errs by u plus K·|Δδ|/(1 − δ) from δ itself: the exp/log1p
- * form's bound without its ulps and without its 4u·|k·log1p(−δ)| (the rounding
- * of y = k·log1p(−δ) before exp), at the cost of ~2·log2(K) double multiplies
- * instead of two out-of-line builtins (docs/error-model.md).
- * Guards, as specular_power: δ ≥ 1 gives x = 0, so 0 for K > 0; K = 0 gives
- * 1 (the loop does not run: 0⁰ := 1); a NaN δ (NaN inputs under the "pass"
- * policy) gives NaN, for K = 0 too. */
-inline floatL specular_power_int(dirL delta, uint K)
+#if SPEC_COS
+/* SPEC_COS (double directions and a whole exponent): the integer power takes the
+ * cosine itself, formed in double. The cancellation that |r − v|²/2 and
+ * |n − h|²/2 avoid costs nothing here: 1 − δ = cos carries an absolute error of
+ * a few 2⁻⁵³ plus the directions' own (2⁻⁴⁷), and x^K turns an absolute error e
+ * of x into K·e/x relative, ≤ 10⁻⁹ near the peak even for K = 65536
+ * (docs/error-model.md). It also saves a square root: the lights loop ran 1.35×
+ * faster on the bench scene (Blinn, K = 128).
+ *
+ * Phong: r·v = (2n(n·l) − l)·v = 2(n·l)(n·v) − l·v. */
+inline dirL phong_cos(dirL lx, dirL ly, dirL lz, dirL vx, dirL vy, dirL vz,
+                      dirL NoL, dirL NoV)
 {
-    const powL d = TO_POW(delta);
-    powL x = SELECT_DIR(1.0 - d, (powL)(0.0), d >= 1.0);
-    powL s = SELECT_DIR((powL)(1.0), d, isnan(d));     /* a NaN δ stays NaN, also for K = 0 */
+    const dirL LoV = MUL_ADD(lx, vx, MUL_ADD(ly, vy, lz * vz));
+    return MUL_ADD(NoL + NoL, NoV, -LoV);
+}
+
+/* Blinn-Phong: (n·h)² = (n·l + n·v)²/|l + v|² where n·h > 0, else 0, so that
+ * ((n·h)²)^(K/2) = max(n·h, 0)^K for an even K with no square root.
+ * Guard, as blinn_delta: l = −v (|l + v| = 0, the half vector undefined) gives 0
+ * (n·h taken as 0), so the term vanishes for K > 0. */
+inline dirL blinn_cos_sq(dirL lx, dirL ly, dirL lz, dirL vx, dirL vy, dirL vz,
+                         dirL NoL, dirL NoV)
+{
+    const dirL hx = lx + vx, hy = ly + vy, hz = lz + vz;
+    const dirL hh = MUL_ADD(hx, hx, MUL_ADD(hy, hy, hz * hz));
+    const dirL q = NoL + NoV;                    /* n·(l + v) */
+    return SELECT_DIR((dirL)(0.0), q * q / hh, (q > 0.0) & (hh > 0.0));
+}
+
+/* Blinn-Phong with a half vector constant per light (blinn_delta_const_h):
+ * (n·h)² where n·h > 0, else 0; 0 where h is undefined (h.w ≠ 0). */
+inline dirL blinn_cos_sq_const_h(dirL nx, dirL ny, dirL nz, float4 h, float4 h_lo)
+{
+    if (h.w != 0.0f)
+        return (dirL)(0.0);
+    const dirL x = MUL_ADD(nx, (dirS)h.x + (dirS)h_lo.x,
+                           MUL_ADD(ny, (dirS)h.y + (dirS)h_lo.y, nz * ((dirS)h.z + (dirS)h_lo.z)));
+    return SELECT_DIR((dirL)(0.0), x * x, x > 0.0);
+}
+#endif
+
+#if SPEC_INT_POW
+/* max(x, 0)^K for a whole exponent K ≤ 65536 (the plan's SPEC_INT_POW), by
+ * binary powering in double, then converted once to the weights' type. The
+ * ≤ 2·log2(K) products add at most ~K·2⁻⁵³ relative; an absolute error e of x
+ * becomes K·e/x relative.
+ * Guards: x ≤ 0 gives 0 for K > 0; K = 0 gives 1 (the loop does not run:
+ * 0⁰ := 1); a NaN x (NaN inputs under the "pass" policy) gives NaN, for K = 0
+ * too. Comparisons, not isnan or select: PoCL 3.0 calls those out of line. */
+inline wL specular_power_cos(powL x, uint K)
+{
+    powL b = SELECT_DIR(x, (powL)(0.0), x <= 0.0);
+    powL s = SELECT_DIR((powL)(1.0), x, x != x);   /* a NaN x stays NaN, also for K = 0 */
     for (uint e = K; e != 0u; e >>= 1) {
         if (e & 1u)
-            s *= x;
-        x *= x;
+            s *= b;
+        b *= b;
     }
-    return POW_TO_FLOAT(s);
+    return POW_TO_W(s);
+}
+
+/* max(1 − δ, 0)^K: specular_power_cos of x = 1 − δ, in double.
+ * δ ≥ 0 is exact in double (from float, or dirL already), and so is 1 − δ to
+ * within 2⁻⁵³. The result therefore errs by u plus K·|Δδ|/(1 − δ) from δ
+ * itself: the exp/log1p form's bound without its ulps and without its
+ * 4u·|k·log1p(−δ)| (the rounding of y = k·log1p(−δ) before exp), at the cost of
+ * ~2·log2(K) double multiplies instead of two out-of-line builtins
+ * (docs/error-model.md).
+ * Guards, as specular_power: δ ≥ 1 gives x = 0, so 0 for K > 0; K = 0 gives 1;
+ * a NaN δ gives NaN (NaN ≥ 1 is false, so x = 1 − NaN). */
+inline wL specular_power_int(dirL delta, uint K)
+{
+    const powL d = TO_POW(delta);
+    return specular_power_cos(SELECT_DIR(1.0 - d, (powL)(0.0), d >= 1.0), K);
 }
 #endif
 

@@ -26,6 +26,13 @@
  *   SPEC_INT_POW     the specular exponent k (h, or 4h for Blinn) is one whole number
  *                    K ≤ 65536 for every pixel: x^K by binary powering in double
  *                    (needs cl_khr_fp64) instead of exp(k·log1p(−δ))
+ *   SPEC_COS         with SPEC_INT_POW and DIRECTIONS_FP64: the power's base is the
+ *                    cosine itself, formed in double (Phong r·v = 2(n·l)(n·v) − l·v;
+ *                    Blinn (n·h)² = (n·l + n·v)²/|l + v|², raised to K/2, K even)
+ *                    instead of 1 − δ with δ = |r − v|²/2 or |n − h|²/2 (brdf.cl)
+ *   WEIGHTS_FP64     with DIRECTIONS_FP64 and SUM_FP64: the weights, the falloff and
+ *                    each light's product L·att·(D·w_d + S·w_s) in double, added to
+ *                    the double sum: nothing is rounded to float before the result
  *
  * Names follow the notes (../shared/phong-model-notes.txt): NoL, RoV, NoH, k_a,
  * k_d, k_s, h, c0, c1, c2, C_d, C_s. The float64 mirror of every function here
@@ -87,6 +94,18 @@
 #endif
 #ifndef SUM_FP64
 #define SUM_FP64 0
+#endif
+#ifndef SPEC_COS
+#define SPEC_COS 0
+#endif
+#ifndef WEIGHTS_FP64
+#define WEIGHTS_FP64 0
+#endif
+#if SPEC_COS && !(SPEC_INT_POW && DIRECTIONS_FP64)
+#error "SPEC_COS needs SPEC_INT_POW and DIRECTIONS_FP64"
+#endif
+#if WEIGHTS_FP64 && !(DIRECTIONS_FP64 && SUM_FP64)
+#error "WEIGHTS_FP64 needs DIRECTIONS_FP64 and SUM_FP64"
 #endif
 
 /* floatL: one value per pixel of the work-item's LANES pixels. PoCL vectorises
@@ -212,12 +231,32 @@ typedef floatL sumL;
 #define SUM_TO_FLOAT(x) (x)
 #endif
 
-/* powL: the type of x = 1 − δ and its powers with SPEC_INT_POW (double; from
- * dirL, a conversion to the same type where the directions are in double). */
+/* wL: the type of the weights, the falloff and each light's product
+ * L·att·(D·w_d + S·w_s) (wS its scalar): double with WEIGHTS_FP64, else float.
+ * DIR_TO_W, FLOAT_TO_W: from dirL and from floatL. */
+#if WEIGHTS_FP64
+typedef doubleL wL;
+typedef double wS;
+#define DIR_TO_W(x) (x)
+#define FLOAT_TO_W(x) TO_DOUBLE(x)
+#else
+typedef floatL wL;
+typedef float wS;
+#define DIR_TO_W(x) TO_FLOAT(x)
+#define FLOAT_TO_W(x) (x)
+#endif
+
+/* powL: the type of the power's base (1 − δ, or the cosine with SPEC_COS) and of
+ * its powers with SPEC_INT_POW (double; from dirL, a conversion to the same type
+ * where the directions are in double). POW_TO_W: to the weights' type. */
 #if SPEC_INT_POW
 typedef doubleL powL;
 #define TO_POW(x) TO_DOUBLE(x)
-#define POW_TO_FLOAT(x) DOUBLE_TO_FLOAT(x)
+#if WEIGHTS_FP64
+#define POW_TO_W(x) (x)
+#else
+#define POW_TO_W(x) DOUBLE_TO_FLOAT(x)
+#endif
 #endif
 
 /* SELECT(a, b, c): c ? b : a per lane, as select(a, b, c) for vector masks from

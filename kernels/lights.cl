@@ -26,44 +26,57 @@ typedef struct {
     dirL px, py, pz;        /* position, minus the frame origin */
     dirL nx, ny, nz;        /* unit normal */
     dirL vx, vy, vz;        /* unit direction to the viewer */
+#if SPEC_COS
+    dirL NoV;               /* n·v */
+#endif
 #if HAS_SPECULAR && SPEC_INT_POW
-    uint K;                 /* the whole specular exponent, the same for every pixel */
+    uint K;                 /* the whole specular exponent, the same for every pixel
+                               (K/2 with SPEC_COS and Blinn: the base is (n·h)²) */
 #elif HAS_SPECULAR
     floatL k;               /* specular exponent: h (Phong) or 4h (Blinn) */
 #endif
 } pixel_t;
 
-/* The specular power of δ at pixel p in the plan's form (brdf.cl). */
+/* The specular power of δ at pixel p in the plan's form (brdf.cl), as wL. */
 #if SPEC_INT_POW
 #define SPECULAR_POWER(delta, p) specular_power_int((delta), (p)->K)
 #else
-#define SPECULAR_POWER(delta, p) specular_power(TO_FLOAT(delta), (p)->k)
+#define SPECULAR_POWER(delta, p) FLOAT_TO_W(specular_power(TO_FLOAT(delta), (p)->k))
 #endif
 
 /* Diffuse and specular weights of one light at a pixel: the factors of
- * C_d·k_d and C_s·k_s, before the light's radiance and falloff. */
+ * C_d·k_d and C_s·k_s, before the light's radiance and falloff (wL: double with
+ * WEIGHTS_FP64, else float). */
 typedef struct {
-    floatL diffuse;
-    floatL specular;
+    wL diffuse;
+    wL specular;
 } weights_t;
 
 /* Both terms for a unit direction l towards the light. The specular term is on
  * only where n·l > 0 (the notes' E_S needs a lit side); the gate uses n·l
- * rounded to float, whose sign is that of the dirL value (or 0). */
+ * as the weights have it (rounded to float unless WEIGHTS_FP64), whose sign is
+ * that of the dirL value (or 0). */
 inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, dirL NoL_dir)
 {
     weights_t w;
-    const floatL NoL = TO_FLOAT(NoL_dir);
+    const wL NoL = DIR_TO_W(NoL_dir);
     w.diffuse = lambert(NoL);
-#if HAS_SPECULAR
+#if HAS_SPECULAR && SPEC_COS
+#if MODEL_BLINN
+    const dirL x = blinn_cos_sq(lx, ly, lz, p->vx, p->vy, p->vz, NoL_dir, p->NoV);
+#else
+    const dirL x = phong_cos(lx, ly, lz, p->vx, p->vy, p->vz, NoL_dir, p->NoV);
+#endif
+    w.specular = SELECT((wL)(0.0f), specular_power_cos(x, p->K), NoL > 0.0f);
+#elif HAS_SPECULAR
 #if MODEL_BLINN
     const dirL delta = blinn_delta(p->nx, p->ny, p->nz, lx, ly, lz, p->vx, p->vy, p->vz);
 #else
     const dirL delta = phong_delta(p->nx, p->ny, p->nz, lx, ly, lz, p->vx, p->vy, p->vz, NoL_dir);
 #endif
-    w.specular = SELECT((floatL)(0.0f), SPECULAR_POWER(delta, p), NoL > 0.0f);
+    w.specular = SELECT((wL)(0.0f), SPECULAR_POWER(delta, p), NoL > 0.0f);
 #else
-    w.specular = (floatL)(0.0f);
+    w.specular = (wL)(0.0f);
 #endif
     return w;
 }
@@ -78,7 +91,7 @@ inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, di
  * the reference; rsqrt(0) = inf would give 0·inf = NaN. In float, d² overflows for
  * d ≳ 1.8e19: d := ∞ there, so the falloff is 0 (and l = 0) instead of ∞·0 = NaN. */
 inline weights_t shade_point_light(const pixel_t *p, float4 L, float4 L_lo, float c1, float c2,
-                                   float4 radiance, floatL *ar, floatL *ag, floatL *ab)
+                                   float4 radiance, wL *ar, wL *ag, wL *ab)
 {
     const dirS Lx = HI_LO(L.x, L_lo.x), Ly = HI_LO(L.y, L_lo.y), Lz = HI_LO(L.z, L_lo.z);
     const dirL dx = Lx - p->px, dy = Ly - p->py, dz = Lz - p->pz;
@@ -90,9 +103,9 @@ inline weights_t shade_point_light(const pixel_t *p, float4 L, float4 L_lo, floa
     const dirL d = SELECT_DIR(d2 * inv_d, d2, isinf(d2));
     /* d = 0: no contribution, also where c0 = 0 makes the falloff infinite. */
     const dirL att = SELECT_DIR(attenuation(L.w, c1, c2, d), (dirL)(0.0f), d2 <= (dirL)(0.0f));
-    *ar = TO_FLOAT(att * (dirS)radiance.x);
-    *ag = TO_FLOAT(att * (dirS)radiance.y);
-    *ab = TO_FLOAT(att * (dirS)radiance.z);
+    *ar = DIR_TO_W(att * (dirS)radiance.x);
+    *ag = DIR_TO_W(att * (dirS)radiance.y);
+    *ab = DIR_TO_W(att * (dirS)radiance.z);
     return w;
 }
 
@@ -104,10 +117,15 @@ inline weights_t shade_directional_light(const pixel_t *p, float4 l, float4 l_lo
     const dirL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
 #if BLINN_CONST_H && HAS_SPECULAR
     weights_t w;
-    const floatL NoLf = TO_FLOAT(NoL);
-    w.diffuse = lambert(NoLf);
+    const wL NoLw = DIR_TO_W(NoL);
+    w.diffuse = lambert(NoLw);
+#if SPEC_COS
+    const dirL x = blinn_cos_sq_const_h(p->nx, p->ny, p->nz, h, h_lo);
+    w.specular = SELECT((wL)(0.0f), specular_power_cos(x, p->K), NoLw > 0.0f);
+#else
     const dirL delta = blinn_delta_const_h(p->nx, p->ny, p->nz, h, h_lo);
-    w.specular = SELECT((floatL)(0.0f), SPECULAR_POWER(delta, p), NoLf > 0.0f);
+    w.specular = SELECT((wL)(0.0f), SPECULAR_POWER(delta, p), NoLw > 0.0f);
+#endif
     return w;
 #else
     return shade_direction(p, (dirL)(lx), (dirL)(ly), (dirL)(lz), NoL);

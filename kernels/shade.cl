@@ -138,7 +138,8 @@ __kernel void shade(__global const float *restrict gbuf,
 #endif
 #if HAS_SPECULAR
 #if SPEC_INT_POW
-    p.K = (uint)k_uniform;                       /* a whole number (plan.py) */
+    /* a whole number (plan.py); with SPEC_COS Blinn raises (n·h)² to K/2 (K even) */
+    p.K = SPEC_COS && MODEL_BLINN ? (uint)k_uniform / 2u : (uint)k_uniform;
 #elif MAP_H
     p.k = MODEL_BLINN ? 4.0f * k_map : k_map;   /* the map holds h; Blinn uses 4h */
 #else
@@ -165,6 +166,13 @@ __kernel void shade(__global const float *restrict gbuf,
     }
 #endif
 
+#if SPEC_COS
+    p.NoV = MUL_ADD(p.nx, p.vx, MUL_ADD(p.ny, p.vy, p.nz * p.vz));
+#endif
+    /* The material factors in the weights' type (double with WEIGHTS_FP64). */
+    const wL Dr_w = FLOAT_TO_W(Dr), Dg_w = FLOAT_TO_W(Dg), Db_w = FLOAT_TO_W(Db);
+    const wL Sr_w = FLOAT_TO_W(Sr), Sg_w = FLOAT_TO_W(Sg), Sb_w = FLOAT_TO_W(Sb);
+
     /* Ambient: E_A = C_d·k_a·Σ ambient radiance. */
     sumL sr = TO_SUM(Cr * ambient.x), sg = TO_SUM(Cg * ambient.y), sb = TO_SUM(Cb * ambient.z);
     floatL cr = (floatL)(0.0f), cg = (floatL)(0.0f), cb = (floatL)(0.0f);
@@ -180,9 +188,9 @@ __kernel void shade(__global const float *restrict gbuf,
         __global const float4 *rec = directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * j;
         const float4 L = rec[1];
         const weights_t w = shade_directional_light(&p, rec[0], rec[3], rec[2], rec[4]);
-        ACCUMULATE(sr, cr, L.x * MUL_ADD(Dr, w.diffuse, Sr * w.specular));
-        ACCUMULATE(sg, cg, L.y * MUL_ADD(Dg, w.diffuse, Sg * w.specular));
-        ACCUMULATE(sb, cb, L.z * MUL_ADD(Db, w.diffuse, Sb * w.specular));
+        ACCUMULATE(sr, cr, (wS)L.x * MUL_ADD(Dr_w, w.diffuse, Sr_w * w.specular));
+        ACCUMULATE(sg, cg, (wS)L.y * MUL_ADD(Dg_w, w.diffuse, Sg_w * w.specular));
+        ACCUMULATE(sb, cb, (wS)L.z * MUL_ADD(Db_w, w.diffuse, Sb_w * w.specular));
     }
 #endif
 #if HAS_POINT
@@ -201,12 +209,12 @@ __kernel void shade(__global const float *restrict gbuf,
         const float4 X = rec[0];   /* position, c0 */
         const float4 L = rec[1];   /* radiance, c1 */
         const float4 Q = rec[2];   /* c2, position remainder */
-        floatL ar, ag, ab;         /* radiance × attenuation(d) */
+        wL ar, ag, ab;             /* radiance × attenuation(d) */
         const weights_t w = shade_point_light(&p, X, (float4)(Q.y, Q.z, Q.w, 0.0f), L.w, Q.x,
                                               L, &ar, &ag, &ab);
-        ACCUMULATE(sr, cr, ar * MUL_ADD(Dr, w.diffuse, Sr * w.specular));
-        ACCUMULATE(sg, cg, ag * MUL_ADD(Dg, w.diffuse, Sg * w.specular));
-        ACCUMULATE(sb, cb, ab * MUL_ADD(Db, w.diffuse, Sb * w.specular));
+        ACCUMULATE(sr, cr, ar * MUL_ADD(Dr_w, w.diffuse, Sr_w * w.specular));
+        ACCUMULATE(sg, cg, ag * MUL_ADD(Dg_w, w.diffuse, Sg_w * w.specular));
+        ACCUMULATE(sb, cb, ab * MUL_ADD(Db_w, w.diffuse, Sb_w * w.specular));
     }
 #endif
 

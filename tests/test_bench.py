@@ -42,11 +42,17 @@ def test_report_is_well_formed_json_with_every_case(tiny_report):
         for eps in (0.0, 1e-3):
             assert ("wide", n, "accurate", eps) in cases
     assert ("small", 64, "accurate", 1e-3) in cases
-    # Flops per evaluation follow the specular form that ran: the bench material is
-    # Blinn h = 32, k = 128 = 2⁷: exp/log1p's 31 flops become 1 − δ, 8 squarings, 1 product.
+    # Flops per evaluation follow the forms that ran (bench.FLOPS): the bench material
+    # is Blinn h = 32, k = 128 = 2⁷, the lights summed in double (3 additions).
+    # exp/log1p's 31 flops become 1 − δ, 8 squarings and 1 product (float
+    # directions), or with SPEC_COS Blinn's (n·h)² (11 instead of the δ form's 22)
+    # to the power 64: 7 squarings and 1 product.
     flops = {r["path"]: r["flops_per_ple"] for r in loaded["runs"] if r["max_error"] is None}
-    assert flops["accurate-exp"] == bench.FLOPS_PER_PLE == 104
-    assert flops["accurate"] == flops["float"] == 104 - 31 + 1 + 8 + 1
+    common = 18 + 5 + 2 + 12 + 3
+    assert flops["accurate"] == common + 11 + 7 + 1 == 59
+    assert flops["float"] == common + 22 + 1 + 8 + 1 == 72
+    assert flops["accurate-exp"] == common + 22 + 31 == 93
+    assert flops["obvious"] == common + 18 + 31 == 89
     assert {x["lights"] for x in loaded["numpy"]} == {1, 16}
 
 

@@ -126,14 +126,21 @@ def _highlight(h, model):
 @pytest.mark.parametrize("fp64", [True, False], ids=["fp64-directions", "fp32-directions"])
 @pytest.mark.parametrize("int_pow", [True, False], ids=["int-pow", "exp-log1p"])
 @pytest.mark.parametrize("model, h", [("phong", 1.0), ("phong", 37.0), ("blinn-phong", 32.0),
-                                      ("phong", 2000.0), ("blinn-phong", 1.0e4)])
+                                      ("phong", 2000.0), ("blinn-phong", 1.0e4),
+                                      ("blinn-phong", 8.25)])
 def test_both_specular_power_forms_hold_their_bound(model, h, int_pow, fp64):
     """A whole exponent k (h, or 4h for Blinn) is raised by binary powering in double
-    (SPEC_INT_POW) unless turned off; both forms hold the error model's bound, and on
-    the default fp64 path both meet issue 5's 5e-6 relative up to k = 4·10⁴."""
+    (SPEC_INT_POW) unless turned off, of the cosine itself with double directions
+    (SPEC_COS; Blinn's (n·h)² to k/2 needs an even k: 4·8.25 = 33 keeps 1 − δ); every
+    form holds the error model's bound, and on the default fp64 path each meets issue
+    5's 5e-6 relative up to k = 4·10⁴."""
     scene, gb = _highlight(h, model)
     r = Renderer(scene, fp64_directions=fp64, int_pow=int_pow)
-    assert r.plan_for(()).defines["SPEC_INT_POW"] == int_pow
+    defines = r.plan_for(()).defines
+    assert defines["SPEC_INT_POW"] == int_pow
+    k = 4 * h if model == "blinn-phong" else h
+    assert defines["SPEC_COS"] == (int_pow and fp64 and (model == "phong" or k % 2 == 0))
+    assert defines["WEIGHTS_FP64"] == fp64
     rgb, ref, bound, band = check_against_reference(scene, gb, fp64_directions=fp64, int_pow=int_pow)
     big = ref > 1e-6 * ref.max()
     rel = np.max(np.abs(rgb - ref)[big] / ref[big])
@@ -176,6 +183,65 @@ def test_reference_integer_power_is_the_same_function(K):
     # NaN δ (NaN inputs under the "pass" policy) stays NaN, for K = 0 too, as in the exp form.
     assert np.isnan(reference.specular_power_int(np.array([np.nan]), K)[0])
     assert np.isnan(reference.specular_power(np.array([np.nan]), float(K))[0])
+
+
+def test_reference_cosine_forms_are_the_same_function():
+    """The SPEC_COS twins against the δ forms in float64, on random unit vectors: for
+    unit n, l, v, r·v = 1 − |r − v|²/2 and n·h = 1 − |n − h|²/2 are identities, so
+    they differ only by float64 roundings (terms ≤ 3: ≤ 32·2⁻⁵³); guards alike."""
+    rng = np.random.default_rng(5)
+
+    def unit(m):
+        x = rng.normal(size=(m, 3))
+        return x / np.linalg.norm(x, axis=1)[:, None]
+
+    n, l, v = unit(20000), unit(20000), unit(20000)
+    l[:50] = -v[:50]                                   # Blinn's undefined half vector
+    NoL, NoV = np.sum(n * l, 1), np.sum(n * v, 1)
+    tol = 32 * 2.0 ** -53
+    x = reference.phong_cos(l, v, NoL, NoV)
+    assert np.max(np.abs(x - (1.0 - reference.phong_delta(n, l, v, NoL)))) <= tol
+    y = reference.blinn_cos_sq(l, v, NoL, NoV)
+    c = 1.0 - reference.blinn_delta(n, l, v)           # n·h, and 0 where l = −v
+    assert np.all(y[:50] == 0.0)
+    assert np.max(np.abs(y - np.where(c > 0, c * c, 0.0))[50:]) <= tol
+    h = (l + v)[50:] / np.linalg.norm((l + v)[50:], axis=1)[:, None]
+    yc = reference.blinn_cos_sq_const_h(n[50:], h)
+    assert np.max(np.abs(yc - np.where(c[50:] > 0, c[50:] ** 2, 0.0))) <= tol
+    assert np.all(reference.blinn_cos_sq_const_h(n[50:], h, undefined=True) == 0.0)
+    # max(x, 0)^K: x ≤ 0 gives 0 (1 for K = 0), NaN stays NaN, and 1 − δ gives the δ form.
+    for K in (0, 1, 2, 33, 128, 65536):
+        edge = reference.specular_power_cos(np.array([-0.5, 0.0, 1.0, np.nan]), K)
+        assert np.array_equal(edge[:3], [1.0, 1.0, 1.0] if K == 0 else [0.0, 0.0, 1.0])
+        assert np.isnan(edge[3])
+        d = np.geomspace(1e-9, 0.99, 50)
+        assert np.array_equal(reference.specular_power_cos(1.0 - d, K),
+                              reference.specular_power_int(d, K))
+
+
+def test_plan_forms_the_cosine_and_weights_in_double_where_they_apply():
+    """SPEC_COS needs double directions and the integer power (and an even k for
+    Blinn, whose base is (n·h)²); WEIGHTS_FP64 needs double directions and the
+    double sum. `clphong plan` says why either is off."""
+    from clphong.plan import make_plan
+
+    def defines(h, model="phong", **kw):
+        scene = make_scene([dict(type="point", position=(0, 0, 3))], h=h, model=model)
+        kw.setdefault("fp64_directions", True)
+        kw.setdefault("has_fp64", True)
+        plan = make_plan(scene, (), lanes=8, **kw)
+        return plan.defines["SPEC_COS"], plan.defines["WEIGHTS_FP64"], str(plan)
+
+    assert defines(37.0)[:2] == (1, 1)                       # Phong, any whole k
+    assert defines(32.0, "blinn-phong")[:2] == (1, 1)        # k = 128, raised as (n·h)² to 64
+    cos, w, text = defines(8.25, "blinn-phong")              # k = 33: odd
+    assert (cos, w) == (0, 1) and "odd K = 33" in text
+    assert defines(37.5)[:2] == (0, 1)                       # no integer power
+    assert defines(37.0, int_pow=False)[:2] == (0, 1)
+    cos, w, text = defines(37.0, fp64_directions=False)
+    assert (cos, w) == (0, 0) and "directions in float" in text
+    assert defines(37.0, compensated=True)[1] == 0           # a float (Neumaier) sum
+    assert defines(37.0, has_fp64=False, compensated=True)[:2] == (0, 0)
 
 
 def test_plan_uses_the_integer_power_only_where_it_applies():
