@@ -96,7 +96,7 @@ inline weights_t shade_point_light(const pixel_t *p, float4 L, float4 L_lo, floa
     const dirS Lx = HI_LO(L.x, L_lo.x), Ly = HI_LO(L.y, L_lo.y), Lz = HI_LO(L.z, L_lo.z);
     const dirL dx = Lx - p->px, dy = Ly - p->py, dz = Lz - p->pz;
     const dirL d2 = MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz));
-    const dirL inv_d = SELECT_DIR(RSQRT_DIR(d2), (dirL)(0.0f), d2 <= (dirL)(0.0f));
+    const dirL inv_d = SELECT_DIR(RSQRT_DIST(d2), (dirL)(0.0f), d2 <= (dirL)(0.0f));
     const dirL lx = dx * inv_d, ly = dy * inv_d, lz = dz * inv_d;
     const dirL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
     weights_t w = shade_direction(p, lx, ly, lz, NoL);

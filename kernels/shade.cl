@@ -159,7 +159,7 @@ __kernel void shade(__global const float *restrict gbuf,
            head-on, v := n (as the reference), not 0·rsqrt(0) = NaN. */
         const dirL ex = eye_x - p.px, ey = eye_y - p.py, ez = eye_z - p.pz;
         const dirL ee = MUL_ADD(ex, ex, MUL_ADD(ey, ey, ez * ez));
-        const dirL inv = RSQRT_DIR(ee);
+        const dirL inv = RSQRT_DIST(ee);
         p.vx = SELECT_DIR(ex * inv, p.nx, ee <= (dirL)(0.0f));
         p.vy = SELECT_DIR(ey * inv, p.ny, ee <= (dirL)(0.0f));
         p.vz = SELECT_DIR(ez * inv, p.nz, ee <= (dirL)(0.0f));
