@@ -530,6 +530,10 @@ def _gd(x: Decimal) -> str:
     return re.sub(r"\.?0+e", "e", f"{x:.5e}")
 
 
+#: The largest finite float32: every number of a scene reaches the kernels as float32.
+_F32_MAX = 3.4028234663852886e38
+
+
 def _f32(x: float) -> float:
     """``x`` rounded to float32 (as the kernels store it), back as a float."""
     try:
@@ -660,8 +664,10 @@ class _Parser:
 
     # -- values -----------------------------------------------------------
 
-    def num(self, v: Any, path: str, index: int | None = None) -> float:
-        """A finite number as float; ``index`` extends ``path`` lazily."""
+    def num(self, v: Any, path: str, index: int | None = None, f32: bool = True) -> float:
+        """A finite number as float; ``index`` extends ``path`` lazily; ``f32``: it must
+        also be finite as the float32 the kernels take (not for directions, which
+        are normalised first)."""
         t = type(v)
         if t is float:
             x = v
@@ -685,6 +691,9 @@ class _Parser:
                 self.fail(self._at(path, index), f"{_describe(v)} is not a float64 number")
         if not math.isfinite(x):
             self.fail(self._at(path, index), f"must be finite, got {x!r}")
+        if f32 and abs(x) > _F32_MAX and not math.isfinite(_f32(x)):
+            self.fail(self._at(path, index), f"{_g(x)} is beyond the float32 range the kernels "
+                                             f"compute in (|x| <= {_g(_F32_MAX)})")
         return x
 
     def _int_to_float(self, v: int, path: str, index: int | None) -> float:
@@ -698,20 +707,20 @@ class _Parser:
     def _at(path: str, index: int | None) -> str:
         return path if index is None else f"{path}[{index}]"
 
-    def nonneg(self, v: Any, path: str, index: int | None = None) -> float:
-        x = self.num(v, path, index)
+    def nonneg(self, v: Any, path: str, index: int | None = None, f32: bool = True) -> float:
+        x = self.num(v, path, index, f32)
         if x < 0:
             self.fail(self._at(path, index), f"must be >= 0, got {x!r}")
         return x
 
-    def vec3(self, v: Any, path: str, nonneg: bool = False) -> Vec3:
+    def vec3(self, v: Any, path: str, nonneg: bool = False, f32: bool = True) -> Vec3:
         if not isinstance(v, (list, tuple)):
             self.fail(path, f"expected an array of 3 numbers [x, y, z], got {_describe(v)}")
         if len(v) != 3:
             self.fail(path, f"expected 3 numbers [x, y, z], got {len(v)}: "
                             f"{_short(repr(list(v)))}")
         f = self.nonneg if nonneg else self.num
-        return (f(v[0], path, 0), f(v[1], path, 1), f(v[2], path, 2))
+        return (f(v[0], path, 0, f32), f(v[1], path, 1, f32), f(v[2], path, 2, f32))
 
     def unit(self, v: Any, path: str) -> Vec3:
         """A non-zero 3-vector, normalised in float64.
@@ -719,7 +728,7 @@ class _Parser:
         A vector already unit to within 4 ulp is kept as it is, so that
         normalising is idempotent and ``to_dict`` round-trips exactly.
         """
-        x, y, z = self.vec3(v, path)
+        x, y, z = self.vec3(v, path, f32=False)
         n = math.hypot(x, y, z)
         if n == 0.0:
             self.fail(path, f"zero-length vector {[x, y, z]!r} has no direction")
@@ -897,6 +906,10 @@ class _Parser:
         intensity = 1.0
         if "intensity" in v:
             intensity = self.nonneg(v["intensity"], path + ".intensity")
+        worst = max(color) * intensity
+        if not math.isfinite(_f32(worst)):
+            self.fail(path + ".intensity", f"color x intensity = {_g(worst)} is beyond the float32 "
+                                           f"range the kernels compute in (<= {_g(_F32_MAX)})")
         if type_ == "point":
             if "position" not in v:
                 self.fail(path + ".position", "missing; a 'point' light needs a position, "
@@ -927,6 +940,16 @@ class _Parser:
         return Light(type_, color, intensity)
 
     def check_scene(self, m: Material, lights: tuple[Light, ...]) -> None:
+        # The products the host forms before the kernels see them as float32.
+        spec = m.k_s * max(m.specular_color)
+        if not math.isfinite(_f32(spec)):
+            self.fail("material.k_s", f"k_s x specular_color = {_g(spec)} is beyond the float32 "
+                                      f"range the kernels compute in (<= {_g(_F32_MAX)})")
+        amb = [math.fsum(lt.radiance[c] for lt in lights if lt.type == "ambient") for c in range(3)]
+        if not math.isfinite(_f32(m.k_a * max(amb))):
+            self.fail("material.k_a", f"k_a x the ambient lights' summed radiance = "
+                                      f"{_g(m.k_a * max(amb))} is beyond the float32 range the "
+                                      f"kernels compute in (<= {_g(_F32_MAX)})")
         total = math.fsum((m.k_a, m.k_d, m.k_s))
         if total > 1.0 + _SUM_TOLERANCE:
             self.warn("material", f"k_a + k_d + k_s = {_g(total)} > 1: the surface reflects "

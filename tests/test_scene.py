@@ -247,6 +247,22 @@ ERROR_CASES = [
      "material.specular_color[2]", ["must be finite"]),
     ("huge-int", lambda d: set_at(d, ("material", "h"), 10**400),
      "material.h", ["too large for a float64"]),
+    # finite in float64 but not in the kernels' float32 (the render gave NaN pixels)
+    ("light-position-beyond-float32", lambda d: set_at(d, ("light", 0, "position"), [1e300, 0, 0]),
+     "light[0].position[0]", ["1e+300 is beyond the float32 range", "3.40282e+38"]),
+    ("camera-position-beyond-float32", lambda d: set_at(d, ("camera", "position"), [0, -4e38, 0]),
+     "camera.position[1]", ["-4e+38 is beyond the float32 range"]),
+    ("h-beyond-float32", lambda d: set_at(d, ("material", "h"), 10**39),
+     "material.h", ["1e+39 is beyond the float32 range"]),
+    ("radiance-beyond-float32", lambda d: set_at(d, ("light", 0), dict(
+        d["light"][0], color=[1.0, 1e10, 1.0], intensity=1e30)),
+     "light[0].intensity", ["color x intensity = 1e+40 is beyond the float32 range"]),
+    ("specular-beyond-float32", lambda d: set_at(d, ("material",), dict(
+        d["material"], k_s=1e20, specular_color=[1, 1e19, 1])),
+     "material.k_s", ["k_s x specular_color = 1e+39"]),
+    ("ambient-sum-beyond-float32", lambda d: set_at(d, ("material", "k_a"), 1.0) or set_at(
+        d, ("light",), d["light"] + [{"type": "ambient", "intensity": 3e38}] * 2),
+     "material.k_a", ["summed radiance = 6e+38"]),
     # negative coefficients
     ("negative-k_a", lambda d: set_at(d, ("material", "k_a"), -0.1),
      "material.k_a", ["must be >= 0, got -0.1"]),
