@@ -173,10 +173,25 @@ def half_vector(l: np.ndarray, v: np.ndarray):
     return h, undefined
 
 
+#: The smallest float64 that rounds to +inf as float32 (FLT_MAX + half an ulp).
+F32_ROUNDS_TO_INF = 3.4028235677973366e38
+
+
 def pack_lights(scene, origin: np.ndarray) -> LightArrays:
     """Rebase the lights on ``origin`` in float64, then round to float32 records."""
     o = np.asarray(origin, np.float64)
     arrays = scene.light_arrays
+    # Rebased on this frame, a light or the eye near one end of the float32 range
+    # and positions near the other would round to ±inf (NaN pixels): refuse.
+    far = [("a point light", float(np.abs(arrays["point_position"] - o).max(initial=0.0)))]
+    if scene.camera.type == "perspective":
+        far.append(("camera.position", float(np.abs(np.asarray(scene.camera.position) - o).max())))
+    for what, x in far:
+        if x >= F32_ROUNDS_TO_INF:
+            from .errors import SceneError
+            raise SceneError(f"{scene.source}: {what} lies {x:.3g} units from this frame's "
+                             "positions along an axis, beyond the float32 range the kernels "
+                             "compute in (3.4e38)")
     n_pts = len(arrays["point_position"])
     point = np.zeros((max(n_pts, 1) * 3, 4), np.float32)
     if n_pts:

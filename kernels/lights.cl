@@ -100,7 +100,13 @@ inline weights_t shade_point_light(const pixel_t *p, float4 L, float4 L_lo, floa
     const dirL lx = dx * inv_d, ly = dy * inv_d, lz = dz * inv_d;
     const dirL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
     weights_t w = shade_direction(p, lx, ly, lz, NoL);
+#if DIRECTIONS_FP64
+    /* finite in double: |P − o| ≤ 2·FLT_MAX and the host refuses a light whose
+       rebased position is beyond float (pack_lights), so d² < 3·(3·FLT_MAX)² */
+    const dirL d = d2 * inv_d;
+#else
     const dirL d = SELECT_DIR(d2 * inv_d, d2, isinf(d2));
+#endif
     /* d = 0: no contribution, also where c0 = 0 makes the falloff infinite. */
     const dirL att = SELECT_DIR(attenuation(L.w, c1, c2, d), (dirL)(0.0f), d2 <= (dirL)(0.0f));
     *ar = DIR_TO_W(att * (dirS)radiance.x);

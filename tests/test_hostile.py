@@ -336,6 +336,9 @@ def _scene(src: Path, text: str, name="bad.toml") -> Path:
     ("attenuation-c0-zero", SCENE.replace("attenuation = [1.0, 0.0, 0.02]", "attenuation = [0, 0, 1]"),
      ["bad.toml: light[0].attenuation:", "c0 must be > 0"]),
     ("not-utf8", None, ["bad.toml:6: invalid TOML: not UTF-8 (byte 80)"]),
+    # finite in float64, infinite as the kernels' float32 (NaN pixels before)
+    ("beyond-float32", SCENE.replace("position = [3.0, 5.0, 4.0]", "position = [3.0, 5.0, 4e38]"),
+     ["bad.toml: light[0].position[2]: 4e+38 is beyond the float32 range"]),
     # found by tests/test_fuzz.py: tomllib recurses per nesting level (RecursionError)
     ("deeply-nested", "x = " + "[" * 2000 + "]" * 2000 + "\n" + SCENE, ["bad.toml", "nested too deeply"]),
 ], ids=lambda v: v if isinstance(v, str) and len(v) < 30 else "")
@@ -346,6 +349,19 @@ def test_bad_scene(work, capsys, case, text, needles):
     else:
         _scene(src, text)
     fails(render_argv(src, out, scene=src / "bad.toml"), capsys, src.parent, *needles)
+
+
+def test_light_beyond_float32_range_of_the_frame(work, capsys):
+    """Each finite as float32, but 6e38 apart: rebased on the frame, the light would
+    round to inf (NaN pixels): a one-line error naming the scene, no output."""
+    src, out = work
+    gb = random_gbuffer(np.random.default_rng(7), H, W)
+    write_gbuffer(src / "far.exr", gb.position - np.float32(3e38), gb.normal, gb.albedo,
+                  coverage=gb.coverage)
+    _scene(src, SCENE.replace("position = [3.0, 5.0, 4.0]", "position = [3e38, 5.0, 4.0]"))
+    fails(render_argv(src, out, gbuffer=src / "far.exr", scene=src / "bad.toml"), capsys,
+          src.parent, "bad.toml: a point light lies 6e+38 units from this frame's positions",
+          "float32 range")
 
 
 def test_scene_file_too_large_for_memory(work, capsys, monkeypatch):
