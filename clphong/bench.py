@@ -53,8 +53,8 @@ What is measured
 * FP32 peak: ``kernels/peak.cl`` (independent multiply-add chains) measures the
   device's peak GFLOP/s in the same run; ``peak_fraction`` =
   PLE/s × ``flops_per_ple`` / peak, with the run's own flop count
-  (:func:`flops_per_ple`, itemised in :data:`FLOPS`; on the bench scene 59 on
-  the default path, 72 on the float paths (the integer power of 1 − δ), 93
+  (:func:`flops_per_ple`, itemised in :data:`FLOPS`; on the bench scene 58 on
+  the default path, 71 on the float paths (the integer power of 1 − δ), 93
   with exp/log1p, 89 for the obvious kernel; double operations count as one
   flop each).
 

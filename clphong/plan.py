@@ -24,16 +24,19 @@ DEFAULT_LANES = 16
 MAP_NAMES = ("k_d", "k_s", "h", "specular_color")
 
 #: The largest whole exponent k (h, or 4h for Blinn-Phong) raised by binary
-#: powering (SPEC_INT_POW): at most 17 squarings and 16 products per light.
+#: powering (SPEC_INT_POW): at most 16 squarings and 16 products per light.
 #: Blinn-Phong with h = 10⁴ (k = 4·10⁴) is inside.
 INT_POW_MAX = 65536
 
 
 def int_pow_multiplies(k: int) -> int:
-    """Double multiplies of ``specular_power_int`` (kernels/brdf.cl) for the
-    whole exponent ``k``: one squaring per bit, one product per set bit."""
+    """Double multiplies of ``specular_power_cos`` (kernels/brdf.cl) for the
+    whole exponent ``k``: one squaring per bit after the first, one product per
+    set bit but bit 0 (s starts as x or 1)."""
     k = int(k)
-    return k.bit_length() + bin(k).count("1")
+    if k <= 0:
+        return 0
+    return k.bit_length() - 1 + bin(k).count("1") - (k & 1)
 
 
 @dataclass(frozen=True)

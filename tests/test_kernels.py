@@ -200,7 +200,7 @@ def test_reference_cosine_forms_are_the_same_function():
     NoL, NoV = np.sum(n * l, 1), np.sum(n * v, 1)
     tol = 32 * 2.0 ** -53
     x = reference.phong_cos(l, v, NoL, NoV)
-    assert np.max(np.abs(x - (1.0 - reference.phong_delta(n, l, v, NoL)))) <= tol
+    assert np.max(np.abs(x - np.maximum(1.0 - reference.phong_delta(n, l, v, NoL), 0.0))) <= tol
     y = reference.blinn_cos_sq(l, v, NoL, NoV)
     c = 1.0 - reference.blinn_delta(n, l, v)           # n·h, and 0 where l = −v
     assert np.all(y[:50] == 0.0)
@@ -209,10 +209,12 @@ def test_reference_cosine_forms_are_the_same_function():
     yc = reference.blinn_cos_sq_const_h(n[50:], h)
     assert np.max(np.abs(yc - np.where(c[50:] > 0, c[50:] ** 2, 0.0))) <= tol
     assert np.all(reference.blinn_cos_sq_const_h(n[50:], h, undefined=True) == 0.0)
-    # max(x, 0)^K: x ≤ 0 gives 0 (1 for K = 0), NaN stays NaN, and 1 − δ gives the δ form.
+    # x^K for x ≥ 0: 0⁰ := 1, NaN stays NaN, and 1 − δ gives the δ form; phong_cos
+    # clamps r·v ≤ 0 to 0 (blinn_cos_sq never goes below 0).
+    assert np.all(x >= 0.0) and np.all(y >= 0.0)
     for K in (0, 1, 2, 33, 128, 65536):
-        edge = reference.specular_power_cos(np.array([-0.5, 0.0, 1.0, np.nan]), K)
-        assert np.array_equal(edge[:3], [1.0, 1.0, 1.0] if K == 0 else [0.0, 0.0, 1.0])
+        edge = reference.specular_power_cos(np.array([0.0, 1.0, 0.5, np.nan]), K)
+        assert np.array_equal(edge[:3], [1.0, 1.0, 1.0] if K == 0 else [0.0, 1.0, 0.5 ** K])
         assert np.isnan(edge[3])
         d = np.geomspace(1e-9, 0.99, 50)
         assert np.array_equal(reference.specular_power_cos(1.0 - d, K),
