@@ -438,31 +438,39 @@ def test_programs_are_built_once_per_variant(monkeypatch):
 
 # ------------------------------------------------------------------------ device helpers
 
-def test_inline_double_rsqrt_is_within_three_ulp():
-    """kernels/clphong.h's rsqrt_dir (fp64 directions) against 1/√x in long double:
-    ≤ 3·2⁻⁵³ relative over 1e-90 .. 1e90 (its comment states 2.44·2⁻⁵³ measured in
-    numpy; the error model needs only 2⁻⁴⁷). Three Newton steps instead of four
-    would give 3e-11 and fail."""
+def _rsqrt_dir_on_device(x, ctype, options):
+    """kernels/clphong.h's rsqrt_dir of each element of x (one per work-item, LANES = 1)."""
     import pyopencl as cl
 
     from clphong.runtime import get_runtime, kernel_dir
 
     rt = get_runtime()
-    if not rt.has_fp64:
-        pytest.skip("device without cl_khr_fp64")
     src = ('#include "clphong.h"\n'
-           "__kernel void k(__global const double *x, __global double *y)"
+           f"__kernel void k(__global const {ctype} *x, __global {ctype} *y)"
            "{ size_t i = get_global_id(0); y[i] = rsqrt_dir(x[i]); }")
     prog = cl.Program(rt.context, src).build(
-        options=["-DLANES=1", "-DDIRECTIONS_FP64=1", f"-I{kernel_dir()}", "-w"])
-    x = np.concatenate([[0.0], np.geomspace(1e-90, 1e90, 200_001),
-                        np.random.default_rng(3).uniform(0.5, 4.0, 100_000)])
+        options=["-DLANES=1", *options, f"-I{kernel_dir()}", "-w"])
     mf = cl.mem_flags
     xb = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
     yb = cl.Buffer(rt.context, mf.WRITE_ONLY, x.nbytes)
     prog.k(rt.queue, x.shape, None, xb, yb)
     y = np.empty_like(x)
     cl.enqueue_copy(rt.queue, y, yb)
+    return y
+
+
+def test_inline_double_rsqrt_is_within_three_ulp():
+    """kernels/clphong.h's rsqrt_dir (fp64 directions) against 1/√x in long double:
+    ≤ 3·2⁻⁵³ relative over 1e-90 .. 1e90 (its comment states 2.44·2⁻⁵³ measured in
+    numpy; the error model needs only 2⁻⁴⁷). Three Newton steps instead of four
+    would give 3e-11 and fail."""
+    from clphong.runtime import get_runtime
+
+    if not get_runtime().has_fp64:
+        pytest.skip("device without cl_khr_fp64")
+    x = np.concatenate([[0.0], np.geomspace(1e-90, 1e90, 200_001),
+                        np.random.default_rng(3).uniform(0.5, 4.0, 100_000)])
+    y = _rsqrt_dir_on_device(x, "double", ["-DDIRECTIONS_FP64=1"])
     assert y[0] == np.inf                       # as rsqrt(0); callers select their own value
     x, y = x[1:], y[1:]
     ref = 1.0 / np.sqrt(x.astype(np.longdouble))
@@ -477,25 +485,10 @@ def test_inline_float_rsqrt_is_within_two_ulp():
     on samples across the range); rsqrt(0) = +∞ as the builtin's (its domain is
     finite x: squared distances, which can overflow, keep the builtin, RSQRT_DIST).
     Two Newton steps instead of three would give 4.6e-6 (77 ulp) and fail."""
-    import pyopencl as cl
-
-    from clphong.runtime import get_runtime, kernel_dir
-
-    rt = get_runtime()
-    src = ('#include "clphong.h"\n'
-           "__kernel void k(__global const float *x, __global float *y)"
-           "{ size_t i = get_global_id(0); y[i] = rsqrt_dir(x[i]); }")
-    prog = cl.Program(rt.context, src).build(
-        options=["-DLANES=1", "-DDIRECTIONS_FP64=0", "-cl-denorms-are-zero", f"-I{kernel_dir()}", "-w"])
     binade = np.arange(0x3F800000, 0x40800000, dtype=np.uint32).view(np.float32)
     spread = np.geomspace(1e-37, 3e38, 100_001).astype(np.float32)
     x = np.concatenate([np.float32([0.0]), binade, spread])
-    mf = cl.mem_flags
-    xb = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
-    yb = cl.Buffer(rt.context, mf.WRITE_ONLY, x.nbytes)
-    prog.k(rt.queue, x.shape, None, xb, yb)
-    y = np.empty_like(x)
-    cl.enqueue_copy(rt.queue, y, yb)
+    y = _rsqrt_dir_on_device(x, "float", ["-DDIRECTIONS_FP64=0", "-cl-denorms-are-zero"])
     assert y[0] == np.inf
     ref = 1.0 / np.sqrt(x[1:].astype(np.float64))
     ulp = 2.0 ** (np.floor(np.log2(ref)) - 23)
