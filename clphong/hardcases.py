@@ -197,6 +197,23 @@ def _blinn_near_undefined():
             make_gbuffer(P, N, np.ones_like(N)))
 
 
+@case("blinn-l-minus-v-collinear", "angles",
+      "eye, pixels and a point light on one slanted line: |l + v| is rounding noise")
+def _blinn_collinear():
+    # Pixels at t·w between the eye (−2w) and the light (10w), exact in float32, so l
+    # and v are opposite up to the roundings of their normalisation; normals face the
+    # light. The reference sees |l + v| = 0 or noise, the kernel noise: the model
+    # bounds the whole term, and (n·h)² from noise must not exceed 1 (brdf.cl).
+    w = np.array([3.0, 4.0, 12.0])
+    t = (np.arange(64) + 1) / 32.0
+    P = (t[:, None] * w).reshape(4, 16, 3)
+    N = (w + np.random.default_rng(1).normal(scale=3.0, size=(64, 3))).reshape(4, 16, 3)
+    light = dict(type="point", position=tuple(10.0 * w), intensity=1.0)
+    cam = dict(type="perspective", position=tuple(-2.0 * w))
+    return (make_scene([light], model="blinn-phong", k_a=0.0, k_d=0.0, k_s=1.0, h=32.0,
+                       camera=cam), make_gbuffer(P, N, np.ones_like(N)))
+
+
 @case("phong-r-dot-v-one", "angles", "mirror geometry: r = v exactly, r·v = 1 (δ = 0)")
 def _mirror():
     P, N, C = _strip(16)

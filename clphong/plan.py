@@ -24,7 +24,7 @@ DEFAULT_LANES = 16
 MAP_NAMES = ("k_d", "k_s", "h", "specular_color")
 
 #: The largest whole exponent k (h, or 4h for Blinn-Phong) raised by binary
-#: powering (SPEC_INT_POW): at most 16 squarings and 16 products per light.
+#: powering (SPEC_INT_POW): at most 16 squarings and 15 products per light.
 #: Blinn-Phong with h = 10⁴ (k = 4·10⁴) is inside.
 INT_POW_MAX = 65536
 

@@ -88,15 +88,20 @@ inline dirL phong_cos(dirL lx, dirL ly, dirL lz, dirL vx, dirL vy, dirL vz,
 
 /* Blinn-Phong: (n·h)² = (n·l + n·v)²/|l + v|² where n·h > 0, else 0, so that
  * ((n·h)²)^(K/2) = max(n·h, 0)^K for an even K with no square root.
- * Guard, as blinn_delta: l = −v (|l + v| = 0, the half vector undefined) gives 0
- * (n·h taken as 0), so the term vanishes for K > 0. */
+ * Guards, as blinn_delta: l = −v (|l + v| = 0, the half vector undefined) gives 0
+ * (n·h taken as 0), so the term vanishes for K > 0. Where |l + v| is only
+ * rounding noise (l within ~2⁻⁵² of −v), n·(l + v) and |l + v|² are both noise
+ * and their ratio can be anything: capped at 1, as a normalised half vector
+ * gives (the error model bounds the whole term there, and culling assumes a
+ * specular weight ≤ 1). */
 inline dirL blinn_cos_sq(dirL lx, dirL ly, dirL lz, dirL vx, dirL vy, dirL vz,
                          dirL NoL, dirL NoV)
 {
     const dirL hx = lx + vx, hy = ly + vy, hz = lz + vz;
     const dirL hh = MUL_ADD(hx, hx, MUL_ADD(hy, hy, hz * hz));
     const dirL q = NoL + NoV;                    /* n·(l + v) */
-    return SELECT_DIR((dirL)(0.0), q * q / hh, (q > 0.0) & (hh > 0.0));
+    const dirL y = q * q / hh;
+    return SELECT_DIR((dirL)(0.0), SELECT_DIR(y, (dirL)(1.0), y > 1.0), (q > 0.0) & (hh > 0.0));
 }
 
 /* Blinn-Phong with a half vector constant per light (blinn_delta_const_h):
@@ -114,8 +119,9 @@ inline dirL blinn_cos_sq_const_h(dirL nx, dirL ny, dirL nz, float4 h, float4 h_l
 #if SPEC_INT_POW
 /* x^K for x ≥ 0 (the callers clamp: phong_cos, blinn_cos_sq, 1 − δ) and a whole
  * exponent K ≤ 65536 (the plan's SPEC_INT_POW), by binary powering in double,
- * then converted once to the weights' type: log2(K) squarings and one product
- * per further set bit. They add at most ~K·2⁻⁵³ relative; an absolute error e
+ * then converted once to the weights' type: ⌊log2 K⌋ squarings, and one product
+ * per set bit but bit 0 (for an even K the first is 1·x^(2^j)): plan.py's
+ * int_pow_multiplies. They add at most ~K·2⁻⁵³ relative; an absolute error e
  * of x becomes K·e/x relative.
  * Guards: K = 0 gives 1 (0⁰ := 1); a NaN x (NaN inputs under the "pass"
  * policy) gives NaN, for K = 0 too (a uniform branch: K is the same for every
@@ -137,7 +143,8 @@ inline wL specular_power_cos(powL x, uint K)
 
 /* max(1 − δ, 0)^K: specular_power_cos of x = 1 − δ, in double.
  * δ ≥ 0 is exact in double (from float, or dirL already), and so is 1 − δ to
- * within 2⁻⁵³. The result therefore errs by u plus K·|Δδ|/(1 − δ) from δ
+ * within 2⁻⁵³. The result therefore errs by one rounding (u to float, 2⁻⁵³ with
+ * WEIGHTS_FP64) plus K·|Δδ|/(1 − δ) from δ
  * itself: the exp/log1p form's bound without its ulps and without its
  * 4u·|k·log1p(−δ)| (the rounding of y = k·log1p(−δ) before exp), at the cost of
  * ~2·log2(K) double multiplies instead of two out-of-line builtins

@@ -185,7 +185,8 @@ typedef long longL;
  * above u (docs/error-model.md). With DIRECTIONS_FP64 they are computed in double
  * from the float32 inputs and hi+lo float pairs from the host, and only n·l, δ
  * (for exp/log1p; the integer power takes δ in double) and att·L are rounded to
- * float: the error of every term is then a few u, relative.
+ * float, or nothing at all before the sum with WEIGHTS_FP64: the error of every
+ * term is then a few u, relative.
  * HI_LO(hi, lo): a host float64 value sent as float hi + lo, in dirS (hi alone
  * in float). */
 #if DIRECTIONS_FP64
@@ -216,8 +217,11 @@ typedef floatL dirL;
  * 4.6e-6 after two, 3.2e-11 after three, then float rounding) stay within the
  * builtin's 2 ulp that the error model assumes (1.92 ulp measured): tested
  * exhaustively on [1, 4),
- * which covers every normal float (a factor 4 in x moves the guess and each
- * step by exactly ½). Unlike rsqrt, x = +∞ gives −∞, not 0, and a guard for it
+ * which covers every float x ≥ 2·FLT_MIN (a factor 4 in x moves the guess and
+ * each step by exactly ½). Below that, h = x/2 flushes to 0
+ * (-cl-denorms-are-zero) and the result is 3.3–3.5× too large: its one use,
+ * Blinn's |l + v|² < 2.4e-38, then gives |n − h| > 2, so δ > 1 and no
+ * highlight, where the bound already allows the whole term. Unlike rsqrt, x = +∞ gives −∞, not 0, and a guard for it
  * cost 12 % of the float path's lights loop (PoCL 3.0, any form of it), so the
  * float RSQRT_DIR takes finite x only (Blinn's |l + v|² ≤ 4, once per light);
  * RSQRT_DIST, for squared distances (to a light, once per light, and to the eye,

@@ -50,7 +50,7 @@
 /* Thresholds τ_m = ε·2^−m, m = 1 … CULL_LEVELS (down to ε·6·10⁻⁸). Steps of 2,
  * not 16: the τ picked is within 2× of the best single threshold, so a tile
  * drops more lights for the same budget (bench, small-reach scene, 65 536 lights
- * at ε = 10⁻³: 0.43 % kept → 0.23 %, and the culling kernels 1.75 s → 1.05 s,
+ * at ε = 10⁻³: 0.43 % kept → 0.23 %, and the culling kernels 1.75 s → 1.03 s,
  * since the super-tiles' lists shrink too). */
 #define CULL_LEVELS 24
 /* A super-tile is CULL_SUPER × CULL_SUPER tiles; its lists are the candidates

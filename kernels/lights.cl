@@ -84,8 +84,9 @@ inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, di
 /* A point light at L (rebased; L_lo = L − float(L) from the host, used with
  * DIRECTIONS_FP64): l = (L − P)/d. Returns the unattenuated weights, and in
  * *ar, *ag, *ab the light's radiance times attenuation(d), formed in dirL and
- * then rounded, so that a huge falloff and a tiny intensity (or the reverse)
- * meet before anything is rounded to float.
+ * then converted to the weights' type (rounded to float unless WEIGHTS_FP64), so
+ * that a huge falloff and a tiny intensity (or the reverse) meet before anything
+ * is rounded to float.
  * Guards: a light exactly at the shaded point (d = 0) has no direction; it
  * contributes nothing (l := 0, d := 0, so n·l = 0 switches both terms off), as in
  * the reference; rsqrt(0) = inf would give 0·inf = NaN. In float, d² overflows for
