@@ -183,15 +183,21 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
     arrays = scene.light_arrays
     # Rebased on this frame, a light or the eye near one end of the float32 range
     # and positions near the other would round to ±inf (NaN pixels): refuse.
-    far = [("a point light", float(np.abs(arrays["point_position"] - o).max(initial=0.0)))]
+    reach = np.abs(arrays["point_position"] - o).max(axis=1, initial=0.0)     # per point light
+    far = []
+    if reach.size and reach.max() >= F32_ROUNDS_TO_INF:
+        points = [i for i, lt in enumerate(scene.lights) if lt.type == "point"]
+        far.append((f"light[{points[int(np.argmax(reach))]}].position", reach.max()))
     if scene.camera.type == "perspective":
-        far.append(("camera.position", float(np.abs(np.asarray(scene.camera.position) - o).max())))
-    for what, x in far:
+        far.append(("camera.position", np.abs(np.asarray(scene.camera.position) - o).max()))
+    for key, x in far:
+        x = float(x)
         if x >= F32_ROUNDS_TO_INF:
             from .errors import SceneError
-            raise SceneError(f"{scene.source}: {what} lies {x:.3g} units from this frame's "
-                             "positions along an axis, beyond the float32 range the kernels "
-                             "compute in (3.4e38)")
+            centre = ", ".join(f"{c:.3g}" for c in o)
+            raise SceneError(f"{scene.source}: {key} lies {x:.3g} units along an axis from this "
+                             f"frame's positions (centred near ({centre})), beyond the float32 "
+                             "range the kernels compute in (3.4e38)")
     n_pts = len(arrays["point_position"])
     point = np.zeros((max(n_pts, 1) * 3, 4), np.float32)
     if n_pts:

@@ -811,7 +811,7 @@ class _Parser:
             if k not in t:
                 self.fail(f"material.{k}", "missing required key")
         model = self.enum(t["model"], "material.model", MATERIAL_MODELS)
-        k_a = self.nonneg(t["k_a"], "material.k_a")
+        k_a = self.nonneg(t["k_a"], "material.k_a", f32=False)   # only k_a·Σ ambient reaches the kernels
         k_d = self.nonneg(t["k_d"], "material.k_d")
         k_s = self.nonneg(t["k_s"], "material.k_s")
         h = self.nonneg(t["h"], "material.h")
@@ -900,12 +900,14 @@ class _Parser:
             for k in v:
                 if k not in allowed:
                     self.not_for_type(path, k, "light", type_, _LIGHT_KEYS)
+        # color and intensity reach the kernels only as their product (checked
+        # below), so either may be beyond float32 alone
         color = _WHITE
         if "color" in v:
-            color = self.vec3(v["color"], path + ".color", nonneg=True)
+            color = self.vec3(v["color"], path + ".color", nonneg=True, f32=False)
         intensity = 1.0
         if "intensity" in v:
-            intensity = self.nonneg(v["intensity"], path + ".intensity")
+            intensity = self.nonneg(v["intensity"], path + ".intensity", f32=False)
         worst = max(color) * intensity
         if not math.isfinite(_f32(worst)):
             self.fail(path + ".intensity", f"color x intensity = {_g(worst)} is beyond the float32 "
@@ -924,7 +926,7 @@ class _Parser:
                     if problem is not None:
                         self.fail(apath, f"{problem}; got {list(att)!r}")
                     a32 = (_f32(att[0]), _f32(att[1]), _f32(att[2]))
-                    if not all(map(math.isfinite, a32)) or attenuation_problem(*a32):
+                    if attenuation_problem(*a32):
                         self.warn(apath, f"{list(att)!r} is positive in float64, but rounded "
                                          "to float32 as the kernels store it, p(d) = c0 + "
                                          "c1*d + c2*d^2 can reach 0; keep it further from "
@@ -941,6 +943,9 @@ class _Parser:
 
     def check_scene(self, m: Material, lights: tuple[Light, ...]) -> None:
         # The products the host forms before the kernels see them as float32.
+        if not math.isfinite(_f32(m.exponent)):
+            self.fail("material.h", f"the exponent 4h = {_g(m.exponent)} of 'blinn-phong' is beyond "
+                                    f"the float32 range the kernels compute in (<= {_g(_F32_MAX)})")
         spec = m.k_s * max(m.specular_color)
         if not math.isfinite(_f32(spec)):
             self.fail("material.k_s", f"k_s x specular_color = {_g(spec)} is beyond the float32 "

@@ -360,8 +360,8 @@ def test_light_beyond_float32_range_of_the_frame(work, capsys):
                   coverage=gb.coverage)
     _scene(src, SCENE.replace("position = [3.0, 5.0, 4.0]", "position = [3e38, 5.0, 4.0]"))
     fails(render_argv(src, out, gbuffer=src / "far.exr", scene=src / "bad.toml"), capsys,
-          src.parent, "bad.toml: a point light lies 6e+38 units from this frame's positions",
-          "float32 range")
+          src.parent, "bad.toml: light[0].position lies 6e+38 units along an axis from this "
+          "frame's positions (centred near (-3e+38, -3e+38, -3e+38))", "float32 range")
 
 
 def test_scene_file_too_large_for_memory(work, capsys, monkeypatch):

@@ -481,9 +481,10 @@ def test_inline_double_rsqrt_is_within_three_ulp():
 def test_inline_float_rsqrt_is_within_two_ulp():
     """The float rsqrt_dir (fp32 directions) stays within the builtin's 2 ulp that
     the error model assumes: exhaustively over the 2²⁴ floats of [1, 4), which covers
-    every normal float (x·4 moves the guess and each Newton step by exactly ½; checked
-    on samples across the range); rsqrt(0) = +∞ as the builtin's (its domain is
-    finite x: squared distances, which can overflow, keep the builtin, RSQRT_DIST).
+    every float x ≥ 2·FLT_MIN (x·4 moves the guess and each Newton step by exactly ½;
+    checked on samples from 1e-37 up; below 2·FLT_MIN, x/2 flushes to 0, see
+    clphong.h); rsqrt(0) = +∞ as the builtin's (its domain is finite x: squared
+    distances, which can overflow, keep the builtin, RSQRT_DIST).
     Two Newton steps instead of three would give 4.6e-6 (77 ulp) and fail."""
     binade = np.arange(0x3F800000, 0x40800000, dtype=np.uint32).view(np.float32)
     spread = np.geomspace(1e-37, 3e38, 100_001).astype(np.float32)

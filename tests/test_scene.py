@@ -260,6 +260,9 @@ ERROR_CASES = [
     ("specular-beyond-float32", lambda d: set_at(d, ("material",), dict(
         d["material"], k_s=1e20, specular_color=[1, 1e19, 1])),
      "material.k_s", ["k_s x specular_color = 1e+39"]),
+    ("blinn-exponent-beyond-float32", lambda d: set_at(d, ("material",), dict(
+        d["material"], model="blinn-phong", h=1e38)),
+     "material.h", ["the exponent 4h = 4e+38 of 'blinn-phong' is beyond the float32 range"]),
     ("ambient-sum-beyond-float32", lambda d: set_at(d, ("material", "k_a"), 1.0) or set_at(
         d, ("light",), d["light"] + [{"type": "ambient", "intensity": 3e38}] * 2),
      "material.k_a", ["summed radiance = 6e+38"]),
@@ -313,6 +316,18 @@ def test_error_names_file_and_key(mutate, path, fragments):
     assert msg.startswith(f"{SRC}: {path}: "), msg
     for f in fragments:
         assert f in msg, msg
+
+
+def test_only_products_need_the_float32_range():
+    """Light colour and intensity reach the kernels only as their product, and k_a
+    only times the ambient radiance: each may be beyond float32 alone."""
+    data = base()
+    data["light"][0].update(color=[1e-10, 2e-10, 1e-10], intensity=1e39)
+    data["material"]["k_a"] = 1e39
+    data["light"][2]["intensity"] = 1e-40
+    s = parse_quietly(data)
+    assert s.lights[0].radiance[1] == pytest.approx(2e29)
+    assert s.material.k_a == 1e39
 
 
 def test_light_messages_say_which_table():
