@@ -190,8 +190,9 @@ def _add_speed_options(p):
                    help="output radiance of reference white for --max-error (default 1.0)")
     p.add_argument("--path", choices=("accurate", "float"), default="accurate",
                    help="'accurate' (default: directions in double where the device has fp64) or "
-                        "'float' (float32 directions: faster, larger error near grazing light and for "
-                        "high shininess; 'clphong bench' reports both)")
+                        "'float' (float32 directions, for devices without fast double: larger error "
+                        "near grazing light and for high shininess, and on a CPU with fp64 not faster; "
+                        "'clphong bench' reports both)")
 
 
 def _add_renderer_options(p):

@@ -178,7 +178,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         put("DIRECTIONS_FP64", fp64_directions,
             "directions, n·l and δ in double: relative error a few u at grazing light and "
             "any shininess (docs/error-model.md)" if fp64_directions
-            else "directions in float: fast path, error grows near grazing light and with k")
+            else "directions in float (devices without fast double): error grows near grazing "
+                 "light and with k")
         k = m.exponent
         whole = float(k).is_integer() and 0 <= k <= INT_POW_MAX
         use = specular and "h" not in maps and whole and fp64 and int_pow

@@ -83,7 +83,7 @@ def test_beyond_float_range_saturates_at_flt_max(compensated):
 
 
 def test_fp32_directions_fail_the_target_where_fp64_meets_it():
-    """The fast path is not the default for a reason: at h = 1e4 its
+    """The float path is not the default for a reason: at h = 1e4 its
     relative error exceeds the target (its own, larger, bound still holds)."""
     for name in ("h-1e4-phong", "h-1e4-blinn"):
         fast = evaluate(_by_name(name), fp64_directions=False)
