@@ -366,7 +366,7 @@ __kernel void cull_count(__global const float *restrict tiles, const uint n_tile
     capacity_out[i] = (uint)cap;
 #else
     int caps[LANES];
-    vstoreL(cap, 0, caps);
+    vstoreI(cap, caps);
     for (int m = 0; m < LANES; ++m)
         capacity_out[i * LANES + m] = caps[m];
 #endif
@@ -411,7 +411,7 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
 #else
         if (any(keep)) {
             int k[LANES];
-            vstoreL(keep, 0, k);
+            vstoreI(keep, k);
             for (int m = 0; m < LANES; ++m)
                 if (k[m])
                     tile_lights[off[m] + cnt[m]++] = j;
