@@ -180,13 +180,13 @@ def shade_directional_light(px: Pixels, l, h=None, h_undefined=False):
 
 def _inputs(scene, gbuffer):
     """Shaded-pixel inputs and per-pixel material, in float64."""
-    from .render import view_vector
+    from .render import unit_normal_planes, view_vector
 
     bg = gbuffer.background_mask().reshape(-1)
     fg = ~bg
     P = gbuffer.position.reshape(-1, 3)[fg].astype(np.float64)
     N = gbuffer.normal.reshape(-1, 3)[fg].astype(np.float64)
-    n = N / np.sqrt(_dot(N, N))[..., None]
+    n = np.stack(unit_normal_planes(N), axis=-1)     # as the kernels' host side
     C = gbuffer.albedo.reshape(-1, 3)[fg].astype(np.float64)
     m = scene.material
     maps = gbuffer.maps
