@@ -191,8 +191,8 @@ def _add_speed_options(p):
     p.add_argument("--path", choices=("accurate", "float"), default="accurate",
                    help="'accurate' (default: directions in double where the device has fp64) or "
                         "'float' (float32 directions, for devices without fast double: larger error "
-                        "near grazing light and for high shininess, and on a CPU with fp64 not faster; "
-                        "'clphong bench' reports both)")
+                        "near grazing light and for high shininess; on a CPU with fp64 faster only "
+                        "with a few lights; 'clphong bench' reports both)")
 
 
 def _add_renderer_options(p):
