@@ -142,7 +142,8 @@ def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:
 class LightArrays:
     """The scene's lights packed as the kernels read them (see kernels/clphong.h)."""
 
-    point: np.ndarray        # (n_point*3, 4) float32
+    point: np.ndarray        # (n_point*3, 4) float32 (and the culling kernels')
+    point64: np.ndarray      # the same in float64, for DIRECTIONS_FP64 (shade.cl)
     directional: np.ndarray  # (n_dir*5, 4) float32
     ambient: np.ndarray      # (3,) float64: k_a·Σ ambient radiance
     eye: np.ndarray          # (3,) float64: perspective eye − origin, or orthographic unit v
@@ -208,7 +209,8 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
                              f"frame's positions (centred near ({centre})), beyond the float32 "
                              "range the kernels compute in (3.4e38)")
     n_pts = len(arrays["point_position"])
-    point = np.zeros((max(n_pts, 1) * 3, 4), np.float32)
+    point64 = np.zeros((max(n_pts, 1) * 3, 4))
+    point = point64.astype(np.float32)
     if n_pts:
         pos = arrays["point_position"] - o
         rad = arrays["point_radiance"]
@@ -219,6 +221,7 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
         rec[:, 1, :3] = rad
         rec[:, 1, 3] = att[:, 1]
         rec[:, 2, 0] = att[:, 2]
+        point64 = rec.reshape(-1, 4).copy()
         rec[:, 2, 1:4] = split_hi_lo(pos)[1]
         point = rec.reshape(-1, 4).astype(np.float32)
     n_dirs = len(arrays["directional_direction"])
@@ -241,7 +244,7 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
         eye = v
     else:
         eye = np.asarray(scene.camera.position, np.float64) - o
-    return LightArrays(point=point, directional=directional, ambient=amb, eye=eye)
+    return LightArrays(point=point, point64=point64, directional=directional, ambient=amb, eye=eye)
 
 
 def material_uniforms(scene, map_names) -> tuple[float, np.ndarray, float]:
@@ -399,7 +402,8 @@ class Renderer:
             # and `frame` outlives the launch.
             g = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=frame.gbuf)
             mp = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=frame.maps)
-            pl = cl.Buffer(ctx, ro, hostbuf=lights.point)
+            pl = cl.Buffer(ctx, ro, hostbuf=lights.point64 if plan.defines.get("DIRECTIONS_FP64")
+                           else lights.point)
             dl = cl.Buffer(ctx, ro, hostbuf=lights.directional)
             out = np.empty((3, frame.stride), np.float32)
             ob = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)

@@ -283,9 +283,10 @@ def render_bytes_per_pixel(n_map_planes: int, gbuf_planes: int | None = None) ->
 
 
 def _light_bytes(scene) -> int:
-    # Point lights take 3 float4 records and directional lights 5 (render.pack_lights);
-    # 128 bytes a light covers both with room for a record more.
-    return 128 * sum(1 for lt in scene.lights if lt.type != "ambient")
+    # Point lights take 3 float4 records (48 bytes) and 3 double4 (96) for
+    # DIRECTIONS_FP64, directional lights 5 float4 (80; render.pack_lights), plus the
+    # host's float64 working copies: 256 bytes a light covers them.
+    return 256 * sum(1 for lt in scene.lights if lt.type != "ambient")
 
 
 def _device_limits(renderer) -> tuple[int | None, int | None]:

@@ -333,8 +333,18 @@ typedef doubleL powL;
  * select: i64 = fma"); OpenCL's default FP_CONTRACT still lets it fuse. */
 #define MUL_ADD(a, b, c) ((a) * (b) + (c))
 
-/* Layout of the light records (float4 each), shared with clphong/plan.py. */
-#define POINT_LIGHT_FLOAT4S 3       /* (x, y, z, c0) (r, g, b, c1) (c2, x − float(x), y − .., z − ..) */
+/* Layout of the light records (float4 each), shared with clphong/plan.py.
+ * Point lights: pointrec_t, double4 with DIRECTIONS_FP64 (the host's float64
+ * values as they are: the rebased position, falloff and radiance need no hi+lo
+ * pairs and no conversion per work-item; 1.05× on the bench scene), else
+ * float4. */
+#if DIRECTIONS_FP64
+typedef double4 pointrec_t;
+#else
+typedef float4 pointrec_t;
+#endif
+#define POINT_LIGHT_FLOAT4S 3       /* (x, y, z, c0) (r, g, b, c1) (c2, 0, 0, 0); the float
+                                       records' (c2, x − float(x), y − .., z − ..) for culling */
 #define DIRECTIONAL_LIGHT_FLOAT4S 5 /* (lx, ly, lz, 0) (r, g, b, 0) (hx, hy, hz, undefined)
                                        (l − float(l), 0) (h − float(h), 0) */
 

@@ -10,14 +10,14 @@
  * under- or overflow for float inputs (c2·d² at d = 1e-20 is 1e-40, below float's
  * normal range). The scene parser rejects polynomials that go negative for
  * d ≥ 0; c0 = 0 reaches 0 only at d = 0, where shade_point_light adds nothing. */
-inline dirL attenuation(float c0, float c1, float c2, dirL d)
+inline dirL attenuation(dirS c0, dirS c1, dirS c2, dirL d)
 {
 #if HAS_ATTENUATION
-    return 1.0f / MUL_ADD(d, MUL_ADD(d, (dirL)((dirS)c2), (dirL)((dirS)c1)), (dirL)((dirS)c0));
+    return 1.0f / MUL_ADD(d, MUL_ADD(d, (dirL)(c2), (dirL)(c1)), (dirL)(c0));
 #else
     /* every point light has c1 = c2 = 0 (plan.py): the same 1/c0, once per light
        instead of a division per pixel */
-    return (dirL)(1.0f / (dirS)c0);
+    return (dirL)(1.0f / c0);
 #endif
 }
 
@@ -81,8 +81,9 @@ inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, di
     return w;
 }
 
-/* A point light at L (rebased; L_lo = L − float(L) from the host, used with
- * DIRECTIONS_FP64): l = (L − P)/d. Returns the unattenuated weights, and in
+/* A point light at L (rebased on the frame origin), falloff coefficients c0, c1,
+ * c2 and radiance R, all in dirS (double from the host's float64 records with
+ * DIRECTIONS_FP64, shade.cl): l = (L − P)/d. Returns the unattenuated weights, and in
  * *ar, *ag, *ab the light's radiance times attenuation(d), formed in dirL and
  * then converted to the weights' type (rounded to float unless WEIGHTS_FP64), so
  * that a huge falloff and a tiny intensity (or the reverse) meet before anything
@@ -91,10 +92,10 @@ inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, di
  * contributes nothing (l := 0, d := 0, so n·l = 0 switches both terms off), as in
  * the reference; rsqrt(0) = inf would give 0·inf = NaN. In float, d² overflows for
  * d ≳ 1.8e19: d := ∞ there, so the falloff is 0 (and l = 0) instead of ∞·0 = NaN. */
-inline weights_t shade_point_light(const pixel_t *p, float4 L, float4 L_lo, float c1, float c2,
-                                   float4 radiance, wL *ar, wL *ag, wL *ab)
+inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
+                                   dirS c0, dirS c1, dirS c2, dirS Rr, dirS Rg, dirS Rb,
+                                   wL *ar, wL *ag, wL *ab)
 {
-    const dirS Lx = HI_LO(L.x, L_lo.x), Ly = HI_LO(L.y, L_lo.y), Lz = HI_LO(L.z, L_lo.z);
     const dirL dx = Lx - p->px, dy = Ly - p->py, dz = Lz - p->pz;
     const dirL d2 = MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz));
     const dirL inv_d = SELECT_DIR(RSQRT_DIST(d2), (dirL)(0.0f), d2 <= (dirL)(0.0f));
@@ -109,10 +110,10 @@ inline weights_t shade_point_light(const pixel_t *p, float4 L, float4 L_lo, floa
     const dirL d = SELECT_DIR(d2 * inv_d, d2, isinf(d2));
 #endif
     /* d = 0: no contribution, also where c0 = 0 makes the falloff infinite. */
-    const dirL att = SELECT_DIR(attenuation(L.w, c1, c2, d), (dirL)(0.0f), d2 <= (dirL)(0.0f));
-    *ar = DIR_TO_W(att * (dirS)radiance.x);
-    *ag = DIR_TO_W(att * (dirS)radiance.y);
-    *ab = DIR_TO_W(att * (dirS)radiance.z);
+    const dirL att = SELECT_DIR(attenuation(c0, c1, c2, d), (dirL)(0.0f), d2 <= (dirL)(0.0f));
+    *ar = DIR_TO_W(att * Rr);
+    *ag = DIR_TO_W(att * Rg);
+    *ab = DIR_TO_W(att * Rb);
     return w;
 }
 

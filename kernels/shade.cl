@@ -69,7 +69,7 @@ __kernel void shade(__global const float *restrict gbuf,
                     __global const float *restrict maps,
                     __global float *restrict out,
                     const uint stride,
-                    __global const float4 *restrict point_lights, const uint n_point,
+                    __global const pointrec_t *restrict point_lights, const uint n_point,
                     __global const float4 *restrict directional_lights, const uint n_directional,
                     const float4 origin,     /* subtracted from P and (on the host) from lights */
                     const float4 eye,        /* perspective: eye − origin; orthographic: unit v */
@@ -207,13 +207,13 @@ __kernel void shade(__global const float *restrict gbuf,
 #else
     for (uint j = 0; j < (lit ? n_point : 0u); ++j) {
 #endif
-        __global const float4 *rec = point_lights + POINT_LIGHT_FLOAT4S * j;
-        const float4 X = rec[0];   /* position, c0 */
-        const float4 L = rec[1];   /* radiance, c1 */
-        const float4 Q = rec[2];   /* c2, position remainder */
-        wL ar, ag, ab;             /* radiance × attenuation(d) */
-        const weights_t w = shade_point_light(&p, X, (float4)(Q.y, Q.z, Q.w, 0.0f), L.w, Q.x,
-                                              L, &ar, &ag, &ab);
+        __global const pointrec_t *rec = point_lights + POINT_LIGHT_FLOAT4S * j;
+        const pointrec_t X = rec[0];   /* position, c0 */
+        const pointrec_t L = rec[1];   /* radiance, c1 */
+        const pointrec_t Q = rec[2];   /* c2 */
+        wL ar, ag, ab;                 /* radiance × attenuation(d) */
+        const weights_t w = shade_point_light(&p, X.x, X.y, X.z, X.w, L.w, Q.x, L.x, L.y, L.z,
+                                              &ar, &ag, &ab);
         ACCUMULATE(sr, cr, ar * MUL_ADD(Dr_w, w.diffuse, Sr_w * w.specular));
         ACCUMULATE(sg, cg, ag * MUL_ADD(Dg_w, w.diffuse, Sg_w * w.specular));
         ACCUMULATE(sb, cb, ab * MUL_ADD(Db_w, w.diffuse, Sb_w * w.specular));
