@@ -71,10 +71,13 @@ def check_budget(max_error, reference_white=1.0) -> float | None:
 
 
 def pack_cull_lights(point: np.ndarray, n_point: int) -> np.ndarray:
-    """Cull records, 4 float4 per light, from the kernel's point records.
+    """Cull records, 4 float4 per light, from the float path's point records.
 
-    The positions, coefficients and radiance are the float32 values the shading
-    kernel reads. Added, in float64 then rounded conservatively:
+    The positions, coefficients and radiance are the float32 values the float
+    path reads; the fp64 path reads their float64 originals, which differ by
+    a rounding each, inside the bound's margins (the 32u of b and p_scale's
+    8u·κ_p; tests/test_cull.py checks the bound against float64). Added, in
+    float64 then rounded conservatively:
 
     * ``vertex``: ``−c1/(2c2)`` where ``c1 < 0 < c2`` (rounded up), else 0; left
       of it p decreases, so p's minimum over ``d ≥ d⁻`` is at the vertex;

@@ -142,8 +142,8 @@ def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:
 class LightArrays:
     """The scene's lights packed as the kernels read them (see kernels/clphong.h)."""
 
-    point: np.ndarray        # (n_point*3, 4) float32 (and the culling kernels')
-    point64: np.ndarray      # the same in float64, for DIRECTIONS_FP64 (shade.cl)
+    point: np.ndarray        # (n_point*3, 4) float32: the float path's (and cull.py's source)
+    point64: np.ndarray      # the same records in float64, for DIRECTIONS_FP64 (shade.cl)
     directional: np.ndarray  # (n_dir*5, 4) float32
     ambient: np.ndarray      # (3,) float64: k_a·Σ ambient radiance
     eye: np.ndarray          # (3,) float64: perspective eye − origin, or orthographic unit v
@@ -188,7 +188,9 @@ F32_ROUNDS_TO_INF = 3.4028235677973366e38
 
 
 def pack_lights(scene, origin: np.ndarray) -> LightArrays:
-    """Rebase the lights on ``origin`` in float64, then round to float32 records."""
+    """Rebase the lights on ``origin`` in float64; point lights as float64 records
+    (the fp64 path's) and float32 records (the float path's, and culling's), other
+    lights as float32 records with hi+lo remainders."""
     o = np.asarray(origin, np.float64)
     arrays = scene.light_arrays
     # Rebased on this frame, a light or the eye near one end of the float32 range
@@ -209,21 +211,16 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
                              f"frame's positions (centred near ({centre})), beyond the float32 "
                              "range the kernels compute in (3.4e38)")
     n_pts = len(arrays["point_position"])
-    point64 = np.zeros((max(n_pts, 1) * 3, 4))
-    point = point64.astype(np.float32)
+    rec = np.zeros((max(n_pts, 1), 3, 4))           # (x, y, z, c0) (r, g, b, c1) (c2, 0, 0, 0)
     if n_pts:
-        pos = arrays["point_position"] - o
-        rad = arrays["point_radiance"]
         att = arrays["point_attenuation"]
-        rec = np.zeros((n_pts, 3, 4))
-        rec[:, 0, :3] = pos
+        np.subtract(arrays["point_position"], o, out=rec[:, 0, :3])
         rec[:, 0, 3] = att[:, 0]
-        rec[:, 1, :3] = rad
+        rec[:, 1, :3] = arrays["point_radiance"]
         rec[:, 1, 3] = att[:, 1]
         rec[:, 2, 0] = att[:, 2]
-        point64 = rec.reshape(-1, 4).copy()
-        rec[:, 2, 1:4] = split_hi_lo(pos)[1]
-        point = rec.reshape(-1, 4).astype(np.float32)
+    point64 = rec.reshape(-1, 4)
+    point = point64.astype(np.float32)
     n_dirs = len(arrays["directional_direction"])
     directional = np.zeros((max(n_dirs, 1) * 5, 4), np.float32)
     v = view_vector(scene.camera)

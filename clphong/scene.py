@@ -530,7 +530,8 @@ def _gd(x: Decimal) -> str:
     return re.sub(r"\.?0+e", "e", f"{x:.5e}")
 
 
-#: The largest finite float32: every number of a scene reaches the kernels as float32.
+#: The largest finite float32: the kernels take most numbers of a scene as float32 (the
+#: double path reads point lights in float64, but culling and the float path do not).
 _F32_MAX = 3.4028234663852886e38
 
 
@@ -928,9 +929,9 @@ class _Parser:
                     a32 = (_f32(att[0]), _f32(att[1]), _f32(att[2]))
                     if attenuation_problem(*a32):
                         self.warn(apath, f"{list(att)!r} is positive in float64, but rounded "
-                                         "to float32 as the kernels store it, p(d) = c0 + "
-                                         "c1*d + c2*d^2 can reach 0; keep it further from "
-                                         "the limit")
+                                         "to float32 as the float path and culling store it, "
+                                         "p(d) = c0 + c1*d + c2*d^2 can reach 0; keep it "
+                                         "further from the limit")
             return Light(type_, color, intensity, position=position, attenuation=att)
         if type_ == "directional":
             if "direction" not in v:

@@ -283,10 +283,11 @@ def render_bytes_per_pixel(n_map_planes: int, gbuf_planes: int | None = None) ->
 
 
 def _light_bytes(scene) -> int:
-    # Point lights take 3 float4 records (48 bytes) and 3 double4 (96) for
-    # DIRECTIONS_FP64, directional lights 5 float4 (80; render.pack_lights), plus the
-    # host's float64 working copies: 256 bytes a light covers them.
-    return 256 * sum(1 for lt in scene.lights if lt.type != "ambient")
+    # Per light: render.pack_lights' float64 and float32 records (96 + 48 bytes, and
+    # temporaries while packing; 369 bytes a directional light at its peak,
+    # measured with tracemalloc), the device copy (96, in host memory on a CPU),
+    # and with culling its records (64) and their packing (~200): 512 bytes.
+    return 512 * sum(1 for lt in scene.lights if lt.type != "ambient")
 
 
 def _device_limits(renderer) -> tuple[int | None, int | None]:

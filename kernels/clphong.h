@@ -197,7 +197,8 @@ typedef long longL;
  * float32 directions carry a rounding of ~u each; through n·l near grazing
  * and through δ into x^k (condition number k) that becomes a relative error far
  * above u (docs/error-model.md). With DIRECTIONS_FP64 they are computed in double
- * from the float32 inputs and hi+lo float pairs from the host, and only n·l, δ
+ * from the float32 inputs, hi+lo float pairs from the host (normal, eye,
+ * directional lights) and the point lights' float64 records, and only n·l, δ
  * (for exp/log1p; the integer power takes δ in double) and att·L are rounded to
  * float, or nothing at all before the sum with WEIGHTS_FP64: the error of every
  * term is then a few u, relative.
@@ -333,18 +334,17 @@ typedef doubleL powL;
  * select: i64 = fma"); OpenCL's default FP_CONTRACT still lets it fuse. */
 #define MUL_ADD(a, b, c) ((a) * (b) + (c))
 
-/* Layout of the light records (float4 each), shared with clphong/plan.py.
+/* Layout of the light records, written by clphong/render.py (pack_lights).
  * Point lights: pointrec_t, double4 with DIRECTIONS_FP64 (the host's float64
  * values as they are: the rebased position, falloff and radiance need no hi+lo
- * pairs and no conversion per work-item; 1.05× on the bench scene), else
- * float4. */
+ * pairs and no conversion per work-item; 1.07× on the bench scene), else
+ * float4. Directional lights: float4. */
 #if DIRECTIONS_FP64
 typedef double4 pointrec_t;
 #else
 typedef float4 pointrec_t;
 #endif
-#define POINT_LIGHT_FLOAT4S 3       /* (x, y, z, c0) (r, g, b, c1) (c2, 0, 0, 0); the float
-                                       records' (c2, x − float(x), y − .., z − ..) for culling */
+#define POINT_LIGHT_FLOAT4S 3       /* (x, y, z, c0) (r, g, b, c1) (c2, 0, 0, 0) */
 #define DIRECTIONAL_LIGHT_FLOAT4S 5 /* (lx, ly, lz, 0) (r, g, b, 0) (hx, hy, hz, undefined)
                                        (l − float(l), 0) (h − float(h), 0) */
 

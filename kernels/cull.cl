@@ -32,10 +32,12 @@
  * Bound of light j in a tile (docs/error-model.md, "Culling"):
  *   b = (1 + 32u)·max_c L_c·(D_c·min(NoL⁺, 1) + S_c·[NoL⁺ > 0]) / p⁻
  *   d⁻   = (1 − 16u)·distance from the light to the tile's box of P, a lower
- *          bound of the kernel's float32 distance for every pixel;
+ *          bound of the shading kernel's distance (float or double) for every
+ *          pixel;
  *   p⁻   = p_scale·(p(d⁻), or the host's lower bound of p's minimum where d⁻ is
  *          left of the vertex of a polynomial with c1 < 0), a lower bound of the
- *          float32 1/attenuation the kernel computes (p_scale = 1 − 8u·κ_p);
+ *          1/attenuation the kernel computes, from float32 or float64
+ *          coefficients (p_scale = 1 − 8u·κ_p);
  *   NoL⁺ = upper bound of n·(L − P) over the boxes of n and P (interval
  *          arithmetic), over d⁻, plus the float32 error of n·l; the specular
  *          term is gated on n·l > 0, so it is bounded by 1 unless NoL⁺ ≤ 0.

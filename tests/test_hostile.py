@@ -677,7 +677,7 @@ def test_frame_too_big_for_one_launch_is_shaded_in_bands(work, capsys, monkeypat
     whole = r.render(gb)
     assert r.last_bands == 1
     # Room for the (96, 40, 3) output and ~10 rows of shading, not the whole frame.
-    limit = 12 * 96 * 40 + render_bytes_per_pixel(3) * (r.lanes * 64 + 10 * 40) + 256 * 3
+    limit = 12 * 96 * 40 + render_bytes_per_pixel(3) * (r.lanes * 64 + 10 * 40) + 512 * 3
     monkeypatch.setenv("CLPHONG_MAX_MEMORY", str(limit))
     banded = r.render(gb)
     assert r.last_bands > 1
