@@ -140,20 +140,23 @@ class RelighterSpec:
     max_error: float | None = None
     reference_white: float = 1.0
     nonfinite: str = "background"
+    path: str | None = None
 
     def __post_init__(self):
         check_renderer_options(fp64_directions=self.fp64_directions, max_error=self.max_error,
-                               reference_white=self.reference_white, nonfinite=self.nonfinite)
+                               reference_white=self.reference_white, nonfinite=self.nonfinite,
+                               path=self.path)
 
     def build(self) -> Relighter:
         return Relighter(self.scene, device=self.device, kernel=self.kernel, lanes=self.lanes,
                          channels=dict(self.channels) or None, output=self.output,
                          fp64_directions=self.fp64_directions, max_error=self.max_error,
-                         reference_white=self.reference_white, nonfinite=self.nonfinite)
+                         reference_white=self.reference_white, nonfinite=self.nonfinite,
+                         path=self.path)
 
 
 def check_renderer_options(*, fp64_directions=None, max_error=None, reference_white=1.0,
-                           nonfinite="background") -> None:
+                           nonfinite="background", path=None) -> None:
     """Check the renderer options of a :class:`Relighter` without compiling anything.
 
     Raises
@@ -162,13 +165,19 @@ def check_renderer_options(*, fp64_directions=None, max_error=None, reference_wh
         A negative or non-finite ``max_error``, or a ``reference_white`` that
         is not a finite number > 0.
     ValueError
-        An unknown ``nonfinite`` policy, or ``fp64_directions`` not None/bool.
+        An unknown ``nonfinite`` policy or ``path``, ``fp64_directions`` not
+        None/bool, or both ``path`` and ``fp64_directions``.
     """
     from .cull import check_budget
     from .inputs import POLICIES
+    from .render import path_options
 
     if fp64_directions is not None and not isinstance(fp64_directions, bool):
         raise ValueError(f"fp64_directions must be None, True or False, not {fp64_directions!r}")
+    if path is not None:
+        path_options(path)
+        if fp64_directions is not None:
+            raise ValueError("give either path or fp64_directions")
     check_budget(max_error, reference_white)
     if nonfinite not in POLICIES:
         raise ValueError(f"nonfinite must be one of {', '.join(POLICIES)}, not {nonfinite!r}")
@@ -203,6 +212,9 @@ class Relighter:
         None (default): directions in double where the device has fp64 (the
         accurate path); False: float32 directions (``--path float``); True:
         require fp64.
+    path : {"accurate", "float", "fast"}, optional
+        A shading path (``--path``; :data:`clphong.render.PATHS`), instead of
+        ``fp64_directions``.
     max_error : float, optional
         Tiled light culling budget relative to ``reference_white``
         (``--max-error``); None (default): no culling.
@@ -231,13 +243,13 @@ class Relighter:
                  lanes: int | None = None, channels: Mapping | None = None,
                  output: OutputOptions | None = None, fp64_directions: bool | None = None,
                  max_error: float | None = None, reference_white: float = 1.0,
-                 nonfinite: str = "background"):
+                 nonfinite: str = "background", path: str | None = None):
         from .render import Renderer
         from .scene import Scene, load_scene
 
         # Renderer options first: a bad value fails before the scene is read or compiled.
         check_renderer_options(fp64_directions=fp64_directions, max_error=max_error,
-                               reference_white=reference_white, nonfinite=nonfinite)
+                               reference_white=reference_white, nonfinite=nonfinite, path=path)
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
         self.scene = scene
@@ -245,11 +257,13 @@ class Relighter:
         self.output = (output or OutputOptions()).for_scene(scene)
         self.renderer = Renderer(scene, device=device, kernel=kernel, lanes=lanes,
                                  fp64_directions=fp64_directions, max_error=max_error,
-                                 reference_white=reference_white, nonfinite=nonfinite)
+                                 reference_white=reference_white, nonfinite=nonfinite,
+                                 path=path)
         self.spec = RelighterSpec(scene=scene, device=device, kernel=kernel, lanes=lanes,
                                   channels=_hashable_channels(channels), output=self.output,
                                   fp64_directions=fp64_directions, max_error=max_error,
-                                  reference_white=reference_white, nonfinite=nonfinite)
+                                  reference_white=reference_white, nonfinite=nonfinite,
+                                  path=path)
 
     @property
     def camera_from_metadata(self) -> bool:

@@ -135,6 +135,7 @@ PATHS = {
     "accurate-exp": {"int_pow": False},                     # the same, exp(k·log1p(−δ)) for a whole k too
     "float": {"fp64_directions": False},                    # float32 directions
     "float-naive-sum": {"fp64_directions": False, "compensated": False},
+    "fast": {"path": "fast"},                               # float32 throughout, integer power in float
     "obvious": {"kernel": "obvious"},                       # one pixel per work-item, pow()
 }
 DEFAULT_BUDGETS = (0.0, 1e-4, 1e-3, 1e-2)

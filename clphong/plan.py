@@ -79,7 +79,7 @@ class ShadingPlan:
 def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LANES,
               compensated: bool | None = None, fp64_directions: bool = False,
               display=None, max_error: float | None = None, has_fp64: bool | None = None,
-              int_pow: bool = True) -> ShadingPlan:
+              int_pow: bool | str = True) -> ShadingPlan:
     """Choose the kernel variant for ``scene`` and the material ``maps`` present.
 
     Parameters
@@ -104,10 +104,12 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         Whether the device runs double at a useful speed: ``cl_khr_fp64`` on a
         CPU (``Runtime.fast_fp64``); by default as ``fp64_directions``. The
         integer power needs it.
-    int_pow : bool
+    int_pow : bool or "float"
         True (default): raise a whole uniform exponent k ≤ ``INT_POW_MAX`` by
         binary powering in double (SPEC_INT_POW) where ``has_fp64``; False:
-        always exp(k·log1p(−δ)) (to measure one against the other).
+        always exp(k·log1p(−δ)) (to measure one against the other); "float":
+        binary powering in float (POW_FP32, the "fast" path: float directions
+        only, any device; relative error ~2k·u, docs/error-model.md).
     max_error : float, optional
         Culling budget ε in output radiance (``--max-error`` × reference
         white): with point lights, compile the per-tile light lists of
@@ -182,12 +184,16 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
                  "light and with k")
         k = m.exponent
         whole = float(k).is_integer() and 0 <= k <= INT_POW_MAX
-        use = specular and "h" not in maps and whole and fp64 and int_pow
+        in_float = int_pow == "float"
+        if in_float and fp64_directions:
+            raise ValueError("int_pow='float' is for float directions (the fast path)")
+        use = specular and "h" not in maps and whole and (in_float or (fp64 and int_pow))
         exponent = f"k = {'4h' if blinn else 'h'} = {k:g}"
         cos_form = use and fp64_directions and (not blinn or int(k) % 2 == 0)
+        kind = "float" if in_float else "double"
         put("SPEC_INT_POW", use,
-            f"{exponent} is a whole number: binary powering in double, "
-            f"{int_pow_multiplies(int(k) // 2 if cos_form and blinn else k)} double multiplies "
+            f"{exponent} is a whole number: binary powering in {kind}, "
+            f"{int_pow_multiplies(int(k) // 2 if cos_form and blinn else k)} {kind} multiplies "
             "per light "
             "instead of exp(k·log1p(−δ)), and no rounding of k·log1p(−δ) (docs/error-model.md)" if use
             else ("no specular term" if not specular
@@ -204,6 +210,9 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
                   else "directions in float: the base stays 1 − δ with δ = |·|²/2, free of cancellation"
                   if not fp64_directions
                   else f"Blinn with an odd K = {int(k)}: 1 − δ with δ = |n − h|²/2"))
+        put("POW_FP32", use and in_float,
+            "the fast path: the integer power in float (relative error ~2k·u)" if use and in_float
+            else "no integer power in float (only the fast path's)")
         weights = fp64_directions and sum_fp64
         put("WEIGHTS_FP64", weights,
             "weights, falloff and each light's L·att·(D·w_d + S·w_s) in double, into the double "

@@ -296,7 +296,7 @@ def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, u
             s = specular_power(delta, k)
             ud53 = 2.0 ** -53
             rel = uw + k * d_delta / np.maximum(1.0 - delta, 1e-300) + 4.0 * k * ud53
-        elif form in ("delta", "int"):
+        elif form in ("delta", "int", "int32"):
             # |Δδ| for δ = |e|²/2 when |Δe| ≤ e_vec and |e| = √(2δ); the exp form
             # rounds δ to float first (r_out), the integer power takes it as it is.
             r_delta = r_out if form == "delta" else 0.0
@@ -310,8 +310,9 @@ def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, u
             else:
                 # x = 1 − δ in double (≤ 2⁻⁵³ absolute), binary powering of a whole k
                 # (≤ 2k·2⁻⁵³ relative), one rounding to float; Δδ through k·x^(k−1).
-                ud53 = 2.0 ** -53
-                rel = uw + k * (d_delta + ud53) / np.maximum(1.0 - delta, 1e-300) + 2.0 * k * ud53
+                # "int32" (POW_FP32, the fast path): the same in float, unit u.
+                up = U if form == "int32" else 2.0 ** -53
+                rel = uw + k * (d_delta + up) / np.maximum(1.0 - delta, 1e-300) + 2.0 * k * up
         else:
             # pow(x, k) with x = r·v: |Δx| ≤ e_vec + 4u, pow 16 ulp: relative k·|Δx|/x.
             d_delta = e_vec + 4.0 * U
@@ -368,12 +369,14 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     sum_fp64 : bool
         Whether it summed them in double, rounded once (SUM_FP64; overrides
         ``compensated``).
-    form : {"delta", "int", "cos", "naive"}
+    form : {"delta", "int", "int32", "cos", "naive"}
         ``"delta"``: the specular power as exp(k·log1p(−δ)) with δ from
         |r − v|²/2 (shade.cl). ``"int"``: (1 − δ)^k by binary powering in
         double, k whole (SPEC_INT_POW). ``"cos"``: the same powering of the
         cosine formed in double (SPEC_COS: :func:`phong_cos`,
-        :func:`blinn_cos_sq`). ``"naive"``: pow(r·v, k) (shade_obvious.cl).
+        :func:`blinn_cos_sq`). ``"int32"``: (1 − δ)^k by binary powering in
+        float (POW_FP32, the fast path). ``"naive"``: pow(r·v, k)
+        (shade_obvious.cl).
     directions : {"fp32", "fp64"}
         Whether positions, directions, n·l and δ were computed in float or in
         double from hi+lo inputs (``DIRECTIONS_FP64``).
@@ -408,7 +411,8 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
         lanes = plan.kernel == "lanes"
         compensated = lanes and bool(plan.defines.get("COMPENSATED_SUM", 0))
         sum_fp64 = lanes and bool(plan.defines.get("SUM_FP64", 0))
-        form = (("cos" if plan.defines.get("SPEC_COS", 0) else "int")
+        form = (("cos" if plan.defines.get("SPEC_COS", 0)
+                 else "int32" if plan.defines.get("POW_FP32", 0) else "int")
                 if plan.defines.get("SPEC_INT_POW", 0) else "delta") if lanes else "naive"
         directions = "fp64" if plan.defines.get("DIRECTIONS_FP64", 0) else "fp32"
         weights = "fp64" if lanes and plan.defines.get("WEIGHTS_FP64", 0) else "fp32"

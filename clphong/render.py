@@ -183,6 +183,25 @@ def half_vector(l: np.ndarray, v: np.ndarray):
     return h, undefined
 
 
+#: The shading paths a user picks (``--path``, ``Renderer(path=...)``) and the
+#: Renderer options each stands for (docs/error-model.md, docs/bench.md):
+#: ``accurate`` (default: double directions, weights and sums where the device
+#: has fp64), ``float`` (float32 directions), ``fast`` (float32 throughout:
+#: directions, the integer power and a naive light sum).
+PATHS = {
+    "accurate": {},
+    "float": {"fp64_directions": False},
+    "fast": {"fp64_directions": False, "compensated": False, "int_pow": "float"},
+}
+
+
+def path_options(path: str) -> dict:
+    """The Renderer options of a shading path (``PATHS``); a bad name lists the valid ones."""
+    if path not in PATHS:
+        raise ValueError(f"path must be one of {', '.join(PATHS)}, not {path!r}")
+    return dict(PATHS[path])
+
+
 #: The smallest float64 that rounds to +inf as float32 (FLT_MAX + half an ulp).
 F32_ROUNDS_TO_INF = 3.4028235677973366e38
 
@@ -294,12 +313,16 @@ class Renderer:
         The last frame's lists are described by ``last_cull``.
     reference_white : float
         Output radiance of reference white (default 1.0, scene-linear).
-    int_pow : bool
+    path : {"accurate", "float", "fast"}, optional
+        A shading path (``PATHS``): shorthand for ``fp64_directions``,
+        ``compensated`` and ``int_pow``, which must then be left unset.
+    int_pow : bool or "float"
         True (default): a whole specular exponent (h, or 4h for Blinn-Phong,
         ≤ 65536, no shininess map) is raised by binary powering in double on
         CPU devices with fp64, on either path (faster, and within the exp/log1p
-        form's error bound); False: always exp(k·log1p(−δ)). See
-        :func:`clphong.plan.make_plan`.
+        form's error bound); False: always exp(k·log1p(−δ)); "float": binary
+        powering in float on any device, with float directions (implied; the
+        "fast" path, relative error ~2k·u). See :func:`clphong.plan.make_plan`.
 
     The attributes ``max_error`` (the *absolute* budget
     ``max_error·reference_white``, or None), ``fp64_directions`` and
@@ -313,10 +336,22 @@ class Renderer:
                  lanes: int | None = None, compensated: bool | None = None,
                  fp64_directions: bool | None = None, nonfinite: str = "background",
                  max_error: float | None = None, reference_white: float = 1.0,
-                 int_pow: bool = True):
+                 int_pow: bool | str = True, path: str | None = None):
         self.scene = scene
-        if not isinstance(int_pow, bool):
-            raise ValueError(f"int_pow must be True or False, not {int_pow!r}")
+        if path is not None:
+            if compensated is not None or fp64_directions is not None or int_pow is not True:
+                raise ValueError("give either path or fp64_directions/compensated/int_pow")
+            opts = path_options(path)
+            fp64_directions = opts.get("fp64_directions")
+            compensated = opts.get("compensated")
+            int_pow = opts.get("int_pow", True)
+        self.path = path
+        if not (isinstance(int_pow, bool) or int_pow == "float"):
+            raise ValueError(f"int_pow must be True, False or 'float', not {int_pow!r}")
+        if int_pow == "float":
+            if fp64_directions:
+                raise ValueError("int_pow='float' is for float directions (fp64_directions=False)")
+            fp64_directions = False
         self.int_pow = int_pow
         self.kernel_kind = kernel
         self.runtime = get_runtime(device)

@@ -130,8 +130,8 @@ inline dirL blinn_cos_sq_const_h(dirL nx, dirL ny, dirL nz, float4 h, float4 h_l
 inline wL specular_power_cos(powL x, uint K)
 {
     if (K == 0u)
-        return POW_TO_W(SELECT_DIR((powL)(1.0), x, x != x));
-    powL s = (K & 1u) ? x : (powL)(1.0);
+        return POW_TO_W(SELECT_DIR((powL)(1.0f), x, x != x));
+    powL s = (K & 1u) ? x : (powL)(1.0f);
     powL b = x;
     for (uint e = K >> 1; e != 0u; e >>= 1) {
         b *= b;
@@ -154,7 +154,7 @@ inline wL specular_power_cos(powL x, uint K)
 inline wL specular_power_int(dirL delta, uint K)
 {
     const powL d = TO_POW(delta);
-    return specular_power_cos(SELECT_DIR(1.0 - d, (powL)(0.0), d >= 1.0), K);
+    return specular_power_cos(SELECT_DIR((powL)(1.0f) - d, (powL)(0.0f), d >= (powL)(1.0f)), K);
 }
 #endif
 

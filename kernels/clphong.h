@@ -30,6 +30,8 @@
  *                    cosine itself, formed in double (Phong r·v = 2(n·l)(n·v) − l·v;
  *                    Blinn (n·h)² = (n·l + n·v)²/|l + v|², raised to K/2, K even)
  *                    instead of 1 − δ with δ = |r − v|²/2 or |n − h|²/2 (brdf.cl)
+ *   POW_FP32         with SPEC_INT_POW and float directions (the "fast" path): the
+ *                    binary powering in float, not double (relative error ~2K·u)
  *   WEIGHTS_FP64     with DIRECTIONS_FP64 and SUM_FP64: the weights, the falloff and
  *                    each light's product L·att·(D·w_d + S·w_s) in double, added to
  *                    the double sum: nothing is rounded to float before the result
@@ -101,6 +103,12 @@
 #ifndef WEIGHTS_FP64
 #define WEIGHTS_FP64 0
 #endif
+#ifndef POW_FP32
+#define POW_FP32 0
+#endif
+#if POW_FP32 && !(SPEC_INT_POW && !DIRECTIONS_FP64)
+#error "POW_FP32 needs SPEC_INT_POW and float directions"
+#endif
 #if SPEC_COS && !(SPEC_INT_POW && DIRECTIONS_FP64)
 #error "SPEC_COS needs SPEC_INT_POW and DIRECTIONS_FP64"
 #endif
@@ -160,7 +168,7 @@ typedef int intL;
 
 /* doubleL: LANES doubles, for whatever the plan computes in double
  * (DIRECTIONS_FP64, SPEC_INT_POW, SUM_FP64); longL its same-size integers. */
-#if DIRECTIONS_FP64 || SPEC_INT_POW || SUM_FP64
+#if DIRECTIONS_FP64 || (SPEC_INT_POW && !POW_FP32) || SUM_FP64
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #if LANES == 16
 typedef double16 doubleL;
@@ -301,7 +309,11 @@ typedef float wS;
 /* powL: the type of the power's base (1 − δ, or the cosine with SPEC_COS) and of
  * its powers with SPEC_INT_POW (double; from dirL, a conversion to the same type
  * where the directions are in double). POW_TO_W: to the weights' type. */
-#if SPEC_INT_POW
+#if SPEC_INT_POW && POW_FP32
+typedef floatL powL;          /* float directions and weights: no conversion */
+#define TO_POW(x) (x)
+#define POW_TO_W(x) (x)
+#elif SPEC_INT_POW
 typedef doubleL powL;
 #define TO_POW(x) TO_DOUBLE(x)
 #if WEIGHTS_FP64

@@ -561,7 +561,7 @@ def test_relight_path_float_equals_render_path_float(shot, tmp_path, jobs, capsy
     assert differs, "--path float gave the accurate path's images: the option did not reach the kernel"
     [specs] = seen
     for spec in specs.values():
-        assert spec.fp64_directions is False
+        assert spec.path == "float"
         r = _as_worker_builds(spec)
         assert r.renderer.fp64_directions is False
         assert r.renderer.plan_for(()).defines["DIRECTIONS_FP64"] == 0

@@ -123,6 +123,31 @@ def test_plan_command_explains_the_variant(capsys):
     assert f"-DLANES={get_runtime().lanes} " in out
 
 
+def test_path_fast_through_the_cli(tmp_path, capsys):
+    """--path fast: the plan says what it compiles (float power, naive sum), and the
+    rendered file holds that variant's error bound against the float64 reference."""
+    from clphong import reference
+    from clphong.gbuffer import read_gbuffer
+    from clphong.render import Renderer, prepare_frame
+    from clphong.scene import load_scene
+
+    assert main(["plan", *SPHERES, "--path", "fast"]) == 0
+    out = capsys.readouterr().out
+    assert "-DPOW_FP32=1" in out and "-DDIRECTIONS_FP64=0" in out and "-DCOMPENSATED_SUM=0" in out
+    assert main(["render", *SPHERES, "-o", str(tmp_path / "fast.exr"), "--path", "fast"]) == 0
+    got = read_gbuffer(str(tmp_path / "fast.exr"),
+                       channels={"position": "R,G,B", "normal": "R,G,B", "albedo": "R,G,B"}).albedo
+    scene, gb = load_scene(SPHERES[0]), read_gbuffer(SPHERES[1])
+    r = Renderer(scene, path="fast")
+    frame = prepare_frame(gb, lanes=r.lanes)
+    bound, _ = reference.error_bound(scene, gb, origin=frame.origin, plan=r.plan_for(frame.map_names))
+    assert np.all(np.abs(got - reference.shade(scene, gb)) <= bound)
+    with pytest.raises(SystemExit) as info:
+        main(["render", *SPHERES, "-o", str(tmp_path / "x.exr"), "--path", "fastest"])
+    assert info.value.code == 2
+    assert "invalid choice: 'fastest'" in capsys.readouterr().err
+
+
 def test_render_as_a_subprocess(tmp_path):
     out = tmp_path / "o.exr"
     exe = shutil.which("clphong") or None

@@ -148,6 +148,52 @@ def test_both_specular_power_forms_hold_their_bound(model, h, int_pow, fp64):
         assert rel <= 5e-6, rel
 
 
+@pytest.mark.parametrize("model, h", [("phong", 1.0), ("phong", 37.0), ("blinn-phong", 32.0),
+                                      ("phong", 2000.0), ("blinn-phong", 1.0e4),
+                                      ("blinn-phong", 8.25)])
+def test_fast_path_holds_its_bound(model, h):
+    """path="fast": float directions, the integer power in float (POW_FP32) and a naive
+    float sum, within the error model's bound (its powering term 2k·u); a highlight of
+    k = 4·10⁴ shows what the float power costs (checked: beyond the 5e-6 target)."""
+    scene, gb = _highlight(h, model)
+    r = Renderer(scene, path="fast")
+    d = r.plan_for(()).defines
+    assert (d["DIRECTIONS_FP64"], d["SUM_FP64"], d["COMPENSATED_SUM"], d["SPEC_INT_POW"],
+            d["POW_FP32"]) == (0, 0, 0, 1, 1)
+    rgb, ref, bound, band = check_against_reference(scene, gb, compensated=False,
+                                                    fp64_directions=False, int_pow="float")
+    if h == 1.0e4:
+        big = ref > 1e-6 * ref.max()
+        assert np.max(np.abs(rgb - ref)[big] / ref[big]) > 5e-6
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_fast_path_random_gbuffers(seed):
+    rng = np.random.default_rng(100 + seed)
+    model = ["phong", "blinn-phong"][seed % 2]
+    scene = make_scene(random_lights(rng, n_point=2 + seed, n_dir=seed % 2), model=model,
+                       h=float(rng.choice([1.0, 8.0, 64.0])))
+    check_against_reference(scene, random_gbuffer(rng, maps=[(), ("k_d",)][seed % 2]),
+                            compensated=False, fp64_directions=False, int_pow="float")
+
+
+def test_paths_name_their_options():
+    """Renderer(path=...) stands for the options of render.PATHS; a bad name lists
+    them, and a path with explicit options is refused (one way to say it)."""
+    from clphong.render import PATHS
+
+    scene = make_scene([dict(type="point", position=(0, 0, 3))], h=32.0)
+    assert Renderer(scene, path="float").fp64_directions is False
+    assert Renderer(scene, path="accurate").fp64_directions is Renderer(scene).fp64_directions
+    with pytest.raises(ValueError, match="accurate, float, fast"):
+        Renderer(scene, path="fastest")
+    with pytest.raises(ValueError, match="either path or"):
+        Renderer(scene, path="fast", compensated=True)
+    with pytest.raises(ValueError, match="float directions"):
+        Renderer(scene, fp64_directions=True, int_pow="float")
+    assert set(PATHS) == {"accurate", "float", "fast"}
+
+
 def test_integer_power_bound_is_tighter_than_the_exp_form():
     """Same inputs, same δ: the integer form's bound drops exp/log1p's ulps and the
     4u·|k·log1p(−δ)| rounding, so it is never looser (docs/error-model.md)."""
