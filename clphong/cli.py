@@ -192,7 +192,7 @@ def _add_speed_options(p):
                    help="'accurate' (default: directions, weights and sums in double where the "
                         "device has fp64), 'float' (float32 directions, for devices without fast "
                         "double: larger error near grazing light and for high shininess; on a CPU "
-                        "with fp64 faster only with a few lights) or 'fast' (float32 throughout, "
+                        "with fp64 not faster from 16 lights on) or 'fast' (float32 throughout, "
                         "the integer power and a naive light sum too: fastest from 16 lights on, "
                         "relative error ~1e-6 on the bench scene and up to ~2k*u bounded); "
                         "'clphong bench' reports each")

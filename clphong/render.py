@@ -297,8 +297,8 @@ class Renderer:
     fp64_directions : bool, optional
         Compute positions, directions, n·l and δ in double (the accurate
         default where the device has fp64) or all in float (for devices
-        without fast double; on a CPU with fp64 faster only with a few
-        lights; larger
+        without fast double; on a CPU with fp64 not faster from 16 lights
+        on; larger
         error near grazing light and for large shininess, see
         ``docs/error-model.md``).
     nonfinite : {"background", "error", "pass"}
