@@ -194,7 +194,7 @@ def _add_speed_options(p):
                         "double: larger error near grazing light and for high shininess; on a CPU "
                         "with fp64 not faster from 16 lights on) or 'fast' (float32 throughout, "
                         "the integer power and a naive light sum too: fastest from 16 lights on, "
-                        "relative error ~1e-6 on the bench scene and up to ~2k*u bounded); "
+                        "relative error 1e-6 to 3e-6 on the bench scene, bounded by ~2k*u); "
                         "'clphong bench' reports each")
 
 

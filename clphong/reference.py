@@ -421,6 +421,8 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     # ud: unit roundoff of the direction arithmetic. In double from float32
     # inputs and float32 hi+lo pairs (48 significant bits), 2⁻⁴⁷ covers the pairs'
     # truncation and the double roundings. r_out: n·l and δ rounded to float.
+    if form == "int32" and directions != "fp32":
+        raise ValueError("form 'int32' (the fast path's float power) goes with fp32 directions")
     if weights not in ("fp32", "fp64") or (weights == "fp64" and directions != "fp64"):
         raise ValueError(f"weights must be 'fp32', or 'fp64' with fp64 directions, not {weights!r}")
     fp64 = directions == "fp64"

@@ -314,9 +314,11 @@ class Renderer:
     reference_white : float
         Output radiance of reference white (default 1.0, scene-linear).
     path : {"accurate", "float", "fast"}, optional
-        A shading path (``PATHS``): shorthand for ``fp64_directions``,
-        ``compensated`` and ``int_pow``, which must then be left unset.
-    int_pow : bool or "float"
+        A shading path (``PATHS``, lane kernel only): shorthand for
+        ``fp64_directions``, ``compensated`` and ``int_pow``, which must then
+        be left unset. The attribute ``path`` names the path the current
+        options make (None for another mix).
+    int_pow : bool or "float", optional
         True (default): a whole specular exponent (h, or 4h for Blinn-Phong,
         ≤ 65536, no shininess map) is raised by binary powering in double on
         CPU devices with fp64, on either path (faster, and within the exp/log1p
@@ -327,7 +329,8 @@ class Renderer:
     The attributes ``max_error`` (the *absolute* budget
     ``max_error·reference_white``, or None), ``fp64_directions`` and
     ``nonfinite`` may still be changed after construction; the next frame
-    compiles the variant they select.
+    compiles the variant they select (``fp64_directions = True`` is refused
+    at once on a renderer with ``int_pow="float"``, whose power is float).
 
     Safe to call from several threads: launches are serialised on the queue.
     """
@@ -336,16 +339,19 @@ class Renderer:
                  lanes: int | None = None, compensated: bool | None = None,
                  fp64_directions: bool | None = None, nonfinite: str = "background",
                  max_error: float | None = None, reference_white: float = 1.0,
-                 int_pow: bool | str = True, path: str | None = None):
+                 int_pow: bool | str | None = None, path: str | None = None):
         self.scene = scene
         if path is not None:
-            if compensated is not None or fp64_directions is not None or int_pow is not True:
+            if compensated is not None or fp64_directions is not None or int_pow is not None:
                 raise ValueError("give either path or fp64_directions/compensated/int_pow")
+            if kernel != "lanes":
+                raise ValueError(f"path is for the lane kernel, not kernel={kernel!r}")
             opts = path_options(path)
             fp64_directions = opts.get("fp64_directions")
             compensated = opts.get("compensated")
-            int_pow = opts.get("int_pow", True)
-        self.path = path
+            int_pow = opts.get("int_pow")
+        if int_pow is None:
+            int_pow = True
         if not (isinstance(int_pow, bool) or int_pow == "float"):
             raise ValueError(f"int_pow must be True, False or 'float', not {int_pow!r}")
         if int_pow == "float":
@@ -371,7 +377,7 @@ class Renderer:
             from .errors import DeviceError
             raise DeviceError(f"{self.runtime.name} has no double precision (cl_khr_fp64); "
                               "use the float32 directions path")
-        self.fp64_directions = bool(fp64_directions) and kernel == "lanes"
+        self._fp64_directions = bool(fp64_directions) and kernel == "lanes"
         from .inputs import POLICIES
         if nonfinite not in POLICIES:
             raise ValueError(f"nonfinite must be one of {', '.join(POLICIES)}, not {nonfinite!r}")
@@ -390,6 +396,36 @@ class Renderer:
     #: The ShadingPlan of the last launch (with the fused display output, or the
     #: brute-force fallback of culling, as it actually ran); None before any.
     last_plan = None
+
+    @property
+    def fp64_directions(self) -> bool:
+        """Whether positions, directions, n·l and δ are computed in double."""
+        return self._fp64_directions
+
+    @fp64_directions.setter
+    def fp64_directions(self, value: bool) -> None:
+        if value and self.int_pow == "float":
+            raise ValueError("this renderer raises the power in float (int_pow='float', the fast "
+                             "path), which takes float directions only; build a Renderer with "
+                             "another path instead")
+        if value and not self.runtime.has_fp64:
+            from .errors import DeviceError
+            raise DeviceError(f"{self.runtime.name} has no double precision (cl_khr_fp64)")
+        self._fp64_directions = bool(value) and self.kernel_kind == "lanes"
+
+    @property
+    def path(self) -> str | None:
+        """The shading path (``PATHS``) the current options make, or None for another mix
+        (on a device without fp64, "accurate" and "float" are the same variant)."""
+        if self.kernel_kind != "lanes":
+            return None
+        if (self.int_pow, self.compensated, self.fp64_directions) == ("float", False, False):
+            return "fast"
+        if self.int_pow is True and self.compensated is None:
+            if self.fp64_directions == self.runtime.has_fp64:
+                return "accurate"
+            return "float" if not self.fp64_directions else None
+        return None
 
     def plan_for(self, map_names, *, culling: bool = True) -> ShadingPlan:
         """The plan for frames with these material maps (its program built and cached);

@@ -118,11 +118,12 @@ inline dirL blinn_cos_sq_const_h(dirL nx, dirL ny, dirL nz, float4 h, float4 h_l
 
 #if SPEC_INT_POW
 /* x^K for x ≥ 0 (the callers clamp: phong_cos, blinn_cos_sq, 1 − δ) and a whole
- * exponent K ≤ 65536 (the plan's SPEC_INT_POW), by binary powering in double,
- * then converted once to the weights' type: ⌊log2 K⌋ squarings, and one product
- * per set bit but bit 0 (for an even K the first is 1·x^(2^j)): plan.py's
- * int_pow_multiplies. They add at most ~K·2⁻⁵³ relative; an absolute error e
- * of x becomes K·e/x relative.
+ * exponent K ≤ 65536 (the plan's SPEC_INT_POW), by binary powering in double
+ * (in float with POW_FP32, the fast path), then converted once to the weights'
+ * type: ⌊log2 K⌋ squarings, and one product per set bit but bit 0 (for an even
+ * K the first is 1·x^(2^j)): plan.py's int_pow_multiplies. They add at most
+ * ~K·2⁻⁵³ relative (~K·u in float); an absolute error e of x becomes K·e/x
+ * relative.
  * Guards: K = 0 gives 1 (0⁰ := 1); a NaN x (NaN inputs under the "pass"
  * policy) gives NaN, for K = 0 too (a uniform branch: K is the same for every
  * work-item; a comparison, not isnan, which PoCL 3.0 calls out of line). No
@@ -141,7 +142,8 @@ inline wL specular_power_cos(powL x, uint K)
     return POW_TO_W(s);
 }
 
-/* max(1 − δ, 0)^K: specular_power_cos of x = 1 − δ, in double.
+/* max(1 − δ, 0)^K: specular_power_cos of x = 1 − δ, in double (in float with
+ * POW_FP32: 1 − δ then errs by u, the products by ~K·u; docs/error-model.md).
  * δ ≥ 0 is exact in double (from float, or dirL already), and so is 1 − δ to
  * within 2⁻⁵³. The result therefore errs by one rounding (u to float, 2⁻⁵³ with
  * WEIGHTS_FP64) plus K·|Δδ|/(1 − δ) from δ

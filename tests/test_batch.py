@@ -543,28 +543,30 @@ def _as_worker_builds(spec):
     return again.build()
 
 
-@pytest.mark.parametrize("jobs", [1, 2])
-def test_relight_path_float_equals_render_path_float(shot, tmp_path, jobs, capsys, monkeypatch):
+@pytest.mark.parametrize("path, jobs", [("float", 1), ("float", 2), ("fast", 2)])
+def test_relight_path_float_equals_render_path_float(shot, tmp_path, path, jobs, capsys, monkeypatch):
     root, expected = shot
     seen = _recording_run_batch(monkeypatch)
     out = tmp_path / "out"
-    assert main(_args(root, out, "--frames", "1-4", "--path", "float", "--jobs", str(jobs))) == 0
+    assert main(_args(root, out, "--frames", "1-4", "--path", path, "--jobs", str(jobs))) == 0
     differs = False
     for f in range(1, 5):
         for rig in ("key", "fill"):
             single = tmp_path / f"render.{rig}.{f}.exr"
             assert main(["render", str(root / f"{rig}.toml"), str(root / "seq" / f"shot.{f:04d}.exr"),
-                         "-o", str(single), "--path", "float"]) == 0
+                         "-o", str(single), "--path", path]) == 0
             batch = _read(out / rig / f"shot.{f:04d}.exr")
             assert np.array_equal(batch, _read(single)), (f, rig)      # bit-identical
             differs |= not np.array_equal(batch, expected[(f, rig)])   # expected: accurate path
-    assert differs, "--path float gave the accurate path's images: the option did not reach the kernel"
+    assert differs, f"--path {path} gave the accurate path's images: the option did not reach the kernel"
     [specs] = seen
     for spec in specs.values():
-        assert spec.path == "float"
+        assert spec.path == path
         r = _as_worker_builds(spec)
-        assert r.renderer.fp64_directions is False
-        assert r.renderer.plan_for(()).defines["DIRECTIONS_FP64"] == 0
+        assert r.renderer.fp64_directions is False and r.renderer.path == path
+        defines = r.renderer.plan_for(()).defines
+        assert defines["DIRECTIONS_FP64"] == 0
+        assert defines["POW_FP32"] == (path == "fast")
 
 
 MANY_LIGHTS_HEAD = """\

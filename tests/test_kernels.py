@@ -191,7 +191,21 @@ def test_paths_name_their_options():
         Renderer(scene, path="fast", compensated=True)
     with pytest.raises(ValueError, match="float directions"):
         Renderer(scene, fp64_directions=True, int_pow="float")
+    with pytest.raises(ValueError, match="either path or"):
+        Renderer(scene, path="fast", int_pow=True)
+    with pytest.raises(ValueError, match="lane kernel"):
+        Renderer(scene, path="fast", kernel="obvious")
     assert set(PATHS) == {"accurate", "float", "fast"}
+    # the attribute names the path the current options make
+    fast = Renderer(scene, path="fast")
+    assert fast.path == "fast" and Renderer(scene).path == "accurate"
+    r = Renderer(scene)
+    r.fp64_directions = False
+    assert r.path == "float"
+    # a float power takes float directions only: refused at once, not at the next frame
+    with pytest.raises(ValueError, match="float directions only"):
+        fast.fp64_directions = True
+    assert fast.fp64_directions is False and fast.path == "fast"
 
 
 def test_integer_power_bound_is_tighter_than_the_exp_form():
