@@ -40,6 +40,7 @@ from .camera_meta import resolve_camera
 from .color import REC709_CHROMATICITIES, WORKING_SPACES
 from .deliver import OUTPUT_KINDS, OutputOptions, OutputPaths, render_outputs, write_output
 from .errors import GBufferError, OutputError
+from .output import same_file
 from .gbuffer import MAP_KEYS, GBuffer, read_gbuffer
 
 __all__ = ["Relighter", "OutputOptions", "OutputPaths", "write_output", "as_gbuffer",
@@ -326,7 +327,7 @@ class Relighter:
         paths = OutputPaths(exr=out, sdr=sdr, hdr=hdr, contact_sheet=contact_sheet)
         if isinstance(frame, (str, os.PathLike)):
             for p in paths.files:
-                if _same_file(frame, p):
+                if same_file(frame, p):
                     raise OutputError(f"{p}: output would overwrite the input {os.fspath(frame)}")
         gbuffer = self.read(frame)
         source = os.fspath(frame) if isinstance(frame, (str, os.PathLike)) else None
@@ -341,8 +342,3 @@ class Relighter:
 
     __call__ = relight
 
-
-def _same_file(a, b) -> bool:
-    from .output import same_file
-
-    return same_file(a, b)

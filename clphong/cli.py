@@ -302,7 +302,9 @@ def cmd_bench(args) -> int:
     for out in (json_path, plot_path):
         if out:
             check_output_path(out)
-    if json_path and plot_path and _same_file(json_path, plot_path):
+    from .output import same_file
+
+    if json_path and plot_path and same_file(json_path, plot_path):
         raise _Usage(f"--json and --plot name the same file {json_path!r}")
     cfg = BenchConfig.quick(**kw) if args.quick else BenchConfig(**kw)
     report = run_bench(cfg)
@@ -335,18 +337,12 @@ def _inputs_of(args) -> list[str]:
     return [x for x in (args.scene, args.gbuffer, args.position, args.normal, args.albedo) if x]
 
 
-def _same_file(a: str, b: str) -> bool:
-    from .output import same_file
-
-    return same_file(a, b)
-
-
 def cmd_render(args) -> int:
     from .api import Relighter
     from .deliver import check_outputs, render_outputs
     from .scene import load_scene
 
-    from .output import check_output_path
+    from .output import check_output_path, same_file
     renderer_options = _renderer_options(args)       # bad values: before any file is touched
     display_paths = [*args.sdr, *args.hdr, *([args.contact_sheet] if args.contact_sheet else [])]
     if not args.output and not display_paths:
@@ -354,7 +350,7 @@ def cmd_render(args) -> int:
                      "--contact-sheet OUT.png")
     for out in ([args.output] if args.output else []) + display_paths:
         for src in _inputs_of(args):
-            if _same_file(src, out):
+            if same_file(src, out):
                 raise OutputError(f"{out}: output would overwrite the input {src}; choose another name")
         check_output_path(out, exr=out == args.output)   # fail before the work, not after
     t0 = time.perf_counter()
@@ -392,7 +388,7 @@ def cmd_render(args) -> int:
 
 
 def cmd_plan(args) -> int:
-    from .plan import make_plan
+    from .render import Renderer
     from .scene import load_scene
 
     opts = _renderer_options(args)
@@ -400,22 +396,10 @@ def cmd_plan(args) -> int:
     maps = ()
     if args.gbuffer or args.position or args.normal or args.albedo:
         maps = tuple(_read_gbuffer(args).maps)
-    from .runtime import get_runtime
-
-    # The lane width depends on the device, as in 'render'.
-    lanes = args.lanes or get_runtime(args.device).lanes
-    from .cull import check_budget
-
-    # As 'render': directions in double where the device has fp64, unless --path float/fast.
-    from .render import path_options
-
-    rt = get_runtime(args.device)
-    path = path_options(args.path)
-    fp64 = args.kernel == "lanes" and path.get("fp64_directions") is not False and rt.has_fp64
-    print(make_plan(scene, maps, kernel=args.kernel, lanes=lanes, fp64_directions=fp64,
-                    max_error=check_budget(opts["max_error"], opts["reference_white"]),
-                    has_fp64=rt.fast_fp64, compensated=path.get("compensated"),
-                    int_pow=path.get("int_pow", True)))
+    # The renderer 'render' builds, so the plan printed is the one it compiles
+    # (device, lane width, --path, --max-error).
+    renderer = Renderer(scene, device=args.device, kernel=args.kernel, lanes=args.lanes, **opts)
+    print(renderer.plan_for(maps))
     return 0
 
 

@@ -206,34 +206,39 @@ def path_options(path: str) -> dict:
 F32_ROUNDS_TO_INF = 3.4028235677973366e38
 
 
+def _check_reach(scene, o: np.ndarray, rebased: np.ndarray) -> None:
+    """Refuse a point light (``rebased``: the positions minus the frame origin ``o``)
+    or eye that lies beyond float32 from the frame (one end of the range against
+    positions at the other): it would round to ±inf, and the pixels to NaN."""
+    reach = np.abs(rebased).max(axis=1, initial=0.0)
+    far = None
+    if reach.size and reach.max() >= F32_ROUNDS_TO_INF:
+        points = [i for i, lt in enumerate(scene.lights) if lt.type == "point"]
+        far = (f"light[{points[int(np.argmax(reach))]}].position", reach.max())
+    elif scene.camera.type == "perspective":
+        x = np.abs(np.asarray(scene.camera.position) - o).max()
+        if x >= F32_ROUNDS_TO_INF:
+            far = ("camera.position", x)
+    if far is not None:
+        from .errors import SceneError
+        centre = ", ".join(f"{c:.3g}" for c in o)
+        raise SceneError(f"{scene.source}: {far[0]} lies {float(far[1]):.3g} units along an axis "
+                         f"from this frame's positions (centred near ({centre})), beyond the "
+                         "float32 range the kernels compute in (3.4e38)")
+
+
 def pack_lights(scene, origin: np.ndarray) -> LightArrays:
     """Rebase the lights on ``origin`` in float64; point lights as float64 records
     (the fp64 path's) and float32 records (the float path's, and culling's), other
     lights as float32 records with hi+lo remainders."""
     o = np.asarray(origin, np.float64)
     arrays = scene.light_arrays
-    # Rebased on this frame, a light or the eye near one end of the float32 range
-    # and positions near the other would round to ±inf (NaN pixels): refuse.
-    reach = np.abs(arrays["point_position"] - o).max(axis=1, initial=0.0)     # per point light
-    far = []
-    if reach.size and reach.max() >= F32_ROUNDS_TO_INF:
-        points = [i for i, lt in enumerate(scene.lights) if lt.type == "point"]
-        far.append((f"light[{points[int(np.argmax(reach))]}].position", reach.max()))
-    if scene.camera.type == "perspective":
-        far.append(("camera.position", np.abs(np.asarray(scene.camera.position) - o).max()))
-    for key, x in far:
-        x = float(x)
-        if x >= F32_ROUNDS_TO_INF:
-            from .errors import SceneError
-            centre = ", ".join(f"{c:.3g}" for c in o)
-            raise SceneError(f"{scene.source}: {key} lies {x:.3g} units along an axis from this "
-                             f"frame's positions (centred near ({centre})), beyond the float32 "
-                             "range the kernels compute in (3.4e38)")
     n_pts = len(arrays["point_position"])
     rec = np.zeros((max(n_pts, 1), 3, 4))           # (x, y, z, c0) (r, g, b, c1) (c2, 0, 0, 0)
+    np.subtract(arrays["point_position"], o, out=rec[:n_pts, 0, :3])
+    _check_reach(scene, o, rec[:n_pts, 0, :3])
     if n_pts:
         att = arrays["point_attenuation"]
-        np.subtract(arrays["point_position"], o, out=rec[:, 0, :3])
         rec[:, 0, 3] = att[:, 0]
         rec[:, 1, :3] = arrays["point_radiance"]
         rec[:, 1, 3] = att[:, 1]
@@ -314,10 +319,11 @@ class Renderer:
     reference_white : float
         Output radiance of reference white (default 1.0, scene-linear).
     path : {"accurate", "float", "fast"}, optional
-        A shading path (``PATHS``, lane kernel only): shorthand for
-        ``fp64_directions``, ``compensated`` and ``int_pow``, which must then
-        be left unset. The attribute ``path`` names the path the current
-        options make (None for another mix).
+        A shading path (``PATHS``): shorthand for ``fp64_directions``,
+        ``compensated`` and ``int_pow``, which must then be left unset (the
+        obvious kernel, float32 with pow(), ignores them). The attribute
+        ``path`` names the path the current options make (None for another
+        mix, and for the obvious kernel).
     int_pow : bool or "float", optional
         True (default): a whole specular exponent (h, or 4h for Blinn-Phong,
         ≤ 65536, no shininess map) is raised by binary powering in double on
@@ -344,8 +350,6 @@ class Renderer:
         if path is not None:
             if compensated is not None or fp64_directions is not None or int_pow is not None:
                 raise ValueError("give either path or fp64_directions/compensated/int_pow")
-            if kernel != "lanes":
-                raise ValueError(f"path is for the lane kernel, not kernel={kernel!r}")
             opts = path_options(path)
             fp64_directions = opts.get("fp64_directions")
             compensated = opts.get("compensated")

@@ -692,10 +692,15 @@ class _Parser:
                 self.fail(self._at(path, index), f"{_describe(v)} is not a float64 number")
         if not math.isfinite(x):
             self.fail(self._at(path, index), f"must be finite, got {x!r}")
-        if f32 and abs(x) > _F32_MAX and not math.isfinite(_f32(x)):
-            self.fail(self._at(path, index), f"{_g(x)} is beyond the float32 range the kernels "
-                                             f"compute in (|x| <= {_g(_F32_MAX)})")
+        if f32 and abs(x) > _F32_MAX:
+            self.fits_f32(x, self._at(path, index))
         return x
+
+    def fits_f32(self, x: float, path: str, what: str = "") -> None:
+        """Fail unless ``x`` (named ``what`` in the message, if given) is finite as a float32."""
+        if not math.isfinite(_f32(x)):
+            self.fail(path, f"{what + ' = ' if what else ''}{_g(x)} is beyond the float32 range "
+                            f"the kernels compute in (|x| <= {_g(_F32_MAX)})")
 
     def _int_to_float(self, v: int, path: str, index: int | None) -> float:
         try:
@@ -909,10 +914,7 @@ class _Parser:
         intensity = 1.0
         if "intensity" in v:
             intensity = self.nonneg(v["intensity"], path + ".intensity", f32=False)
-        worst = max(color) * intensity
-        if not math.isfinite(_f32(worst)):
-            self.fail(path + ".intensity", f"color x intensity = {_g(worst)} is beyond the float32 "
-                                           f"range the kernels compute in (<= {_g(_F32_MAX)})")
+        self.fits_f32(max(color) * intensity, path + ".intensity", "color x intensity")
         if type_ == "point":
             if "position" not in v:
                 self.fail(path + ".position", "missing; a 'point' light needs a position, "
@@ -944,18 +946,10 @@ class _Parser:
 
     def check_scene(self, m: Material, lights: tuple[Light, ...]) -> None:
         # The products the host forms before the kernels see them as float32.
-        if not math.isfinite(_f32(m.exponent)):
-            self.fail("material.h", f"the exponent 4h = {_g(m.exponent)} of 'blinn-phong' is beyond "
-                                    f"the float32 range the kernels compute in (<= {_g(_F32_MAX)})")
-        spec = m.k_s * max(m.specular_color)
-        if not math.isfinite(_f32(spec)):
-            self.fail("material.k_s", f"k_s x specular_color = {_g(spec)} is beyond the float32 "
-                                      f"range the kernels compute in (<= {_g(_F32_MAX)})")
+        self.fits_f32(m.exponent, "material.h", "the exponent 4h of 'blinn-phong'")
+        self.fits_f32(m.k_s * max(m.specular_color), "material.k_s", "k_s x specular_color")
         amb = [math.fsum(lt.radiance[c] for lt in lights if lt.type == "ambient") for c in range(3)]
-        if not math.isfinite(_f32(m.k_a * max(amb))):
-            self.fail("material.k_a", f"k_a x the ambient lights' summed radiance = "
-                                      f"{_g(m.k_a * max(amb))} is beyond the float32 range the "
-                                      f"kernels compute in (<= {_g(_F32_MAX)})")
+        self.fits_f32(m.k_a * max(amb), "material.k_a", "k_a x the ambient lights' summed radiance")
         total = math.fsum((m.k_a, m.k_d, m.k_s))
         if total > 1.0 + _SUM_TOLERANCE:
             self.warn("material", f"k_a + k_d + k_s = {_g(total)} > 1: the surface reflects "

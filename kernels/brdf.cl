@@ -110,8 +110,7 @@ inline dirL blinn_cos_sq_const_h(dirL nx, dirL ny, dirL nz, float4 h, float4 h_l
 {
     if (h.w != 0.0f)
         return (dirL)(0.0);
-    const dirL x = MUL_ADD(nx, (dirS)h.x + (dirS)h_lo.x,
-                           MUL_ADD(ny, (dirS)h.y + (dirS)h_lo.y, nz * ((dirS)h.z + (dirS)h_lo.z)));
+    const dirL x = MUL_ADD(nx, HI_LO(h.x, h_lo.x), MUL_ADD(ny, HI_LO(h.y, h_lo.y), nz * HI_LO(h.z, h_lo.z)));
     return SELECT_DIR((dirL)(0.0), x * x, x > 0.0);
 }
 #endif

@@ -125,9 +125,9 @@
  * aligned() on a typedef): PoCL 3.0 calls vload16/vstore16 out of line, once
  * per plane and work-item; inline (with finish_sum's copysign gone too) the
  * bench scene's full 1080p frame shaded 1.3× faster with 2 lights (17.9 → 13.8
- * ms) and as fast at N = 256 (the
- * G-buffer planes are numpy's, 16-byte aligned; tested misaligned too). all()
- * stays the builtin: an inline form, with the other two, cost 4 % at N = 256. */
+ * ms) and as fast at N = 256 (the G-buffer planes are numpy's, 16-byte
+ * aligned; tested misaligned too). all() stays the builtin: an inline form,
+ * with the other two, cost 4 % at N = 256. */
 #define LANE_ACCESS(F, I) \
     typedef F __attribute__((aligned(4))) floatL_u; \
     typedef I __attribute__((aligned(4))) intL_u;
@@ -236,21 +236,21 @@ typedef floatL dirL;
  * x = 0 gives +inf, as rsqrt does.
  * The lights loop ran 1.12× faster (bench scene, 16 lanes).
  * In float, likewise (PoCL 3.0 calls the float rsqrt out of line too): three
- * Newton steps from 0x5F375A86 (relative error ≤ 1.8e-3 after one step,
- * 4.6e-6 after two, 3.2e-11 after three, then float rounding) stay within the
- * builtin's 2 ulp that the error model assumes (1.92 ulp measured): tested
- * exhaustively on [1, 4),
- * which covers every float x ≥ 2·FLT_MIN (a factor 4 in x moves the guess and
- * each step by exactly ½). Below that, h = x/2 flushes to 0
- * (-cl-denorms-are-zero) and the result is 3.3–3.5× too large: its one use,
- * Blinn's |l + v|² < 2.4e-38, then gives |n − h| > 2, so δ > 1 and no
- * highlight, where the bound already allows the whole term. Unlike rsqrt, x = +∞ gives −∞, not 0, and a guard for it
- * cost 12 % of the float path's lights loop (PoCL 3.0, any form of it), so the
- * float RSQRT_DIR takes finite x only (Blinn's |l + v|² ≤ 4, once per light);
- * RSQRT_DIST, for squared distances (to a light, once per light, and to the eye,
- * once per pixel) that overflow float beyond ≈ 1.8e19, stays the builtin there
- * (rsqrt(+∞) = 0). The float path's lights loop ran
- * 1.06× faster. */
+ * Newton steps from 0x5F375A86 (relative error ≤ 1.8e-3 after one step, 4.6e-6
+ * after two, 3.2e-11 after three, then float rounding) stay within the
+ * builtin's 2 ulp that the error model assumes (1.92 ulp measured, tested
+ * exhaustively on [1, 4), which covers every float x ≥ 2·FLT_MIN: a factor 4 in
+ * x moves the guess and each step by exactly ½); the float path's lights loop
+ * ran 1.06× faster. Its limits:
+ *  - below 2·FLT_MIN, h = x/2 flushes to 0 (-cl-denorms-are-zero) and the
+ *    result is 3.3–3.5× too large: its one use, Blinn's |l + v|² < 2.4e-38,
+ *    then gives |n − h| > 2, so δ > 1 and no highlight, where the bound already
+ *    allows the whole term;
+ *  - x = +∞ gives −∞, not 0, and a guard for it cost 12 % of the float path's
+ *    lights loop (PoCL 3.0, any form of it): so the float RSQRT_DIR takes finite
+ *    x only (Blinn's |l + v|² ≤ 4, once per light), and RSQRT_DIST, for squared
+ *    distances (to a light, once per light, and to the eye, once per pixel)
+ *    that overflow float beyond ≈ 1.8e19, stays the builtin (rsqrt(+∞) = 0). */
 #if DIRECTIONS_FP64
 inline dirL rsqrt_dir(dirL x)
 {

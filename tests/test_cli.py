@@ -148,6 +148,15 @@ def test_path_fast_through_the_cli(tmp_path, capsys):
     assert "invalid choice: 'fastest'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("path", ["float", "fast"])
+def test_obvious_kernel_takes_any_path(tmp_path, path):
+    """--kernel obvious with --path: the baseline kernel renders (it has no path of its
+    own); a regression once raised a traceback here."""
+    assert main(["render", *SPHERES, "-o", str(tmp_path / "o.exr"), "--kernel", "obvious",
+                 "--path", path]) == 0
+    assert (tmp_path / "o.exr").exists()
+
+
 def test_render_as_a_subprocess(tmp_path):
     out = tmp_path / "o.exr"
     exe = shutil.which("clphong") or None

@@ -262,7 +262,7 @@ ERROR_CASES = [
      "material.k_s", ["k_s x specular_color = 1e+39"]),
     ("blinn-exponent-beyond-float32", lambda d: set_at(d, ("material",), dict(
         d["material"], model="blinn-phong", h=1e38)),
-     "material.h", ["the exponent 4h = 4e+38 of 'blinn-phong' is beyond the float32 range"]),
+     "material.h", ["the exponent 4h of 'blinn-phong' = 4e+38 is beyond the float32 range"]),
     ("ambient-sum-beyond-float32", lambda d: set_at(d, ("material", "k_a"), 1.0) or set_at(
         d, ("light",), d["light"] + [{"type": "ambient", "intensity": 3e38}] * 2),
      "material.k_a", ["summed radiance = 6e+38"]),
