@@ -293,6 +293,12 @@ def _c0_zero():
     return _towards_light(list(np.geomspace(1e-1, 1e-30, 30)) + [0.0], (0.0, 1.0, 0.0), 1e-6)
 
 
+@case("light-touching", "distance", "c0 = 1 and a light 1e-17 … 1 above the surface, "
+      "far closer than the frame's extent (the fp64 path does not rebase: d is exact)")
+def _touching():
+    return _towards_light([1e-17, 1e-12, 1e-6, 1e-3, 1.0], (1.0, 0.0, 0.0), 0.5)
+
+
 @case("c2-only-tiny-d", "distance", "c2 only at d = 1e-20: c2·d² = 1e-40 is below float's range")
 def _c2_tiny():
     return _towards_light([1e-20, 2e-20, 5e-20], (0.0, 0.0, 1.0), 1e-36)

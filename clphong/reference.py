@@ -362,8 +362,8 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     scene, gbuffer
         As for :func:`shade`.
     origin : (3,) array, optional
-        The float32 rebasing origin the kernel used (``Frame.origin``); 0 if
-        omitted.
+        The float32 rebasing origin of the float path (``Frame.origin``); 0 if
+        omitted. The fp64 path does not rebase and ignores it.
     compensated : bool
         Whether the kernel summed the lights with Neumaier compensation.
     sum_fp64 : bool
@@ -436,8 +436,11 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     bound = np.zeros((H * W, 3))
     band = np.zeros(H * W, bool)
     px, C, D, S, fg = _inputs(scene, gbuffer)
-    o = np.zeros(3) if origin is None else np.asarray(origin, np.float64)
-    rp = np.sqrt(_dot(px.p - o, px.p - o))          # |P − o|
+    # The float path rounds P − o and the rebased light records; the fp64 path does
+    # not rebase (P and the lights' float64 positions are exact in double), so only
+    # L − P, eye − P and the eye's hi+lo are rounded.
+    o = np.zeros(3) if origin is None or fp64 else np.asarray(origin, np.float64)
+    rp = np.sqrt(_dot(px.p - o, px.p - o)) if np.any(o != 0) else 0.0   # |P − o| if rounded
     ortho = view_vector(scene.camera) is not None
     if ortho:
         eta_v = np.full(len(px.p), ud)
@@ -460,7 +463,8 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
             dv = Lp - px.p
             d = np.sqrt(_dot(dv, dv))
             with np.errstate(divide="ignore", invalid="ignore"):
-                eta_l = np.where(d > 0, ud * (2.0 + (rp + np.sqrt(_dot(Lp - o, Lp - o))) / d), 0.0)
+                rl = 0.0 if fp64 else np.sqrt(_dot(Lp - o, Lp - o))     # float32 record
+                eta_l = np.where(d > 0, ud * (2.0 + (rp + rl) / d), 0.0)
                 c0, c1, c2 = params["c"]
                 cond = (abs(c0) + abs(c1) * d + abs(c2) * d * d) / (c0 + c1 * d + c2 * d * d)
                 cond = np.where(d > 0, cond, 0.0)     # d = 0 adds nothing (shade_point_light)

@@ -143,15 +143,16 @@ class LightArrays:
     """The scene's lights packed as the kernels read them (see kernels/clphong.h)."""
 
     point: np.ndarray        # (n_point*3, 4) float32: the float path's (and cull.py's source)
-    point64: np.ndarray      # the same records in float64, for DIRECTIONS_FP64 (shade.cl)
+    point64: np.ndarray      # the same records in float64, not rebased, for DIRECTIONS_FP64
     directional: np.ndarray  # (n_dir*5, 4) float32
     ambient: np.ndarray      # (3,) float64: k_a·Σ ambient radiance
     eye: np.ndarray          # (3,) float64: perspective eye − origin, or orthographic unit v
+    eye64: np.ndarray        # (3,) float64: perspective eye (not rebased), or unit v
 
-    @property
-    def eye_hi_lo(self) -> tuple[np.ndarray, np.ndarray]:
-        """``eye`` as float32 hi + lo (lo = eye − hi, rounded), for DIRECTIONS_FP64."""
-        return split_hi_lo(self.eye)
+    def kernel_eye(self, fp64: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The shading kernel's (eye, eye_lo): with DIRECTIONS_FP64 the eye as it
+        is, float32 hi + lo (lo = eye − hi, rounded); else rebased, and lo = 0."""
+        return split_hi_lo(self.eye64) if fp64 else (self.eye, np.zeros(3))
 
 
 def split_hi_lo(x) -> tuple[np.ndarray, np.ndarray]:
@@ -228,23 +229,25 @@ def _check_reach(scene, o: np.ndarray, rebased: np.ndarray) -> None:
 
 
 def pack_lights(scene, origin: np.ndarray) -> LightArrays:
-    """Rebase the lights on ``origin`` in float64; point lights as float64 records
-    (the fp64 path's) and float32 records (the float path's, and culling's), other
-    lights as float32 records with hi+lo remainders."""
+    """Point lights as float64 records as they are (the fp64 path's: it does not
+    rebase, L − P in double is correctly rounded from them and the float32 P) and
+    as float32 records rebased on ``origin`` in float64 (the float path's, and
+    culling's); other lights as float32 records with hi+lo remainders."""
     o = np.asarray(origin, np.float64)
     arrays = scene.light_arrays
     n_pts = len(arrays["point_position"])
     rec = np.zeros((max(n_pts, 1), 3, 4))           # (x, y, z, c0) (r, g, b, c1) (c2, 0, 0, 0)
-    np.subtract(arrays["point_position"], o, out=rec[:n_pts, 0, :3])
-    _check_reach(scene, o, rec[:n_pts, 0, :3])
+    rec[:n_pts, 0, :3] = arrays["point_position"]
     if n_pts:
         att = arrays["point_attenuation"]
         rec[:, 0, 3] = att[:, 0]
         rec[:, 1, :3] = arrays["point_radiance"]
         rec[:, 1, 3] = att[:, 1]
         rec[:, 2, 0] = att[:, 2]
-    point64 = rec.reshape(-1, 4)
-    point = point64.astype(np.float32)
+    point64 = rec.reshape(-1, 4).copy()
+    rec[:n_pts, 0, :3] -= o
+    _check_reach(scene, o, rec[:n_pts, 0, :3])
+    point = rec.reshape(-1, 4).astype(np.float32)
     n_dirs = len(arrays["directional_direction"])
     directional = np.zeros((max(n_dirs, 1) * 5, 4), np.float32)
     v = view_vector(scene.camera)
@@ -261,11 +264,10 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
             rec[:, 2, 3] = np.where(undefined, 1.0, 0.0)
         directional = rec.reshape(-1, 4).astype(np.float32)
     amb = arrays["ambient_radiance"] * scene.material.k_a
-    if v is not None:
-        eye = v
-    else:
-        eye = np.asarray(scene.camera.position, np.float64) - o
-    return LightArrays(point=point, point64=point64, directional=directional, ambient=amb, eye=eye)
+    eye64 = v if v is not None else np.asarray(scene.camera.position, np.float64)
+    eye = eye64 if v is not None else eye64 - o
+    return LightArrays(point=point, point64=point64, directional=directional, ambient=amb,
+                       eye=eye, eye64=eye64)
 
 
 def material_uniforms(scene, map_names) -> tuple[float, np.ndarray, float]:
@@ -474,8 +476,11 @@ class Renderer:
             # and `frame` outlives the launch.
             g = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=frame.gbuf)
             mp = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=frame.maps)
-            pl = cl.Buffer(ctx, ro, hostbuf=lights.point64 if plan.defines.get("DIRECTIONS_FP64")
-                           else lights.point)
+            # DIRECTIONS_FP64 does not rebase: P as stored, lights and eye as they are.
+            fp64 = bool(plan.defines.get("DIRECTIONS_FP64"))
+            origin = np.zeros(3) if fp64 else frame.origin
+            eye, eye_lo = lights.kernel_eye(fp64)
+            pl = cl.Buffer(ctx, ro, hostbuf=lights.point64 if fp64 else lights.point)
             dl = cl.Buffer(ctx, ro, hostbuf=lights.directional)
             out = np.empty((3, frame.stride), np.float32)
             ob = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
@@ -497,9 +502,9 @@ class Renderer:
             kern.set_args(
                 g, mp, ob, np.uint32(frame.stride),
                 pl, np.uint32(plan.n_point), dl, np.uint32(plan.n_directional),
-                float4(*frame.origin), float4(*lights.eye), float4(*lights.ambient),
+                float4(*origin), float4(*eye), float4(*lights.ambient),
                 np.float32(k_d), float4(*S), np.float32(k), float4(*bg),
-                float4(*lights.eye_hi_lo[1]),
+                float4(*eye_lo),
                 *display_args, *cull_args)
             items = frame.stride // self.lanes
             evt = cl.enqueue_nd_range_kernel(queue, kern, (items,), (LOCAL_SIZE,))

@@ -23,7 +23,7 @@ inline dirL attenuation(dirS c0, dirS c1, dirS c2, dirL d)
 
 /* A pixel's shading inputs, all rebased or unit as described in shade.cl. */
 typedef struct {
-    dirL px, py, pz;        /* position, minus the frame origin */
+    dirL px, py, pz;        /* position, minus the frame origin (0 with DIRECTIONS_FP64) */
     dirL nx, ny, nz;        /* unit normal */
     dirL vx, vy, vz;        /* unit direction to the viewer */
 #if SPEC_COS
@@ -81,7 +81,8 @@ inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, di
     return w;
 }
 
-/* A point light at L (rebased on the frame origin), falloff coefficients c0, c1,
+/* A point light at L (rebased on the frame origin, or as it is with
+ * DIRECTIONS_FP64), falloff coefficients c0, c1,
  * c2 and radiance R, all in dirS (double from the host's float64 records with
  * DIRECTIONS_FP64, shade.cl): l = (L − P)/d. Returns the unattenuated weights, and in
  * *ar, *ag, *ab the light's radiance times attenuation(d), formed in dirL and
@@ -103,8 +104,8 @@ inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
     const dirL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
     weights_t w = shade_direction(p, lx, ly, lz, NoL);
 #if DIRECTIONS_FP64
-    /* finite in double: |P − o| ≤ 2·FLT_MAX and the host refuses a light whose
-       rebased position is beyond float (pack_lights), so d² < 3·(3·FLT_MAX)² */
+    /* finite in double: |P| ≤ FLT_MAX, and the scene refuses a light position
+       beyond float (scene.py), so d² < 3·(2·FLT_MAX)² */
     const dirL d = d2 * inv_d;
 #else
     const dirL d = SELECT_DIR(d2 * inv_d, d2, isinf(d2));

@@ -3,10 +3,12 @@
  * Data layout (structure of arrays, `stride` floats a plane, stride a multiple
  * of LANES, padding pixels are background):
  *   gbuf: Px Py Pz  Nx Ny Nz  Cr Cg Cb  nx ny nz
- *         P is as stored (float32); the kernel subtracts `origin`, a float32
+ *         P is as stored (float32); the float path subtracts `origin`, a float32
  *         point near the scene, so P − origin is exact for P within a factor 2
- *         of it (Sterbenz), and always in double with DIRECTIONS_FP64; distances
- *         keep their digits far from the world origin. N is unit (normalised on
+ *         of it (Sterbenz) and distances keep their digits far from the world
+ *         origin. DIRECTIONS_FP64 gets origin = 0: P is exact in double and the
+ *         point lights' float64 records are not rebased, so L − P is rounded
+ *         once, however close the light. N is unit (normalised on
  *         the host in float64, rounded to float) and exactly 0 on background
  *         pixels; n is its float64 remainder N64 − N, used with DIRECTIONS_FP64.
  *         C is the albedo C_d.
@@ -71,7 +73,7 @@ __kernel void shade(__global const float *restrict gbuf,
                     const uint stride,
                     __global const pointrec_t *restrict point_lights, const uint n_point,
                     __global const float4 *restrict directional_lights, const uint n_directional,
-                    const float4 origin,     /* subtracted from P and (on the host) from lights */
+                    const float4 origin,     /* subtracted from P and (on the host) from lights; 0 with DIRECTIONS_FP64 */
                     const float4 eye,        /* perspective: eye − origin; orthographic: unit v */
                     const float4 ambient,    /* k_a·Σ ambient radiance, rgb */
                     const float k_d,         /* uniform k_d, used without MAP_KD */

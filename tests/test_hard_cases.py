@@ -54,6 +54,18 @@ def test_light_at_the_point_and_c0_zero_add_nothing_at_d_zero():
         assert np.all(r.rgb[0, d0] == 0.0) and np.all(r.ref[0, d0] == 0.0)
 
 
+def test_near_lights_are_resolved_not_put_in_the_band():
+    """A light far closer to a pixel than the frame's extent: on the fp64 path
+    d is exact (no rebasing), so only a pixel exactly on the light (d = 0, no
+    direction) may lie in the terminator band; n·l = 0.8 elsewhere. Rebasing
+    on the frame's centre lost d below ~1e-17 and gave 0 there, hidden in the band."""
+    for name, n_zero in (("light-touching", 0), ("light-at-point", 1), ("c0-zero-near", 1)):
+        r = evaluate(_by_name(name))
+        assert r.band == n_zero, f"{name}: {r.band} band pixel(s)"
+    r = evaluate(_by_name("light-touching"))
+    assert np.all(r.rgb[0, 0] > 0.9 * r.ref[0, 0])        # d = 1e-17 is lit, as the reference
+
+
 def test_c2_only_at_extreme_distances_is_I_over_d_squared():
     """E = I/d²·(C_d·k_d·n·l + k_s·max(r·v, 0)^h), a closed form evaluated here in float64,
     at distances where float's d² under- or overflows."""
