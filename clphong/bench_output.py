@@ -1,7 +1,8 @@
 """Time tone mapping + encoding + writing of a 1920×1080 frame, per output kind.
 
 Not a test: ``python -m clphong.bench_output [--runs N] [--folder DIR] [--keep]`` prints
-the median of N runs for each kind. The frame is the spheres sample
+the median of N runs for each kind. ``--errors`` prints instead each tone-mapping
+operator's error against its float64 twin (:func:`operator_errors`). The frame is the spheres sample
 (:mod:`clphong.samples`, built in memory: no source checkout needed), or
 ``--scene S.toml --gbuffer G.exr``, shaded and resized to 1920×1080, so only the
 output path is timed, not shading. The files go to a temporary folder, removed
@@ -59,7 +60,13 @@ def main(argv=None) -> int:
                    help="scene of the frame (default: the spheres sample, built in memory)")
     p.add_argument("--gbuffer", metavar="GBUFFER.exr",
                    help="G-buffer of the frame (default: the spheres sample, built in memory)")
+    p.add_argument("--errors", action="store_true",
+                   help="print each kernel operator's error against its float64 twin and "
+                        "error bound (1920x1080 log-uniform values, 1e-4 ... 1e6), no timing")
     args = p.parse_args(argv)
+    if args.errors:
+        print(operator_errors_table(operator_errors()))
+        return 0
     if args.runs < 1:
         p.error("--runs must be >= 1")
     if bool(args.scene) != bool(args.gbuffer):
@@ -138,6 +145,47 @@ def _time_outputs(args, folder: Path) -> int:
             times.append(time.perf_counter() - t0)
         print(f"  {name:46s} {1e3 * statistics.median(times):8.1f} ms")
     return 0
+
+
+def operator_errors(width: int = 1920, height: int = 1080, seed: int = 0) -> list[dict]:
+    """Each kernel operator (fused kernel code, run alone: tonemap_apply.cl) against
+    its float64 twin, linear and sRGB-encoded, on log-uniform values over
+    1e-4 … 1e6 (33 stops: the shoulders and far above them), zeros and 0.18 grey.
+
+    Returns rows of max |err|, the largest bound, max |err|/bound and the count of
+    values beyond their bound (0 unless the error model is wrong).
+    """
+    import math
+
+    from . import tonemap
+    from .display import DisplayTransform, apply_display_transform
+
+    rng = np.random.default_rng(seed)
+    x = np.exp(rng.uniform(math.log(1e-4), math.log(1e6), (height, width, 3))).astype(np.float32)
+    x[0, :4], x[1, :4] = 0.0, 0.18
+    rows = []
+    for op in tonemap.OPERATORS:
+        for enc in ("linear", "srgb"):
+            dt = DisplayTransform(op, encoding=enc)
+            err = np.abs(apply_display_transform(x, dt).astype(np.float64) - dt.reference(x))
+            bound = dt.error_bound(x)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ratio = np.where(err == 0.0, 0.0, err / bound)
+            rows.append(dict(operator=op, encoding=enc, max_abs_err=float(err.max()),
+                             max_bound=float(bound.max()), max_err_over_bound=float(ratio.max()),
+                             beyond_bound=int((err > bound).sum()), values=int(x.size)))
+    return rows
+
+
+def operator_errors_table(rows: list[dict]) -> str:
+    """:func:`operator_errors` as a Markdown table."""
+    out = ["| operator | encoding | max \\|err\\| | max bound | max \\|err\\|/bound | beyond bound |",
+           "|---|---|---|---|---|---|"]
+    for r in rows:
+        out.append(f"| {r['operator']} | {r['encoding']} | {r['max_abs_err']:.2e} | "
+                   f"{r['max_bound']:.2e} | {r['max_err_over_bound']:.3f} | "
+                   f"{r['beyond_bound']} of {r['values']} |")
+    return "\n".join(out)
 
 
 if __name__ == "__main__":  # pragma: no cover

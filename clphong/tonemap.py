@@ -481,13 +481,22 @@ def _hable_exact(x: float) -> float:
 
 # --------------------------------------------------------------------------- pipeline
 
+DISPLAY_SATURATE = 2.0 ** 24
+
+
+def display_clip(x) -> Bounded:
+    """Twin of display_clip (kernels/tonemap.cl): [0, 2^24], where every operator
+    is saturated and x² stays finite in float32."""
+    return clamp(x, 0.0, DISPLAY_SATURATE)
+
+
 def display_transform(c: RGB, op: Operator, exposure: Bounded, params: Bounded,
                       matrix: Bounded | None, encoding: int) -> RGB:
     """Twin of display_transform (kernels/tonemap.cl)."""
     c = tuple(x * exposure for x in c)
     if matrix is not None:
         c = _mat3_args(matrix, c)
-    c = tuple(fmax(x, 0.0) for x in c)
+    c = tuple(display_clip(x) for x in c)
     if op.name == "reinhard-extended" or op.name == "hable":
         c = op.twin(c, params)
     else:

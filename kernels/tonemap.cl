@@ -244,6 +244,13 @@ inline floatL encode_srgb(floatL x)
 
 /* ---------------------------------------------------------------- pipeline */
 
+#define DISPLAY_SATURATE 16777216.0f   /* 2^24 */
+
+inline floatL display_clip(floatL x)
+{
+    return fmin(fmax(x, (floatL)(0.0f)), (floatL)(DISPLAY_SATURATE));
+}
+
 /* params: x = inv_white2 (reinhard-extended) or white_scale (hable); m0..m2:
  * working space -> Rec.709 (rows), used with DISPLAY_MATRIX. */
 inline rgbL display_transform(rgbL c, const float exposure, const float4 params,
@@ -253,7 +260,10 @@ inline rgbL display_transform(rgbL c, const float exposure, const float4 params,
 #if DISPLAY_MATRIX
     c = mat3_apply(m0, m1, m2, c);
 #endif
-    c = make_rgbL(fmax(c.r, (floatL)(0.0f)), fmax(c.g, (floatL)(0.0f)), fmax(c.b, (floatL)(0.0f)));
+    /* Guard: [0, 2^24]. Every operator is saturated long before 2^24 (Reinhard's
+     * x/(1 + x) within 2^-24 of 1), and above it x² in the ACES fit and Hable
+     * overflows (inf/inf = NaN, shown black); +inf (an overflowed sum) shows white. */
+    c = make_rgbL(display_clip(c.r), display_clip(c.g), display_clip(c.b));
 #if TONEMAP == TONEMAP_NONE
     c = tonemap_none(c);
 #elif TONEMAP == TONEMAP_REINHARD

@@ -57,6 +57,23 @@ def test_operator_kernel_matches_float64_twin_within_error_model(op, encoding):
             assert bound.max() < (3e-4 if op == "agx" else 3e-5)
 
 
+@pytest.mark.parametrize("op", OPS)
+def test_huge_and_infinite_inputs_saturate_to_white(op):
+    """Far above its shoulder every operator shows its white (AgX's is 0.9985),
+    the same from 2^24 up to float32's largest value and +inf (an overflowed sum):
+    x² in the ACES fit and Hable overflowed above ~1.8e19 (inf/inf = NaN, shown
+    black) before the clip to [0, 2^24]. The kernel holds its twin there too."""
+    big = np.array([1e6, 2.0 ** 24, 1e19, 1e30, 3.4e38, np.inf], np.float32)
+    x = np.stack([big, big, big], -1)[None]
+    for exposure in (0.0, 70.0):
+        dt = DisplayTransform(op, exposure=exposure, encoding="srgb")
+        got = apply_display_transform(x, dt).astype(np.float64)
+        assert np.all(got[0, 1:] == got[0, -1]) and np.all(got > 0.99), (op, exposure, got)
+        with np.errstate(over="ignore", invalid="ignore"):
+            ref, bound = dt.reference(x), dt.error_bound(x)
+        assert np.all(np.abs(got - ref) <= bound), (op, exposure, got, ref)
+
+
 @pytest.mark.parametrize("op,perturb", [
     ("hable", dict(white=11.2 * (1 + 1e-4))),
     ("reinhard-extended", dict(white=4.0 * (1 + 1e-4))),
@@ -282,3 +299,15 @@ def test_reference_handles_nd_input_and_zero():
     for op in OPS:
         y = tonemap.reference(x, op)
         assert y.shape == x.shape and np.all(np.isfinite(y))
+
+
+def test_bench_output_errors_table_covers_every_operator_within_its_bound():
+    """python -m clphong.bench_output --errors: every operator, both encodings, over
+    1e-4 ... 1e6 (the shoulders and far above them), none beyond its bound."""
+    from clphong.bench_output import operator_errors, operator_errors_table
+
+    rows = operator_errors(width=96, height=16, seed=1)
+    assert {(r["operator"], r["encoding"]) for r in rows} == \
+        {(op, enc) for op in OPS for enc in ("linear", "srgb")}
+    assert all(r["beyond_bound"] == 0 and r["max_err_over_bound"] <= 1.0 for r in rows), rows
+    assert len(operator_errors_table(rows).splitlines()) == 2 + len(rows)
