@@ -453,7 +453,8 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     k = np.broadcast_to(px.k, (len(px.p),))
     total = np.abs(C * ambient_radiance(scene))    # Σ|c_i|, for the summation error
     # ambient: two roundings; k_a·A rounded to float and C·(k_a·A) flush below FLT_MIN
-    B = 2.0 * U * total + FLT_MIN * (1.0 + np.abs(C))
+    # (WEIGHTS_FP64: k_a·A as hi + lo and the product in double, 2u_d, no flush)
+    B = 2.0 * ud * total if w64 else 2.0 * U * total + FLT_MIN * (1.0 + np.abs(C))
     n_direct = 0
     unbounded = np.zeros(len(px.p), bool)
     for kind, L, params, diffuse, specular in _light_terms(scene, px):
@@ -501,9 +502,9 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
             with np.errstate(divide="ignore"):
                 att = np.where(d > 0, attenuation(c0, c1, c2, d), 0.0)
         # The product L·(D·w_d + S·w_s): five roundings, in float or (WEIGHTS_FP64)
-        # in double; D = C·k_d and S = k_s·C_s are formed in float either way
-        # (k_d, k_s rounded to float, up to two products: 3u).
-        e_prod = 5.0 * U if not w64 else 3.0 * U + 5.0 * uw
+        # in double; D = C·k_d and S = k_s·C_s: k_d, k_s rounded to float and up to
+        # two products (3u), or (WEIGHTS_FP64) in double from hi + lo (3u_d).
+        e_prod = 5.0 * U if not w64 else 3.0 * ud + 5.0 * uw
         e_diff = diffuse * e_att + att * diff_abs + diffuse * e_prod
         # Specular: the error of δ (or of r·v for the naive form) through the power.
         if px.specular:

@@ -293,17 +293,20 @@ typedef floatL sumL;
 
 /* wL: the type of the weights, the falloff and each light's product
  * L·att·(D·w_d + S·w_s) (wS its scalar): double with WEIGHTS_FP64, else float.
- * DIR_TO_W, FLOAT_TO_W: from dirL and from floatL. */
+ * DIR_TO_W, FLOAT_TO_W: from dirL and from floatL. W_HI_LO(hi, lo): a host
+ * float64 value sent as float hi + lo, in wS (hi alone in float). */
 #if WEIGHTS_FP64
 typedef doubleL wL;
 typedef double wS;
 #define DIR_TO_W(x) (x)
 #define FLOAT_TO_W(x) TO_DOUBLE(x)
+#define W_HI_LO(hi, lo) ((double)(hi) + (double)(lo))
 #else
 typedef floatL wL;
 typedef float wS;
 #define DIR_TO_W(x) TO_FLOAT(x)
 #define FLOAT_TO_W(x) (x)
+#define W_HI_LO(hi, lo) (hi)
 #endif
 
 /* powL: the type of the power's base (1 − δ, or the cosine with SPEC_COS) and of

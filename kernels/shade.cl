@@ -81,6 +81,8 @@ __kernel void shade(__global const float *restrict gbuf,
                     const float k_uniform,   /* exponent h or 4h, used without MAP_H */
                     const float4 background,
                     const float4 eye_lo,     /* eye − float(eye), used with DIRECTIONS_FP64 */
+                    const float4 material_lo,  /* ambient − float(ambient) (xyz), k_d − float(k_d) (w) */
+                    const float4 S_lo,         /* S_uniform − float(S_uniform); both with WEIGHTS_FP64 */
                     __global float *restrict display,  /* display R G B, with DISPLAY_OUT (tonemap.cl) */
                     const float exposure,              /* 2^EV, with DISPLAY_OUT */
                     const float4 tonemap_params,       /* operator parameters, with DISPLAY_OUT */
@@ -117,28 +119,33 @@ __kernel void shade(__global const float *restrict gbuf,
     const floatL Cg = vloadL(i, gbuf + 7 * stride);
     const floatL Cb = vloadL(i, gbuf + 8 * stride);
 
-    /* Per-pixel material: D = C_d·k_d, S = C_s·k_s, exponent k. */
+    /* Per-pixel material in the weights' type: D = C_d·k_d, S = C_s·k_s, exponent k.
+       With WEIGHTS_FP64 they are formed in double from the float32 inputs and the
+       host's float64 k_d and k_s·C_s (hi + lo), as the ambient term below: nothing
+       is rounded before the sum, so lights that cancel lose no digits to them. */
     uint plane = 0;
 #if MAP_KD
-    const floatL kd = vloadL(i, maps + (plane++) * stride);
+    const wL kd_w = FLOAT_TO_W(vloadL(i, maps + (plane++) * stride));
 #else
-    const floatL kd = (floatL)(k_d);
+    const wL kd_w = (wL)(W_HI_LO(k_d, material_lo.w));
 #endif
-    const floatL Dr = Cr * kd, Dg = Cg * kd, Db = Cb * kd;
+    const wL Dr_w = FLOAT_TO_W(Cr) * kd_w, Dg_w = FLOAT_TO_W(Cg) * kd_w, Db_w = FLOAT_TO_W(Cb) * kd_w;
 #if MAP_KS
-    const floatL ks = vloadL(i, maps + (plane++) * stride);
+    const wL ks_w = FLOAT_TO_W(vloadL(i, maps + (plane++) * stride));
 #else
-    const floatL ks = (floatL)(1.0f);   /* k_s is folded into S_uniform */
+    const wL ks_w = (wL)(1.0f);   /* k_s is folded into S_uniform */
 #endif
 #if MAP_H
     const floatL k_map = vloadL(i, maps + (plane++) * stride);
 #endif
 #if MAP_CS
-    const floatL Sr = ks * vloadL(i, maps + (plane + 0) * stride) * S_uniform.x;
-    const floatL Sg = ks * vloadL(i, maps + (plane + 1) * stride) * S_uniform.y;
-    const floatL Sb = ks * vloadL(i, maps + (plane + 2) * stride) * S_uniform.z;
+    const wL Sr_w = ks_w * FLOAT_TO_W(vloadL(i, maps + (plane + 0) * stride)) * W_HI_LO(S_uniform.x, S_lo.x);
+    const wL Sg_w = ks_w * FLOAT_TO_W(vloadL(i, maps + (plane + 1) * stride)) * W_HI_LO(S_uniform.y, S_lo.y);
+    const wL Sb_w = ks_w * FLOAT_TO_W(vloadL(i, maps + (plane + 2) * stride)) * W_HI_LO(S_uniform.z, S_lo.z);
 #else
-    const floatL Sr = ks * S_uniform.x, Sg = ks * S_uniform.y, Sb = ks * S_uniform.z;
+    const wL Sr_w = ks_w * W_HI_LO(S_uniform.x, S_lo.x);
+    const wL Sg_w = ks_w * W_HI_LO(S_uniform.y, S_lo.y);
+    const wL Sb_w = ks_w * W_HI_LO(S_uniform.z, S_lo.z);
 #endif
 #if HAS_SPECULAR
 #if SPEC_INT_POW
@@ -173,12 +180,10 @@ __kernel void shade(__global const float *restrict gbuf,
 #if SPEC_COS
     p.NoV = MUL_ADD(p.nx, p.vx, MUL_ADD(p.ny, p.vy, p.nz * p.vz));
 #endif
-    /* The material factors in the weights' type (double with WEIGHTS_FP64). */
-    const wL Dr_w = FLOAT_TO_W(Dr), Dg_w = FLOAT_TO_W(Dg), Db_w = FLOAT_TO_W(Db);
-    const wL Sr_w = FLOAT_TO_W(Sr), Sg_w = FLOAT_TO_W(Sg), Sb_w = FLOAT_TO_W(Sb);
-
     /* Ambient: E_A = C_d·k_a·Σ ambient radiance. */
-    sumL sr = TO_SUM(Cr * ambient.x), sg = TO_SUM(Cg * ambient.y), sb = TO_SUM(Cb * ambient.z);
+    sumL sr = TO_SUM(FLOAT_TO_W(Cr) * W_HI_LO(ambient.x, material_lo.x));
+    sumL sg = TO_SUM(FLOAT_TO_W(Cg) * W_HI_LO(ambient.y, material_lo.y));
+    sumL sb = TO_SUM(FLOAT_TO_W(Cb) * W_HI_LO(ambient.z, material_lo.z));
     floatL cr = (floatL)(0.0f), cg = (floatL)(0.0f), cb = (floatL)(0.0f);
 
     /* Background pixels (zero normal, set by the host) take the background value

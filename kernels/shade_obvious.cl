@@ -20,6 +20,7 @@ __kernel void shade(__global const float *restrict gbuf,
                     const float k_d, const float4 S_uniform, const float k_uniform,
                     const float4 background,
                     const float4 eye_lo,     /* unused: this kernel is all float */
+                    const float4 material_lo, const float4 S_lo,           /* unused too */
                     __global float *restrict display, const float exposure,
                     const float4 tonemap_params, const float4 display_m0,
                     const float4 display_m1, const float4 display_m2)   /* as shade.cl */
