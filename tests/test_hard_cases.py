@@ -39,6 +39,24 @@ def test_hard_case(hc):
         assert r.nonfinite_in, "the case should hold non-finite inputs"
 
 
+#: Float weights form D = C·k_d and S = k_s·C_s in float; where lights cancel, that
+#: rounding is amplified by the cancellation (5e-5 relative measured), so this case
+#: is held to the bound only there (docs/error-model.md, "The hard-case suite").
+FLOAT_WEIGHTS_CANCELLATION = {"negative-albedo-cancels"}
+
+
+@pytest.mark.parametrize("hc", CASES, ids=[c.name for c in CASES])
+def test_hard_case_on_devices_without_fast_double(hc):
+    """What an fp64 device without fast double (a GPU) runs: double directions, float
+    weights, a Neumaier sum and the exp/log1p power. The bound everywhere, no
+    non-finite output, and the target except where float weights meet a cancellation."""
+    r = evaluate(hc, compensated=True, int_pow=False)
+    assert r.max_err_over_bound <= 1.0, f"{hc.name}: |err|/bound = {r.max_err_over_bound:.3g}"
+    assert r.nonfinite_out == 0
+    if hc.name not in FLOAT_WEIGHTS_CANCELLATION:
+        assert r.max_rel <= TARGET_REL, f"{hc.name}: max relative error {r.max_rel:.3g}"
+
+
 # ----------------------------------------------------------- closed forms inside the cases
 
 def _by_name(name):
