@@ -14,7 +14,6 @@ it is timed with the same device code run on its own (tonemap_apply.cl).
 from __future__ import annotations
 
 import argparse
-import shutil
 import statistics
 import sys
 import tempfile
@@ -23,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ClphongError, OutputError
+from .errors import ClphongError
 
 
 def _frame(scene_path=None, gbuffer_path=None) -> np.ndarray:
@@ -79,18 +78,9 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    if args.folder is not None:
-        folder = Path(args.folder)
-        if not folder.is_dir():
-            what = "is not a folder" if folder.exists() else "does not exist; create it first"
-            raise OutputError(f"--folder {args.folder}: {what}")
-        return _time_outputs(args, folder)
-    folder = Path(tempfile.mkdtemp(prefix="clphong-bench-"))
-    try:
-        return _time_outputs(args, folder)
-    finally:
-        if not args.keep:
-            shutil.rmtree(folder, ignore_errors=True)
+    from .bench_cli import in_folder
+
+    return in_folder(args.folder, args.keep, lambda folder: _time_outputs(args, folder))
 
 
 def _time_outputs(args, folder: Path) -> int:

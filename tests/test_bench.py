@@ -179,3 +179,48 @@ def test_runs_of_a_case_take_turns(monkeypatch):
     assert slots == 3 and len(calls) == 3 * (1 + 3)
     rounds = [calls[i:i + slots] for i in range(0, len(calls), slots)]
     assert all(sorted(r) == sorted(rounds[0]) for r in rounds)
+
+
+# ------------------------------------------------------------------ python -m clphong.bench_cli
+
+def test_bench_cli_scene_toml_reads_back_as_the_bench_scene(tmp_path):
+    from clphong.bench_cli import scene_toml
+    from clphong.scene import load_scene
+
+    scene = bench.bench_scene("wide", 5)
+    path = tmp_path / "s.toml"
+    path.write_text(scene_toml(scene))
+    back = load_scene(path)
+    assert back.camera == scene.camera and back.material == scene.material
+    for a, b in zip(back.lights, scene.lights, strict=True):
+        assert (a.type, a.color, a.intensity) == (b.type, b.color, b.intensity)
+        if a.type == "point":
+            assert (a.position, a.attenuation) == (b.position, b.attenuation)
+
+
+def test_bench_cli_render_and_batch_run_the_commands(tmp_path, capsys):
+    """Tiny frames: every case runs as a subprocess and its figures are read back;
+    the batch writes every frame (it fails otherwise); the folder is kept."""
+    from clphong import bench_cli
+
+    assert bench_cli.main(["render", "--size", "64x32", "--lights", "1,2", "--runs", "1",
+                           "--folder", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("| ") and "ms" not in line]
+    assert len(rows) == 4 and all(r.count("|") == 9 for r in rows), out
+    assert (tmp_path / "g.0001.exr").exists() and (tmp_path / "wide2.toml").exists()
+    assert bench_cli.main(["batch", "--size", "32x16", "--frames", "3", "--lights", "2",
+                           "--jobs", "1", "--dask", "0", "--folder", str(tmp_path)]) == 0
+    assert "| --jobs 1 | 3 | 2 |" in capsys.readouterr().out
+    assert len(list((tmp_path / "out0").glob("*.exr"))) == 3
+
+
+def test_bench_cli_errors_are_one_line(tmp_path, capsys):
+    from clphong import bench_cli
+
+    assert bench_cli.main(["render", "--folder", str(tmp_path / "none")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--folder" in err[0] and "does not exist" in err[0]
+    with pytest.raises(SystemExit) as info:
+        bench_cli.main(["render", "--lights", "0"])
+    assert info.value.code == 2
