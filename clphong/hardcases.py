@@ -8,7 +8,8 @@ reference (:mod:`clphong.reference`) on the same float32 inputs:
 * no NaN or Inf comes out of finite inputs (after the input policy,
   :mod:`clphong.inputs`);
 * the accuracy target of issue 5: relative error ≤ :data:`TARGET_REL` on every
-  pixel whose value is at least 10⁻⁶ of the image maximum, outside the
+  pixel whose value is at least 10⁻⁶ of the image maximum (and a normal
+  float32, ≥ FLT_MIN), outside the
   terminator band (whose pixels are counted and reported, not hidden). This
   includes a cancellation (``negative-albedo-cancels``): the default path forms
   every product in double, so it loses no digits the reference keeps.
@@ -33,6 +34,17 @@ import numpy as np
 TARGET_REL = 5e-6
 #: Pixels below this fraction of the image maximum are not held to TARGET_REL.
 SIGNIFICANT = 1e-6
+#: Nor are values below float32's normal range: a subnormal (flushed to 0 by the
+#: kernels' -cl-denorms-are-zero) carries no relative precision.
+FLT_MIN = 2.0 ** -126
+
+
+def significant(ref, foreground, band):
+    """Where the target applies: (H, W, 3) mask of non-zero values of ``ref`` at
+    least SIGNIFICANT of the image maximum and FLT_MIN, outside the band."""
+    peak = float(np.max(np.abs(ref[foreground]), initial=0.0))
+    floor = max(SIGNIFICANT * peak, FLT_MIN)
+    return (foreground & ~band)[..., None] & (np.abs(ref) >= floor) & (ref != 0.0)
 
 
 # ------------------------------------------------------------------ building blocks
@@ -519,8 +531,7 @@ def evaluate(hc: HardCase, **renderer_kwargs) -> CaseResult:
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.where(err == 0.0, 0.0, err / bound)
     fg = ~gb.background_mask()
-    peak = float(np.max(np.abs(ref[fg]), initial=0.0))
-    sig = fg[..., None] & ~band[..., None] & (np.abs(ref) >= SIGNIFICANT * peak) & (ref != 0.0)
+    sig = significant(ref, fg, band)
     with np.errstate(invalid="ignore", divide="ignore"):
         rel = err[sig] / np.abs(ref[sig])
     return CaseResult(

@@ -452,9 +452,10 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     eta_n = np.full(len(px.p), ud)                  # unit normal rounded (or as hi+lo)
     k = np.broadcast_to(px.k, (len(px.p),))
     total = np.abs(C * ambient_radiance(scene))    # Σ|c_i|, for the summation error
-    # ambient: two roundings; k_a·A rounded to float and C·(k_a·A) flush below FLT_MIN
-    # (WEIGHTS_FP64: k_a·A as hi + lo and the product in double, 2u_d, no flush)
-    B = 2.0 * ud * total if w64 else 2.0 * U * total + FLT_MIN * (1.0 + np.abs(C))
+    # ambient: two roundings, k_a·A rounded to float and C·(k_a·A) (WEIGHTS_FP64:
+    # k_a·A as hi + lo, the product in double: 2u_d); a flush below FLT_MIN (in
+    # float, or the result's final rounding)
+    B = (2.0 * ud if w64 else 2.0 * U) * total + FLT_MIN * (1.0 + np.abs(C))
     n_direct = 0
     unbounded = np.zeros(len(px.p), bool)
     for kind, L, params, diffuse, specular in _light_terms(scene, px):
