@@ -13,7 +13,8 @@ exact (up to the float32 rounding of the stored file):
 
 Regenerate with ``python -m clphong.samples gbuffers/``. The scene TOMLs are
 written by hand; their cameras must equal :data:`SPHERES_CAMERA` and
-:data:`ORTHO_CAMERA` (a test checks it).
+:data:`ORTHO_CAMERA` (tests/test_gbuffer.py checks both, and that each shipped
+EXR holds exactly this module's output).
 """
 
 from __future__ import annotations

@@ -10,6 +10,7 @@ from clphong.errors import GBufferError
 from clphong.gbuffer import (CHANNEL_KEYS, GBuffer, parse_channel_mapping, read_gbuffer,
                              write_gbuffer)
 from clphong.output import write_exr
+from conftest import GBUFFERS
 
 H, W = 5, 7
 
@@ -547,3 +548,46 @@ def test_write_gbuffer_bad_arguments(tmp_path):
     with pytest.raises(GBufferError, match="pixel type"):
         write_gbuffer(tmp_path / "x.exr", P, N, A, pixel_type="double")
     assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------- the shipped samples in gbuffers/
+
+@pytest.mark.parametrize("name", ["spheres", "ortho"])
+def test_shipped_samples_are_the_generator_output(name):
+    """gbuffers/NAME.exr holds exactly what clphong.samples.NAME() computes, rounded to
+    the file's storage type, and the [camera] of gbuffers/NAME.toml is the generator's
+    camera constant (clphong.samples' docstring)."""
+    import tomllib
+
+    from clphong import samples
+
+    path = GBUFFERS / f"{name}.exr"
+    made = getattr(samples, name)()
+    P, N, A, cov = made[:4]
+    maps = made[4] if len(made) > 4 else {}
+    inp = oiio.ImageInput.open(str(path))
+    stored = {str(t) for t in inp.spec().channelformats} or {str(inp.spec().format)}
+    inp.close()
+    assert stored <= {"float", "half"}, stored
+    storage = np.float16 if stored == {"half"} else np.float32
+
+    def conv(x):
+        return np.asarray(x).astype(storage).astype(np.float32)
+
+    gb = read_gbuffer(path)
+    for channel, got, want in (("position", gb.position, P), ("normal", gb.normal, N),
+                               ("albedo", gb.albedo, A), ("coverage", gb.coverage, cov)):
+        assert got.shape == want.shape and np.array_equal(got, conv(want)), channel
+    assert sorted(gb.maps) == sorted(maps)
+    for key, want in maps.items():
+        assert np.array_equal(gb.maps[key], conv(want)), key
+
+    constant = getattr(samples, f"{name.upper()}_CAMERA")
+    with open(GBUFFERS / f"{name}.toml", "rb") as f:
+        camera = tomllib.load(f)["camera"]
+    # the keys that shading uses: the eye of a perspective camera, the view direction
+    # of an orthographic one
+    assert {"type", "position" if constant["type"] == "perspective" else "direction"} <= set(camera)
+    for key, value in camera.items():
+        want = constant[key]
+        assert (tuple(value) if isinstance(value, list) else value) == want, key

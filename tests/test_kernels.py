@@ -423,6 +423,39 @@ def test_blinn_half_vector():
         assert abs(rgb[0] - I) <= 8 * U * I
 
 
+@pytest.mark.parametrize("options", [{}, {"fp64_directions": False}, {"path": "fast"}],
+                         ids=["default", "fp32-directions", "fast"])
+def test_blinn_half_vector_perspective(options):
+    """A perspective eye E = (−a, 0, c) and a point light L = (a, 0, c), mirror images
+    in the plane x = 0: at P = (0, y, 0) |L − P| = |E − P|, so the per-pixel half
+    vector is h = (0, −y, c)/r, r² = y² + c². A stored normal (s, −y, c) has
+    n·h = r/√(s² + r²): the term is I·(r²/(s² + r²))^(2·shin) (n = h at s = 0).
+    Every input is exact in float32 (the host normalises the normals), so the closed
+    form, in float64, is the exact value, within the error model's bound of the kernel."""
+    a, c, I, shin = 3.0, 4.0, 2.0, 10.0
+    ys, ss = np.meshgrid([-2.0, -1.0, 0.0, 0.5, 1.0, 3.0], [0.0, 0.25, 0.5, 1.0, -1.0])
+    P = np.stack([np.zeros_like(ys), ys, np.zeros_like(ys)], axis=-1)
+    N = np.stack([ss, -ys, np.full_like(ys, c)], axis=-1)
+    gb = make_gbuffer(P, N, np.ones_like(P))
+    scene = make_scene([dict(type="point", position=(a, 0.0, c), intensity=I,
+                             attenuation=(1.0, 0.0, 0.0))],
+                       model="blinn-phong", k_a=0.0, k_d=0.0, k_s=1.0, h=shin,
+                       camera=dict(type="perspective", position=(-a, 0.0, c)))
+    assert np.all(ss * a + ys * ys + c * c > 0)          # every pixel faces the light
+    r2 = ys * ys + c * c
+    exact = (I * (r2 / (ss * ss + r2)) ** (2 * shin))[..., None] * np.ones(3)
+
+    from clphong.render import prepare_frame
+
+    r = Renderer(scene, **options)
+    frame = prepare_frame(gb, lanes=r.lanes)
+    rgb = r.render(gb, frame=frame)
+    assert r.last_plan.defines["BLINN_CONST_H"] == 0      # the per-pixel half vector
+    bound, _ = reference.error_bound(scene, gb, origin=frame.origin, plan=r.last_plan)
+    err = np.abs(rgb.astype(np.float64) - exact)
+    assert np.all(err <= bound), np.max(err / bound)
+
+
 def test_blinn_const_h_equals_per_pixel_half_vector():
     """Blinn's orthographic shortcut (host half vector) agrees with the per-pixel form."""
     rng = np.random.default_rng(2)
@@ -494,6 +527,84 @@ def test_programs_are_built_once_per_variant(monkeypatch):
     assert rt.builds == before        # same variant: no rebuild, whatever the light values
     Renderer(make_scene(random_lights(rng, 2, 0), k_s=0.0))
     assert rt.builds == before + 1    # a new variant builds once
+
+
+# ---------------------------------------------------------------------------- device choice
+
+class _FakePlatform:
+    def __init__(self, name, devices):
+        self.name = name
+        self._devices = [_FakeDevice(dname, dtype, self) for dname, dtype in devices]
+
+    def get_devices(self):
+        return self._devices
+
+
+class _FakeDevice:
+    def __init__(self, name, dtype, platform):
+        self.name, self.type, self.platform = name, dtype, platform
+
+
+class _FakeContext:
+    def __init__(self, devices):
+        self.devices = list(devices)
+
+
+@pytest.fixture
+def fake_platforms(monkeypatch):
+    """Two OpenCL platforms, PoCL second with its CPU device second, as pyopencl lists
+    them (get_platforms, also what pyopencl's PYOPENCL_CTX parsing reads); contexts and
+    queues are stand-ins, and no runtime is cached."""
+    import pyopencl as cl
+
+    from clphong import runtime
+
+    cpu, gpu = cl.device_type.CPU, cl.device_type.GPU
+    platforms = [_FakePlatform("NVIDIA CUDA", [("NVIDIA H100 80GB HBM3", gpu)]),
+                 _FakePlatform("Portable Computing Language",
+                               [("cuda-NVIDIA H100 80GB HBM3", gpu), ("pthread-AMD EPYC 9654", cpu)])]
+    monkeypatch.setattr(cl, "get_platforms", lambda: platforms)
+    monkeypatch.setattr(cl, "Context", _FakeContext)
+    monkeypatch.setattr(cl, "CommandQueue", lambda ctx, properties=None: ("queue", ctx))
+    monkeypatch.setattr(runtime, "_RUNTIMES", {})
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    monkeypatch.delenv("PYOPENCL_TEST", raising=False)
+    return platforms
+
+
+def test_default_device_is_pocl_cpu_even_when_listed_last(fake_platforms, monkeypatch):
+    """The module docstring's order: --device, then PYOPENCL_CTX, then PoCL's CPU device
+    (not the first platform's first device, nor PoCL's first device)."""
+    from clphong import runtime
+
+    nvidia, = fake_platforms[0].get_devices()
+    pocl_gpu, pocl_cpu = fake_platforms[1].get_devices()
+
+    def chosen(device=None):
+        rt = runtime.get_runtime(device)
+        assert rt.context.devices == [rt.device]
+        return rt.device
+
+    assert chosen() is pocl_cpu
+    assert runtime.get_runtime().name == "Portable Computing Language / pthread-AMD EPYC 9654"
+    assert chosen("0:0") is nvidia and chosen("1") is pocl_gpu and chosen("1:1") is pocl_cpu
+    assert chosen("nvidia") is nvidia and chosen("pthread") is pocl_cpu
+    monkeypatch.setenv("PYOPENCL_CTX", "0")
+    assert chosen() is nvidia
+    monkeypatch.setenv("PYOPENCL_CTX", "1:0")
+    assert chosen() is pocl_gpu
+    assert chosen("1:1") is pocl_cpu                      # --device overrides PYOPENCL_CTX
+    monkeypatch.delenv("PYOPENCL_CTX")
+    assert chosen() is pocl_cpu                           # cached, still the default
+
+
+def test_default_device_without_pocl_is_the_first(fake_platforms, monkeypatch):
+    import pyopencl as cl
+
+    from clphong import runtime
+
+    monkeypatch.setattr(cl, "get_platforms", lambda: fake_platforms[:1])
+    assert runtime.get_runtime().device is fake_platforms[0].get_devices()[0]
 
 
 # ------------------------------------------------------------------------ device helpers
