@@ -26,6 +26,7 @@ and TOML into a temporary folder that is removed at the end unless ``--keep``
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import re
 import shutil
@@ -120,7 +121,8 @@ def bench_render(folder: Path, lights, kernels, runs: int, size=SIZE) -> list[di
         med = {key: statistics.median(v) for key, v in times[(n, k)].items()}
         first = {key: statistics.median(v) for key, v in times[(n, kernels[0])].items()}
         rows.append(dict(lights=n, kernel=k, **{f"{key}_s": v for key, v in med.items()},
-                         **{f"{key}_ratio": med[key] / first[key] for key in med}))
+                         **{f"{key}_ratio": med[key] / first[key] if first[key] > 0 else math.nan
+                            for key in med}))
     return rows
 
 

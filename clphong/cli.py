@@ -1,8 +1,9 @@
 """The ``clphong`` command: a thin layer over the library functions.
 
-Usage errors exit 2 (argparse). Processing errors print one line,
-``clphong: error: …``, on stderr and exit 1; nothing is left behind, because
-every output is written to a temporary name and renamed into place.
+Usage errors print one line, ``clphong COMMAND: error: … (see clphong COMMAND
+--help)``, and exit 2. Processing errors print one line, ``clphong: error: …``,
+on stderr and exit 1; nothing is left behind, because every output is written
+to a temporary name and renamed into place.
 """
 
 from __future__ import annotations
@@ -28,8 +29,17 @@ examples:
   clphong render scene.toml frame.exr --channels position=Pworld --channels normal=Nw.X,Nw.Y,Nw.Z -o out.exr
 """
 
+class _Parser(argparse.ArgumentParser):
+    """An argparse parser whose usage errors are one line on stderr (exit 2), not the
+    whole usage block; its subparsers are of this class too."""
+
+    def error(self, message):
+        message = " ".join(str(message).split())
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="clphong",
         description="OpenCL image-space Phong relighting of EXR G-buffers.",
     )

@@ -251,8 +251,11 @@ class ColorConfig:
         numpy.ndarray
             (H, W, 3) float32 display-encoded values (not clipped).
         """
+        from .display import check_exposure
+
         oiio = _oiio()
         display, view, looks = self.check_display_view(display, view, looks)
+        exposure = check_exposure(exposure)      # the one rule of every display output
         rgb = np.asarray(rgb, np.float32)
         if exposure:
             rgb = rgb * np.float32(2.0 ** exposure)

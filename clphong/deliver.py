@@ -26,29 +26,33 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import os
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import color, tonemap
-from .display import DisplayTransform, render_display
+from .display import DisplayTransform, check_exposure, render_display
 from .errors import OutputError
-from .output import PIXEL_TYPES
+from .output import PIXEL_TYPES, same_file
 from .writers import (EXR_COMPRESSIONS, HDR_EXTENSIONS, SDR_EXTENSIONS, jpegxl_available,
                       write_hdr, write_scene_linear, write_sdr)
 
 __all__ = ["OutputOptions", "OutputPaths", "render_outputs", "write_output", "exr_attributes",
-           "check_outputs", "OUTPUT_KINDS"]
+           "check_outputs", "check_distinct", "OUTPUT_KINDS"]
 
 #: The kinds of file one frame can be delivered as (fields of :class:`OutputPaths`).
 OUTPUT_KINDS = ("exr", "sdr", "hdr", "contact_sheet")
 #: The extensions each kind accepts.
 EXTENSIONS = {"exr": (".exr",), "sdr": SDR_EXTENSIONS, "hdr": HDR_EXTENSIONS,
               "contact_sheet": SDR_EXTENSIONS}
+#: Each kind in messages.
+_WHAT = {"exr": "scene-linear", "sdr": "SDR", "hdr": "HDR", "contact_sheet": "contact-sheet"}
+#: The display colour space (interop ID) a TIFF can be tagged with: OpenImageIO's TIFF
+#: writer records only sRGB (EXIF ColorSpace = 1); TIFF has no cICP.
+TIFF_COLORSPACE = "srgb_rec709_display"
 
 #: OutputOptions fields taken from the scene's [render] table when None (field -> ColorSettings key).
 _FROM_SCENE = {"working_space": "working_space", "exposure": "exposure", "tonemap": "tonemap",
@@ -85,6 +89,11 @@ class OutputOptions:
         OCIO view of the HDR output (default :data:`clphong.color.HDR_VIEW`).
     ocio_config : str, optional
         OCIO config (default ``$OCIO``, else the built-in one).
+    from_scene : tuple of str
+        The colour settings :meth:`for_scene` took from the scene (for messages;
+        not compared).
+    scene_source : str, optional
+        That scene's file (for messages; not compared).
     """
 
     pixel_type: str = "float"
@@ -101,6 +110,8 @@ class OutputOptions:
     look: str | None = None
     hdr_view: str | None = None
     ocio_config: str | None = None
+    from_scene: tuple = field(default=(), compare=False, repr=False)
+    scene_source: str | None = field(default=None, compare=False, repr=False)
 
     def for_scene(self, scene) -> "OutputOptions":
         """These options with every colour setting left ``None`` taken from ``scene.color``, checked.
@@ -113,7 +124,16 @@ class OutputOptions:
         """
         c = scene.color
         fill = {k: getattr(c, key) for k, key in _FROM_SCENE.items() if getattr(self, k) is None}
+        given = tuple(k for k, v in fill.items() if v is not None)
+        if given:
+            fill.update(from_scene=self.from_scene + given, scene_source=getattr(scene, "source", None))
         return dataclasses.replace(self, **fill).checked()
+
+    def origin(self, name: str) -> str:
+        """Where colour setting ``name`` came from: ``--name`` or the scene key (for messages)."""
+        if name in self.from_scene:
+            return f"the scene key render.{_FROM_SCENE[name]} in {self.scene_source or 'the scene'}"
+        return f"--{name.replace('_', '-')}"
 
     def checked(self) -> "OutputOptions":
         """Validate names and values; normalise operator and working-space names."""
@@ -132,8 +152,8 @@ class OutputOptions:
             changes["tonemap"] = op.name
         if self.working_space is not None:
             changes["working_space"] = color.working_space(self.working_space).name
-        if self.exposure is not None and not math.isfinite(self.exposure):
-            raise tonemap.ToneMapError(f"exposure must be a finite number of stops, got {self.exposure!r}")
+        if self.exposure is not None:
+            changes["exposure"] = check_exposure(self.exposure, self.origin("exposure"))
         return dataclasses.replace(self, **changes)
 
     @property
@@ -200,11 +220,23 @@ def check_extensions(paths: OutputPaths) -> None:
     for kind, path in paths.items():
         ext = os.path.splitext(path)[1].lower()
         allowed = EXTENSIONS[kind]
-        what = {"exr": "scene-linear", "sdr": "SDR", "hdr": "HDR", "contact_sheet": "contact-sheet"}[kind]
+        what = _WHAT[kind]
         if ext not in allowed:
             raise OutputError(f"{path}: a {what} output must end in {' or '.join(allowed)}")
         if ext == ".jxl" and not jpegxl_available():
             raise OutputError(f"{path}: this OpenImageIO cannot write JPEG XL; write a .png instead")
+
+
+def check_distinct(paths: OutputPaths) -> None:
+    """No two outputs name the same file (one would silently replace the other)."""
+    items = paths.items()
+    for i, (kind, path) in enumerate(items):
+        for kind0, path0 in items[:i]:
+            if same_file(path0, path):
+                twice = (f"twice as the {_WHAT[kind]} output" if kind == kind0
+                         else f"as both the {_WHAT[kind0]} and the {_WHAT[kind]} output")
+                raise OutputError(f"{path}: given {twice}; one would replace the other, "
+                                  "give each output its own name")
 
 
 @functools.lru_cache(maxsize=16)
@@ -235,12 +267,23 @@ def _needs_config(options: OutputOptions, paths: OutputPaths, ws: color.WorkingS
                 or (paths.sdr and (options.ocio_view or ws.name != "lin_rec709")))
 
 
+def _check_tiff(cfg: color.ColorConfig, display: str, view: str, paths: OutputPaths) -> None:
+    """A TIFF SDR output must be sRGB: the only display colour space its file can name."""
+    space = cfg.interop_id(cfg.display_colorspace(display, view))
+    for path in paths.sdr:
+        if os.path.splitext(path)[1].lower() != ".png" and space != TIFF_COLORSPACE:
+            raise OutputError(f"{path}: a TIFF cannot be tagged with the colour space {space!r} of "
+                              f"display {display!r} (only sRGB); write a .png, which carries cICP")
+
+
 def check_outputs(options: OutputOptions, paths: OutputPaths) -> OutputOptions:
     """Check everything about ``paths`` that can be checked before shading; return the options.
 
-    Extensions, names and values of ``options`` (which must be resolved:
-    :meth:`OutputOptions.for_scene`), and, where an output goes through OCIO,
-    that the config loads and has the display, view and looks.
+    Extensions, that no two outputs name the same file, names and values of
+    ``options`` (which must be resolved: :meth:`OutputOptions.for_scene`), and,
+    whenever a config, display, view, look or HDR view is given or an output
+    goes through OCIO, that the config loads and has them (whether or not an
+    output uses them: a bad name is never silently ignored).
 
     Raises
     ------
@@ -252,18 +295,23 @@ def check_outputs(options: OutputOptions, paths: OutputPaths) -> OutputOptions:
                           "call OutputOptions.for_scene(scene) first")
     options = options.checked()
     check_extensions(paths)
+    check_distinct(paths)
     if options.ocio_view and options.tonemap != "none" and paths.sdr:
+        views = [options.origin(k) for k in ("display", "view", "look") if getattr(options, k)]
         raise color.ColorError(
-            f"tone-mapping operator {options.tonemap!r} and an OCIO view both tone-map; give "
-            "--tonemap without --display/--view/--look (fused in the kernel), or a view alone")
+            f"tone-mapping operator {options.tonemap!r} ({options.origin('tonemap')}) and an OCIO "
+            f"view ({', '.join(views)}) both tone-map the SDR output; drop one of them")
     if paths.sdr and not options.ocio_view:
         DisplayTransform(options.tonemap, exposure=options.exposure, white=options.white)
     ws = color.working_space(options.working_space)
-    if _needs_config(options, paths, ws):
+    if (_needs_config(options, paths, ws) or options.ocio_config is not None or options.ocio_view
+            or options.hdr_view):
         cfg = _load_config(options.ocio_config)
-        if paths.sdr and options.ocio_view:
-            cfg.check_display_view(options.display, options.view, options.look)
-        if paths.hdr:
+        if options.ocio_view:
+            display, view, _ = cfg.check_display_view(options.display, options.view, options.look)
+            if paths.sdr:
+                _check_tiff(cfg, display, view, paths)
+        if paths.hdr or options.hdr_view:
             cfg.check_display_view(color.HDR_DISPLAY, options.hdr_view or color.HDR_VIEW, options.look)
         if paths.contact_sheet or (paths.sdr and not options.ocio_view):
             _to_rec709(cfg, ws.name)
@@ -366,6 +414,7 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
 
         t0 = time.perf_counter()
         for path in paths.contact_sheet:
-            write_contact_sheet(path, rgb, ws, cfg, exposure=options.exposure, white=options.white)
+            write_contact_sheet(path, rgb, ws, cfg, exposure=options.exposure, white=options.white,
+                                display=options.display)
         times["contact_sheet"] = time.perf_counter() - t0
     return rgb, times

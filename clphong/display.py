@@ -22,10 +22,32 @@ import numpy as np
 from . import tonemap
 
 __all__ = ["DisplayTransform", "apply_display_transform", "render_display",
-           "display_kernel_args", "ENCODINGS"]
+           "display_kernel_args", "check_exposure", "ENCODINGS", "MAX_EXPOSURE"]
 
 #: DISPLAY_ENCODING values: display-linear Rec.709, or sRGB (IEC 61966-2-1) encoded.
 ENCODINGS = {"linear": 0, "srgb": 1}
+
+#: Largest |exposure| in stops, for every display output and the scene key
+#: ``render.exposure`` alike: 2^±100 (1.3e30, 7.9e-31) and a pixel times it stay
+#: normal float32 numbers.
+MAX_EXPOSURE = 100.0
+
+
+def check_exposure(ev, what: str = "exposure") -> float:
+    """``ev`` as a float if it is a finite number of stops within ±:data:`MAX_EXPOSURE`.
+
+    Raises
+    ------
+    ToneMapError
+        One line naming ``what`` (e.g. ``--exposure``).
+    """
+    ev = float(ev)
+    if not math.isfinite(ev):
+        raise tonemap.ToneMapError(f"{what} must be a finite number of stops, got {ev!r}")
+    if abs(ev) > MAX_EXPOSURE:
+        raise tonemap.ToneMapError(f"{what} {ev:g} stops is out of range (2^EV must stay a "
+                                   f"float32); use -{MAX_EXPOSURE:g}..{MAX_EXPOSURE:g}")
+    return ev
 
 
 @dataclass(frozen=True)
@@ -54,10 +76,7 @@ class DisplayTransform:
     def __post_init__(self):
         op = tonemap.operator(self.operator)          # raises on a bad name
         object.__setattr__(self, "operator", op.name)
-        if not math.isfinite(self.exposure):
-            raise tonemap.ToneMapError(f"exposure must be a finite number of stops, got {self.exposure!r}")
-        if 2.0 ** self.exposure > float(np.finfo(np.float32).max) or 2.0 ** self.exposure == 0:
-            raise tonemap.ToneMapError(f"exposure {self.exposure:g} stops is out of float32 range")
+        check_exposure(self.exposure)
         tonemap.operator_params(op.name, self.white)  # validates the white point
         if self.encoding not in ENCODINGS:
             raise tonemap.ToneMapError(f"display encoding must be one of {', '.join(ENCODINGS)}, "

@@ -44,8 +44,8 @@ import numpy as np
 import OpenImageIO as oiio
 
 from .camera_meta import WORLD_TO_CAMERA, eye_from_matrix, world_to_camera
-from .errors import ClphongError, GBufferError
-from .output import _one_line, atomic_path, write_exr
+from .errors import ClphongError, GBufferError, OutputError
+from .output import _one_line, atomic_path, same_file, write_exr
 
 __all__ = ["inspect_file", "format_report", "diff_images", "DiffResult", "DiffError", "METRICS"]
 
@@ -308,15 +308,22 @@ def diff_images(a: str | os.PathLike, b: str | os.PathLike, *, metric: str = "ma
         Channels to compare (default: all; the files must have the same
         channel names).
     heatmap : str or os.PathLike, optional
-        Also write the per-pixel error image there (atomically).
+        Also write the per-pixel error image there (atomically); never one of
+        the inputs.
     floor, peak : float, optional
         ``max-rel`` denominator floor; ``psnr`` peak.
 
     Raises
     ------
     GBufferError, OutputError, ValueError
-        Unreadable file, missing channel, bad metric, unwritable heat map.
+        Unreadable file, missing channel, bad metric, unwritable heat map or
+        one that would overwrite an input.
     """
+    if heatmap is not None:
+        for src in (a, b):
+            if same_file(src, heatmap):
+                raise OutputError(f"{os.fspath(heatmap)}: the heat map would overwrite the input "
+                                  f"{os.fspath(src)}; choose another name")
     if metric not in METRICS:
         raise ValueError(f"unknown metric {metric!r}; choose one of {', '.join(METRICS)}")
     if not math.isfinite(tol):
@@ -429,6 +436,4 @@ def _write_heatmap(path: str, heat: np.ndarray, metric: str) -> None:
     mapped = oiio.ImageBufAlgo.color_map(_buf(norm[..., None]), 0, "inferno")
     with atomic_path(path) as tmp:
         if not mapped.write(tmp):
-            from .errors import OutputError
-
             raise OutputError(f"{path}: cannot write the heat map: {_one_line(mapped.geterror())}")

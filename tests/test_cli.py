@@ -74,11 +74,35 @@ def test_help_shows_examples(capsys):
     assert "examples:" in out and "clphong render gbuffers/spheres.toml" in out
 
 
-def test_usage_error_exits_2(capsys, tmp_path):
+@pytest.mark.parametrize("argv, words", [
+    (["render", SPHERES[0], "-o", "X/x.exr"], "give a G-buffer file"),
+    (["render", *SPHERES], "give at least one output"),
+    (["render", *SPHERES, "-o", "X/x.exr", "--lanes", "3"], "argument --lanes: invalid choice: 3"),
+    (["render", *SPHERES, "-o", "X/x.exr", "--tonemapp", "agx"], "did you mean --tonemap?"),
+    (["render", *SPHERES, "-o", "X/x.exr", "--exposure", "two"], "argument --exposure: invalid float"),
+])
+def test_usage_error_exits_2_with_one_line(argv, words, capsys, tmp_path):
+    """The project rule: one line on stderr, not argparse's whole usage block."""
+    argv = [a.replace("X/", f"{tmp_path}/") for a in argv]
     with pytest.raises(SystemExit) as e:
-        main(["render", SPHERES[0], "-o", str(tmp_path / "x.exr")])
+        main(argv)
     assert e.value.code == 2
-    assert not (tmp_path / "x.exr").exists()
+    err = capsys.readouterr().err
+    assert err.startswith("clphong render: error: ") and err.count("\n") == 1, err
+    assert words in err and err.endswith(" (see clphong render --help)\n"), err
+    assert "usage:" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, prog", [([], "clphong"), (["rendr"], "clphong"),
+                                        (["diff", "a.exr"], "clphong diff")])
+def test_usage_errors_of_the_top_parser_and_other_commands_are_one_line(argv, prog, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"{prog}: error: ") and err.count("\n") == 1, err
+    assert err.endswith(f" (see {prog} --help)\n")
 
 
 @pytest.mark.parametrize("case", ["missing-gbuffer", "missing-scene", "bad-scene", "overwrite-input",
@@ -218,23 +242,23 @@ def test_relight_rig_that_is_an_image_says_so(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, usage, hint", [
-    (["render", "s.toml", "g.exr", "--tonemapp", "agx"], "usage: clphong render ",
+    (["render", "s.toml", "g.exr", "--tonemapp", "agx"], "clphong render: error: ",
      "unrecognized arguments: --tonemapp agx; did you mean --tonemap?"),
-    (["render", "s.toml", "g.exr", "--tonemapp=agx", "--sdrr", "x.png"], "usage: clphong render ",
+    (["render", "s.toml", "g.exr", "--tonemapp=agx", "--sdrr", "x.png"], "clphong render: error: ",
      "did you mean --tonemap (for --tonemapp), --sdr (for --sdrr)?"),
-    (["relight", "seq", "--rig", "k.toml", "-o", "o.exr", "--skip-exisitng"], "usage: clphong relight ",
+    (["relight", "seq", "--rig", "k.toml", "-o", "o.exr", "--skip-exisitng"], "clphong relight: error: ",
      "did you mean --skip-existing?"),
-    (["inspect", "f.exr", "--jsno"], "usage: clphong inspect ", "did you mean --json?"),
-    (["render", "s.toml", "g.exr", "--frobnicate"], "usage: clphong render ",
-     "unrecognized arguments: --frobnicate\n"),
+    (["inspect", "f.exr", "--jsno"], "clphong inspect: error: ", "did you mean --json?"),
+    (["render", "s.toml", "g.exr", "--frobnicate"], "clphong render: error: ",
+     "unrecognized arguments: --frobnicate (see"),
 ])
 def test_unknown_option_is_reported_by_the_subcommand_with_a_suggestion(argv, usage, hint, capsys):
     with pytest.raises(SystemExit) as info:
         main(argv)
     assert info.value.code == 2
     err = capsys.readouterr().err
-    assert err.startswith(usage), err
-    assert "usage: clphong [-h] COMMAND" not in err
+    assert err.startswith(usage) and err.count("\n") == 1, err
+    assert "usage:" not in err
     assert hint in err, err
 
 
@@ -312,7 +336,7 @@ def test_broken_pipe_ends_quietly_as_a_subprocess():
 def test_bench_output_runs_without_a_checkout_and_cleans_up(tmp_path, monkeypatch, capsys):
     """python -m clphong.bench_output: its frame is built from clphong.samples (no gbuffers/
     folder needed); its temporary folder is removed unless --keep; a bad --folder is one line."""
-    from clphong import bench_output
+    from clphong import bench_cli, bench_output
 
     made = []
 
@@ -325,7 +349,7 @@ def test_bench_output_runs_without_a_checkout_and_cleans_up(tmp_path, monkeypatc
         (folder / "a.exr").write_bytes(b"x")
         return 0
 
-    monkeypatch.setattr(bench_output.tempfile, "mkdtemp", mkdtemp)
+    monkeypatch.setattr(bench_cli.tempfile, "mkdtemp", mkdtemp)
     monkeypatch.setattr(bench_output, "_time_outputs", fake_time)
     assert bench_output.main([]) == 0
     assert not made[0].exists()
@@ -354,3 +378,47 @@ def test_bench_output_frame_is_the_spheres_sample_from_memory(monkeypatch):
     monkeypatch.setattr(clphong.gbuffer, "read_gbuffer", None)
     frame = bench_output._frame()
     assert frame.shape == (1080, 1920, 3) and np.isfinite(frame).all() and frame.max() > 0
+
+
+def test_render_channels_maps_channels_as_the_api_does(tmp_path):
+    """--channels (explicit mapping): the same pixels as the API reading the file with the
+    same mapping; a decoy 'P' layer that detection would take is ignored."""
+    import clphong
+    from clphong.gbuffer import parse_channel_mapping
+    from clphong.output import write_exr
+
+    gb = clphong.read_gbuffer(SPHERES[1])
+    planes = {"Pw.x": gb.position[..., 0], "Pw.y": gb.position[..., 1], "Pw.z": gb.position[..., 2],
+              "P.X": gb.normal[..., 0], "P.Y": gb.normal[..., 1], "P.Z": gb.normal[..., 2],
+              "nrm.X": gb.normal[..., 0], "nrm.Y": gb.normal[..., 1], "nrm.Z": gb.normal[..., 2],
+              "col.R": gb.albedo[..., 0], "col.G": gb.albedo[..., 1], "col.B": gb.albedo[..., 2],
+              "A": gb.coverage}
+    src = tmp_path / "renamed.exr"
+    write_exr(src, np.stack(list(planes.values()), axis=-1), channel_names=tuple(planes))
+    items = ["position=Pw.x,Pw.y,Pw.z", "normal=nrm", "albedo=col.R,col.G,col.B", "coverage=A"]
+    out = tmp_path / "out.exr"
+    argv = ["render", SPHERES[0], str(src), "-o", str(out)]
+    for item in items:
+        argv += ["--channels", item]
+    assert main(argv) == 0
+    _, px = _read(out)
+    scene = clphong.load_scene(SPHERES[0])
+    api = clphong.render(scene, clphong.read_gbuffer(str(src), channels=parse_channel_mapping(items)))
+    assert np.array_equal(px, api)
+    assert np.array_equal(px, clphong.render(scene, gb))      # the mapping took the right planes
+
+
+@pytest.mark.parametrize("outputs", [
+    ["--sdr", "o/a.png", "--hdr", "o/a.png"],
+    ["--sdr", "o/x.png", "--contact-sheet", "o/x.png"],
+    ["--sdr", "o/a.png", "--sdr", "o/./a.png"],
+    ["-o", "o/a.exr", "--sdr", "o/b.png", "--hdr", "o/../o/b.png"],
+])
+def test_two_outputs_with_one_path_are_refused_before_any_work(outputs, tmp_path, capsys):
+    (tmp_path / "o").mkdir()
+    argv = ["render", *SPHERES] + [str(tmp_path / a) if "/" in a else a for a in outputs]
+    assert main(argv) == 1
+    err = _one_error_line(capsys.readouterr().err)
+    assert "one would replace the other" in err
+    assert err.startswith(f"clphong: error: {tmp_path / 'o'}/"), err
+    assert list((tmp_path / "o").iterdir()) == []

@@ -50,6 +50,48 @@ def attrs(path):
     return d, pixels, fmt
 
 
+def png_chunks(path) -> list[str]:
+    """The chunk types of a PNG, in order (OpenImageIO reports no sRGB/gAMA flag of its own)."""
+    import struct
+
+    raw = open(path, "rb").read()
+    assert raw[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, out = 8, []
+    while pos < len(raw):
+        n, = struct.unpack(">I", raw[pos:pos + 4])
+        out.append(raw[pos + 4:pos + 8].decode("latin-1"))
+        pos += 12 + n
+    return out
+
+
+#: How OpenImageIO 3 reads back the colour space of an sRGB display-encoded file: the
+#: PNG sRGB chunk and the TIFF EXIF ColorSpace = 1 both come back as its interop ID
+#: 'srgb_rec709_scene' (sRGB-encoded Rec.709), whatever name was written.
+SRGB_READ_BACK = "srgb_rec709_scene"
+#: Chunks that would tell a PNG reader "sRGB" / "this gamma": never in a PQ or P3 file.
+SRGB_CHUNKS = {"sRGB", "gAMA", "cHRM", "iCCP"}
+
+
+def check_srgb_tags(path):
+    """An sRGB display-encoded SDR file as clphong writes it: exact tags per format."""
+    a = attrs(path)[0]
+    assert a["oiio:ColorSpace"] == SRGB_READ_BACK, a
+    if str(path).endswith(".png"):
+        assert tuple(a["CICP"]) == color.SRGB_CICP
+        chunks = png_chunks(path)
+        assert chunks.index("cICP") < chunks.index("IDAT") and "sRGB" in chunks
+    else:
+        assert "CICP" not in a and a["Exif:ColorSpace"] == 1, a
+
+
+def check_pq_tags(path):
+    a = attrs(path)[0]
+    assert a["oiio:ColorSpace"] == "pq_rec2020_display" and tuple(a["CICP"]) == color.PQ_CICP, a
+    assert "Exif:ColorSpace" not in a
+    if str(path).endswith(".png"):
+        assert not SRGB_CHUNKS & set(png_chunks(path)), png_chunks(path)
+
+
 # ------------------------------------------------------------------ configs
 
 def test_default_config_has_the_aces2_sdr_and_hdr_views(cfg):
@@ -181,9 +223,7 @@ def test_sdr_files_bit_depth_tags_and_values(tmp_path, ext, bits):
     write_sdr(p, x, bits=bits, colorspace="srgb_rec709_display", cicp=color.SRGB_CICP)
     a, px, fmt = attrs(p)
     assert fmt == ("uint8" if bits == 8 else "uint16")
-    assert "srgb" in a["oiio:ColorSpace"].lower()
-    if ext == ".png":
-        assert tuple(a["CICP"]) == color.SRGB_CICP
+    check_srgb_tags(p)
     lsb = 1 / (2 ** bits - 1)
     # 8-bit is dithered (±½ LSB noise before rounding: |err| < 1 LSB); 16-bit is rounded.
     assert np.max(np.abs(px - x)) <= (1.0 if bits == 8 else 0.5) * lsb + 1e-6
@@ -215,7 +255,7 @@ def test_hdr_files_carry_cicp_9_16_0_1(tmp_path, ext):
     write_hdr(p, x)
     a, px, fmt = attrs(p)
     assert tuple(a["CICP"]) == (9, 16, 0, 1) and fmt == "uint16"
-    assert a["oiio:ColorSpace"] == "pq_rec2020_display"
+    check_pq_tags(p)
     assert np.max(np.abs(px - x)) <= 0.5 / 65535 + 1e-6            # lossless 16-bit
     if ext == ".png":
         raw = p.read_bytes()
@@ -245,10 +285,13 @@ def test_render_every_kind_in_one_run(tmp_path):
                "--exr-compression", "piz"])
     assert rc == 0
     a = attrs(out["exr"])[0]
-    assert a["oiio:ColorSpace"] == "lin_ap1_scene" and a["compression"] == "piz"
+    assert a["oiio:ColorSpace"] == "lin_ap1_scene" and a["colorInteropID"] == "lin_ap1_scene"
+    assert a["compression"] == "piz" and "CICP" not in a
     assert np.allclose(a["chromaticities"], ACESCG.chromaticities, atol=1e-7)
-    assert attrs(out["sdr"])[2] == "uint16" and tuple(attrs(out["sdr"])[0]["CICP"]) == (1, 13, 0, 1)
-    assert tuple(attrs(out["hdr"])[0]["CICP"]) == (9, 16, 0, 1)
+    assert attrs(out["sdr"])[2] == "uint16" and attrs(out["tif"])[2] == "uint16"
+    for kind in ("sdr", "tif", "sheet"):
+        check_srgb_tags(out[kind])
+    check_pq_tags(out["hdr"])
     assert attrs(out["sheet"])[1].shape[1] > 4 * 300
 
 
@@ -266,9 +309,12 @@ def test_render_sdr_alone_matches_the_fused_reference(tmp_path):
 
 def test_render_ocio_view_and_errors(tmp_path, capsys):
     p = tmp_path / "v.png"
-    assert main(["render", *SPHERES, "--sdr", str(p), "--view", "ACES 2.0 - SDR 100 nits (Rec.709)",
+    tif = tmp_path / "v.tif"
+    assert main(["render", *SPHERES, "--sdr", str(p), "--sdr", str(tif),
+                 "--view", "ACES 2.0 - SDR 100 nits (Rec.709)",
                  "--look", "ACES 1.3 Reference Gamut Compression"]) == 0
-    assert "srgb" in attrs(p)[0]["oiio:ColorSpace"].lower()
+    check_srgb_tags(p)
+    check_srgb_tags(tif)          # the view's display is sRGB: a TIFF can say so
     bad = tmp_path / "bad.png"
     for args, words in ((["--tonemap", "filmic"], "valid: 'none'"),
                         (["--view", "Nope"], "views:"),
@@ -333,3 +379,127 @@ def test_scene_colour_key_errors_name_file_and_key(render, key, words):
         _scene(render)
     assert str(info.value).startswith(f"s.toml: {key}: ") and words in str(info.value)
     assert isinstance(info.value, ClphongError)
+
+
+# ------------------------------------------------------------------ one rule, checked up front
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.startswith("clphong: error: ") and err.count("\n") == 1, err
+    return err
+
+
+@pytest.mark.parametrize("outputs", [["--sdr", "a.png"], ["--hdr", "a.png"],
+                                     ["--sdr", "a.png", "--view", "Un-tone-mapped"],
+                                     ["--contact-sheet", "a.png"]])
+@pytest.mark.parametrize("ev", ["2000", "200", "-200", "100.5"])
+def test_exposure_has_the_scene_keys_range_on_every_output(outputs, ev, tmp_path, capsys):
+    """Every display path refuses |EV| > 100, as the scene key does: no OverflowError
+    traceback, no all-zero PQ image, no black SDR written with exit 0."""
+    outputs = [str(tmp_path / a) if a.endswith(".png") else a for a in outputs]
+    assert main(["render", *SPHERES, *outputs, "--exposure", ev]) == 1
+    err = _one_line_error(capsys)
+    assert f"--exposure {float(ev):g} stops is out of range" in err and "-100..100" in err, err
+    assert list(tmp_path.iterdir()) == []
+    from clphong.errors import SceneError
+
+    with pytest.raises(SceneError, match="out of range"):      # the same rule in the scene
+        _scene({"exposure": float(ev)})
+
+
+def test_exposure_at_the_limit_is_a_picture_on_every_output(tmp_path):
+    for ev in (100, -100):
+        _scene({"exposure": ev})                                # the scene takes it too
+        sdr, hdr = tmp_path / f"s{ev}.png", tmp_path / f"h{ev}.png"
+        assert main(["render", *SPHERES, "--sdr", str(sdr), "--hdr", str(hdr),
+                     "--exposure", str(ev)]) == 0
+        for p in (sdr, hdr):
+            px = attrs(p)[1]
+            assert np.isfinite(px).all()
+            assert (px.max() > 0.5) if ev > 0 else (px.max() == 0), (p, px.max())
+
+
+def test_exposure_out_of_range_through_the_api_is_a_tonemap_error(cfg):
+    from clphong.deliver import OutputOptions
+    from clphong.display import MAX_EXPOSURE, DisplayTransform
+    from clphong.tonemap import ToneMapError
+
+    x = np.ones((1, 1, 3), np.float32)
+    for ev in (2000.0, -200.0, float("inf")):
+        with pytest.raises(ToneMapError):
+            DisplayTransform("agx", exposure=ev)
+        with pytest.raises(ToneMapError):
+            cfg.display_view(x, REC709, color.HDR_DISPLAY, color.HDR_VIEW, exposure=ev)
+        with pytest.raises(ToneMapError, match="exposure"):
+            OutputOptions(exposure=ev).checked()
+    assert MAX_EXPOSURE == 100
+    DisplayTransform("agx", exposure=-MAX_EXPOSURE)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--sdr", "T/a.png", "--tonemap", "agx", "--ocio-config", "T/broken.ocio"], "does not load"),
+    (["--sdr", "T/a.png", "--tonemap", "agx", "--ocio-config", "T/missing.ocio"], "missing.ocio"),
+    (["-o", "T/a.exr", "--ocio-config", "T/broken.ocio"], "does not load"),
+    (["--hdr", "T/a.png", "--view", "Nope"], "views: "),
+    (["--contact-sheet", "T/a.png", "--display", "Nope"], "displays: "),
+    (["-o", "T/a.exr", "--look", "Nope"], "looks: "),
+    (["-o", "T/a.exr", "--hdr-view", "Nope"], "views: "),
+])
+def test_colour_options_are_checked_even_when_no_output_uses_them(args, words, tmp_path, capsys):
+    """A bad config, display, view or look is an error, never silently ignored."""
+    (tmp_path / "broken.ocio").write_text("ocio_profile_version: [\n")
+    args = [a.replace("T/", f"{tmp_path}/") for a in args]
+    assert main(["render", *SPHERES, *args]) == 1
+    err = _one_line_error(capsys)
+    assert words in err, err
+    assert [p.name for p in tmp_path.iterdir()] == ["broken.ocio"]
+
+
+def test_tonemap_and_view_conflict_names_the_scene_key_it_came_from(tmp_path, capsys):
+    scene = tmp_path / "agx.toml"
+    scene.write_text((GBUFFERS / "spheres.toml").read_text() + '\n[render]\ntonemap = "agx"\n')
+    out = tmp_path / "v.png"
+    assert main(["render", str(scene), SPHERES[1], "--sdr", str(out), "--view", "Un-tone-mapped"]) == 1
+    err = _one_line_error(capsys)
+    assert f"'agx' (the scene key render.tonemap in {scene})" in err and "(--view)" in err, err
+    assert "--tonemap" not in err
+    assert not out.exists()
+    # given on the command line, it is named so
+    assert main(["render", *SPHERES, "--sdr", str(out), "--tonemap", "agx", "--view",
+                 "Un-tone-mapped"]) == 1
+    assert "'agx' (--tonemap)" in _one_line_error(capsys)
+
+
+def test_contact_sheet_shows_the_views_of_the_display_given(tmp_path):
+    import clphong
+    from clphong.contact import write_contact_sheet
+    from clphong.deliver import _load_config
+
+    display = "Display P3 - Display"
+    sheet = tmp_path / "sheet.png"
+    assert main(["render", *SPHERES, "--contact-sheet", str(sheet), "--display", display]) == 0
+    rgb = clphong.render(clphong.load_scene(SPHERES[0]), clphong.read_gbuffer(SPHERES[1]))
+    cfg = _load_config(None)
+    want, default = tmp_path / "want.png", tmp_path / "default.png"
+    write_contact_sheet(want, rgb, REC709, cfg, display=display)
+    write_contact_sheet(default, rgb, REC709, cfg)
+    assert np.array_equal(attrs(sheet)[1], attrs(want)[1])
+    assert not np.array_equal(attrs(sheet)[1], attrs(default)[1])
+
+
+def test_display_p3_png_is_tagged_p3_and_a_p3_tiff_is_refused(tmp_path, capsys):
+    """TIFF has no cICP and OpenImageIO's TIFF writer records only sRGB (EXIF ColorSpace):
+    a P3 TIFF would carry no colour space at all, so it is refused up front."""
+    display = "Display P3 - Display"
+    png, tif = tmp_path / "p3.png", tmp_path / "p3.tif"
+    assert main(["render", *SPHERES, "--sdr", str(png), "--display", display]) == 0
+    a = attrs(png)[0]
+    assert a["oiio:ColorSpace"] == "srgb_p3d65_scene" and tuple(a["CICP"]) == (12, 13, 0, 1), a
+    assert not SRGB_CHUNKS & set(png_chunks(png)), png_chunks(png)
+    for sdr in ([tif], [png, tif]):
+        capsys.readouterr()
+        assert main(["render", *SPHERES, *[x for p in sdr for x in ("--sdr", str(p))],
+                     "--display", display]) == 1
+        err = _one_line_error(capsys)
+        assert f"{tif}: a TIFF cannot be tagged with the colour space 'srgb_p3d65_display'" in err, err
+    assert not tif.exists()

@@ -11,6 +11,7 @@ import pytest
 from clphong.cli import main
 from clphong.gbuffer import write_gbuffer
 from clphong.inspect import diff_images, inspect_file
+from clphong.errors import OutputError
 from clphong.output import write_exr
 
 from conftest import random_gbuffer
@@ -154,3 +155,19 @@ def test_differences_and_trouble(pair, tmp_path, capsys):
     assert diff_images(d / "nan.exr", d / "nan.exr", metric="max-rel", tol=0).match   # same NaN: equal
     assert main(["diff", str(d / "a.exr"), str(d / "nope.exr"), "--tol", "1"]) == 2
     assert "clphong: error:" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("which", ["a", "b"])
+def test_heatmap_never_overwrites_an_input(pair, capsys, which):
+    d, _, _ = pair
+    target = d / f"{which}.exr"
+    before = target.read_bytes()
+    assert main(["diff", str(d / "a.exr"), str(d / "b.exr"), "--tol", "1",
+                 "--heatmap", str(target)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("clphong: error: ") and err.count("\n") == 1, err
+    assert f"{target}: the heat map would overwrite the input {target}" in err
+    assert target.read_bytes() == before
+    with pytest.raises(OutputError, match="would overwrite the input"):
+        diff_images(d / "a.exr", d / "b.exr", tol=1, heatmap=d / "." / f"{which}.exr")
+    assert sorted(p.name for p in d.iterdir()) == ["a.exr", "b.exr"]
