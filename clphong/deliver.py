@@ -343,6 +343,20 @@ def write_output(rgb: np.ndarray, path: str | os.PathLike, options: OutputOption
                        compression=options.compression, attributes=dict(options.attributes))
 
 
+def _check_output_memory(shape, paths: OutputPaths) -> None:
+    """Refuse, before shading, a frame whose output files would not fit in memory
+    (clphong.tiling.output_bytes): one line with both figures, not the OOM killer."""
+    from .tiling import output_bytes, require_memory
+
+    kinds = [k for k in ("exr", "sdr", "contact_sheet") if getattr(paths, k)]
+    kinds += ["hdr_jxl" if str(p).lower().endswith(".jxl") else "hdr" for p in paths.hdr]
+    h, w = shape
+    names = ", ".join(sorted(set(kinds))) or "no files"
+    require_memory(output_bytes(shape, kinds), f"writing the outputs ({names}) of a {w}x{h} frame",
+                   OutputError, "write the display outputs in separate runs, crop the frame, "
+                   "or raise CLPHONG_MAX_MEMORY if more memory is free")
+
+
 def render_outputs(renderer, gbuffer, options: OutputOptions,
                    paths: OutputPaths) -> tuple[np.ndarray, dict[str, float]]:
     """Shade ``gbuffer`` once and write every file of ``paths``.
@@ -370,6 +384,7 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
     if not options.resolved:
         options = options.for_scene(renderer.scene)
     options = check_outputs(options, paths)
+    _check_output_memory(gbuffer.shape, paths)
     ws = color.working_space(options.working_space)
     cfg = _load_config(options.ocio_config) if _needs_config(options, paths, ws) else None
     times: dict[str, float] = {}

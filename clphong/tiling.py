@@ -55,7 +55,7 @@ except ImportError:  # pragma: no cover - not on Windows
     resource = None
 
 __all__ = ["memory_budget", "parse_size", "format_size", "require_memory", "MemoryBudget",
-           "render_bytes_per_pixel", "band_rows", "plan_bands", "render_frame", "HEADROOM",
+           "render_bytes_per_pixel", "output_bytes", "band_rows", "plan_bands", "render_frame", "HEADROOM",
            "ENV_VAR"]
 
 #: Environment variable capping the memory clphong plans to use.
@@ -259,7 +259,8 @@ def map_planes(gbuffer) -> int:
     return sum(3 if k == "specular_color" else 1 for k in gbuffer.maps)
 
 
-def render_bytes_per_pixel(n_map_planes: int, gbuf_planes: int | None = None) -> int:
+def render_bytes_per_pixel(n_map_planes: int, gbuf_planes: int | None = None,
+                           display: bool = False) -> int:
     """Peak host bytes per pixel of one launch (prepare_frame + Renderer.render).
 
     The model, per pixel, for ``g`` G-buffer planes and ``m`` map planes of
@@ -273,13 +274,32 @@ def render_bytes_per_pixel(n_map_planes: int, gbuf_planes: int | None = None) ->
     - the float64 temporaries of ``prepare_frame`` (normals, their lengths and
       remainders, up to 72) are freed before the device buffers exist.
 
-    That is ``8(g + m) + 37``. Measured peaks (VmHWM − VmRSS around one
+    - with ``display`` (the fused SDR output, ``Renderer.display``), its device
+      buffer, host buffer and (H, W, 3) array: another ``3 * 12``.
+
+    That is ``8(g + m) + 37`` (``+ 36``). Measured peaks (VmHWM − VmRSS around one
     ``Renderer.render`` of a 2000x2000 frame, g = 12) were 143 B/px for m = 0
     (model 133) and 189 B/px for m = 6 (model 181): up to 8 % of unmodelled
     allocations, so the model is multiplied by :data:`MODEL_MARGIN`.
     """
     g = _gbuf_planes() if gbuf_planes is None else gbuf_planes
-    return int(math.ceil(MODEL_MARGIN * (8 * (g + n_map_planes) + 37)))
+    return int(math.ceil(MODEL_MARGIN * (8 * (g + n_map_planes) + 37 + (36 if display else 0))))
+
+
+#: Peak bytes per pixel each kind of output file needs beyond the scene-linear
+#: frame while it is formed, encoded and written (VmHWM above the frame, measured
+#: at 3072² and 2048² with OpenImageIO 3.2: SDR 36–38 whether fused or through an
+#: OCIO view, PNG or TIFF, 8 or 16 bits; HDR PQ PNG 18, JPEG XL 75; the scene-linear
+#: EXR and the contact sheet, formed from a downscaled copy, ~0).
+OUTPUT_BYTES_PER_PIXEL = {"exr": 0, "sdr": 38, "hdr": 18, "hdr_jxl": 76, "contact_sheet": 0}
+
+
+def output_bytes(shape: tuple[int, int], kinds) -> int:
+    """Peak bytes of writing the outputs ``kinds`` (keys of OUTPUT_BYTES_PER_PIXEL)
+    of an (H, W) frame: the frame (12 B/px) and every kind's buffers, which may all
+    be alive at once, times MODEL_MARGIN."""
+    per_pixel = F32 * 3 + sum(OUTPUT_BYTES_PER_PIXEL[k] for k in kinds)
+    return int(math.ceil(MODEL_MARGIN * per_pixel * int(shape[0]) * int(shape[1])))
 
 
 def _light_bytes(scene) -> int:
@@ -300,7 +320,7 @@ def _device_limits(renderer) -> tuple[int | None, int | None]:
 
 def band_rows(shape: tuple[int, int], *, n_map_planes: int, lanes: int, light_bytes: int = 0,
               budget: int | None, max_alloc: int | None = None, global_mem: int | None = None,
-              local_size: int | None = None) -> int:
+              local_size: int | None = None, display: bool = False) -> int:
     """The most rows of a frame one launch may shade.
 
     Parameters
@@ -320,6 +340,8 @@ def band_rows(shape: tuple[int, int], *, n_map_planes: int, lanes: int, light_by
         (``CL_DEVICE_MAX_MEM_ALLOC_SIZE``, ``CL_DEVICE_GLOBAL_MEM_SIZE``).
     local_size : int, optional
         Work-group size (default ``render.LOCAL_SIZE``).
+    display : bool
+        Whether the launch also writes the fused SDR output.
 
     Returns
     -------
@@ -341,7 +363,7 @@ def band_rows(shape: tuple[int, int], *, n_map_planes: int, lanes: int, light_by
     block = max(int(lanes), 1) * int(local_size or LOCAL_SIZE)
     g = _gbuf_planes()
     m = int(n_map_planes)
-    bpp = render_bytes_per_pixel(m, g)
+    bpp = render_bytes_per_pixel(m, g, display)
 
     def stride_of(rows: int) -> int:
         n = rows * w
@@ -467,7 +489,8 @@ def render_frame(renderer, gbuffer, *, rows: int | None = None) -> np.ndarray:
     if rows is None:
         budget = memory_budget()
         rows = band_rows((h, w), n_map_planes=m, lanes=lanes, light_bytes=light_bytes,
-                         budget=budget.bytes, max_alloc=max_alloc, global_mem=global_mem)
+                         budget=budget.bytes, max_alloc=max_alloc, global_mem=global_mem,
+                         display=getattr(renderer, "display", None) is not None)
         if rows <= 0:
             one_row = render_bytes_per_pixel(m) * w + F32 * 3 * h * w + light_bytes
             raise GBufferError(

@@ -422,3 +422,25 @@ def test_two_outputs_with_one_path_are_refused_before_any_work(outputs, tmp_path
     assert "one would replace the other" in err
     assert err.startswith(f"clphong: error: {tmp_path / 'o'}/"), err
     assert list((tmp_path / "o").iterdir()) == []
+
+
+def test_outputs_that_would_not_fit_in_memory_are_refused_before_shading(tmp_path, capsys,
+                                                                          monkeypatch):
+    """With 7.8 MiB usable the 384x256 sample is read (7.5 MiB), shades in row bands
+    and its EXR is written; its SDR and HDR PQ files as well would need
+    1.25·(12 + 38 + 18) B/px = 7.97 MiB (clphong.tiling.output_bytes): one line with
+    both figures, exit 1, no file at all."""
+    from clphong import cli
+    from clphong.tiling import output_bytes
+
+    monkeypatch.setenv("CLPHONG_MAX_MEMORY", "7.8M")
+    assert output_bytes((256, 384), ["exr"]) < 7.8 * 2 ** 20 < output_bytes((256, 384), ["exr", "sdr", "hdr"])
+    assert cli.main(["render", *SPHERES, "-o", str(tmp_path / "a.exr")]) == 0
+    capsys.readouterr()
+    argv = ["render", *SPHERES, "-o", str(tmp_path / "b.exr"), "--sdr", str(tmp_path / "b.png"),
+            "--hdr", str(tmp_path / "c.png")]
+    assert cli.main(argv) == 1
+    err = _one_error_line(capsys.readouterr().err)
+    assert "writing the outputs (exr, hdr, sdr) of a 384x256 frame needs about" in err
+    assert "CLPHONG_MAX_MEMORY" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.exr"]
