@@ -144,7 +144,7 @@ class LightArrays:
 
     point: np.ndarray        # (n_point*3, 4) float32: the float path's (and cull.py's source)
     point64: np.ndarray      # the same records in float64, not rebased, for DIRECTIONS_FP64
-    directional: np.ndarray  # (n_dir*5, 4) float32
+    directional: np.ndarray  # (n_dir*6, 4) float32
     ambient: np.ndarray      # (3,) float64: k_a·Σ ambient radiance
     eye: np.ndarray          # (3,) float64: perspective eye − origin, or orthographic unit v
     eye64: np.ndarray        # (3,) float64: perspective eye (not rebased), or unit v
@@ -249,14 +249,15 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
     _check_reach(scene, o, rec[:n_pts, 0, :3])
     point = rec.reshape(-1, 4).astype(np.float32)
     n_dirs = len(arrays["directional_direction"])
-    directional = np.zeros((max(n_dirs, 1) * 5, 4), np.float32)
+    directional = np.zeros((max(n_dirs, 1) * 6, 4), np.float32)
     v = view_vector(scene.camera)
     if n_dirs:
-        rec = np.zeros((n_dirs, 5, 4))
+        rec = np.zeros((n_dirs, 6, 4))
         l = -arrays["directional_direction"]
         rec[:, 0, :3] = l
         rec[:, 3, :3] = split_hi_lo(l)[1]
         rec[:, 1, :3] = arrays["directional_radiance"]
+        rec[:, 5, :3] = split_hi_lo(arrays["directional_radiance"])[1]
         if v is not None:
             hv, undefined = half_vector(l, v)
             rec[:, 2, :3] = hv

@@ -195,11 +195,11 @@ __kernel void shade(__global const float *restrict gbuf,
 #if HAS_DIRECTIONAL
     for (uint j = 0; j < (lit ? n_directional : 0u); ++j) {
         __global const float4 *rec = directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * j;
-        const float4 L = rec[1];
+        const float4 L = rec[1], L_lo = rec[5];   /* radiance, as hi + lo */
         const weights_t w = shade_directional_light(&p, rec[0], rec[3], rec[2], rec[4]);
-        ACCUMULATE(sr, cr, (wS)L.x * MUL_ADD(Dr_w, w.diffuse, Sr_w * w.specular));
-        ACCUMULATE(sg, cg, (wS)L.y * MUL_ADD(Dg_w, w.diffuse, Sg_w * w.specular));
-        ACCUMULATE(sb, cb, (wS)L.z * MUL_ADD(Db_w, w.diffuse, Sb_w * w.specular));
+        ACCUMULATE(sr, cr, W_HI_LO(L.x, L_lo.x) * MUL_ADD(Dr_w, w.diffuse, Sr_w * w.specular));
+        ACCUMULATE(sg, cg, W_HI_LO(L.y, L_lo.y) * MUL_ADD(Dg_w, w.diffuse, Sg_w * w.specular));
+        ACCUMULATE(sb, cb, W_HI_LO(L.z, L_lo.z) * MUL_ADD(Db_w, w.diffuse, Sb_w * w.specular));
     }
 #endif
 #if HAS_POINT
