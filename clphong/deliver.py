@@ -276,14 +276,15 @@ def _check_tiff(cfg: color.ColorConfig, display: str, view: str, paths: OutputPa
                               f"display {display!r} (only sRGB); write a .png, which carries cICP")
 
 
-def check_outputs(options: OutputOptions, paths: OutputPaths) -> OutputOptions:
+def check_outputs(options: OutputOptions, paths: OutputPaths, *, warn: bool = True) -> OutputOptions:
     """Check everything about ``paths`` that can be checked before shading; return the options.
 
     Extensions, that no two outputs name the same file, names and values of
     ``options`` (which must be resolved: :meth:`OutputOptions.for_scene`), and,
     whenever a config, display, view, look or HDR view is given or an output
     goes through OCIO, that the config loads and has them (whether or not an
-    output uses them: a bad name is never silently ignored).
+    output uses them: a bad name is never silently ignored). With ``warn``, an
+    OutputWarning for a command-line ``--tonemap`` or ``--white`` no output uses.
 
     Raises
     ------
@@ -303,6 +304,8 @@ def check_outputs(options: OutputOptions, paths: OutputPaths) -> OutputOptions:
             f"view ({', '.join(views)}) both tone-map the SDR output; drop one of them")
     if paths.sdr and not options.ocio_view:
         DisplayTransform(options.tonemap, exposure=options.exposure, white=options.white)
+    if warn:
+        _warn_unused(options, paths)
     ws = color.working_space(options.working_space)
     if (_needs_config(options, paths, ws) or options.ocio_config is not None or options.ocio_view
             or options.hdr_view):
@@ -316,6 +319,25 @@ def check_outputs(options: OutputOptions, paths: OutputPaths) -> OutputOptions:
         if paths.contact_sheet or (paths.sdr and not options.ocio_view):
             _to_rec709(cfg, ws.name)
     return options
+
+
+def _warn_unused(options: OutputOptions, paths: OutputPaths) -> None:
+    """Warn (one line) about a command-line colour option no output will use."""
+    import warnings
+
+    from .errors import OutputWarning
+
+    fused = bool(paths.sdr) and not options.ocio_view
+    if options.tonemap != "none" and "tonemap" not in options.from_scene and not fused:
+        warnings.warn(OutputWarning(
+            f"--tonemap {options.tonemap} applies to the SDR output (--sdr) only; "
+            + ("the HDR output is tone-mapped by its OCIO view" if paths.hdr
+               else "no SDR output is written")), stacklevel=3)
+    if (options.white is not None and "white" not in options.from_scene
+            and not tonemap.operator(options.tonemap).uses_white):
+        warnings.warn(OutputWarning(
+            f"--white {options.white:g} has no effect: {options.tonemap!r} has no white point; "
+            "only 'reinhard-extended' and 'hable' use it"), stacklevel=3)
 
 
 def write_output(rgb: np.ndarray, path: str | os.PathLike, options: OutputOptions | None = None) -> None:
@@ -383,7 +405,7 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
     """
     if not options.resolved:
         options = options.for_scene(renderer.scene)
-    options = check_outputs(options, paths)
+    options = check_outputs(options, paths, warn=False)   # the caller's check warned
     _check_output_memory(gbuffer.shape, paths)
     ws = color.working_space(options.working_space)
     cfg = _load_config(options.ocio_config) if _needs_config(options, paths, ws) else None

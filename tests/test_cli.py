@@ -444,3 +444,24 @@ def test_outputs_that_would_not_fit_in_memory_are_refused_before_shading(tmp_pat
     assert "writing the outputs (exr, hdr, sdr) of a 384x256 frame needs about" in err
     assert "CLPHONG_MAX_MEMORY" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.exr"]
+
+
+@pytest.mark.parametrize("extra,warned", [
+    (["--hdr", "x.png", "--tonemap", "agx"], "--tonemap agx applies to the SDR output (--sdr) only; "
+                                             "the HDR output is tone-mapped by its OCIO view"),
+    (["--tonemap", "agx"], "--tonemap agx applies to the SDR output (--sdr) only; no SDR output"),
+    (["--sdr", "x.png", "--tonemap", "agx", "--white", "3"], "--white 3 has no effect: 'agx'"),
+    (["--sdr", "x.png", "--tonemap", "reinhard-extended", "--white", "3"], None),
+    (["--sdr", "x.png", "--tonemap", "agx"], None),
+])
+def test_colour_options_no_output_uses_are_warned_about(extra, warned, tmp_path, capsys):
+    from clphong import cli
+
+    argv = ["render", *SPHERES, "-o", str(tmp_path / "a.exr")]
+    argv += [str(tmp_path / a) if a.endswith(".png") else a for a in extra]
+    assert cli.main(argv) == 0
+    err = capsys.readouterr().err
+    if warned is None:
+        assert "warning" not in err, err
+    else:
+        assert warned in err and err.count("\n") == 1, err
