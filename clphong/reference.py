@@ -299,14 +299,16 @@ def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, u
         elif form in ("delta", "int", "int32"):
             # |Δδ| for δ = |e|²/2 when |Δe| ≤ e_vec and |e| = √(2δ); the exp form
             # rounds δ to float first (r_out), the integer power takes it as it is.
-            r_delta = r_out if form == "delta" else 0.0
+            r_delta = r_out if form == "delta" and uw >= U else 0.0
             d_delta = np.sqrt(2.0 * delta) * e_vec + 0.5 * e_vec ** 2 + (4.0 * ud + r_delta) * delta
             s = specular_power(delta, k)
             if form == "delta":
                 y = np.abs(k * np.log1p(-np.minimum(delta, 1.0 - 1e-300)))
                 # log1p 2 ulp, k·(·) 1, exp 3 ulp (relative in y), k rounded to float32;
-                # then Δδ through d/dδ of k·log1p(−δ) = −k/(1 − δ).
-                rel = 4.0 * U + 4.0 * U * y + k * d_delta / np.maximum(1.0 - delta, 1e-300)
+                # then Δδ through d/dδ of k·log1p(−δ) = −k/(1 − δ). With double
+                # weights (uw = 2⁻⁵³) all of it in double, units 2⁻⁵³.
+                pu = min(uw, U)
+                rel = 4.0 * pu + 4.0 * pu * y + k * d_delta / np.maximum(1.0 - delta, 1e-300)
             else:
                 # x = 1 − δ in double (≤ 2⁻⁵³ absolute), binary powering of a whole k
                 # (≤ 2k·2⁻⁵³ relative), one rounding to float; Δδ through k·x^(k−1).

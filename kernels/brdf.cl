@@ -68,6 +68,20 @@ inline floatL specular_power(floatL delta, floatL k)
     return SELECT(s, at_zero, delta >= 1.0f);
 }
 
+#if WEIGHTS_FP64 && !SPEC_INT_POW
+/* specular_power in double, for a non-whole exponent (or a shininess map) where
+ * the weights are double (CPU devices): δ is not rounded to float, and log1p and
+ * exp add a few 2⁻⁵³ instead of a few u, so lights that cancel each other keep
+ * their digits here too. Same guards. */
+inline wL specular_power_fp64(dirL delta, floatL k)
+{
+    const doubleL kd = TO_DOUBLE(k);
+    const doubleL s = exp(kd * log1p(-delta));
+    const doubleL at_zero = SELECT_DIR((doubleL)(0.0), (doubleL)(1.0), kd == 0.0);
+    return SELECT_DIR(s, at_zero, delta >= 1.0);
+}
+#endif
+
 #if SPEC_COS
 /* SPEC_COS (double directions and a whole exponent): the integer power takes the
  * cosine itself, formed in double. The cancellation that |r − v|²/2 and

@@ -40,6 +40,8 @@ typedef struct {
 /* The specular power of δ at pixel p in the plan's form (brdf.cl), as wL. */
 #if SPEC_INT_POW
 #define SPECULAR_POWER(delta, p) specular_power_int((delta), (p)->K)
+#elif WEIGHTS_FP64
+#define SPECULAR_POWER(delta, p) specular_power_fp64((delta), (p)->k)
 #else
 #define SPECULAR_POWER(delta, p) FLOAT_TO_W(specular_power(TO_FLOAT(delta), (p)->k))
 #endif
