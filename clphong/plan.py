@@ -215,8 +215,9 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
             else "no integer power in float (only the fast path's)")
         weights = fp64_directions and sum_fp64
         put("WEIGHTS_FP64", weights,
-            "weights, falloff and each light's L·att·(D·w_d + S·w_s) in double, into the double "
-            "sum: nothing rounded to float before the result" if weights
+            "D, S, weights, falloff and each light's L·att·(D·w_d + S·w_s) in double"
+            + ("" if use or not specular else ", and exp(k·log1p(−δ)) too")
+            + ", into the double sum: nothing rounded to float before the result" if weights
             else ("directions in float: weights in float" if not fp64_directions
                   else "light sum in float: weights rounded to float"))
     if display is None:
