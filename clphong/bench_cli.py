@@ -126,14 +126,19 @@ def bench_render(folder: Path, lights, kernels, runs: int, size=SIZE) -> list[di
     return rows
 
 
+def markdown_table(header, rows) -> str:
+    """A Markdown table of column titles and rows of cells (anything str() takes)."""
+    lines = [header, ["---"] * len(header), *rows]
+    return "\n".join("| " + " | ".join(str(c) for c in line) + " |" for line in lines)
+
+
 def render_table(rows: list[dict]) -> str:
-    out = ["| point lights | kernel | kernel ms | × | in-process total ms | × | whole command ms | × |",
-           "|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        out.append(f"| {r['lights']} | {r['kernel']} | {1e3 * r['kernel_s']:.1f} | "
-                   f"{r['kernel_ratio']:.1f} | {1e3 * r['total_s']:.0f} | {r['total_ratio']:.2f} | "
-                   f"{1e3 * r['wall_s']:.0f} | {r['wall_ratio']:.2f} |")
-    return "\n".join(out)
+    return markdown_table(
+        ["point lights", "kernel", "kernel ms", "×", "in-process total ms", "×",
+         "whole command ms", "×"],
+        [[r["lights"], r["kernel"], f"{1e3 * r['kernel_s']:.1f}", f"{r['kernel_ratio']:.1f}",
+          f"{1e3 * r['total_s']:.0f}", f"{r['total_ratio']:.2f}", f"{1e3 * r['wall_s']:.0f}",
+          f"{r['wall_ratio']:.2f}"] for r in rows])
 
 
 def bench_batch(folder: Path, frames: int, lights: int, jobs, dask_workers: int,
@@ -173,11 +178,9 @@ def bench_batch(folder: Path, frames: int, lights: int, jobs, dask_workers: int,
 
 
 def batch_table(rows: list[dict]) -> str:
-    out = ["| run | frames | point lights | seconds | frames/s |", "|---|---|---|---|---|"]
-    for r in rows:
-        out.append(f"| {r['run']} | {r['frames']} | {r['lights']} | {r['seconds']:.1f} | "
-                   f"{r['frames_per_s']:.2f} |")
-    return "\n".join(out)
+    return markdown_table(["run", "frames", "point lights", "seconds", "frames/s"],
+                          [[r["run"], r["frames"], r["lights"], f"{r['seconds']:.1f}",
+                            f"{r['frames_per_s']:.2f}"] for r in rows])
 
 
 def in_folder(folder_arg, keep: bool, fn):

@@ -168,13 +168,12 @@ def operator_errors(width: int = 1920, height: int = 1080, seed: int = 0) -> lis
 
 def operator_errors_table(rows: list[dict]) -> str:
     """:func:`operator_errors` as a Markdown table."""
-    out = ["| operator | encoding | max \\|err\\| | max bound | max \\|err\\|/bound | beyond bound |",
-           "|---|---|---|---|---|---|"]
-    for r in rows:
-        out.append(f"| {r['operator']} | {r['encoding']} | {r['max_abs_err']:.2e} | "
-                   f"{r['max_bound']:.2e} | {r['max_err_over_bound']:.3f} | "
-                   f"{r['beyond_bound']} of {r['values']} |")
-    return "\n".join(out)
+    from .bench_cli import markdown_table
+
+    return markdown_table(
+        ["operator", "encoding", "max \\|err\\|", "max bound", "max \\|err\\|/bound", "beyond bound"],
+        [[r["operator"], r["encoding"], f"{r['max_abs_err']:.2e}", f"{r['max_bound']:.2e}",
+          f"{r['max_err_over_bound']:.3f}", f"{r['beyond_bound']} of {r['values']}"] for r in rows])
 
 
 if __name__ == "__main__":  # pragma: no cover
