@@ -7,8 +7,11 @@ An input is a frame pattern or a folder:
 * ``shot/gbuf.####.exr``: each ``#`` is one digit of zero padding
   (``####`` → ``0001``; longer numbers are written in full);
 * ``shot/gbuf.%04d.exr`` (printf style; ``%d`` for no padding);
-* ``shot/`` (a folder): every ``*.exr`` in it, ordered by the number at the
-  end of the file stem (by name when a file has none);
+* ``shot/`` (a folder): every ``*.exr`` in it (hidden files aside) is a frame,
+  numbered by the digits at the end of its own file stem (``gbuf.0012.exr``
+  is frame 12). A file without such a number (``notes.exr``), or two files
+  with the same number (two sequences in one folder), is an error naming the
+  file(s), never a silent renumbering: give a pattern to pick one sequence;
 * a single file: a one-frame sequence.
 
 Without ``frames=`` the frames are those found on disk. With it (a range
@@ -36,7 +39,9 @@ Execution
 ---------
 ``jobs=1`` relights in this process, reading the next frame in a thread while
 the current one shades (OpenImageIO and the OpenCL queue release the GIL).
-``jobs=N`` runs N worker processes. ``scheduler=ADDRESS`` sends each frame as
+``jobs=N`` runs N worker processes; a worker that dies (killed, crashed) has
+the temporary files of its frame removed and that frame retried once on
+another worker, then reported failed. ``scheduler=ADDRESS`` sends each frame as
 a task to a Dask distributed cluster (:mod:`clphong.distributed`). Every
 worker builds its :class:`~clphong.api.Relighter` per rig once and reuses it.
 One bad frame never stops a batch: its failure is recorded with the reason,
@@ -45,6 +50,7 @@ the others complete, and :attr:`BatchResult.failed` lists them.
 
 from __future__ import annotations
 
+import collections
 import glob
 import os
 import queue
@@ -54,6 +60,7 @@ import string
 import sys
 import threading
 import time
+import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
@@ -160,13 +167,32 @@ def _split_stem(stem: str) -> tuple[str, int | None]:
     return m.group(1).rstrip("._-") or m.group(1), int(m.group(2))
 
 
+def _pattern_of(folder: str, numbered) -> str:
+    """``folder/gbuf.####.exr`` from the first numbered file name of ``numbered`` (for messages)."""
+    for n, f in numbered:
+        if n is not None:
+            stem, ext = os.path.splitext(f)
+            m = _TRAILING_NUMBER.match(stem)
+            return os.path.join(folder, m.group(1) + "#" * len(m.group(2)) + ext)
+    return os.path.join(folder, "NAME.####.exr")
+
+
 def expand_sequence(pattern: str, frames: Sequence[int] | None = None) -> list[tuple[int, str]]:
     """The (frame, path) pairs of a sequence (see the module docstring).
+
+    A folder's frames are numbered by the digits at the end of each file's
+    own stem, so ``--frames`` means the same frames for a folder as for its
+    ``P.####.exr`` pattern. A folder is refused (rather than renumbered, or
+    partly skipped) when one of its EXRs has no frame number or two have the
+    same one: a stray file there is either a misnamed frame or not part of
+    the shot, which only the user can tell.
 
     Raises
     ------
     BatchError
-        No frames found, or a pattern without a frame token given ``frames``.
+        No frames found; a pattern without a frame token given ``frames``; a
+        folder with an un-numbered EXR (the message names it) or with two
+        EXRs of one frame number (it names both).
     """
     pattern = os.fspath(pattern)
     if os.path.isdir(pattern):
@@ -174,10 +200,18 @@ def expand_sequence(pattern: str, frames: Sequence[int] | None = None) -> list[t
                  if f.lower().endswith(".exr") and not f.startswith(".")
                  and os.path.isfile(os.path.join(pattern, f))]
         numbered = [(_split_stem(os.path.splitext(f)[0])[1], f) for f in files]
-        if files and all(n is not None for n, _ in numbered) and len({n for n, _ in numbered}) == len(files):
-            pairs = sorted((n, os.path.join(pattern, f)) for n, f in numbered)
-        else:   # not all numbered (or repeated numbers): number them 1.. by name
-            pairs = [(i + 1, os.path.join(pattern, f)) for i, f in enumerate(files)]
+        owner: dict[int, str] = {}
+        for n, f in numbered:
+            if n is None:
+                raise BatchError(f"{os.path.join(pattern, f)}: no frame number at the end of its name, and "
+                                 "every .exr in a sequence folder is a frame; move it out, or give a "
+                                 f"pattern such as {_pattern_of(pattern, numbered)}")
+            if n in owner:
+                raise BatchError(f"{os.path.join(pattern, owner[n])} and {os.path.join(pattern, f)} are "
+                                 f"both frame {n} (two sequences in one folder?); give a pattern such as "
+                                 f"{_pattern_of(pattern, [(n, f)])} to pick one")
+            owner[n] = f
+        pairs = sorted((n, os.path.join(pattern, f)) for n, f in numbered)
         if frames is not None:
             wanted = set(frames)
             pairs = [p for p in pairs if p[0] in wanted]
@@ -471,6 +505,8 @@ class BatchResult:
     seconds: float
     stale_removed: int = 0
     interrupted: int | None = None          # the signal number, if interrupted
+    #: (frame, source, reason) of each frame retried because its worker process died.
+    retried: list[tuple[int, str, str]] = field(default_factory=list)
 
     @property
     def written(self) -> list[Outcome]:
@@ -481,11 +517,15 @@ class BatchResult:
         return [o for o in self.outcomes if not o.ok]
 
     def summary(self) -> list[str]:
-        """Lines for stderr: totals, then one line per failed frame with the reasons."""
+        """Lines for stderr: totals, retries, then one line per failed frame with the reasons.
+
+        The counts and the rate are of outputs: one per frame and rig (each
+        with all its files), the unit of the progress bar too.
+        """
         n_ok, n_bad = len(self.written), len(self.failed)
         rate = n_ok / self.seconds if self.seconds > 0 else 0.0
         head = (f"{n_ok} written, {self.skipped} skipped (exist), {n_bad} failed "
-                f"in {self.seconds:.1f} s ({rate:.2f} frames/s)")
+                f"in {self.seconds:.1f} s ({rate:.2f} outputs/s)")
         if self.stale_removed:
             head += f"; removed {self.stale_removed} temporary file(s) of an interrupted run"
         lines = [head]
@@ -493,6 +533,8 @@ class BatchResult:
             name = signal.Signals(self.interrupted).name
             lines.append(f"interrupted by {name}: no partial files were left; rerun with "
                          "--skip-existing to finish")
+        for frame, src, reason in self.retried:
+            lines.append(f"retried frame {frame} ({src}) on another worker: {reason}")
         by_frame: dict[tuple[int, str], list[Outcome]] = {}
         for o in self.failed:
             by_frame.setdefault((o.frame, o.source), []).append(o)
@@ -582,96 +624,211 @@ def _run_inline(jobs: Sequence[Job], specs: dict, on_outcomes: Callable) -> None
         t.join(timeout=5)
 
 
-def _worker_main(tasks, results, specs, threads: int | None) -> None:  # pragma: no cover - subprocess
-    """A pool worker: relight jobs from ``tasks`` until a None arrives."""
+def _worker_main(conn, specs, threads: int | None) -> None:  # pragma: no cover - subprocess
+    """A pool worker: relight the jobs that arrive on ``conn`` until a None (or the batch process is gone).
+
+    Replies ``(index, outcomes, warnings)`` per job; the warnings (say, non-finite
+    inputs) are shown by the batch process, as in a one-process batch. SIGTERM
+    or SIGINT end the worker with exit status 128 + the signal number, after
+    removing the temporary file of a write in flight.
+    """
     if threads and "POCL_CPU_MAX_CU_NUM" not in os.environ:
         # N workers share the machine: give each PoCL device its share of the cores.
         os.environ["POCL_CPU_MAX_CU_NUM"] = str(threads)
     signal.signal(signal.SIGTERM, _Signals._raise)
-    parent = os.getppid()
     try:
         while True:
-            if os.getppid() != parent:        # the batch process was killed: stop, do not run on orphaned
+            try:
+                item = conn.recv()
+            except (EOFError, OSError):       # the batch process was killed: do not run on orphaned
                 return
-            item = tasks.get()
             if item is None:
                 return
             index, job = item
-            results.put(("start", os.getpid(), index))
-            results.put(("done", os.getpid(), index, relight_job(job, specs)))
-    except KeyboardInterrupt:
+            with warnings.catch_warnings(record=True) as caught:
+                outcomes = relight_job(job, specs)
+            shown = [(w.category, str(w.message), w.filename, w.lineno) for w in caught]
+            try:
+                try:
+                    conn.send((index, outcomes, shown))
+                except (AttributeError, TypeError, ValueError):     # a warning class that cannot be pickled
+                    conn.send((index, outcomes, [(UserWarning, *w[1:]) for w in shown]))
+            except OSError:                   # the batch process is gone
+                return
+    except KeyboardInterrupt as exc:
         remove_live_temporaries()     # a write the interrupt caught before its own cleanup could
-        return
+        sys.exit(128 + int(getattr(exc, "signum", signal.SIGINT)))
     finally:
         # Nothing is being written any more: a late SIGTERM may simply end the process.
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def _run_pool(jobs: Sequence[Job], specs: dict, n: int, on_outcomes: Callable) -> None:
-    """N worker processes (spawned: OpenCL and threads do not survive fork)."""
+def _death(exitcode: int | None) -> str:
+    """How a worker process ended, for messages: 'killed by SIGKILL', 'SIGTERM, exit code 143'."""
+    if exitcode is not None and exitcode < 0:
+        try:
+            return f"killed by {signal.Signals(-exitcode).name}"
+        except ValueError:
+            return f"killed by signal {-exitcode}"
+    if exitcode is not None and exitcode > 128:
+        try:
+            return f"{signal.Signals(exitcode - 128).name}, exit code {exitcode}"
+        except ValueError:
+            pass
+    return f"exit code {exitcode}"
+
+
+@dataclass
+class _Worker:
+    proc: object
+    conn: object
+    held: list[int] = field(default_factory=list)   # indices of the jobs sent to it, oldest (running) first
+
+
+#: Jobs sent ahead to a pool worker (the one it runs and the next), so that it never waits for work.
+_AHEAD = 2
+
+
+def _run_pool(jobs: Sequence[Job], specs: dict, n: int, on_outcomes: Callable,
+              on_retry: Callable[[Job, str], None] | None = None) -> None:
+    """N worker processes (spawned: OpenCL and threads do not survive fork).
+
+    This process hands each worker its jobs over the worker's own pipe, so it
+    always knows which jobs a worker holds. A worker that ends while holding
+    jobs, whatever its exit status, has died: the temporary files of those
+    jobs' outputs are removed, the job it was running is retried once on
+    another worker (``on_retry`` is told) and fails the second time, the
+    others are sent to other workers, and a new worker replaces it.
+    """
     import multiprocessing as mp
+    from multiprocessing.connection import wait
 
     ctx = mp.get_context("spawn")
-    tasks, results = ctx.Queue(), ctx.Queue()
-    for i, job in enumerate(jobs):
-        tasks.put((i, job))
     n = max(1, min(n, len(jobs)))
     threads = max(1, (os.cpu_count() or 1) // n)
-    procs = {}
+    pending = collections.deque(range(len(jobs)))
+    undone = set(range(len(jobs)))
+    first_death: dict[int, str] = {}             # job index -> how its first worker died
+    workers: dict[int, _Worker] = {}             # by process sentinel
+    registry: dict = {}                          # warnings shown (as a module's __warningregistry__)
+    # Each death charges a try to a job (two each), so this many workers is ample; a limit all
+    # the same, so that workers that die before taking any job cannot be replaced forever.
+    spawns_left = n + 2 * len(jobs)
 
     def spawn():
-        p = ctx.Process(target=_worker_main, args=(tasks, results, specs, threads), daemon=True)
+        nonlocal spawns_left
+        spawns_left -= 1
+        here, there = ctx.Pipe()
+        p = ctx.Process(target=_worker_main, args=(there, specs, threads), daemon=True)
         p.start()
-        procs[p.pid] = p
+        there.close()                            # so that this end reads EOF once the worker is gone
+        workers[p.sentinel] = _Worker(p, here)
 
-    for _ in range(n):
-        tasks.put(None)
-        spawn()
-    running: dict[int, int] = {}                  # pid -> job index
-    done = 0
+    def finish(i, outcomes):
+        if i in undone:
+            undone.discard(i)
+            on_outcomes(outcomes)
+
+    def feed(w):
+        while pending and len(w.held) < _AHEAD:
+            i = pending.popleft()
+            try:
+                w.conn.send((i, jobs[i]))
+            except OSError:                      # it is dying: its sentinel says so next
+                pending.appendleft(i)
+                return
+            w.held.append(i)
+
+    def receive(w) -> bool:
+        """Take every reply ``w`` has sent; False once its pipe is closed (it has ended)."""
+        while True:
+            try:
+                if not w.conn.poll():
+                    return True
+                i, outcomes, shown = w.conn.recv()
+            except (EOFError, OSError):
+                return False
+            if i in w.held:
+                w.held.remove(i)
+            for category, message, filename, lineno in shown:
+                warnings.warn_explicit(message, category, filename, lineno, registry=registry)
+            finish(i, outcomes)
+
+    def bury(w):
+        del workers[w.proc.sentinel]
+        w.proc.join()
+        w.conn.close()
+        how = _death(w.proc.exitcode)
+        for i in w.held:
+            _remove_temporaries(jobs[i])
+        if w.held:
+            i, rest = w.held[0], w.held[1:]
+            if i in first_death:
+                finish(i, failed_outcomes(jobs[i], f"worker process died twice running it "
+                                                   f"({first_death[i]}, then {how})"))
+            else:
+                first_death[i] = how
+                if on_retry is not None:
+                    on_retry(jobs[i], f"worker process died ({how})")
+                rest = [i, *rest]
+            pending.extendleft(reversed(rest))
+
     finished = False
     try:
-        while done < len(jobs):
-            try:
-                msg = results.get(timeout=0.2)
-            except queue.Empty:
-                for pid, p in list(procs.items()):
-                    if not p.is_alive() and p.exitcode != 0:
-                        # A worker died (crash, OOM kill): fail its frame, start another.
-                        del procs[pid]
-                        idx = running.pop(pid, None)
-                        if idx is not None:
-                            job = jobs[idx]
-                            reason = f"worker process died (exit code {p.exitcode})"
-                            on_outcomes(failed_outcomes(job, reason))
-                            done += 1
-                        tasks.put(None)
-                        spawn()
-                continue
-            if msg[0] == "start":
-                running[msg[1]] = msg[2]
-            else:
-                running.pop(msg[1], None)
-                done += 1
-                on_outcomes(msg[3])
+        for _ in range(n):
+            spawn()
+        for w in workers.values():
+            feed(w)
+        while undone:
+            if not workers:                      # safety net: never wait on no one
+                for i in sorted(undone):
+                    finish(i, failed_outcomes(jobs[i], "no worker process left to run it"))
+                break
+            ready = set(wait([w.conn for w in workers.values()] + list(workers), timeout=1.0))
+            for w in list(workers.values()):
+                if w.conn in ready or w.proc.sentinel in ready:
+                    if not receive(w) or w.proc.sentinel in ready:
+                        receive(w)               # what it sent before it ended
+                        bury(w)
+            while pending and len(workers) < n and spawns_left > 0:
+                spawn()
+            for w in workers.values():
+                feed(w)
         finished = True
     finally:
-        if finished:                              # every worker got its None: let them exit
-            for p in procs.values():
+        procs = [w.proc for w in workers.values()]
+        if finished:                              # every job is done: let the workers exit
+            for w in workers.values():
+                try:
+                    w.conn.send(None)
+                except OSError:
+                    pass
+            for p in procs:
                 p.join(10)
-        for p in procs.values():
+        for p in procs:
             if p.is_alive():
                 p.terminate()                     # SIGTERM: the worker unwinds and removes its temporary file
         deadline = time.monotonic() + 10
-        for p in procs.values():
+        for p in procs:
             p.join(max(0.0, deadline - time.monotonic()))
             if p.is_alive():
                 p.kill()
                 p.join()
-        tasks.close()
-        results.close()
-        tasks.cancel_join_thread()
-        results.cancel_join_thread()
+        for w in workers.values():
+            w.conn.close()
+
+
+def _remove_temporaries(job: Job) -> int:
+    """Remove the temporary files a killed run left for the outputs of ``job``; return how many."""
+    removed = 0
+    for path in (p for _, paths in job.outputs for p in paths.files):
+        for tmp in stale_temporaries(path):
+            try:
+                os.remove(tmp)
+                removed += 1
+            except OSError:
+                pass
+    return removed
 
 
 def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | None = None,
@@ -689,7 +846,7 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
         Address of a Dask distributed scheduler (``tcp://host:8786``), or a
         ``distributed.Client``; frames then run as tasks on its workers.
     progress : bool
-        Show a tqdm progress bar (frames/s and ETA) on stderr.
+        Show a tqdm progress bar on stderr: outputs (frames × rigs) done, outputs/s and ETA.
 
     Returns
     -------
@@ -697,21 +854,14 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
         With ``interrupted`` set when SIGINT/SIGTERM stopped it.
     """
     t0 = time.perf_counter()
-    stale = 0
-    for job in plan.jobs:
-        for path in (p for _, paths in job.outputs for p in paths.files):
-            for tmp in stale_temporaries(path):
-                try:
-                    os.remove(tmp)
-                    stale += 1
-                except OSError:
-                    pass
+    stale = sum(_remove_temporaries(job) for job in plan.jobs)
     outcomes: list[Outcome] = []
+    retried: list[tuple[int, str, str]] = []
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=plan.outputs, unit="frame", file=sys.stderr, dynamic_ncols=True,
+        bar = tqdm(total=plan.outputs, unit="output", file=sys.stderr, dynamic_ncols=True,
                    smoothing=0.1, disable=None)
 
     def collect(outs: Iterable[Outcome]):
@@ -736,7 +886,8 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
             elif jobs <= 1:
                 _run_inline(plan.jobs, specs, collect)
             else:
-                _run_pool(plan.jobs, specs, jobs, collect)
+                _run_pool(plan.jobs, specs, jobs, collect,
+                          on_retry=lambda job, why: retried.append((job.frame, job.source, why)))
     except Interrupted as exc:
         interrupted = exc.signum
     except KeyboardInterrupt:
@@ -747,4 +898,4 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
         if bar is not None:
             bar.close()
     return BatchResult(outcomes, skipped=len(plan.skipped), seconds=time.perf_counter() - t0,
-                       stale_removed=stale, interrupted=interrupted)
+                       stale_removed=stale, interrupted=interrupted, retried=retried)

@@ -66,11 +66,11 @@ def run_on_dask(jobs: Sequence[Job], specs: dict, scheduler, on_outcomes: Callab
     for its frame; the other tasks carry on. On an interrupt the pending
     tasks are cancelled and a client we opened is closed.
     """
-    from distributed import as_completed
-
-    client, owned = _client(scheduler)
+    client, owned = _client(scheduler)              # first: it explains a missing Dask
     futures = {}
     try:
+        from distributed import as_completed
+
         # Scatter the specs once (broadcast), rather than pickling them into every task.
         [specs_f] = client.scatter([specs], broadcast=True, hash=False)
         for job in jobs:

@@ -9,7 +9,7 @@ import pytest
 
 import clphong
 from clphong.api import Relighter, write_output
-from clphong.camera_meta import Z_UP_TO_Y_UP, eye_from_matrix
+from clphong.camera_meta import eye_from_matrix
 from clphong.errors import GBufferError, OutputError
 from clphong.gbuffer import write_gbuffer
 
@@ -235,6 +235,10 @@ def look_at_world_to_camera(eye, target, up=(0.0, 1.0, 0.0)):
 
 
 EYE = (1.5, 2.5, 5.0)
+#: The same camera in a Z-up world (Blender, 3ds Max, Unreal), by the usual convention of the
+#: module docstring and the README, (x, y, z)_Zup -> (x, z, -y)_Yup (as Blender's glTF export):
+#: Y-up (1.5, 2.5, 5) is Z-up (1.5, -5, 2.5); the Y-up target (0, 0.5, 0) is Z-up (0, 0, 0.5).
+EYE_Z_UP = (1.5, -5.0, 2.5)
 
 
 def _metadata_frame(tmp_path, name, matrix, gb):
@@ -264,15 +268,20 @@ def test_camera_from_world_to_camera_y_and_z_up(tmp_path, up):
     rng = np.random.default_rng(21)
     lights = random_lights(rng, n_point=3, n_dir=0, n_amb=0)
     gb = random_gbuffer(rng, 24, 32)
-    M_y = look_at_world_to_camera(EYE, (0, 0.5, 0))
     if up == "y":
-        M = M_y
+        M = look_at_world_to_camera(EYE, (0, 0.5, 0))
     else:
-        # The same camera written in a Z-up world: p_y = R p_z, so (row vectors) M_z = R4ᵀ·M_y.
-        R4 = np.eye(4)
-        R4[:3, :3] = Z_UP_TO_Y_UP
-        M = R4.T @ M_y
-        assert not np.allclose(eye_from_matrix(M, up="y"), EYE, atol=1e-3)   # read as Y-up it is wrong
+        # The camera as a Z-up application writes it: built in Z-up coordinates, up +z.
+        M = look_at_world_to_camera(EYE_Z_UP, (0, 0, 0.5), up=(0, 0, 1))
+        assert np.allclose(eye_from_matrix(M, up="y"), EYE_Z_UP, rtol=0, atol=1e-14)  # as written
+        # Written out by hand: a camera at Z-up (1.5, -5, 2.5) with the world's axes, p_cam =
+        # p_world - (1.5, -5, 2.5) (the translation in the last row); its Y-up eye is exact.
+        hand = np.array([[1.0, 0.0, 0.0, 0.0],
+                         [0.0, 1.0, 0.0, 0.0],
+                         [0.0, 0.0, 1.0, 0.0],
+                         [-1.5, 5.0, -2.5, 1.0]])
+        assert eye_from_matrix(hand, up="z").tolist() == [1.5, 2.5, 5.0]
+        assert eye_from_matrix(hand, up="y").tolist() == [1.5, -5.0, 2.5]
     path = _metadata_frame(tmp_path, f"meta_{up}.exr", M, gb)
     scene = clphong.parse_scene({"camera": {"type": "metadata", "up": up},
                                  "material": {"model": "phong", "k_a": 0.0, "k_d": 0.7, "k_s": 0.3, "h": 40.0},

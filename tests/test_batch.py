@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import os
 import signal
 import subprocess
@@ -11,8 +13,9 @@ import time
 import numpy as np
 import pytest
 
-from clphong.batch import (BatchError, expand_sequence, format_output, parse_frame_range,
-                           plan_batch, Rig)
+from clphong.api import RelighterSpec
+from clphong.batch import (BatchError, BatchPlan, BatchResult, Outcome, expand_sequence,
+                           format_output, parse_frame_range, plan_batch, run_batch, Rig)
 from clphong.cli import main
 
 from conftest import random_gbuffer
@@ -128,6 +131,43 @@ def test_sequence_patterns_and_folder_agree(shot):
     assert [f for f, _ in expand_sequence(str(root / "seq" / "shot.##.exr"), [1])] == [1]
     with pytest.raises(BatchError, match="no files match"):
         expand_sequence(str(root / "seq" / "shot.##.exr"))
+
+
+def test_folder_frames_are_numbered_by_their_own_names(shot, tmp_path, capsys):
+    """A stray un-numbered EXR, or a second sequence, in a folder is a one-line error naming the
+    file(s), never a silent renumbering of the shot (which made --frames 10-12 select nothing)."""
+    root, expected = shot
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for f in (10, 11, 12):
+        (seq / f"gbuf.{f:04d}.exr").write_bytes((root / "seq" / f"shot.{f - 9:04d}.exr").read_bytes())
+    notes = seq / "zz_notes.exr"
+    notes.write_bytes((root / "seq" / "shot.0004.exr").read_bytes())
+    out = tmp_path / "out"
+    args = ["relight", str(seq), "--rig", str(root / "key.toml"), "--frames", "10-12",
+            "-o", str(out / "{rig}.####.exr")]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert err == (f"clphong: error: {notes}: no frame number at the end of its name, and every .exr "
+                   "in a sequence folder is a frame; move it out, or give a pattern such as "
+                   f"{seq / 'gbuf.####.exr'}\n"), err
+    assert not out.exists()
+    with pytest.raises(BatchError, match="zz_notes.exr: no frame number"):
+        expand_sequence(str(seq))                 # without --frames as well
+    # Two sequences in one folder: both files of the repeated frame are named.
+    notes.rename(seq / "other.11.exr")
+    with pytest.raises(BatchError) as info:
+        expand_sequence(str(seq), [10, 11, 12])
+    assert str(info.value).startswith(f"{seq / 'gbuf.0011.exr'} and {seq / 'other.11.exr'} are both "
+                                      "frame 11 (two sequences in one folder?)")
+    assert "\n" not in str(info.value)
+    (seq / "other.11.exr").unlink()
+    # A clean folder: the frames are the numbers in the names, as with the pattern.
+    assert expand_sequence(str(seq)) == expand_sequence(str(seq / "gbuf.####.exr"))
+    assert main(args) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["key.0010.exr", "key.0011.exr", "key.0012.exr"]
+    for f in (10, 11, 12):
+        assert np.array_equal(_read(out / f"key.{f:04d}.exr"), expected[(f - 9, "key")]), f
 
 
 def test_colliding_outputs_are_refused(shot):
@@ -254,6 +294,212 @@ def test_resume_after_killed_run(shot, tmp_path, sig, jobs, capsys):
     assert f"{48 - len(written)} written, {len(written)} skipped (exist), 0 failed" in err
     _check_outputs(out, expected)
     _no_temporaries(out)              # temporaries a SIGKILL left behind are cleaned up too
+
+
+# ---------------------------------------------------------------- a pool worker dies
+
+
+@dataclasses.dataclass(frozen=True)
+class _FaultySpec(RelighterSpec):
+    """A rig whose worker process sends itself ``fault_signal`` (0: exits with status 0) while it
+    writes frame ``fault_frame`` (a temporary file of it exists then): every time, or with
+    ``fault_marker`` only while that file does not exist (it is created first), i.e. once."""
+
+    fault_frame: int = 0
+    fault_signal: int = int(signal.SIGKILL)
+    fault_marker: str = ""
+
+    def build(self):
+        return _FaultyRelighter(super().build(), self)
+
+
+class _FaultyRelighter:
+    def __init__(self, inner, spec):
+        self.inner, self.spec = inner, spec
+
+    def deliver(self, gbuffer, paths, **kw):
+        from clphong.output import atomic_path
+
+        spec = self.spec
+        if (os.path.basename(kw["source"]) == f"shot.{spec.fault_frame:04d}.exr"
+                and not (spec.fault_marker and os.path.exists(spec.fault_marker))):
+            if spec.fault_marker:
+                open(spec.fault_marker, "x").close()
+            with atomic_path(paths.files[0]) as tmp:
+                with open(tmp, "wb") as f:
+                    f.write(b"half an image")
+                if not spec.fault_signal:
+                    os._exit(0)                   # a clean exit, holding a frame
+                os.kill(os.getpid(), spec.fault_signal)
+                time.sleep(60)                    # the signal ends this first
+        return self.inner.deliver(gbuffer, paths, **kw)
+
+
+class _Hung(Exception):
+    pass
+
+
+@contextlib.contextmanager
+def _deadline(seconds):
+    """Raise _Hung in the main thread after ``seconds`` (the pool's workers are then stopped)."""
+    def hung(signum, frame):
+        raise _Hung(f"the batch did not end within {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def _faulty_batch(root, out, frames, **fault):
+    import clphong
+
+    scene = clphong.load_scene(root / "key.toml")
+    plan = plan_batch(str(root / "seq" / "shot.####.exr"), [Rig("key", scene)],
+                      str(out / "{rig}" / "{name}.####.exr"), frames=frames)
+    with _deadline(120):
+        return run_batch(plan, {"key": _FaultySpec(scene=scene, **fault)}, jobs=2)
+
+
+@pytest.mark.parametrize("sig, how", [(signal.SIGKILL, "killed by SIGKILL"),
+                                      (signal.SIGTERM, "SIGTERM, exit code 143"),
+                                      (0, "exit code 0")],
+                         ids=["SIGKILL", "SIGTERM", "exit-0"])
+def test_a_worker_that_dies_mid_frame_is_replaced_and_the_frame_retried(shot, tmp_path, sig, how):
+    root, expected = shot
+    out = tmp_path / "out"
+    marker = tmp_path / "died"
+    result = _faulty_batch(root, out, range(1, 9), fault_frame=3, fault_signal=int(sig),
+                           fault_marker=str(marker))
+    assert marker.exists(), "the worker was not made to die"
+    assert result.interrupted is None and not result.failed
+    assert sorted(o.frame for o in result.written) == list(range(1, 9))      # every frame delivered
+    for f in range(1, 9):
+        assert np.array_equal(_read(out / "key" / f"shot.{f:04d}.exr"), expected[(f, "key")]), f
+    _no_temporaries(out)          # the dying worker's temporary file (SIGKILL: left) is removed
+    src = str(root / "seq" / "shot.0003.exr")
+    assert result.retried == [(3, src, f"worker process died ({how})")]
+    lines = result.summary()
+    assert lines[0].startswith("8 written, 0 skipped (exist), 0 failed in ")
+    assert lines[1:] == [f"retried frame 3 ({src}) on another worker: worker process died ({how})"]
+
+
+def test_a_frame_that_kills_every_worker_fails_after_one_retry(shot, tmp_path):
+    root, expected = shot
+    out = tmp_path / "out"
+    result = _faulty_batch(root, out, range(1, 7), fault_frame=3)        # dies on every try
+    assert result.interrupted is None
+    assert sorted(o.frame for o in result.written) == [1, 2, 4, 5, 6]
+    for f in (1, 2, 4, 5, 6):
+        assert np.array_equal(_read(out / "key" / f"shot.{f:04d}.exr"), expected[(f, "key")]), f
+    assert not (out / "key" / "shot.0003.exr").exists()
+    _no_temporaries(out)
+    src = str(root / "seq" / "shot.0003.exr")
+    lines = result.summary()
+    assert lines[0].startswith("5 written, 0 skipped (exist), 1 failed in ")
+    assert lines[1:] == [
+        f"retried frame 3 ({src}) on another worker: worker process died (killed by SIGKILL)",
+        "failed: 1 output(s) of 1 frame(s):",
+        f"  frame 3 ({src}) [key]: worker process died twice running it (killed by SIGKILL, "
+        "then killed by SIGKILL)"]
+
+
+def _pool_workers(pid):
+    """Pids of the spawned multiprocessing workers among the children of process ``pid``."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                cmd = f.read()
+        except (OSError, IndexError, ValueError):
+            continue
+        if ppid == pid and b"spawn_main" in cmd:
+            found.append(int(entry))
+    return sorted(found)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["SIGKILL", "SIGTERM"])
+def test_killing_one_pool_worker_neither_hangs_nor_loses_a_frame(shot, tmp_path, sig):
+    """clphong relight --jobs 2, one worker killed from outside mid-batch (an OOM kill, an admin)."""
+    root, expected = shot
+    out = tmp_path / "out"
+    proc = _start(root, out, jobs=2)
+    _wait_for_outputs(proc, out, 4)
+    workers = _pool_workers(proc.pid)
+    assert len(workers) == 2, workers
+    os.kill(workers[0], sig)
+    try:
+        rc = proc.wait(timeout=120)
+    except subprocess.TimeoutExpired:
+        for pid in _pool_workers(proc.pid):
+            os.kill(pid, signal.SIGKILL)
+        proc.kill()
+        pytest.fail("the batch hung after one of its workers was killed")
+    stderr = proc.stderr.read()
+    assert rc == 0, stderr
+    assert "clphong relight: 48 written, 0 skipped (exist), 0 failed" in stderr
+    how = "killed by SIGKILL" if sig == signal.SIGKILL else "SIGTERM, exit code 143"
+    assert f"on another worker: worker process died ({how})" in stderr, stderr
+    _check_outputs(out, expected)
+    _no_temporaries(out)
+
+
+def test_pool_workers_warnings_are_the_one_line_warnings_of_one_process(shot, tmp_path, capfd):
+    """Warnings raised in --jobs workers (non-finite inputs) reach stderr as 'clphong: warning:'
+    lines, as with --jobs 1, not as raw two-line Python warnings from the workers."""
+    import clphong
+    from clphong.gbuffer import write_gbuffer
+
+    root, _ = shot
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for f in range(1, 5):
+        src = root / "seq" / f"shot.{f:04d}.exr"
+        g = clphong.read_gbuffer(src)
+        P = g.position.copy()
+        for y, x in np.argwhere(g.coverage > 0)[: f - 1]:     # frame f: f - 1 NaN positions
+            P[y, x, 1] = np.nan
+        write_gbuffer(seq / src.name, P, g.normal, g.albedo, coverage=g.coverage)
+    warned = {}
+    for jobs in (1, 2):
+        args = ["relight", str(seq / "shot.####.exr"), "--rig", str(root / "key.toml"), "--rig",
+                str(root / "fill.toml"), "-o", str(tmp_path / f"out{jobs}" / "{rig}.####.exr"),
+                "--jobs", str(jobs), "--quiet"]
+        assert main(args) == 0
+        err = capfd.readouterr().err
+        assert "InputWarning" not in err and "warnings.warn" not in err, err
+        warned[jobs] = sorted(ln for ln in err.splitlines() if ln.startswith("clphong: warning: "))
+    assert warned[2] == warned[1] and len(warned[1]) == 3, warned
+    assert all("non-finite G-buffer values left unshaded as background" in ln for ln in warned[1])
+
+
+def test_summary_and_progress_count_outputs_not_frames(monkeypatch):
+    """One output per frame and rig: 2 frames x 2 rigs in 2 s is 2 outputs/s (1 frame/s)."""
+    import tqdm
+
+    outcomes = [Outcome(f, f"in.{f}.exr", rig, f"o.{rig}.{f}.exr", ok=True)
+                for f in (1, 2) for rig in ("key", "fill")]
+    assert BatchResult(outcomes, skipped=0, seconds=2.0).summary() == [
+        "4 written, 0 skipped (exist), 0 failed in 2.0 s (2.00 outputs/s)"]
+    bars = []
+
+    class Bar:
+        def __init__(self, **kw):
+            bars.append(kw)
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(tqdm, "tqdm", Bar)
+    run_batch(BatchPlan([]), {}, progress=True)   # nothing to run: only the bar is looked at
+    assert bars and bars[0]["unit"] == "output", bars
 
 
 # ---------------------------------------------------------------- every output kind

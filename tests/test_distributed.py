@@ -12,7 +12,11 @@ from clphong.cli import main
 
 from test_batch import _check_outputs, _no_temporaries, _read, shot  # noqa: F401 - fixture
 
-distributed = pytest.importorskip("distributed")
+try:
+    import distributed
+except ImportError:          # the optional extra: these tests need it, test_scheduler_without_dask does not
+    distributed = None
+needs_dask = pytest.mark.skipif(distributed is None, reason="needs dask[distributed] (clphong[dask])")
 
 
 def _worker_state():
@@ -25,6 +29,7 @@ def _worker_state():
     return len(relighters), builds
 
 
+@needs_dask
 def test_dask_local_cluster_two_workers(shot, tmp_path, capsys):  # noqa: F811
     root, expected = shot
     out = tmp_path / "out"
@@ -84,6 +89,20 @@ def test_local_batch_does_not_import_dask(shot, tmp_path):  # noqa: F811
     assert sorted(p.name for p in tmp_path.glob("*.out.exr")) == ["shot.0001.out.exr", "shot.0002.out.exr"]
 
 
+def test_scheduler_without_dask_is_one_line(shot, tmp_path, capsys, monkeypatch):  # noqa: F811
+    """--scheduler without Dask installed: the install hint, not a ModuleNotFoundError traceback."""
+    root, _ = shot
+    monkeypatch.setitem(sys.modules, "distributed", None)      # 'import distributed' now fails
+    out = tmp_path / "out"
+    args = ["relight", str(root / "seq" / "shot.####.exr"), "--rig", str(root / "key.toml"),
+            "--frames", "1-2", "-o", str(out / "{rig}.####.exr"), "--scheduler", "tcp://127.0.0.1:8786"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert err == ("clphong: error: --scheduler needs Dask: pip install 'clphong[dask]' "
+                   "(dask[distributed])\n"), err
+    assert not out.exists()
+
+
 def _worker_renderers():
     """On a worker: the renderer options of every relighter this process cached."""
     from clphong.api import _CACHE
@@ -93,6 +112,7 @@ def _worker_renderers():
                   for k, r in _CACHE.items() if k != "__lock__")
 
 
+@needs_dask
 def test_dask_workers_get_the_renderer_options(shot, tmp_path, capsys):  # noqa: F811
     root, _ = shot
     out, local = tmp_path / "dask", tmp_path / "local"
