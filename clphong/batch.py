@@ -624,7 +624,20 @@ def _run_inline(jobs: Sequence[Job], specs: dict, on_outcomes: Callable) -> None
         t.join(timeout=5)
 
 
-def _worker_main(conn, specs, threads: int | None) -> None:  # pragma: no cover - subprocess
+def worker_environment(n: int) -> dict[str, str]:
+    """What each of ``n`` pool workers sets in its environment (where not set
+    already): its share of the cores for PoCL, and its share of the memory this
+    process may use (clphong.tiling), so that n workers together plan within it."""
+    from .tiling import ENV_VAR, memory_budget
+
+    env = {"POCL_CPU_MAX_CU_NUM": str(max(1, (os.cpu_count() or 1) // n))}
+    budget = memory_budget().bytes
+    if budget is not None and ENV_VAR not in os.environ:
+        env[ENV_VAR] = str(max(1, budget // n))
+    return env
+
+
+def _worker_main(conn, specs, env: dict[str, str]) -> None:  # pragma: no cover - subprocess
     """A pool worker: relight the jobs that arrive on ``conn`` until a None (or the batch process is gone).
 
     Replies ``(index, outcomes, warnings)`` per job; the warnings (say, non-finite
@@ -632,9 +645,8 @@ def _worker_main(conn, specs, threads: int | None) -> None:  # pragma: no cover 
     or SIGINT end the worker with exit status 128 + the signal number, after
     removing the temporary file of a write in flight.
     """
-    if threads and "POCL_CPU_MAX_CU_NUM" not in os.environ:
-        # N workers share the machine: give each PoCL device its share of the cores.
-        os.environ["POCL_CPU_MAX_CU_NUM"] = str(threads)
+    for key, value in env.items():      # N workers share the machine: worker_environment
+        os.environ.setdefault(key, value)
     signal.signal(signal.SIGTERM, _Signals._raise)
     try:
         while True:
@@ -705,7 +717,7 @@ def _run_pool(jobs: Sequence[Job], specs: dict, n: int, on_outcomes: Callable,
 
     ctx = mp.get_context("spawn")
     n = max(1, min(n, len(jobs)))
-    threads = max(1, (os.cpu_count() or 1) // n)
+    env = worker_environment(n)
     pending = collections.deque(range(len(jobs)))
     undone = set(range(len(jobs)))
     first_death: dict[int, str] = {}             # job index -> how its first worker died
@@ -719,7 +731,7 @@ def _run_pool(jobs: Sequence[Job], specs: dict, n: int, on_outcomes: Callable,
         nonlocal spawns_left
         spawns_left -= 1
         here, there = ctx.Pipe()
-        p = ctx.Process(target=_worker_main, args=(there, specs, threads), daemon=True)
+        p = ctx.Process(target=_worker_main, args=(there, specs, env), daemon=True)
         p.start()
         there.close()                            # so that this end reads EOF once the worker is gone
         workers[p.sentinel] = _Worker(p, here)

@@ -956,3 +956,21 @@ def test_render_and_relight_share_the_renderer_options():
         return {f: (acts[f].choices, acts[f].default, acts[f].help, acts[f].type) for f in flags}
 
     assert options("render") == options("relight")
+
+
+def test_pool_workers_share_the_cores_and_the_memory(monkeypatch):
+    """Each of N workers plans within 1/N of the memory this process may use (it would
+    otherwise budget against the same available memory as the others) and uses 1/N of
+    the cores; a CLPHONG_MAX_MEMORY the user set is each worker's own."""
+    from clphong import batch, tiling
+
+    monkeypatch.delenv("CLPHONG_MAX_MEMORY", raising=False)
+    monkeypatch.setattr(tiling, "memory_budget", lambda: tiling.MemoryBudget(8 * 2 ** 30, "test"))
+    monkeypatch.setattr(batch.os, "cpu_count", lambda: 8)
+    assert batch.worker_environment(2) == {"POCL_CPU_MAX_CU_NUM": "4",
+                                           "CLPHONG_MAX_MEMORY": str(4 * 2 ** 30)}
+    monkeypatch.setenv("CLPHONG_MAX_MEMORY", "1G")
+    assert "CLPHONG_MAX_MEMORY" not in batch.worker_environment(2)
+    monkeypatch.setattr(tiling, "memory_budget", lambda: tiling.MemoryBudget(None, "no limit"))
+    monkeypatch.delenv("CLPHONG_MAX_MEMORY")
+    assert batch.worker_environment(3) == {"POCL_CPU_MAX_CU_NUM": "2"}
