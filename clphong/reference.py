@@ -304,11 +304,11 @@ def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, u
             s = specular_power(delta, k)
             if form == "delta":
                 y = np.abs(k * np.log1p(-np.minimum(delta, 1.0 - 1e-300)))
-                # log1p 2 ulp, k·(·) 1, exp 3 ulp (relative in y), k rounded to float32;
-                # then Δδ through d/dδ of k·log1p(−δ) = −k/(1 − δ). With double
-                # weights (uw = 2⁻⁵³) all of it in double, units 2⁻⁵³.
-                pu = min(uw, U)
-                rel = 4.0 * pu + 4.0 * pu * y + k * d_delta / np.maximum(1.0 - delta, 1e-300)
+                # log1p 2 ulp, k·(·) 1, exp 3 ulp (relative in y), k rounded to float32
+                # (1 u); then Δδ through d/dδ of k·log1p(−δ) = −k/(1 − δ). With double
+                # weights (uw = 2⁻⁵³) all of it in double, units 2⁻⁵³, and k as hi + lo.
+                pu, uk = (uw, ud) if uw < U else (U, U)
+                rel = 4.0 * pu + (3.0 * pu + uk) * y + k * d_delta / np.maximum(1.0 - delta, 1e-300)
             else:
                 # x = 1 − δ in double (≤ 2⁻⁵³ absolute), binary powering of a whole k
                 # (≤ 2k·2⁻⁵³ relative), one rounding to float; Δδ through k·x^(k−1).

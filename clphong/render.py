@@ -481,8 +481,8 @@ class Renderer:
             fp64 = bool(plan.defines.get("DIRECTIONS_FP64"))
             origin = np.zeros(3) if fp64 else frame.origin
             eye, eye_lo = lights.kernel_eye(fp64)
-            # WEIGHTS_FP64 forms D, S and the ambient term in double: hi + lo
-            _, (kd_lo, *S_lo) = split_hi_lo([k_d, *S])
+            # WEIGHTS_FP64 forms D, S, the ambient term and a non-whole power in double: hi + lo
+            _, (kd_lo, *S_lo, k_lo) = split_hi_lo([k_d, *S, k])
             amb_lo = split_hi_lo(lights.ambient)[1]
             pl = cl.Buffer(ctx, ro, hostbuf=lights.point64 if fp64 else lights.point)
             dl = cl.Buffer(ctx, ro, hostbuf=lights.directional)
@@ -508,7 +508,7 @@ class Renderer:
                 pl, np.uint32(plan.n_point), dl, np.uint32(plan.n_directional),
                 float4(*origin), float4(*eye), float4(*lights.ambient),
                 np.float32(k_d), float4(*S), np.float32(k), float4(*bg),
-                float4(*eye_lo), float4(*amb_lo, kd_lo), float4(*S_lo),
+                float4(*eye_lo), float4(*amb_lo, kd_lo), float4(*S_lo, k_lo),
                 *display_args, *cull_args)
             items = frame.stride // self.lanes
             evt = cl.enqueue_nd_range_kernel(queue, kern, (items,), (LOCAL_SIZE,))

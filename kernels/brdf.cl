@@ -73,11 +73,10 @@ inline floatL specular_power(floatL delta, floatL k)
  * the weights are double (CPU devices): δ is not rounded to float, and log1p and
  * exp add a few 2⁻⁵³ instead of a few u, so lights that cancel each other keep
  * their digits here too. Same guards. */
-inline wL specular_power_fp64(dirL delta, floatL k)
+inline wL specular_power_fp64(dirL delta, wL k)
 {
-    const doubleL kd = TO_DOUBLE(k);
-    const doubleL s = exp(kd * log1p(-delta));
-    const doubleL at_zero = SELECT_DIR((doubleL)(0.0), (doubleL)(1.0), kd == 0.0);
+    const doubleL s = exp(k * log1p(-delta));
+    const doubleL at_zero = SELECT_DIR((doubleL)(0.0), (doubleL)(1.0), k == 0.0);
     return SELECT_DIR(s, at_zero, delta >= 1.0);
 }
 #endif

@@ -33,7 +33,8 @@ typedef struct {
     uint K;                 /* the whole specular exponent, the same for every pixel
                                (K/2 with SPEC_COS and Blinn: the base is (n·h)²) */
 #elif HAS_SPECULAR
-    floatL k;               /* specular exponent: h (Phong) or 4h (Blinn) */
+    wL k;                   /* specular exponent: h (Phong) or 4h (Blinn); the scene's
+                               float64 value (as hi + lo) with WEIGHTS_FP64 */
 #endif
 } pixel_t;
 

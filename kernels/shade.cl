@@ -82,7 +82,7 @@ __kernel void shade(__global const float *restrict gbuf,
                     const float4 background,
                     const float4 eye_lo,     /* eye − float(eye), used with DIRECTIONS_FP64 */
                     const float4 material_lo,  /* ambient − float(ambient) (xyz), k_d − float(k_d) (w) */
-                    const float4 S_lo,         /* S_uniform − float(S_uniform); both with WEIGHTS_FP64 */
+                    const float4 S_lo,         /* S_uniform − float(S_uniform) (xyz), k − float(k) (w); both with WEIGHTS_FP64 */
                     __global float *restrict display,  /* display R G B, with DISPLAY_OUT (tonemap.cl) */
                     const float exposure,              /* 2^EV, with DISPLAY_OUT */
                     const float4 tonemap_params,       /* operator parameters, with DISPLAY_OUT */
@@ -152,9 +152,9 @@ __kernel void shade(__global const float *restrict gbuf,
     /* a whole number (plan.py); with SPEC_COS Blinn raises (n·h)² to K/2 (K even) */
     p.K = SPEC_COS && MODEL_BLINN ? (uint)k_uniform / 2u : (uint)k_uniform;
 #elif MAP_H
-    p.k = MODEL_BLINN ? 4.0f * k_map : k_map;   /* the map holds h; Blinn uses 4h */
+    p.k = FLOAT_TO_W(MODEL_BLINN ? 4.0f * k_map : k_map);   /* the map holds h; Blinn uses 4h */
 #else
-    p.k = (floatL)(k_uniform);
+    p.k = (wL)(W_HI_LO(k_uniform, S_lo.w));
 #endif
 #endif
 
