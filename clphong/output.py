@@ -3,9 +3,11 @@
 Every file clphong writes goes through :func:`atomic_path`: the data are
 written to a hidden temporary file in the destination folder (same extension,
 so OpenImageIO picks the same format) and renamed onto the destination only
-when the write succeeded. A failed or interrupted write therefore never
-leaves a partial or truncated file behind, and never clobbers an existing
-good file.
+when the write succeeded and the file is on the disk (``fsync``); an image
+is also checked whole first (:func:`check_image_written`: OpenImageIO's writers
+do not report every write error, e.g. a disk that fills while a PNG is
+closed). A failed or interrupted write therefore never leaves a partial or
+truncated file behind, and never clobbers an existing good file.
 
 Public functions
 ----------------
@@ -13,6 +15,10 @@ check_output_path
     Check an output name and its folder before any work is done.
 atomic_path
     Context manager yielding a temporary name that is renamed into place.
+check_image_written
+    Check that an image file just written is whole.
+write_image_atomically
+    Write an array with an OpenImageIO spec through :func:`atomic_path`.
 remove_live_temporaries
     After an interrupt, remove the temporary files of this thread's writes in flight.
 write_exr
@@ -26,6 +32,7 @@ import contextlib
 import os
 import secrets
 import threading
+import zlib
 from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
@@ -33,7 +40,8 @@ import OpenImageIO as oiio
 
 from .errors import OutputError
 
-__all__ = ["atomic_path", "remove_live_temporaries", "check_output_path", "write_exr", "set_attribute", "PIXEL_TYPES"]
+__all__ = ["atomic_path", "check_image_written", "remove_live_temporaries", "check_output_path",
+           "write_image_atomically", "write_exr", "set_attribute", "PIXEL_TYPES"]
 
 #: Pixel types accepted by :func:`write_exr` and ``write_gbuffer``.
 PIXEL_TYPES = ("float", "half")
@@ -48,9 +56,12 @@ def same_file(a, b) -> bool:
         return os.path.abspath(a) == os.path.abspath(b)
 
 
-def _one_line(text: str) -> str:
-    """Collapse a (possibly multi-line) library message onto one line."""
+def _one_line(text: str, most: int = 3) -> str:
+    """Collapse a (possibly multi-line) library message onto one line of at most
+    ``most`` of its lines (a failing write can repeat its complaint per block)."""
     parts = [p.strip() for p in str(text).splitlines() if p.strip()]
+    if len(parts) > most:
+        parts = [*parts[:most - 1], f"... ({len(parts) - most + 1} more)"]
     return "; ".join(parts) if parts else "unknown error"
 
 
@@ -126,6 +137,89 @@ def check_output_path(path: str | os.PathLike, *, exr: bool = False) -> None:
         raise OutputError(f"{path}: folder {folder} does not exist; create it first")
 
 
+#: Bytes of pixels :func:`check_image_written` decodes at a time (bounds its memory).
+READ_BACK_BYTES = 64 << 20
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _read_back(name: str) -> str | None:
+    """Decode every pixel of image ``name``, a band at a time; OpenImageIO's complaint, or None."""
+    inp = oiio.ImageInput.open(name)
+    if inp is None:
+        return _one_line(oiio.geterror())
+    try:
+        spec = inp.spec()
+        step = max(1, spec.tile_height)                 # bands of whole tile rows
+        rows = max(1, READ_BACK_BYTES // max(1, spec.scanline_bytes()) // step) * step
+        z0, z1 = spec.z, spec.z + max(1, spec.depth)
+        for y in range(spec.y, spec.y + spec.height, rows):
+            y1 = min(y + rows, spec.y + spec.height)
+            if spec.tile_width:
+                px = inp.read_tiles(0, 0, spec.x, spec.x + spec.width, y, y1, z0, z1,
+                                    0, spec.nchannels, oiio.UNKNOWN)
+            else:
+                px = inp.read_scanlines(0, 0, y, y1, z0, 0, spec.nchannels, oiio.UNKNOWN)
+            if px is None or inp.has_error:
+                return _one_line(inp.geterror())
+        return None
+    finally:
+        inp.close()
+
+
+def _png_problem(name: str) -> str | None:
+    """Walk the chunks of PNG ``name``: each whole, with a good CRC, up to IEND at the
+    end of the file; what is wrong, or None. (Reading the pixels back with libpng
+    would print its complaint on stderr, and stops before IEND.)"""
+    with open(name, "rb") as f:
+        if f.read(8) != _PNG_SIGNATURE:
+            return "no PNG signature"
+        while True:
+            head = f.read(8)
+            n, kind = int.from_bytes(head[:4], "big"), head[4:]
+            body, crc = f.read(n), f.read(4)
+            if len(head) < 8 or len(body) < n or len(crc) < 4:
+                return "the file ends before its IEND chunk"
+            if zlib.crc32(body, zlib.crc32(kind)) != int.from_bytes(crc, "big"):
+                return f"bad CRC in chunk {kind.decode('latin-1')!r}"
+            if kind == b"IEND":
+                return "data after the IEND chunk" if f.read(1) else None
+
+
+def check_image_written(name: str, display: str | None = None) -> None:
+    """Check that the image file ``name`` just written is whole.
+
+    A PNG must be a whole chain of chunks up to IEND (OpenImageIO's PNG writer
+    reports no error when the disk fills while it closes the file); any other
+    image is read back completely (its EXR and JPEG XL writers can miss such an
+    error too).
+
+    Raises
+    ------
+    OutputError
+        One line naming ``display`` (default ``name``): the write failed.
+    """
+    if os.path.splitext(name)[1].lower() == ".png":
+        problem = _png_problem(name)
+    else:
+        problem = _read_back(name)
+    if problem is not None:
+        raise OutputError(f"{name if display is None else display}: the write failed (disk full?): "
+                          f"the file written is incomplete: {problem}")
+
+
+def _sync(name: str, display: str) -> None:
+    """Flush file ``name`` to the disk: a file system may report a full disk only
+    now, and a crash after the rename must not leave an empty file."""
+    try:
+        fd = os.open(name, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+    except OSError as exc:
+        raise OutputError(f"{display}: the write failed: {exc.strerror or exc}") from exc
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     """Yield a temporary file name that replaces ``path`` on success.
@@ -150,8 +244,9 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     ------
     OutputError
         If the folder of ``path`` is missing or not writable, if ``path`` is
-        a directory, or if the final rename fails. The temporary file is
-        removed in every failure case.
+        a directory, if flushing the file to the disk fails (e.g. the disk
+        is full), or if the final rename fails. The temporary file is removed
+        in every failure case.
 
     Notes
     -----
@@ -196,6 +291,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     try:
         try:
             yield tmp
+            _sync(tmp, path)
         except BaseException:
             _remove_quietly(tmp)
             raise
@@ -264,8 +360,9 @@ def write_image_atomically(display: str, spec, data: np.ndarray, *, what: str = 
     """Write ``data`` with ``spec`` to ``display`` through a temporary file.
 
     The file appears under its name only when open, write and close all
-    succeeded; otherwise an :class:`OutputError` names the step and carries
-    OpenImageIO's message, and no file (partial or temporary) is left.
+    succeeded and it passes :func:`check_image_written`; otherwise an
+    :class:`OutputError` names the step and carries OpenImageIO's message, and
+    no file (partial or temporary) is left.
     """
     with atomic_path(display) as tmp:
         out = oiio.ImageOutput.create(tmp)
@@ -283,6 +380,9 @@ def write_image_atomically(display: str, spec, data: np.ndarray, *, what: str = 
             closed = out.close()
         if ok and not closed:
             raise OutputError(f"{display}: closing the file failed: {_one_line(out.geterror())}")
+        # Writers that failed to write can still return True (and TIFF's sets
+        # has_error when all went well): look at the file itself.
+        check_image_written(tmp, display)
 
 
 #: The largest finite half-float value.

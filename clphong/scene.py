@@ -57,7 +57,11 @@ Rules
 * ``render.background`` is a 3-vector of finite numbers, or a single number
   used for all three channels; it defaults to ``[0, 0, 0]``.
 * A point light's attenuation ``p(d) = c0 + c1*d + c2*d^2`` must be > 0 for
-  every distance ``d >= 0`` (see :func:`attenuation_problem`).
+  every distance ``d >= 0`` (see :func:`attenuation_problem`); a nonzero
+  coefficient must be a normal float32 (``|c| >= 1.17549435e-38``: the kernels
+  flush smaller ones to 0), and the light's brightest radiance, ``color x
+  intensity`` times the largest falloff ``1 / min p(d)`` (see
+  :func:`largest_falloff`), must be within the float32 range.
 
 Error messages
 --------------
@@ -107,6 +111,8 @@ __all__ = [
     "load_scene",
     "parse_scene",
     "attenuation_problem",
+    "largest_falloff",
+    "kernel_falloff_bound",
     "CAMERA_TYPES",
     "CAMERA_UP_AXES",
     "MATERIAL_MODELS",
@@ -497,6 +503,42 @@ def attenuation_problem(c0: float, c1: float, c2: float) -> str | None:
             "need c1 >= 0 or c1^2 < 4*c0*c2")
 
 
+def largest_falloff(c0: float, c1: float, c2: float) -> float:
+    """``1 / min p(d)`` over ``d >= 0``, for a ``p(d) = c0 + c1*d + c2*d^2`` that
+    :func:`attenuation_problem` accepts: ``1/c0`` when ``c1 >= 0``, else the
+    vertex value ``1 / (c0 - c1^2/(4*c2))`` (exact rational arithmetic); ``inf``
+    beyond float64.
+
+    >>> largest_falloff(0.5, 0.0, 1.0), largest_falloff(1.0, -2.0, 2.0)
+    (2.0, 2.0)
+    """
+    if c1 >= 0:
+        return 1.0 / c0            # inf, not an error, beyond float64
+    # c2 > 0: the minimum is at d = -c1/(2*c2) > 0
+    p = Fraction(c0) - Fraction(c1) ** 2 / (4 * Fraction(c2))
+    try:
+        return float(1 / p)
+    except OverflowError:
+        return math.inf
+
+
+def kernel_falloff_bound(c0: float, c1: float, c2: float) -> float:
+    """An upper bound of the falloff ``1/p(d)`` the float32 kernels compute at any
+    ``d >= 0``; ``inf`` where their ``p(d)`` may round to 0 or below.
+
+    docs/error-model.md, row "attenuation 1/p(d)": Horner's roundings (and the
+    coefficients' own) move ``p(d)`` by at most ``4u*(c0 + |c1|*d + |c2|*d^2)``,
+    the reciprocal and the rest add ``3u`` relative (``u = 2^-24``). So the bound
+    is ``(1 + 3u) * largest_falloff`` of ``p(d) - 4u*(c0 + |c1|*d + c2*d^2)``.
+    (A changed ``d``, from the directions' errors, is still some ``d >= 0``.)
+    """
+    k = 4 * _U32
+    lo = (c0 * (1 - k), c1 - k * abs(c1), c2 * (1 - k))
+    if attenuation_problem(*lo) is not None:
+        return math.inf
+    return largest_falloff(*lo) * (1 + 3 * _U32)
+
+
 def _roots(c0: float, c1: float, c2: float) -> tuple[Decimal, Decimal]:
     """Both real roots of ``c2*d^2 + c1*d + c0`` (``c2 != 0``, ``c0 != 0``).
 
@@ -533,6 +575,11 @@ def _gd(x: Decimal) -> str:
 #: The largest finite float32: the kernels take most numbers of a scene as float32 (the
 #: double path reads point lights in float64, but culling and the float path do not).
 _F32_MAX = 3.4028234663852886e38
+#: The smallest normal float32: the kernels build with -cl-denorms-are-zero, so a
+#: smaller nonzero value is 0 to them.
+_F32_MIN = 1.1754943508222875e-38
+#: float32's unit roundoff.
+_U32 = 2.0 ** -24
 
 
 def _f32(x: float) -> float:
@@ -929,11 +976,30 @@ class _Parser:
                     if problem is not None:
                         self.fail(apath, f"{problem}; got {list(att)!r}")
                     a32 = (_f32(att[0]), _f32(att[1]), _f32(att[2]))
-                    if attenuation_problem(*a32):
-                        self.warn(apath, f"{list(att)!r} is positive in float64, but rounded "
-                                         "to float32 as the float path and culling store it, "
-                                         "p(d) = c0 + c1*d + c2*d^2 can reach 0; keep it "
-                                         "further from the limit")
+                    for k, (c, c32) in enumerate(zip(att, a32)):
+                        if c != 0 and abs(c32) < _F32_MIN:
+                            least = f"{_F32_MIN:.9g}"
+                            self.fail(f"{apath}[{k}]", f"{c!r} is nonzero but below the smallest "
+                                      "normal float32, so the kernels (which flush subnormals) "
+                                      "take it as 0; " + (f"c0 must be >= {least}" if k == 0 else
+                                                         f"write 0, or at least {least} in magnitude"))
+                    # The kernels form radiance x 1/p(d) in float32: an infinite
+                    # one (times a weight of 0) is a NaN pixel.
+                    falloff = kernel_falloff_bound(*att)
+                    if math.isinf(falloff):
+                        self.fail(apath, f"{list(att)!r}: min p(d) = "
+                                         f"{_g(1 / largest_falloff(*att))} is so close to 0 "
+                                         "that p(d) = c0 + c1*d + c2*d^2 can round to 0 or "
+                                         "below in the kernels' float32 arithmetic (and the "
+                                         "float path and culling store the coefficients as "
+                                         "float32); keep it further from the limit")
+                    radiance = max(color) * intensity           # rounded once to float32
+                    if not math.isfinite(_f32(radiance * falloff * (1 + _U32))):
+                        self.fail(apath, "color x intensity x the largest falloff 1/min p(d) = "
+                                         f"{_g(radiance * largest_falloff(*att))} is beyond the "
+                                         "float32 range the kernels compute in (|x| <= "
+                                         f"{_g(_F32_MAX)}, less their rounding error); lower the "
+                                         "intensity or raise the minimum of p(d)")
             return Light(type_, color, intensity, position=position, attenuation=att)
         if type_ == "directional":
             if "direction" not in v:
@@ -1006,6 +1072,8 @@ def parse_scene(data: Mapping, source: str = "<scene>") -> Scene:
 
 
 _TOML_POS = re.compile(r"\s*\(at line (\d+), column (\d+)\)\s*$")
+#: What tomllib (before Python 3.14) says instead of a line and column at the end.
+_TOML_END = re.compile(r"\s*\(at end of document\)\s*$")
 
 
 def load_scene(path: str | os.PathLike) -> Scene:
@@ -1054,7 +1122,7 @@ def load_scene(path: str | os.PathLike) -> Scene:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(_toml_message(source, exc)) from None
+        raise SceneError(_toml_message(source, exc, text)) from None
     except RecursionError:
         # tomllib parses nested arrays and inline tables recursively: a few
         # hundred levels exhaust the interpreter's stack (found by fuzzing).
@@ -1111,15 +1179,20 @@ def _check_scene_memory(source: str, size: int) -> None:
                    "there is more memory")
 
 
-def _toml_message(source: str, exc: tomllib.TOMLDecodeError) -> str:
+def _toml_message(source: str, exc: tomllib.TOMLDecodeError, text: str = "") -> str:
     msg = str(exc.args[0]) if exc.args else str(exc)
     line = getattr(exc, "lineno", None)
     col = getattr(exc, "colno", None)
     if getattr(exc, "msg", None):  # Python >= 3.14 keeps the bare message
         msg = exc.msg
     m = _TOML_POS.search(msg)
+    end = _TOML_END.search(msg)
     if m:
         line, col = int(m.group(1)), int(m.group(2))
         msg = msg[: m.start()]
+    elif end:                     # the position len(text), counted as tomllib counts
+        line = text.count("\n") + 1
+        col = len(text) - text.rfind("\n") if line > 1 else len(text) + 1
+        msg = msg[: end.start()]
     where = f"{source}:{line}:{col}" if line is not None else source
     return _one_line(f"{where}: invalid TOML: {msg}")

@@ -339,6 +339,17 @@ def _scene(src: Path, text: str, name="bad.toml") -> Path:
     # finite in float64, infinite as the kernels' float32 (NaN pixels before)
     ("beyond-float32", SCENE.replace("position = [3.0, 5.0, 4.0]", "position = [3.0, 5.0, 4e38]"),
      ["bad.toml: light[0].position[2]: 4e+38 is beyond the float32 range"]),
+    # NaN pixels with exit 0 before: a float32 subnormal c0 is 0 to the kernels (1/0·0) ...
+    ("attenuation-f32-subnormal", SCENE.replace("attenuation = [1.0, 0.0, 0.02]", "attenuation = [1e-40, 0, 0]"),
+     ["bad.toml: light[0].attenuation[0]: 1e-40 is nonzero but below the smallest normal float32"]),
+    # ... so is a float64 one (a warning before)
+    ("attenuation-f64-subnormal", SCENE.replace("attenuation = [1.0, 0.0, 0.02]", "attenuation = [1e-320, 0, 0]"),
+     ["bad.toml: light[0].attenuation[0]: 1e-320 is nonzero but below the smallest normal float32"]),
+    # ... and radiance x 1/p(d) = 1e40 is inf as a float32 (the float and fast paths)
+    ("radiance-times-falloff", SCENE.replace("attenuation = [1.0, 0.0, 0.02]", "attenuation = [1e-10, 0, 0]")
+     .replace("intensity = 5.0", "intensity = 1e30"),
+     ["bad.toml: light[0].attenuation: color x intensity x the largest falloff 1/min p(d) = 1e+40 is "
+      "beyond the float32 range"]),
     # found by tests/test_fuzz.py: tomllib recurses per nesting level (RecursionError)
     ("deeply-nested", "x = " + "[" * 2000 + "]" * 2000 + "\n" + SCENE, ["bad.toml", "nested too deeply"]),
 ], ids=lambda v: v if isinstance(v, str) and len(v) < 30 else "")
@@ -379,6 +390,35 @@ def test_bad_memory_limit_setting(work, capsys, monkeypatch):
     src, out = work
     monkeypatch.setenv("CLPHONG_MAX_MEMORY", "lots")
     fails(render_argv(src, out), capsys, src.parent, "CLPHONG_MAX_MEMORY='lots'", "not a size")
+
+
+@pytest.mark.parametrize("c0", [1e-10, 4.8497015458773895e-12, 0.3, 1.2e-38])
+def test_brightest_accepted_light_renders_no_nan_on_any_path(work, c0):
+    """attenuation [c0, 0, 0] puts the largest falloff 1/c0 on every pixel: at the
+    brightest intensity the scene accepts, no path makes Inf·0 = NaN (before, the
+    limit itself was accepted and the float and fast paths gave NaN for c0 = 4.85e-12)."""
+    import tomllib
+
+    import clphong
+    from clphong.errors import SceneError
+
+    src, _ = work
+    gb = clphong.read_gbuffer(src / "gbuf.exr")
+    top = 3.4028234663852886e38 * c0
+    text = SCENE.replace("attenuation = [1.0, 0.0, 0.02]", f"attenuation = [{c0!r}, 0, 0]") \
+                .replace("color = [1.0, 0.9, 0.8]", "color = [1.0, 1.0, 1.0]")
+    scenes = []
+    for scale in (1.0, 1 - 2.0 ** -22, 1 - 2.0 ** -20):
+        doc = tomllib.loads(text.replace("intensity = 5.0", f"intensity = {top * scale!r}"))
+        try:
+            scenes.append(clphong.parse_scene(doc, "s.toml"))
+        except SceneError as exc:
+            assert "beyond the float32 range" in str(exc)
+    assert scenes, "the margin refuses even 2^-20 below the limit"
+    for scene in scenes:
+        for path in (None, "float", "fast"):
+            rgb = clphong.Renderer(scene, path=path).render(gb)
+            assert not np.isnan(rgb).any(), (scene.lights[0].intensity, path)
 
 
 def _read(path):
@@ -565,6 +605,50 @@ def test_disk_full_while_writing_keeps_the_previous_output(work, capsys, monkeyp
     fails(render_argv(src, out, gbuffer=src / "big.exr"), capsys, src.parent, "beauty.exr",
           "failed")
     assert (out / "beauty.exr").read_bytes() == good
+
+
+class _FullAtClose(_FileSizeLimitedOutput):
+    """The disk fills up just as the file is closed: close() may write nothing more.
+    OpenImageIO's PNG and EXR writers then return True with no error recorded."""
+
+    @classmethod
+    def create(cls, name):
+        out = super().create(name)
+        if out is not None:
+            out.name = name
+        return out
+
+    def write_image(self, data):
+        return self._out.write_image(data)
+
+    def close(self):
+        self.limit = os.path.getsize(self.name)     # what is on the disk so far
+        return super().close()
+
+
+@pytest.mark.parametrize("option,name,when", [
+    # (-o while writing: test_disk_full_while_writing_keeps_the_previous_output)
+    ("-o", "beauty.exr", "closing"),
+    ("--sdr", "beauty.png", "writing"), ("--sdr", "beauty.png", "closing"),
+    ("--hdr", "beauty_pq.png", "writing"), ("--hdr", "beauty_pq.png", "closing"),
+    ("--contact-sheet", "sheet.png", "writing"), ("--contact-sheet", "sheet.png", "closing"),
+])
+def test_disk_full_while_writing_any_output_keeps_the_previous_one(work, capsys, monkeypatch,
+                                                                   option, name, when):
+    """Before, these exited 0 leaving a PNG cut short (or empty), or an empty EXR."""
+    from clphong import output
+
+    src, out = work
+    big = random_gbuffer(np.random.default_rng(9), 64, 64)
+    write_gbuffer(src / "big.exr", big.position, big.normal, big.albedo, coverage=big.coverage)
+    argv = ["render", src / "scene.toml", src / "big.exr", option, out / name]
+    assert cli(argv) == 0
+    good = (out / name).read_bytes()
+    capsys.readouterr()
+    monkeypatch.setattr(output.oiio, "ImageOutput",
+                        _FileSizeLimitedOutput if when == "writing" else _FullAtClose)
+    fails(argv, capsys, src.parent, name, "failed")
+    assert (out / name).read_bytes() == good
 
 
 @pytest.mark.parametrize("how,code,text", [

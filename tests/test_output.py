@@ -159,7 +159,9 @@ def test_write_exr_unwritable_folder_simulated(tmp_path, monkeypatch):
 
 
 class _FailingOutput:
-    """Stands in for oiio.ImageOutput: opens fine, then the pixel write fails."""
+    """Stands in for oiio.ImageOutput: opens fine, then the pixel write fails (stage
+    "silent": every call returns True, as OpenImageIO's writers can on a full disk,
+    and the file is left as open() wrote it)."""
 
     stage = "write"
 
@@ -182,7 +184,7 @@ class _FailingOutput:
         return f"simulated {self.stage} failure\nsecond line"
 
 
-@pytest.mark.parametrize("stage", ["create", "open", "write", "close"])
+@pytest.mark.parametrize("stage", ["create", "open", "write", "close", "silent"])
 def test_write_exr_oiio_failure_leaves_nothing(tmp_path, monkeypatch, stage):
     out = tmp_path / "out.exr"
     write_exr(out, np.ones((5, 7, 3), np.float32))          # an existing good file
@@ -193,10 +195,66 @@ def test_write_exr_oiio_failure_leaves_nothing(tmp_path, monkeypatch, stage):
         write_exr(out, _rgb())
     msg = str(exc.value)
     assert msg.startswith(str(out)) and "\n" not in msg
-    if stage != "create":
+    if stage == "silent":
+        assert "the write failed (disk full?): the file written is incomplete" in msg
+    elif stage != "create":
         assert f"simulated {stage} failure; second line" in msg
     assert _listing(tmp_path) == ["out.exr"]
     assert out.read_bytes() == before
+
+
+def test_write_exr_flush_failure_keeps_the_previous_file(tmp_path, monkeypatch):
+    """A file system that reports the full disk only at fsync (NFS, quotas)."""
+    import errno
+
+    out = tmp_path / "out.exr"
+    write_exr(out, np.ones((5, 7, 3), np.float32))
+    before = out.read_bytes()
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(output.os, "fsync", full)
+    with pytest.raises(OutputError, match=r"out\.exr: the write failed: No space left on device$"):
+        write_exr(out, _rgb())
+    assert _listing(tmp_path) == ["out.exr"]
+    assert out.read_bytes() == before
+
+
+def _whole_image(path, kind):
+    """A 40x50 noise image (several PNG IDAT chunks, several EXR scanline blocks)."""
+    rgb = np.random.default_rng(3).random((40, 50, 3)).astype(np.float32)
+    if kind == "exr-tiled":
+        write_exr(path, rgb, pixel_type="half", tiled=True)
+        return
+    fmt = oiio.HALF if kind == "exr" else oiio.UINT16
+    output.write_image_atomically(str(path), oiio.ImageSpec(50, 40, 3, fmt), rgb)
+
+
+@pytest.mark.parametrize("kind", ["png", "exr", "exr-tiled", "tif", "jxl"])
+def test_check_image_written_refuses_a_file_cut_anywhere(tmp_path, monkeypatch, kind):
+    """What a disk that fills up leaves: the file cut short. Every cut is found, even
+    those OpenImageIO's readers accept (a PNG without its IEND chunk); the whole
+    file passes, read back a band at a time."""
+    from clphong.writers import jpegxl_available
+
+    if kind == "jxl" and not jpegxl_available():
+        pytest.skip("this OpenImageIO has no JPEG XL writer")
+    ext = kind.split("-")[0]
+    whole = tmp_path / f"whole.{ext}"
+    _whole_image(whole, kind)
+    monkeypatch.setattr(output, "READ_BACK_BYTES", 1)       # one row (of tiles) at a time
+    output.check_image_written(str(whole))
+    data = whole.read_bytes()
+    cut = tmp_path / f"cut.{ext}"
+    for n in sorted({0, 1, 8, len(data) // 3, len(data) // 2, len(data) - 12, len(data) - 1}):
+        cut.write_bytes(data[:n])
+        with pytest.raises(OutputError) as exc:
+            output.check_image_written(str(cut), f"out.{ext}")
+        msg = str(exc.value)
+        assert msg.startswith(f"out.{ext}: the write failed (disk full?): the file written is "
+                              "incomplete: "), (n, msg)
+        assert "\n" not in msg
 
 
 def test_write_exr_permissions_follow_umask(tmp_path):
@@ -293,7 +351,7 @@ def test_interrupt_between_create_and_with_block_is_cleaned_up(tmp_path, monkeyp
 
 
 def test_atomic_path_temp_deleted_by_body(tmp_path):
-    with pytest.raises(OutputError, match="cannot replace"):
+    with pytest.raises(OutputError, match="gone.exr: the write failed: No such file"):
         with atomic_path(tmp_path / "gone.exr") as tmp:
             os.remove(tmp)
     assert _listing(tmp_path) == []

@@ -23,6 +23,8 @@ from clphong.scene import (
     Scene,
     SceneWarning,
     attenuation_problem,
+    kernel_falloff_bound,
+    largest_falloff,
     load_scene,
     parse_scene,
 )
@@ -377,12 +379,101 @@ def test_negative_attenuation_coefficients_allowed_when_positive():
     assert parse_quietly(data).lights[0].attenuation == (1.0, -1.0, 1.0)
 
 
-def test_attenuation_float32_warning():
+F32_MAX = float(np.finfo(np.float32).max)
+F32_MIN = float(np.finfo(np.float32).tiny)          # the smallest normal float32
+U = 2.0 ** -24
+
+
+def test_attenuation_that_float32_rounding_takes_to_zero_is_refused():
+    """> 0 in float64 only (before: a warning, and p(d) = 0 in the float path)."""
     data = base()
-    data["light"][0]["attenuation"] = [1, -2, 1 + 2**-52]  # > 0 in float64 only
-    with pytest.warns(SceneWarning, match=r"light\[0\]\.attenuation: .*float32"):
-        s = parse_scene(data, SRC)
-    assert len(s.warnings) == 1
+    data["light"][0]["attenuation"] = [1, -2, 1 + 2**-52]
+    msg = error_of(data)
+    assert_one_line(msg)
+    assert msg.startswith("scene.toml: light[0].attenuation: [1.0, -2.0, 1.0000000000000002]: "
+                          "min p(d) = 2.22045e-16 is so close to 0")
+    assert "float32" in msg
+
+
+@pytest.mark.parametrize("att,k", [
+    ([1e-40, 0, 0], 0),          # a float32 subnormal: 0 to the kernels (NaN pixels before)
+    ([1e-320, 0, 0], 1 and 0),   # a float64 subnormal (only a warning before)
+    ([F32_MIN / 2, 0, 0], 0),
+    ([1, 1e-40, 0], 1),
+    ([1, -1e-40, 1], 1),
+    ([1, 0, 1e-50], 2),          # rounds to 0 as a float32
+])
+def test_attenuation_coefficient_the_kernels_flush_to_zero(att, k):
+    data = base()
+    data["light"][0]["attenuation"] = att
+    msg = error_of(data)
+    assert_one_line(msg)
+    assert msg.startswith(f"scene.toml: light[0].attenuation[{k}]: {att[k]!r} is nonzero but below "
+                          "the smallest normal float32")
+    assert ("c0 must be >= 1.17549435e-38" if k == 0 else "write 0, or at least") in msg
+
+
+def test_attenuation_coefficients_at_the_smallest_normal_float32_are_accepted():
+    data = base()
+    data["light"][0]["intensity"] = 1.0
+    data["light"][0]["attenuation"] = [F32_MIN, 0.0, -F32_MIN]    # c2 < 0 is refused ...
+    assert "need c2 >= 0" in error_of(data)
+    data["light"][0]["attenuation"] = [F32_MIN, F32_MIN, F32_MIN]
+    assert parse_quietly(data).lights[0].attenuation == (F32_MIN, F32_MIN, F32_MIN)
+    data["light"][0]["attenuation"] = [float(f"{F32_MIN:.9g}"), 0, 0]   # the message's bound
+    parse_quietly(data)
+
+
+def test_radiance_times_the_largest_falloff_beyond_float32_is_refused():
+    """intensity 1e30 over c0 = 1e-10: radiance x 1/p(d) = 1e40 is inf as a float32
+    (NaN pixels on the float and fast paths before)."""
+    data = base()
+    data["light"][0]["intensity"] = 1e30
+    data["light"][0]["color"] = [1.0, 0.5, 0.25]
+    data["light"][0]["attenuation"] = [1e-10, 0, 0]
+    msg = error_of(data)
+    assert_one_line(msg)
+    assert msg.startswith("scene.toml: light[0].attenuation: color x intensity x the largest "
+                          "falloff 1/min p(d) = 1e+40 is beyond the float32 range")
+    assert "lower the intensity" in msg
+    # the minimum at the vertex d = -c1/(2*c2) = 1 counts, not just p(0) = c0 = 1
+    data["light"][0]["intensity"] = 1e38
+    data["light"][0]["attenuation"] = [1, -2, 1.25]        # min p(d) = 0.2 at d = 0.8
+    assert "= 5e+38 is beyond" in error_of(data)
+    data["light"][0]["attenuation"] = [1, 2, 1.25]         # min p(d) = p(0) = 1
+    parse_quietly(data)
+
+
+@pytest.mark.parametrize("c0", [0.1, 1 / 3, 0.7, 0.9, 7e-30, 5e-20, 4.8497015458773895e-12,
+                                F32_MIN * 1.5])
+def test_radiance_times_falloff_limit_keeps_the_kernels_rounding(c0):
+    """At the limit itself the float kernels' 1/fl(c0) x fl(radiance) can round to
+    inf (seen for c0 = 4.85e-12): accepted only below it by the error model's margin."""
+    data = base()
+    data["light"][0]["color"] = [1.0, 1.0, 1.0]
+    data["light"][0]["attenuation"] = [c0, 0, 0]
+    data["light"][0]["intensity"] = F32_MAX * c0
+    assert "beyond the float32 range" in error_of(data)
+    data["light"][0]["intensity"] = F32_MAX * c0 * (1 - 16 * U)
+    parse_quietly(data)
+
+
+def test_largest_falloff_is_one_over_the_minimum_of_p():
+    assert largest_falloff(0.5, 0.0, 1.0) == 2.0          # min at d = 0
+    assert largest_falloff(1.0, -2.0, 2.0) == 2.0         # vertex d = 0.5, p = 0.5
+    assert largest_falloff(1.0, -2.0, 1.0 + 2**-52) == 2.0**52 + 1   # exact, not 0 or inf
+    assert largest_falloff(5e-324, 0.0, 0.0) == math.inf
+    for c in [(1.0, -1.0, 1.0), (3.0, -0.5, 0.03), (1e-30, 0.0, 1.0), (2.0, 1.0, 0.0)]:
+        d = np.linspace(0, 100, 200001)
+        p = c[0] + c[1] * d + c[2] * d * d
+        assert largest_falloff(*c) >= 1 / p.min() * (1 - 1e-12)
+        assert largest_falloff(*c) <= 1 / p.min() * (1 + 1e-8)   # the grid's spacing near the vertex
+        # the error model: p(d) moves by 4u*(c0 + |c1|*d + |c2|*d^2), kappa times p's minimum
+        v = max(0.0, -c[1] / (2 * c[2])) if c[2] else 0.0
+        kappa = (c[0] + abs(c[1]) * v + c[2] * v * v) * largest_falloff(*c)
+        bound = kernel_falloff_bound(*c)
+        assert largest_falloff(*c) * (1 + 4 * kappa * U) < bound
+        assert bound <= largest_falloff(*c) * (1 + (4 * kappa + 3) * U) * (1 + 2 * (4 * kappa * U) ** 2)
 
 
 # --------------------------------------------------------------------------
@@ -475,14 +566,44 @@ def test_duplicate_key_is_a_toml_error(tmp_path):
         load_scene(f)
 
 
-def test_invalid_toml_at_end_of_document(tmp_path):
+@pytest.mark.parametrize("text,where", [
+    ('[camera]\nposition = [0, 2,\n', "3:1"),        # after the last newline
+    ('[camera]\nposition = [0.0, 2.0', "2:21"),      # no newline at the end
+    ('x = "abc', "1:9"),
+])
+def test_invalid_toml_at_end_of_document(tmp_path, text, where):
+    """tomllib says "(at end of document)" instead of a position: the message still
+    gives the line and column, as tomllib counts them."""
     f = tmp_path / "bad.toml"
-    f.write_text('[camera]\nposition = [0, 2,\n', encoding="utf-8")
+    f.write_text(text, encoding="utf-8")
     with pytest.raises(SceneError) as info:
         load_scene(f)
     msg = str(info.value)
     assert_one_line(msg)
-    assert msg.startswith(f"{f}") and "invalid TOML" in msg
+    assert msg.startswith(f"{f}:{where}: invalid TOML: ")
+    assert "end of document" not in msg
+
+
+def test_fuzzing_dictionary_has_every_scene_key():
+    """tests/scene.dict (libFuzzer format, for tests/fuzz_atheris.py) stays in step
+    with the format: every line is a comment or one quoted entry, and every table
+    and key name the parser knows is an entry."""
+    import ast
+    from pathlib import Path
+
+    from clphong import scene
+
+    lines = (Path(__file__).parent / "scene.dict").read_text(encoding="ascii").splitlines()
+    entries = set()
+    for ln in lines:
+        if ln.strip() and not ln.startswith("#"):
+            assert re.fullmatch(r'"(?:[^"\\]|\\.)*"', ln), ln
+            entries.add(ast.literal_eval(ln))
+    keys = {*scene._TOP_KEYS, *scene._CAMERA_ALL, *scene._MATERIAL_KEYS, *scene._RENDER_KEYS,
+            *scene._LIGHT_ALL}
+    assert keys <= entries
+    assert {"[camera]", "[material]", "[render]", "[[light]]"} <= entries
+    assert {f'"{v}"' for v in (*scene.LIGHT_TYPES, *scene.CAMERA_TYPES, *scene.MATERIAL_MODELS)} <= entries
 
 
 def test_non_utf8_file(tmp_path):
