@@ -45,7 +45,7 @@ import OpenImageIO as oiio
 
 from .camera_meta import WORLD_TO_CAMERA, eye_from_matrix, world_to_camera
 from .errors import ClphongError, GBufferError, OutputError
-from .output import _one_line, atomic_path, same_file, write_exr
+from .output import _one_line, atomic_path, check_image_written, same_file, write_exr
 
 __all__ = ["inspect_file", "format_report", "diff_images", "DiffResult", "DiffError", "METRICS"]
 
@@ -437,3 +437,4 @@ def _write_heatmap(path: str, heat: np.ndarray, metric: str) -> None:
     with atomic_path(path) as tmp:
         if not mapped.write(tmp):
             raise OutputError(f"{path}: cannot write the heat map: {_one_line(mapped.geterror())}")
+        check_image_written(tmp, path)

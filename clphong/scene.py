@@ -897,9 +897,11 @@ class _Parser:
         exposure = 0.0
         if "exposure" in t:
             exposure = self.num(t["exposure"], "render.exposure")
-            if abs(exposure) > 100:
+            from .display import MAX_EXPOSURE
+
+            if abs(exposure) > MAX_EXPOSURE:
                 self.fail("render.exposure", f"{_g(exposure)} stops is out of range "
-                                             "(2^EV must stay a float32); use -100..100")
+                          f"(2^EV must stay a float32); use -{MAX_EXPOSURE:g}..{MAX_EXPOSURE:g}")
         op_name = "none"
         if "tonemap" in t:
             v = t["tonemap"]
