@@ -3,7 +3,9 @@
 For people who would rather look than read: a PNG grid of labelled tiles, the
 same scene-linear frame through each operator of :mod:`clphong.tonemap` (the
 device's display transform, sRGB-encoded) and through each view of the SDR
-display (OCIO), at the same exposure.
+display (OCIO), at the same exposure. For a display other than sRGB the
+operator tiles are converted to that display's colour space (OCIO), and the
+sheet is tagged with it.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import math
 import numpy as np
 
 from . import tonemap
-from .color import SRGB_CICP, ColorConfig, WorkingSpace
+from .color import SRGB_CICP, ColorConfig, ColorError, WorkingSpace
 from .display import DisplayTransform, apply_display_transform
 from .writers import write_sdr
 
@@ -51,10 +53,27 @@ def _label(tile: np.ndarray, text: str) -> np.ndarray:
     return buf.get_pixels(oiio.FLOAT)
 
 
+def sheet_colorspace(config: ColorConfig, display: str) -> str:
+    """The display colour space of a sheet for ``display`` (that of its default view)."""
+    return config.display_colorspace(display, config.oiio.getDefaultViewName(display))
+
+
+def _srgb_colorspace(config: ColorConfig) -> str:
+    """The config's sRGB display colour space (cICP 1, 13), which the operator tiles are in."""
+    for d in config.displays():
+        cs = sheet_colorspace(config, d)
+        if config.cicp(cs) == SRGB_CICP:
+            return cs
+    raise ColorError(f"the OCIO config {config.path} has no sRGB display to convert the "
+                     "operator tiles of the contact sheet from; choose an sRGB --display")
+
+
 def contact_sheet(rgb, ws: WorkingSpace, config: ColorConfig, *, exposure: float = 0.0,
                   white: float | None = None, display: str | None = None,
-                  operators=None, views=None) -> tuple[np.ndarray, list[str]]:
-    """Build the sheet: sRGB-encoded (H, W, 3) float32 and the tile labels in order.
+                  look: str | None = None, operators=None,
+                  views=None) -> tuple[np.ndarray, list[str]]:
+    """Build the sheet: (H, W, 3) float32 encoded for ``display``'s colour space
+    (:func:`sheet_colorspace`; sRGB by default) and the tile labels in order.
 
     Parameters
     ----------
@@ -62,21 +81,26 @@ def contact_sheet(rgb, ws: WorkingSpace, config: ColorConfig, *, exposure: float
         Scene-linear frame in working space ``ws``.
     display : str, optional
         The SDR display whose views are shown (the config's default).
+    look : str, optional
+        OCIO look(s) applied in the views.
     operators, views : sequence of str, optional
         Subsets to show (all operators; every view of ``display`` but ``Raw``).
     """
-    display, _, _ = config.check_display_view(display, None)
+    display, _, looks = config.check_display_view(display, None, look)
+    target = sheet_colorspace(config, display)
+    source = target if config.cicp(target) == SRGB_CICP else _srgb_colorspace(config)
     small = _resize(np.asarray(rgb, np.float32), TILE_WIDTH)
     matrix = config.working_to_rec709(ws)
     tiles, labels = [], []
     for name in operators or tonemap.operator_names():
         dt = DisplayTransform(name, exposure=exposure, white=white, matrix=matrix)
-        tiles.append(apply_display_transform(small, dt))
+        tile = apply_display_transform(small, dt)
+        tiles.append(tile if source == target else config.convert(tile, source, target))
         labels.append(f"{dt.operator}")
     if views is None:
         views = [v for v in config.views(display) if v.lower() != "raw"]
     for view in views:
-        tiles.append(config.display_view(small, ws, display, view, exposure=exposure))
+        tiles.append(config.display_view(small, ws, display, view, looks, exposure=exposure))
         labels.append(f"{view}")
     th, tw, _ = small.shape
     cols = min(COLUMNS, len(tiles))
@@ -91,12 +115,13 @@ def contact_sheet(rgb, ws: WorkingSpace, config: ColorConfig, *, exposure: float
 
 
 def write_contact_sheet(path, rgb, ws: WorkingSpace, config: ColorConfig, **kwargs) -> list[str]:
-    """Write :func:`contact_sheet` as an 8-bit sRGB PNG; return the labels.
+    """Write :func:`contact_sheet` as an 8-bit PNG; return the labels.
 
-    The views are encoded for ``display`` (default: the config's default display,
-    sRGB in the built-in config); the sheet is tagged as sRGB.
+    The sheet is encoded for ``display`` (default: the config's default display,
+    sRGB in the built-in config) and tagged with its colour space and cICP.
     """
     sheet, labels = contact_sheet(rgb, ws, config, **kwargs)
-    write_sdr(path, sheet, bits=8, dither=True, colorspace="srgb_rec709_display",
-              cicp=SRGB_CICP)
+    display, _, _ = config.check_display_view(kwargs.get("display"), None)
+    cs = sheet_colorspace(config, display)
+    write_sdr(path, sheet, bits=8, dither=True, colorspace=config.interop_id(cs), cicp=config.cicp(cs))
     return labels

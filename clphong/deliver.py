@@ -267,10 +267,11 @@ def _needs_config(options: OutputOptions, paths: OutputPaths, ws: color.WorkingS
                 or (paths.sdr and (options.ocio_view or ws.name != "lin_rec709")))
 
 
-def _check_tiff(cfg: color.ColorConfig, display: str, view: str, paths: OutputPaths) -> None:
-    """A TIFF SDR output must be sRGB: the only display colour space its file can name."""
+def _check_tiff(cfg: color.ColorConfig, display: str, view: str, paths) -> None:
+    """A TIFF SDR output (of ``paths``, a sequence) must be sRGB: the only display
+    colour space its file can name."""
     space = cfg.interop_id(cfg.display_colorspace(display, view))
-    for path in paths.sdr:
+    for path in paths:
         if os.path.splitext(path)[1].lower() != ".png" and space != TIFF_COLORSPACE:
             raise OutputError(f"{path}: a TIFF cannot be tagged with the colour space {space!r} of "
                               f"display {display!r} (only sRGB); write a .png, which carries cICP")
@@ -312,12 +313,14 @@ def check_outputs(options: OutputOptions, paths: OutputPaths, *, warn: bool = Tr
         cfg = _load_config(options.ocio_config)
         if options.ocio_view:
             display, view, _ = cfg.check_display_view(options.display, options.view, options.look)
-            if paths.sdr:
-                _check_tiff(cfg, display, view, paths)
+            _check_tiff(cfg, display, view, paths.sdr)
         if paths.hdr or options.hdr_view:
             cfg.check_display_view(color.HDR_DISPLAY, options.hdr_view or color.HDR_VIEW, options.look)
         if paths.contact_sheet or (paths.sdr and not options.ocio_view):
             _to_rec709(cfg, ws.name)
+        if paths.contact_sheet:          # encoded for --display (default: the config's own)
+            display, view, _ = cfg.check_display_view(options.display, None, options.look)
+            _check_tiff(cfg, display, view, paths.contact_sheet)
     return options
 
 
@@ -452,6 +455,7 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
         t0 = time.perf_counter()
         for path in paths.contact_sheet:
             write_contact_sheet(path, rgb, ws, cfg, exposure=options.exposure, white=options.white,
+                                look=options.look,
                                 display=options.display)
         times["contact_sheet"] = time.perf_counter() - t0
     return rgb, times

@@ -503,3 +503,29 @@ def test_display_p3_png_is_tagged_p3_and_a_p3_tiff_is_refused(tmp_path, capsys):
         err = _one_line_error(capsys)
         assert f"{tif}: a TIFF cannot be tagged with the colour space 'srgb_p3d65_display'" in err, err
     assert not tif.exists()
+
+
+def test_contact_sheet_for_a_p3_display_is_p3_throughout_and_tagged_so(tmp_path, capsys):
+    """The operator tiles (sRGB-encoded by the kernel) are converted to the display's
+    colour space by OCIO, and the sheet is tagged with it; a TIFF sheet there is refused."""
+    import clphong
+    from clphong.contact import TILE_WIDTH, contact_sheet
+    from clphong.deliver import _load_config
+
+    p3 = "Display P3 - Display"
+    sheet = tmp_path / "sheet.png"
+    assert main(["render", *SPHERES, "--contact-sheet", str(sheet), "--display", p3]) == 0
+    a = attrs(sheet)[0]
+    assert a["oiio:ColorSpace"] == "srgb_p3d65_scene" and tuple(a["CICP"]) == (12, 13, 0, 1), a
+    rgb = clphong.render(clphong.load_scene(SPHERES[0]), clphong.read_gbuffer(SPHERES[1]))
+    cfg = _load_config(None)
+    srgb, _ = contact_sheet(rgb, REC709, cfg, operators=["agx"], views=[])
+    conv, _ = contact_sheet(rgb, REC709, cfg, operators=["agx"], views=[], display=p3)
+    want = cfg.convert(srgb, "sRGB - Display", "Display P3 - Display")
+    tile = (slice(4, 4 + 100), slice(4, 4 + TILE_WIDTH))        # below the label, inside the tile
+    assert not np.allclose(conv[tile], srgb[tile], atol=1e-3)
+    assert np.allclose(conv[tile], np.clip(want[tile], 0, 1), atol=1e-5)
+    capsys.readouterr()
+    assert main(["render", *SPHERES, "--contact-sheet", str(tmp_path / "s.tif"),
+                 "--display", p3]) == 1
+    assert "a TIFF cannot be tagged" in capsys.readouterr().err
