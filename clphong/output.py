@@ -58,8 +58,9 @@ def same_file(a, b) -> bool:
 
 def _one_line(text: str, most: int = 3) -> str:
     """Collapse a (possibly multi-line) library message onto one line of at most
-    ``most`` of its lines (a failing write can repeat its complaint per block)."""
-    parts = [p.strip() for p in str(text).splitlines() if p.strip()]
+    ``most`` of its distinct lines (a failing write can repeat its complaint per
+    block, OpenImageIO a failed open once per attempt)."""
+    parts = list(dict.fromkeys(p.strip() for p in str(text).splitlines() if p.strip()))
     if len(parts) > most:
         parts = [*parts[:most - 1], f"... ({len(parts) - most + 1} more)"]
     return "; ".join(parts) if parts else "unknown error"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,22 @@ GBUFFERS = REPO / "gbuffers"
 # Scene and G-buffer builders shared with the hard-case suite (make_scene
 # bypasses the file validation, so tests may use c0 = 0).
 from clphong.hardcases import make_gbuffer, make_scene  # noqa: E402,F401
+
+
+#: The bad-input catalogue: (case, exit code, the one error line) of every case of
+#: tests/test_hostile.py that runs the CLI through its fails(); printed as a Markdown
+#: table at the end of the run when CLPHONG_CATALOGUE is set:
+#: ``CLPHONG_CATALOGUE=1 python -m pytest -q tests/test_hostile.py``.
+CATALOGUE: list[tuple[str, int, str]] = []
+
+
+def pytest_terminal_summary(terminalreporter):
+    if os.environ.get("CLPHONG_CATALOGUE") and CATALOGUE:
+        from clphong.bench_cli import markdown_table
+
+        terminalreporter.write_line(f"\nbad-input catalogue ({len(CATALOGUE)} cases):")
+        rows = [(case, f"`{msg}`".replace("|", "\\|"), code) for case, code, msg in CATALOGUE]
+        terminalreporter.write_line(markdown_table(["case", "message", "exit code"], rows))
 
 
 def random_gbuffer(rng, h=24, w=40, *, spread=3.0, background_fraction=0.1, maps=()):

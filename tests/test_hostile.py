@@ -34,7 +34,7 @@ from clphong.cli import main
 from clphong.gbuffer import write_gbuffer
 from clphong.output import write_exr
 
-from conftest import random_gbuffer
+from conftest import CATALOGUE, random_gbuffer
 
 H, W = 6, 8
 
@@ -110,6 +110,8 @@ def fails(argv, capsys, root: Path, *needles: str, code: int = 1) -> str:
     after = _files(root)
     assert after == before, f"left behind: {sorted(set(after) - set(before))}"
     assert not [p for p in after if ".tmp-" in p]
+    case = os.environ.get("PYTEST_CURRENT_TEST", "?").split("::")[-1].split(" ")[0]
+    CATALOGUE.append((case, rc, line.replace(str(root), "DIR")))
     return line
 
 
