@@ -558,15 +558,44 @@ def table(results) -> str:
     return "\n".join(rows)
 
 
+def sample_cases(folder) -> list[HardCase]:
+    """Each ``NAME.toml`` of ``folder`` with its ``NAME.exr`` (the shipped samples),
+    as a case held to the same bound and target."""
+    from pathlib import Path
+
+    from .gbuffer import read_gbuffer
+    from .scene import load_scene
+
+    cases = []
+    for toml in sorted(Path(folder).glob("*.toml")):
+        exr = toml.with_suffix(".exr")
+        if exr.exists():
+            cases.append(HardCase(name=toml.stem, group="samples", what=f"{toml} with {exr.name}",
+                                  build=lambda t=toml, e=exr: (load_scene(t), read_gbuffer(e))))
+    return cases
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m clphong.hardcases",
                                 description="Run the hard-case suite and print its table.")
     p.add_argument("--fp32-directions", action="store_true",
                    help="use the float32-directions fast path instead of the default")
+    p.add_argument("--kernel", choices=("lanes", "obvious"), default="lanes",
+                   help="the lane kernel (default) or the one-pixel-per-work-item baseline")
     p.add_argument("-k", metavar="SUBSTRING", help="only cases whose name contains this")
+    p.add_argument("--samples", nargs="?", const="gbuffers", metavar="DIR",
+                   help="instead of the hard cases, the samples of DIR (default gbuffers/): "
+                        "each NAME.toml with its NAME.exr")
     args = p.parse_args(argv)
     kw = {"fp64_directions": False} if args.fp32_directions else {}
-    chosen = [c for c in CASES if not args.k or args.k in c.name]
+    if args.kernel != "lanes":
+        kw["kernel"] = args.kernel
+    cases = CASES
+    if args.samples is not None:
+        cases = sample_cases(args.samples)
+        if not cases:
+            p.error(f"{args.samples}: no NAME.toml with a NAME.exr beside it")
+    chosen = [c for c in cases if not args.k or args.k in c.name]
     if not chosen:
         p.error(f"no case name contains {args.k!r}; cases: {', '.join(c.name for c in CASES)}")
     results = [evaluate(c, **kw) for c in chosen]

@@ -224,3 +224,14 @@ def test_cli_nonfinite_policy(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("clphong: error:") and str(src) in err and err.count("\n") == 1
     assert not (tmp_path / "b.exr").exists()
+
+
+def test_shipped_samples_as_cases_hold_the_bound_and_the_target(capsys):
+    """python -m clphong.hardcases --samples: each gbuffers/NAME.toml with NAME.exr."""
+    from conftest import GBUFFERS
+
+    assert hardcases.main(["--samples", str(GBUFFERS)]) == 0
+    out = capsys.readouterr().out
+    assert "| ortho | samples |" in out and "| spheres | samples |" in out and "2/2" in out
+    with pytest.raises(SystemExit):
+        hardcases.main(["--samples", str(GBUFFERS / "none")])
