@@ -974,3 +974,19 @@ def test_pool_workers_share_the_cores_and_the_memory(monkeypatch):
     monkeypatch.setattr(tiling, "memory_budget", lambda: tiling.MemoryBudget(None, "no limit"))
     monkeypatch.delenv("CLPHONG_MAX_MEMORY")
     assert batch.worker_environment(3) == {"POCL_CPU_MAX_CU_NUM": "2"}
+
+
+@pytest.mark.parametrize("tty,quiet", [(True, False), (True, True), (False, False)],
+                         ids=["terminal", "quiet", "not-a-terminal"])
+def test_progress_bar_on_a_terminal_only_and_not_with_quiet(shot, tmp_path, capsys, monkeypatch,
+                                                            tty, quiet):
+    """tqdm's bar (outputs done of the total, outputs/s and ETA) on a terminal; none with
+    --quiet (which also drops the totals) or when stderr is not a terminal."""
+    root, _ = shot
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: tty)
+    argv = _args(root, tmp_path, "--frames", "1-3", *(["--quiet"] if quiet else []))
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    shows_bar = "6/6" in err and "output/s" in err
+    assert shows_bar == (tty and not quiet), err
+    assert ("6 written" in err) == (not quiet), err

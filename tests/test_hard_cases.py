@@ -235,3 +235,17 @@ def test_shipped_samples_as_cases_hold_the_bound_and_the_target(capsys):
     assert "| ortho | samples |" in out and "| spheres | samples |" in out and "2/2" in out
     with pytest.raises(SystemExit):
         hardcases.main(["--samples", str(GBUFFERS / "none")])
+
+
+@pytest.mark.parametrize("name", ["nan-albedo", "inf-position", "nan-normal"])
+def test_nonfinite_inputs_never_reach_the_display_output(name):
+    """The default policy makes NaN/Inf G-buffer pixels background before shading, so
+    the fused SDR output, like the scene-linear one, is finite everywhere."""
+    from clphong.display import DisplayTransform, render_display
+
+    scene, gb = _by_name(name).build()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", InputWarning)
+        rgb, shown = render_display(Renderer(scene), gb, DisplayTransform("agx"))
+    assert np.all(np.isfinite(rgb)) and np.all(np.isfinite(shown))
+    assert shown.min() >= 0.0 and shown.max() <= 1.0
