@@ -742,7 +742,9 @@ def _run_pool(jobs: Sequence[Job], specs: dict, n: int, on_outcomes: Callable,
             on_outcomes(outcomes)
 
     def feed(w):
-        while pending and len(w.held) < _AHEAD:
+        # One job ahead while there are enough for every worker: near the end a
+        # worker holding two frames would leave another idle.
+        while pending and (not w.held or (len(w.held) < _AHEAD and len(pending) >= len(workers))):
             i = pending.popleft()
             try:
                 w.conn.send((i, jobs[i]))

@@ -43,22 +43,17 @@ SIZE = (1920, 1080)
 
 
 def scene_toml(scene) -> str:
-    """A scene of camera, material, point and ambient lights as TOML text."""
-    def vec(v):
-        return "[" + ", ".join(repr(float(x)) for x in v) + "]"
+    """``scene`` as scene-file text (its :meth:`~clphong.scene.Scene.to_dict`, which round-trips)."""
+    import tomli_w
 
-    cam, m = scene.camera, scene.material
-    out = ["[camera]", f'type = "{cam.type}"', f"position = {vec(cam.position)}", "",
-           "[material]", f'model = "{m.model}"', f"k_a = {m.k_a!r}", f"k_d = {m.k_d!r}",
-           f"k_s = {m.k_s!r}", f"h = {m.h!r}"]
-    for lt in scene.lights:
-        out += ["", "[[light]]", f'type = "{lt.type}"', f"color = {vec(lt.color)}",
-                f"intensity = {float(lt.intensity)!r}"]
-        if lt.type == "point":
-            out += [f"position = {vec(lt.position)}", f"attenuation = {vec(lt.attenuation)}"]
-        elif lt.type != "ambient":
-            raise ValueError(f"scene_toml writes point and ambient lights, not {lt.type!r}")
-    return "\n".join(out) + "\n"
+    def plain(x):     # numpy scalars as Python's: their str() follows numpy's print options
+        if isinstance(x, dict):
+            return {k: plain(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [plain(v) for v in x]
+        return float(x) if isinstance(x, float) else x
+
+    return tomli_w.dumps(plain(scene.to_dict()))
 
 
 def write_inputs(folder: Path, lights, frames: int = 1, size=SIZE) -> tuple[Path, dict[int, Path]]:

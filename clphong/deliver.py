@@ -272,7 +272,7 @@ def _check_tiff(cfg: color.ColorConfig, display: str, view: str, paths) -> None:
     colour space its file can name."""
     space = cfg.interop_id(cfg.display_colorspace(display, view))
     for path in paths:
-        if os.path.splitext(path)[1].lower() != ".png" and space != TIFF_COLORSPACE:
+        if os.path.splitext(path)[1].lower() in (".tif", ".tiff") and space != TIFF_COLORSPACE:
             raise OutputError(f"{path}: a TIFF cannot be tagged with the colour space {space!r} of "
                               f"display {display!r} (only sRGB); write a .png, which carries cICP")
 

@@ -547,15 +547,16 @@ def evaluate(hc: HardCase, **renderer_kwargs) -> CaseResult:
 
 def table(results) -> str:
     """The results as a Markdown table."""
-    rows = ["| case | group | shaded px | band px | max \\|err\\|/bound | max rel err | "
-            "non-finite in → out | ok |", "|---|---|---|---|---|---|---|---|"]
+    from .bench_cli import markdown_table
+
+    rows = []
     for r in results:
         nin = ", ".join(f"{k} {v}" for k, v in r.nonfinite_in.items()) or "0"
-        rel = f"{r.max_rel:.2e}"
         ratio = "∞ bound" if math.isinf(r.bound_max) else f"{r.max_err_over_bound:.3f}"
-        rows.append(f"| {r.name} | {r.group} | {r.pixels} | {r.band} | {ratio} | "
-                    f"{rel} | {nin} → {r.nonfinite_out} | {'yes' if r.ok else 'NO'} |")
-    return "\n".join(rows)
+        rows.append([r.name, r.group, r.pixels, r.band, ratio, f"{r.max_rel:.2e}",
+                     f"{nin} → {r.nonfinite_out}", "yes" if r.ok else "NO"])
+    return markdown_table(["case", "group", "shaded px", "band px", "max \\|err\\|/bound",
+                           "max rel err", "non-finite in → out", "ok"], rows)
 
 
 def sample_cases(folder) -> list[HardCase]:
@@ -597,7 +598,7 @@ def main(argv=None) -> int:
             p.error(f"{args.samples}: no NAME.toml with a NAME.exr beside it")
     chosen = [c for c in cases if not args.k or args.k in c.name]
     if not chosen:
-        p.error(f"no case name contains {args.k!r}; cases: {', '.join(c.name for c in CASES)}")
+        p.error(f"no case name contains {args.k!r}; cases: {', '.join(c.name for c in cases)}")
     results = [evaluate(c, **kw) for c in chosen]
     try:
         print(table(results))

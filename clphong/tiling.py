@@ -303,11 +303,12 @@ def output_bytes(shape: tuple[int, int], kinds) -> int:
 
 
 def _light_bytes(scene) -> int:
-    # Per light: render.pack_lights' float64 and float32 records (96 + 48 bytes, and
-    # temporaries while packing; 369 bytes a directional light at its peak,
-    # measured with tracemalloc), the device copy (96, in host memory on a CPU),
-    # and with culling its records (64) and their packing (~200): 512 bytes.
-    return 512 * sum(1 for lt in scene.lights if lt.type != "ambient")
+    # Per light: render.pack_lights' records and temporaries while packing (peak
+    # 240 bytes a point light, 433 a directional light with an orthographic camera:
+    # six float4 records and their float64 forms, measured with tracemalloc over
+    # 100 000 lights), the device copy (96, in host memory on a CPU), and with
+    # culling a point light's records (64) and their packing (~200): 576 bytes.
+    return 576 * sum(1 for lt in scene.lights if lt.type != "ambient")
 
 
 def _device_limits(renderer) -> tuple[int | None, int | None]:
@@ -488,15 +489,17 @@ def render_frame(renderer, gbuffer, *, rows: int | None = None) -> np.ndarray:
             f"{renderer.runtime.name} allows ({format_size(max_alloc)}); use fewer lights")
     if rows is None:
         budget = memory_budget()
+        display = getattr(renderer, "display", None) is not None
         rows = band_rows((h, w), n_map_planes=m, lanes=lanes, light_bytes=light_bytes,
                          budget=budget.bytes, max_alloc=max_alloc, global_mem=global_mem,
-                         display=getattr(renderer, "display", None) is not None)
+                         display=display)
         if rows <= 0:
-            one_row = render_bytes_per_pixel(m) * w + F32 * 3 * h * w + light_bytes
+            row_bytes = render_bytes_per_pixel(m, display=display) * w
+            one_row = row_bytes + F32 * 3 * h * w + light_bytes
             raise GBufferError(
                 f"a {w}x{h} frame cannot be shaded here: its output alone needs "
                 f"{format_size(F32 * 3 * h * w)} and one row of shading "
-                f"{format_size(render_bytes_per_pixel(m) * w)} more ({format_size(one_row)} in "
+                f"{format_size(row_bytes)} more ({format_size(one_row)} in "
                 f"all), but only {budget.describe()} is usable; crop the G-buffer or use a "
                 "machine with more memory")
     if rows >= h:
