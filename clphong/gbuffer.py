@@ -70,7 +70,10 @@ not fit in memory (see :mod:`clphong.tiling`).
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
+import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -483,20 +486,67 @@ def _oiio_message(geterror) -> str:
     return _one_line(text) if text else ""
 
 
+#: The first bytes of image formats an EXR input is mistaken for. They are refused
+#: before OpenImageIO opens them: its PNG reader, given a broken PNG, prints
+#: libpng's complaint on stderr, a second line beside clphong's own.
+_SIGNATURES = {b"\x89PNG\r\n\x1a\n": "PNG", b"\xff\xd8\xff": "JPEG", b"II*\x00": "TIFF",
+               b"MM\x00*": "TIFF", b"\xff\x0a": "JPEG XL", b"\x00\x00\x00\x0cJXL ": "JPEG XL",
+               b"GIF8": "GIF", b"BM": "BMP"}
+
+
+def _signature_format(path: str) -> str | None:
+    """The non-EXR format whose signature ``path`` starts with, if any."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(12)
+    except OSError:
+        return None           # OpenImageIO says why
+    return next((fmt for sig, fmt in _SIGNATURES.items() if head.startswith(sig)), None)
+
+
+@contextlib.contextmanager
+def _c_stderr_captured():
+    """Send what C libraries write on file descriptor 2 to a temporary file (yielded)
+    for the duration, so that it can join a one-line message instead of preceding it."""
+    with tempfile.TemporaryFile() as tmp:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield tmp
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+
+
 def open_image(path: str, *, what: str = "an EXR file", verb: str = "read as EXR"):
     """``oiio.ImageInput.open(path)`` with one-line errors naming the file.
 
     Raises :class:`GBufferError` for a missing path, a folder (``"is a
-    directory, not {what}"``) or a file OpenImageIO cannot open (``"cannot
-    {verb}: …"``). Shared by the G-buffer reader and ``clphong inspect``.
+    directory, not {what}"``), for an EXR, a file with another format's
+    signature, or a file OpenImageIO cannot open (``"cannot {verb}: …"``).
+    Shared by the G-buffer reader and ``clphong inspect``; for the latter (any
+    format) what a C library prints while opening joins the message.
     """
     if not os.path.exists(path):
         raise GBufferError(f"{path}: file not found")
     if os.path.isdir(path):
         raise GBufferError(f"{path}: is a directory, not {what}")
-    inp = oiio.ImageInput.open(path)
+    exr = what == "an EXR file"
+    fmt = _signature_format(path) if exr else None
+    if fmt is not None:
+        raise GBufferError(f"{path}: not an OpenEXR file (it is a {fmt} file)")
+    if exr:
+        inp = oiio.ImageInput.open(path)
+        noise = ""
+    else:
+        with _c_stderr_captured() as tmp:
+            inp = oiio.ImageInput.open(path)
+            tmp.seek(0)
+            noise = tmp.read().decode("utf-8", "replace")
     if inp is None:
-        raise GBufferError(f"{path}: cannot {verb}: {_oiio_message(oiio.geterror) or 'unknown error'}")
+        message = _oiio_message(oiio.geterror) or _one_line(noise) or "unknown error"
+        raise GBufferError(f"{path}: cannot {verb}: {message}")
     return inp
 
 

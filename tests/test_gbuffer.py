@@ -461,7 +461,7 @@ def test_error_not_an_exr(tmp_path):
     assert out.open(png, oiio.ImageSpec(W, H, 3, "uint8")) and out.write_image(np.zeros((H, W, 3), np.uint8))
     out.close()
     msg = _one_line_error(read_gbuffer, png)
-    assert msg == f"{png}: not an OpenEXR file (OpenImageIO reads it as png)"
+    assert msg == f"{png}: not an OpenEXR file (it is a PNG file)"
 
 
 def test_error_missing_channels(tmp_path):

@@ -187,7 +187,25 @@ def test_png_given_as_gbuffer(work, capsys, name):
     assert o.write_image(np.full((H, W, 3), 128, np.uint8)) and o.close()
     shutil.copy(png, src / name)
     fails(render_argv(src, out, gbuffer=src / name), capsys, src.parent, name,
-          "not an OpenEXR file (OpenImageIO reads it as png)")
+          "not an OpenEXR file (it is a PNG file)")
+
+
+@pytest.mark.parametrize("command", ["render", "inspect"])
+def test_broken_png_gives_one_line_not_libpngs_as_well(tmp_path, command):
+    """A file with PNG's signature and junk after it: OpenImageIO's PNG reader let
+    libpng print its own complaint on stderr (file descriptor 2) before clphong's
+    line. A subprocess, so that the C library's stderr is what is checked."""
+    fake = tmp_path / ("fake.exr" if command == "render" else "fake.png")
+    fake.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 4)
+    scene = Path(__file__).resolve().parent.parent / "gbuffers" / "spheres.toml"
+    argv = (["render", str(scene), str(fake), "-o", str(tmp_path / "o.exr")] if command == "render"
+            else ["inspect", str(fake)])
+    p = subprocess.run([sys.executable, "-m", "clphong", *argv], capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode != 0
+    assert p.stderr.count("\n") == 1 and p.stderr.startswith("clphong: error: "), p.stderr
+    assert str(fake) in p.stderr and "libpng" not in p.stderr.split(": ", 2)[1]
+    assert not (tmp_path / "o.exr").exists()
 
 
 @pytest.mark.parametrize("missing", ["normal", "position"])
