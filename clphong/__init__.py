@@ -6,7 +6,7 @@ The Python API and the ``clphong`` command go through the same functions::
     scene = clphong.load_scene("gbuffers/spheres.toml")
     gbuffer = clphong.read_gbuffer("gbuffers/spheres.exr")
     rgb = clphong.render(scene, gbuffer)          # (H, W, 3) float32, scene-linear
-    clphong.write_exr("spheres.exr", rgb)
+    clphong.write_output(rgb, "spheres.exr")      # tagged: chromaticities, colour space
 
 :class:`Renderer` compiles once and shades many frames; :class:`Relighter`
 (the pipeline-stage API) adds file and numpy input, output writing and the
