@@ -486,22 +486,18 @@ def _oiio_message(geterror) -> str:
     return _one_line(text) if text else ""
 
 
-#: The first bytes of image formats an EXR input is mistaken for. They are refused
-#: before OpenImageIO opens them: its PNG reader, given a broken PNG, prints
-#: libpng's complaint on stderr, a second line beside clphong's own.
-_SIGNATURES = {b"\x89PNG\r\n\x1a\n": "PNG", b"\xff\xd8\xff": "JPEG", b"II*\x00": "TIFF",
-               b"MM\x00*": "TIFF", b"\xff\x0a": "JPEG XL", b"\x00\x00\x00\x0cJXL ": "JPEG XL",
-               b"GIF8": "GIF", b"BM": "BMP"}
-
-
 def _signature_format(path: str) -> str | None:
-    """The non-EXR format whose signature ``path`` starts with, if any."""
+    """The other image format ('a PNG', …) whose magic number ``path`` starts with,
+    if any. Such a file is refused before OpenImageIO opens it: its PNG reader,
+    given a broken PNG, prints libpng's complaint on stderr beside clphong's line."""
+    from .scene import image_signature
+
     try:
         with open(path, "rb") as f:
-            head = f.read(12)
+            kind = image_signature(f.read(16))
     except OSError:
         return None           # OpenImageIO says why
-    return next((fmt for sig, fmt in _SIGNATURES.items() if head.startswith(sig)), None)
+    return None if kind == "an OpenEXR" else kind
 
 
 @contextlib.contextmanager
@@ -535,7 +531,7 @@ def open_image(path: str, *, what: str = "an EXR file", verb: str = "read as EXR
     exr = what == "an EXR file"
     fmt = _signature_format(path) if exr else None
     if fmt is not None:
-        raise GBufferError(f"{path}: not an OpenEXR file (it is a {fmt} file)")
+        raise GBufferError(f"{path}: not an OpenEXR file (it is {fmt} file)")
     if exr:
         inp = oiio.ImageInput.open(path)
         noise = ""
