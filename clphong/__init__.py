@@ -13,13 +13,19 @@ The Python API and the ``clphong`` command go through the same functions::
 camera from EXR metadata, and is what the CLI uses.
 """
 
-from .api import OutputOptions, Relighter, write_output
-from .errors import ClphongError, DeviceError, GBufferError, OutputError, SceneError
-from .gbuffer import GBuffer, read_gbuffer
-from .output import write_exr
-from .plan import ShadingPlan, make_plan
-from .render import Renderer, render
-from .scene import Scene, load_scene, parse_scene
+from .core.errors import (
+    ClphongError,
+    DeviceError,
+    GBufferError,
+    OutputError,
+    SceneError,
+)
+from .device.plan import ShadingPlan, make_plan
+from .device.renderer import Renderer, render
+from .io.atomic import write_exr
+from .io.gbuffer import GBuffer, read_gbuffer
+from .model.scene import Scene, load_scene, parse_scene
+from .pipeline.relighter import OutputOptions, Relighter, write_output
 
 __version__ = "0.1.0"
 

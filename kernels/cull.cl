@@ -11,12 +11,12 @@
  * work-item's list up the same way, so a work-item that wraps onto the next row
  * is bounded with the tile that shades it.
  *
- * Two levels (clphong/cull.py): super-tiles of CULL_SUPER × CULL_SUPER tiles are
- * culled first against all lights with a share of the budget (ε/4); each tile
- * then considers only its super-tile's list, with the rest. A pixel's dropped
- * lights sum to ≤ ε in all.
+ * Two levels (clphong/device/culling.py): super-tiles of CULL_SUPER × CULL_SUPER
+ * tiles are culled first against all lights with a share of the budget (ε/4);
+ * each tile then considers only its super-tile's list, with the rest. A pixel's
+ * dropped lights sum to ≤ ε in all.
  *
- * Kernels, run in this order by clphong/cull.py, once per level:
+ * Kernels, run in this order by clphong/device/culling.py, once per level:
  *   tile_bounds  one work-item per tile: world-space bounds of P (rebased), of
  *                the unit normals, of |D| = |C_d·k_d| and |S| = |k_s·C_s| (negative
  *                albedo may cancel a term: the budget bounds |dropped sum|), max |P|.
@@ -43,11 +43,33 @@
  *          term is gated on n·l > 0, so it is bounded by 1 unless NoL⁺ ≤ 0.
  * The diffuse weight is ≤ 1 + 5u and the specular power ≤ 1 + 3 ulp; the 32u
  * covers these and the roundings of the bound itself.
+ *
+ * Defines, all set by the culling pass (build_tile_lists,
+ * clphong/device/culling.py): LANES (lanes.h), CULL_TILE and CULL_SUPER, and of
+ * the shading plan only the material layout that D and S are bounded from,
+ * CULL_DEFINES: HAS_SPECULAR, MAP_KD, MAP_KS, MAP_H, MAP_CS. This program reads
+ * no other define of the plan (so one cull program serves every shading variant
+ * of a material layout) and includes no header that would (lanes.h only).
  */
-#include "clphong.h"
+#include "lanes.h"
 
+#ifndef HAS_SPECULAR
+#error "HAS_SPECULAR must be set by the culling pass (CULL_DEFINES, clphong/device/culling.py)"
+#endif
+#ifndef MAP_KD
+#error "MAP_KD must be set by the culling pass (CULL_DEFINES, clphong/device/culling.py)"
+#endif
+#ifndef MAP_KS
+#error "MAP_KS must be set by the culling pass (CULL_DEFINES, clphong/device/culling.py)"
+#endif
+#ifndef MAP_H
+#error "MAP_H must be set by the culling pass (CULL_DEFINES, clphong/device/culling.py)"
+#endif
+#ifndef MAP_CS
+#error "MAP_CS must be set by the culling pass (CULL_DEFINES, clphong/device/culling.py)"
+#endif
 #ifndef CULL_TILE
-#define CULL_TILE 16
+#error "CULL_TILE must be set by the culling pass (clphong/device/culling.py)"
 #endif
 /* Thresholds τ_m = ε·2^−m, m = 1 … CULL_LEVELS (down to ε·6·10⁻⁸). Steps of 2,
  * not 16: the τ picked is within 2× of the best single threshold, so a tile
@@ -56,9 +78,9 @@
  * since the super-tiles' lists shrink too). */
 #define CULL_LEVELS 24
 /* A super-tile is CULL_SUPER × CULL_SUPER tiles; its lists are the candidates
- * of its tiles' lists (clphong/cull.py: two levels, ε/4 and the rest). */
+ * of its tiles' lists (clphong/device/culling.py: two levels, ε/4 and the rest). */
 #ifndef CULL_SUPER
-#define CULL_SUPER 8
+#error "CULL_SUPER must be set by the culling pass (clphong/device/culling.py)"
 #endif
 #define U_F32 5.9604644775390625e-8f   /* 2^-24 */
 
@@ -86,7 +108,7 @@ enum { T_LOX, T_LOY, T_LOZ, T_HIX, T_HIY, T_HIZ,
        T_NLOX, T_NLOY, T_NLOZ, T_NHIX, T_NHIY, T_NHIZ,
        T_DR, T_DG, T_DB, T_SR, T_SG, T_SB, T_R, T_PLANES };
 
-/* Cull-light records, 4 float4 each (clphong/cull.py pack_cull_lights):
+/* Cull-light records, 4 float4 each (pack_cull_lights, clphong/device/culling.py):
  *   (x, y, z, c0) (c1, c2, vertex, p_vertex_lo) (p_scale, r, g, b) (|L|, 0, 0, 0) */
 #define CULL_LIGHT_FLOAT4S 4
 

@@ -1,8 +1,10 @@
 /* FP32 peak probe for `clphong bench`: independent multiply-add chains on
  * floatL lanes, nothing else. Each work-item runs 8 chains of `iterations`
  * a = a·b + c steps: 2·LANES·8·iterations flops. The result is stored so that
- * nothing is optimised away. */
-#include "clphong.h"
+ * nothing is optimised away.
+ *
+ * Defines: LANES only (lanes.h), set by the bench. */
+#include "lanes.h"
 
 #define STEP(a) a = MUL_ADD(a, bb, cc)
 

@@ -16,11 +16,18 @@
  *         in that order, only those present.
  *   out:  R G B.
  * Each work-item shades LANES consecutive pixels as one vector.
+ *
+ * Defines: all of the shading plan's (clphong/device/plan.py), each required by
+ * the header that reads it: LANES (lanes.h), the number formats (clphong.h), the
+ * scene's switches and CULL_TILE with CULLING (plan.h), DISPLAY_OUT and with it
+ * the display's (tonemap.h).
  */
 #include "clphong.h"
-#include "brdf.cl"
-#include "lights.cl"
-#include "tonemap.cl"   /* display_store: exposure, tone mapping, encoding (DISPLAY_OUT) */
+#include "plan.h"
+#include "brdf.h"
+#include "lights.h"
+#include "tonemap.h"    /* display_store: exposure, tone mapping, encoding (DISPLAY_OUT) */
+#include "shade_args.h"
 
 /* Add x to the running sum s (POCL-NOTES "Light sums"). SUM_FP64: s is double,
  * so N float terms err by ≤ N·2⁻⁵³ of Σ|x| before the one final rounding to
@@ -58,7 +65,7 @@ inline floatL finish_sum(floatL s, floatL c)
 {
     /* x != x: NaN; |t| > FLT_MAX: ±∞ (false for NaN). Written with ?: and
        comparisons: PoCL 3.0 calls select, isnan, isinf and copysign out of
-       line (clphong.h, SELECT), which cost 2× at N = 1 on the bench scene.
+       line (lanes.h, SELECT), which cost 2× at N = 1 on the bench scene.
        s + c is NaN where c is (∞ − ∞ inside the compensation) and also where
        s = ±∞ and c = ∓∞ (s overflowed, its rounding error too): s then. */
     const floatL sc = s + c;
@@ -67,36 +74,7 @@ inline floatL finish_sum(floatL s, floatL c)
 }
 #endif
 
-__kernel void shade(__global const float *restrict gbuf,
-                    __global const float *restrict maps,
-                    __global float *restrict out,
-                    const uint stride,
-                    __global const pointrec_t *restrict point_lights, const uint n_point,
-                    __global const float4 *restrict directional_lights, const uint n_directional,
-                    const float4 origin,     /* subtracted from P and (on the host) from lights; 0 with DIRECTIONS_FP64 */
-                    const float4 eye,        /* perspective: eye − origin; orthographic: unit v */
-                    const float4 ambient,    /* k_a·Σ ambient radiance, rgb */
-                    const float k_d,         /* uniform k_d, used without MAP_KD */
-                    const float4 S_uniform,  /* k_s·C_s, used without MAP_KS / MAP_CS */
-                    const float k_uniform,   /* exponent h or 4h, used without MAP_H */
-                    const float4 background,
-                    const float4 eye_lo,     /* eye − float(eye), used with DIRECTIONS_FP64 */
-                    const float4 material_lo,  /* ambient − float(ambient) (xyz), k_d − float(k_d) (w) */
-                    const float4 S_lo,         /* S_uniform − float(S_uniform) (xyz), k − float(k) (w); both with WEIGHTS_FP64 */
-                    __global float *restrict display,  /* display R G B, with DISPLAY_OUT (tonemap.cl) */
-                    const float exposure,              /* 2^EV, with DISPLAY_OUT */
-                    const float4 tonemap_params,       /* operator parameters, with DISPLAY_OUT */
-                    const float4 display_m0, const float4 display_m1,
-                    const float4 display_m2            /* working space -> Rec.709, with DISPLAY_MATRIX */
-#if CULLING
-                    ,
-                    /* per-tile point-light lists (kernels/cull.cl): (offset, count) per
-                       tile and the kept light indices, in light order */
-                    __global const uint2 *restrict tile_ranges,
-                    __global const uint *restrict tile_lights,
-                    const uint width, const uint tiles_x, const uint n_tiles
-#endif
-                    )
+__kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
 {
     const size_t i = get_global_id(0);
     pixel_t p;
@@ -149,7 +127,8 @@ __kernel void shade(__global const float *restrict gbuf,
 #endif
 #if HAS_SPECULAR
 #if SPEC_INT_POW
-    /* a whole number (plan.py); with SPEC_COS Blinn raises (n·h)² to K/2 (K even) */
+    /* a whole number (clphong/device/plan.py); with SPEC_COS Blinn raises (n·h)²
+       to K/2 (K even) */
     p.K = SPEC_COS && MODEL_BLINN ? (uint)k_uniform / 2u : (uint)k_uniform;
 #elif MAP_H
     p.k = FLOAT_TO_W(MODEL_BLINN ? 4.0f * k_map : k_map);   /* the map holds h; Blinn uses 4h */

@@ -4,26 +4,33 @@
  * (shade.cl) against. It is how a shader is usually written, and on PoCL it
  * runs scalar: float3 blocks the work-group vectoriser and pow(x, k) is both slow
  * and ill-conditioned (relative error ~k·u near the highlight peak). Same
- * arguments, data layout and guards as shade.cl; the light sum is naive.
+ * arguments (SHADE_ARGS), data layout and guards as shade.cl; the light sum is
+ * naive. It is all float and ignores the hi + lo remainders eye_lo, material_lo
+ * and S_lo.
+ *
+ * Defines: the shading plan's (clphong/device/plan.py) scene switches (plan.h)
+ * and display (tonemap.h). The plan sets no LANES, CULLING or number format for
+ * this kernel ("obvious" plans): it fixes them here, one float pixel per
+ * work-item, and refuses a build that sets them.
  */
+#if defined(LANES) || defined(CULLING) || defined(DIRECTIONS_FP64) || defined(SUM_FP64) \
+    || defined(SPEC_INT_POW) || defined(SPEC_COS) || defined(POW_FP32) || defined(WEIGHTS_FP64)
+#error "shade_obvious.cl sets LANES, CULLING and the number formats itself (one float pixel per work-item)"
+#endif
 #define LANES 1
+#define CULLING 0           /* no tile lists: SHADE_ARGS without them */
+#define DIRECTIONS_FP64 0   /* all float: pointrec_t is float4 (clphong.h) */
+#define SUM_FP64 0
+#define SPEC_INT_POW 0      /* pow(), not binary powering */
+#define SPEC_COS 0
+#define POW_FP32 0
+#define WEIGHTS_FP64 0
 #include "clphong.h"
-#include "tonemap.cl"   /* display_store (DISPLAY_OUT) */
+#include "plan.h"
+#include "tonemap.h"    /* display_store (DISPLAY_OUT) */
+#include "shade_args.h"
 
-__kernel void shade(__global const float *restrict gbuf,
-                    __global const float *restrict maps,
-                    __global float *restrict out,
-                    const uint stride,
-                    __global const float4 *restrict point_lights, const uint n_point,
-                    __global const float4 *restrict directional_lights, const uint n_directional,
-                    const float4 origin, const float4 eye, const float4 ambient,
-                    const float k_d, const float4 S_uniform, const float k_uniform,
-                    const float4 background,
-                    const float4 eye_lo,     /* unused: this kernel is all float */
-                    const float4 material_lo, const float4 S_lo,           /* unused too */
-                    __global float *restrict display, const float exposure,
-                    const float4 tonemap_params, const float4 display_m0,
-                    const float4 display_m1, const float4 display_m2)   /* as shade.cl */
+__kernel void shade(SHADE_ARGS)   /* include/shade_args.h, as shade.cl */
 {
     const size_t i = get_global_id(0);
     const float3 P = (float3)(gbuf[i], gbuf[stride + i], gbuf[2 * stride + i]) - origin.xyz;

@@ -14,7 +14,7 @@ GBUFFERS = REPO / "gbuffers"
 
 # Scene and G-buffer builders shared with the hard-case suite (make_scene
 # bypasses the file validation, so tests may use c0 = 0).
-from clphong.hardcases import make_gbuffer, make_scene  # noqa: E402,F401
+from clphong.tools.hardcases import make_gbuffer, make_scene  # noqa: E402,F401
 
 
 #: The bad-input catalogue: (case, exit code, the one error line) of every case of
@@ -26,7 +26,7 @@ CATALOGUE: list[tuple[str, int, str]] = []
 
 def pytest_terminal_summary(terminalreporter):
     if os.environ.get("CLPHONG_CATALOGUE") and CATALOGUE:
-        from clphong.bench_cli import markdown_table
+        from clphong.tools.commands import markdown_table
 
         terminalreporter.write_line(f"\nbad-input catalogue ({len(CATALOGUE)} cases):")
         rows = [(case, f"`{msg}`".replace("|", "\\|"), code) for case, code, msg in CATALOGUE]
@@ -72,14 +72,14 @@ def check_against_reference(scene, gbuffer, *, kernel="lanes", lanes=None, compe
 
     Returns (rgb, ref, bound, band) for further checks.
     """
-    from clphong import reference
-    from clphong.render import Renderer, prepare_frame
+    from clphong.reference import shading as reference
+    from clphong.device.renderer import Renderer, prepare_frame
 
     r = Renderer(scene, kernel=kernel, lanes=lanes, compensated=compensated,
                  fp64_directions=fp64_directions, int_pow=int_pow)
     frame = prepare_frame(gbuffer, lanes=r.lanes)
-    rgb = r.render(gbuffer, frame=frame)
-    plan = r.last_plan                  # the variant that ran
+    result = r.shade(frame)
+    rgb, plan = result.image, result.plan      # plan: the variant that ran
     ref = reference.shade(scene, gbuffer)
     bound, band = reference.error_bound(scene, gbuffer, origin=frame.origin, plan=plan)
     assert np.all(np.isfinite(rgb))
@@ -94,3 +94,15 @@ def check_against_reference(scene, gbuffer, *, kernel="lanes", lanes=None, compe
 @pytest.fixture(scope="session")
 def samples_dir():
     return GBUFFERS
+
+
+def patch_everywhere(monkeypatch, module, name, replacement):
+    """Replace ``module.name`` and every clphong module's own reference to the same object
+    (modules import functions by name at the top, so patching one module is not enough)."""
+    import sys
+
+    original = getattr(module, name)
+    for mod_name, mod in list(sys.modules.items()):
+        if (mod_name == "clphong" or mod_name.startswith("clphong.")) and \
+                getattr(mod, name, None) is original:
+            monkeypatch.setattr(mod, name, replacement)

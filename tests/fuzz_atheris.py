@@ -32,11 +32,11 @@ import warnings
 import atheris
 
 with atheris.instrument_imports():
-    import clphong.gbuffer
-    import clphong.scene
-    import clphong.tiling  # noqa: F401 - the memory checks the reader calls
+    import clphong.io.gbuffer
+    import clphong.model.scene
+    import clphong.core.memory  # noqa: F401 - the memory checks the reader calls
 
-from clphong.errors import ClphongError  # noqa: E402
+from clphong.core.errors import ClphongError  # noqa: E402
 
 # A mutated header may claim a huge image: the reader must refuse it, not allocate it.
 os.environ.setdefault("CLPHONG_MAX_MEMORY", "64M")
@@ -58,11 +58,11 @@ def _check(fn, data: bytes, suffix: str) -> None:
 
 
 def fuzz_gbuffer(data: bytes) -> None:
-    _check(clphong.gbuffer.read_gbuffer, data, ".exr")
+    _check(clphong.io.gbuffer.read_gbuffer, data, ".exr")
 
 
 def fuzz_scene(data: bytes) -> None:
-    _check(clphong.scene.load_scene, data, ".toml")
+    _check(clphong.model.scene.load_scene, data, ".toml")
 
 
 TARGETS = {"gbuffer": fuzz_gbuffer, "scene": fuzz_scene}

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 import clphong
-from clphong.api import Relighter, write_output
-from clphong.camera_meta import eye_from_matrix
-from clphong.errors import GBufferError, OutputError
-from clphong.gbuffer import write_gbuffer
+from clphong.pipeline.relighter import Relighter, write_output
+from clphong.io.camera import eye_from_matrix
+from clphong.core.errors import GBufferError, OutputError
+from clphong.io.gbuffer import write_gbuffer
 
-from conftest import GBUFFERS, make_scene, random_gbuffer, random_lights
+from conftest import GBUFFERS, make_scene, patch_everywhere, random_gbuffer, random_lights
 
 SPHERES = (GBUFFERS / "spheres.toml", GBUFFERS / "spheres.exr")
 
@@ -41,7 +41,7 @@ def test_numpy_float32_and_float16_inputs():
     scene = make_scene(random_lights(rng))
     gb = random_gbuffer(rng, 24, 32, background_fraction=0.0)
     r = Relighter(scene)
-    ref = clphong.Renderer(scene).render(gb)
+    ref = clphong.Renderer(scene).render(gb).image
     assert np.array_equal(r.relight((gb.position, gb.normal, gb.albedo)), ref)
     assert np.array_equal(r.relight({"position": gb.position, "normal": gb.normal, "albedo": gb.albedo}), ref)
     # float16 input is widened exactly to float32: the result is that of the rounded G-buffer.
@@ -49,7 +49,7 @@ def test_numpy_float32_and_float16_inputs():
     half = r.relight((P16, N16, C16))
     rounded = clphong.GBuffer(position=P16.astype(np.float32), normal=N16.astype(np.float32),
                               albedo=C16.astype(np.float32))
-    assert np.array_equal(half, clphong.Renderer(scene).render(rounded))
+    assert np.array_equal(half, clphong.Renderer(scene).render(rounded).image)
 
 
 @pytest.mark.parametrize("frame, fragment", [
@@ -152,7 +152,7 @@ def _header(path):
 
 
 def test_relighter_writes_every_kind_like_render(tmp_path):
-    from clphong.cli import main
+    from clphong.console.cli import main
 
     scene = _aces_spheres(tmp_path)
     r = Relighter(scene)
@@ -164,7 +164,7 @@ def test_relighter_writes_every_kind_like_render(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["a.exr", "a.png", "a.tif", "a_pq.png"]
     a, _ = _header(out / "a.exr")
     assert a["oiio:ColorSpace"] == "lin_ap1_scene"
-    assert np.allclose(a["chromaticities"], clphong.color.AP1_CHROMATICITIES, atol=1e-6)
+    assert np.allclose(a["chromaticities"], clphong.color.ocio.AP1_CHROMATICITIES, atol=1e-6)
     assert np.array_equal(_read(out / "a.exr"), rgb)
     assert tuple(_header(out / "a_pq.png")[0]["CICP"]) == (9, 16, 0, 1)
     # The same bytes as 'clphong render' of the same scene and frame.
@@ -190,7 +190,7 @@ def test_relighter_writes_every_kind_like_render(tmp_path):
 
 
 def test_relighter_output_errors_are_clear_and_early(tmp_path):
-    from clphong.tonemap import ToneMapError
+    from clphong.core.errors import ToneMapError
 
     with pytest.raises(ToneMapError, match="filmic"):
         Relighter(SPHERES[0], output=clphong.OutputOptions(tonemap="filmic"))
@@ -213,7 +213,7 @@ def test_two_threads_writing_sdr_equal_single_threaded(tmp_path):
     in_two_threads(len(frames), lambda i: r.relight(frames[i], sdr=tmp_path / f"two.{i}.png"))
     for i in range(len(frames)):
         assert (tmp_path / f"two.{i}.png").read_bytes() == (tmp_path / f"one.{i}.png").read_bytes(), i
-    assert r.renderer.display is None             # the shared renderer's settings are untouched
+    assert not hasattr(r.renderer, "display")     # a display transform is an argument, not state
 
 
 # ---------------------------------------------------------------- camera from metadata
@@ -295,7 +295,7 @@ def test_camera_from_world_to_camera_y_and_z_up(tmp_path, up):
     # The image is that of an explicit perspective camera at that eye.
     explicit = make_scene(lights, k_a=0.0, k_d=0.7, k_s=0.3, h=40.0,
                           camera=dict(type="perspective", position=tuple(eye)))
-    assert np.array_equal(rgb, clphong.Renderer(explicit).render(clphong.read_gbuffer(path)))
+    assert np.array_equal(rgb, clphong.Renderer(explicit).render(clphong.read_gbuffer(path)).image)
 
 
 def test_scene_without_camera_uses_header_and_explains_when_missing(tmp_path):
@@ -333,8 +333,8 @@ def test_scene_camera_up_is_validated():
 def test_renderer_options_are_constructor_arguments_and_part_of_the_spec():
     import pickle
 
-    from clphong.api import RelighterSpec, cached_relighter
-    from clphong.render import Renderer
+    from clphong.pipeline.relighter import RelighterSpec, cached_relighter
+    from clphong.device.renderer import Renderer
 
     rng = np.random.default_rng(21)
     scene = make_scene(random_lights(rng, n_point=4))
@@ -354,7 +354,7 @@ def test_renderer_options_are_constructor_arguments_and_part_of_the_spec():
     # Same images as a Renderer given the same options directly.
     g = random_gbuffer(rng, 20, 24)
     assert np.array_equal(r.relight(g), Renderer(scene, fp64_directions=False, max_error=1e-3,
-                                                 reference_white=2.0, nonfinite="error").render(g))
+                                                 reference_white=2.0, nonfinite="error").render(g).image)
     # The per-process cache keys on the options: another option, another relighter.
     base = RelighterSpec(scene=scene)
     assert cached_relighter(base) is cached_relighter(RelighterSpec(scene=scene))
@@ -376,7 +376,7 @@ def test_renderer_attributes_still_work_after_construction():
     poked.renderer.max_error = 1e-3
     built = Relighter(scene, fp64_directions=False, max_error=1e-3)
     assert np.array_equal(poked.relight(g), built.relight(g))
-    assert poked.renderer.last_plan.defines == built.renderer.last_plan.defines
+    assert poked.renderer.render(g).plan.defines == built.renderer.render(g).plan.defines
 
 
 def test_accurate_and_float_paths_differ():
@@ -400,13 +400,12 @@ def test_accurate_and_float_paths_differ():
 def test_bad_renderer_options_fail_before_compiling(kwargs, exc, fragment, monkeypatch):
     import sys
 
-    from clphong.api import RelighterSpec
+    from clphong.pipeline.relighter import RelighterSpec
 
     def no_renderer(*a, **k):
         raise AssertionError("a renderer was built before the options were checked")
 
-    # (clphong.render is also the name of a function: patch the module itself)
-    monkeypatch.setattr(sys.modules["clphong.render"], "Renderer", no_renderer)
+    patch_everywhere(monkeypatch, sys.modules["clphong.device.renderer"], "Renderer", no_renderer)
     scene = make_scene(random_lights(np.random.default_rng(1), n_point=1))
     for make in (lambda: Relighter(scene, **kwargs), lambda: RelighterSpec(scene=scene, **kwargs)):
         with pytest.raises(Exception) as info:
@@ -424,6 +423,6 @@ def test_nonfinite_error_policy_raises_naming_the_buffer():
     frame = {"position": P, "normal": g.normal, "albedo": g.albedo}
     with pytest.raises(GBufferError, match=r"non-finite .*position: 1 pixel\(s\)"):
         Relighter(scene, nonfinite="error").relight(frame)
-    with pytest.warns(clphong.errors.InputWarning):
+    with pytest.warns(clphong.core.errors.InputWarning):
         rgb = Relighter(scene).relight(frame)
     assert np.all(np.isfinite(rgb)) and np.all(rgb[2, 3] == 0)

@@ -13,12 +13,13 @@ import time
 import numpy as np
 import pytest
 
-from clphong.api import RelighterSpec
-from clphong.batch import (BatchError, BatchPlan, BatchResult, Outcome, expand_sequence,
+from clphong.pipeline.relighter import RelighterSpec
+from clphong.pipeline.batch import (BatchError, BatchPlan, BatchResult, Outcome, expand_sequence,
                            format_output, parse_frame_range, plan_batch, run_batch, Rig)
-from clphong.cli import main
+from clphong.console.cli import main
 
 from conftest import random_gbuffer
+from conftest import patch_everywhere
 
 H, W = 24, 32
 
@@ -61,7 +62,7 @@ def shot(tmp_path_factory):
     because it runs the same kernel on the same data.
     """
     import clphong
-    from clphong.gbuffer import write_gbuffer
+    from clphong.io.gbuffer import write_gbuffer
 
     root = tmp_path_factory.mktemp("shot")
     (root / "seq").mkdir()
@@ -79,7 +80,7 @@ def shot(tmp_path_factory):
         scene = clphong.load_scene(root / f"{rig}.toml")
         r = clphong.Renderer(scene)
         for f, g in frames.items():
-            expected[(f, rig)] = r.render(g)
+            expected[(f, rig)] = r.render(g).image
     return root, expected
 
 
@@ -220,7 +221,7 @@ def test_three_corrupt_frames_do_not_stop_the_batch(shot, tmp_path, capsys):
         elif f == 11:
             (seq / src.name).write_text("this is not an image\n")
         elif f == 17:
-            from clphong.output import write_exr
+            from clphong.io.atomic import write_exr
             write_exr(seq / src.name, np.zeros((H, W, 3), np.float32), channel_names=("P.X", "P.Y", "P.Z"))
         else:
             (seq / src.name).write_bytes(src.read_bytes())
@@ -318,7 +319,7 @@ class _FaultyRelighter:
         self.inner, self.spec = inner, spec
 
     def deliver(self, gbuffer, paths, **kw):
-        from clphong.output import atomic_path
+        from clphong.io.atomic import atomic_path
 
         spec = self.spec
         if (os.path.basename(kw["source"]) == f"shot.{spec.fault_frame:04d}.exr"
@@ -455,7 +456,7 @@ def test_pool_workers_warnings_are_the_one_line_warnings_of_one_process(shot, tm
     """Warnings raised in --jobs workers (non-finite inputs) reach stderr as 'clphong: warning:'
     lines, as with --jobs 1, not as raw two-line Python warnings from the workers."""
     import clphong
-    from clphong.gbuffer import write_gbuffer
+    from clphong.io.gbuffer import write_gbuffer
 
     root, _ = shot
     seq = tmp_path / "seq"
@@ -718,12 +719,12 @@ def test_exr_template_with_another_extension_fails_once_before_any_frame(shot, t
                                                                          monkeypatch):
     """-o out/{rig}.####.png: one line naming the template, exit 1, before any frame runs
     (not one 'give a name ending in .exr' per frame)."""
-    import clphong.batch
+    import clphong.pipeline.batch
 
     def no_frames(*a, **k):
         raise AssertionError("frames ran before the templates were checked")
 
-    monkeypatch.setattr(clphong.batch, "run_batch", no_frames)
+    patch_everywhere(monkeypatch, clphong.pipeline.batch, "run_batch", no_frames)
     root, _ = shot
     out = tmp_path / "out"
     tmpl = str(out / "{rig}.####.png")
@@ -736,7 +737,7 @@ def test_exr_template_with_another_extension_fails_once_before_any_frame(shot, t
 
 
 def test_failure_summary_lists_at_most_20_then_counts_the_rest():
-    from clphong.batch import MAX_FAILURES_LISTED, BatchResult, Outcome
+    from clphong.pipeline.batch import MAX_FAILURES_LISTED, BatchResult, Outcome
 
     outcomes = [Outcome(f, f"in.{f:04d}.exr", "key", f"out.{f:04d}.exr", ok=False, error="bad frame")
                 for f in range(1, 101)]
@@ -766,17 +767,17 @@ def test_relight_help_shows_percent_patterns_once(capsys):
 
 
 def _recording_run_batch(monkeypatch):
-    """Wrap clphong.batch.run_batch to keep the RelighterSpecs the command built."""
-    import clphong.batch
+    """Wrap clphong.pipeline.batch.run_batch to keep the RelighterSpecs the command built."""
+    import clphong.pipeline.batch
 
     seen = []
-    real = clphong.batch.run_batch
+    real = clphong.pipeline.batch.run_batch
 
     def record(plan, specs, **kw):
         seen.append(specs)
         return real(plan, specs, **kw)
 
-    monkeypatch.setattr(clphong.batch, "run_batch", record)
+    patch_everywhere(monkeypatch, clphong.pipeline.batch, "run_batch", record)
     return seen
 
 
@@ -831,7 +832,7 @@ h = 24.0
 @pytest.fixture(scope="module")
 def culled_shot(tmp_path_factory):
     """4 frames of a 96x48 wavy surface and a rig of 60 small-reach point lights (culling prunes)."""
-    from clphong.gbuffer import write_gbuffer
+    from clphong.io.gbuffer import write_gbuffer
     from test_cull import heightfield, point_lights
 
     root = tmp_path_factory.mktemp("culled")
@@ -873,8 +874,10 @@ def test_relight_max_error_equals_render_max_error(culled_shot, tmp_path, capsys
     assert r.renderer.max_error == pytest.approx(2e-3)          # absolute: eps x reference white
     # The rig really is culled (so equal images are not just brute force twice).
     rgb = r.relight(str(root / "seq" / "wave.0001.exr"))
-    assert r.renderer.last_plan.defines["CULLING"] == 1
-    assert r.renderer.last_cull.kept_fraction < 0.8, r.renderer.last_cull
+    result = r.renderer.render(r.read(str(root / "seq" / "wave.0001.exr")))
+    assert np.array_equal(result.image, rgb)
+    assert result.plan.defines["CULLING"] == 1
+    assert result.cull.kept_fraction < 0.8, result.cull
     brute = clphong.Relighter(str(root / "many.toml")).relight(str(root / "seq" / "wave.0001.exr"))
     assert not np.array_equal(rgb, brute)
     assert np.array_equal(rgb, _read(out / "many.0001.exr"))
@@ -882,7 +885,7 @@ def test_relight_max_error_equals_render_max_error(culled_shot, tmp_path, capsys
 
 def test_nonfinite_error_fails_only_the_nan_frame(shot, tmp_path, capsys):
     import clphong
-    from clphong.gbuffer import write_gbuffer
+    from clphong.io.gbuffer import write_gbuffer
 
     root, expected = shot
     seq = tmp_path / "seq"
@@ -923,12 +926,12 @@ def test_nonfinite_error_fails_only_the_nan_frame(shot, tmp_path, capsys):
 @pytest.mark.parametrize("command", ["relight", "render"])
 def test_bad_renderer_options_are_one_line_before_any_frame(shot, tmp_path, capsys, monkeypatch,
                                                             option, fragment, command):
-    import clphong.gbuffer
+    import clphong.io.gbuffer
 
     def no_frames(*a, **k):
         raise AssertionError("a frame was read before the options were checked")
 
-    monkeypatch.setattr(clphong.gbuffer, "read_gbuffer", no_frames)
+    patch_everywhere(monkeypatch, clphong.io.gbuffer, "read_gbuffer", no_frames)
     root, _ = shot
     out = tmp_path / "out"
     if command == "relight":
@@ -945,7 +948,7 @@ def test_bad_renderer_options_are_one_line_before_any_frame(shot, tmp_path, caps
 
 def test_render_and_relight_share_the_renderer_options():
     """One definition: the same flags, choices, defaults and help in both parsers."""
-    from clphong.cli import _build_parser
+    from clphong.console.cli import _build_parser
 
     parser = _build_parser()
     subs = next(a for a in parser._actions if a.dest == "command").choices
@@ -962,16 +965,17 @@ def test_pool_workers_share_the_cores_and_the_memory(monkeypatch):
     """Each of N workers plans within 1/N of the memory this process may use (it would
     otherwise budget against the same available memory as the others) and uses 1/N of
     the cores; a CLPHONG_MAX_MEMORY the user set is each worker's own."""
-    from clphong import batch, tiling
+    from clphong.core.memory import MemoryBudget
+    from clphong.pipeline import batch
 
     monkeypatch.delenv("CLPHONG_MAX_MEMORY", raising=False)
-    monkeypatch.setattr(tiling, "memory_budget", lambda: tiling.MemoryBudget(8 * 2 ** 30, "test"))
+    monkeypatch.setattr(batch, "memory_budget", lambda: MemoryBudget(8 * 2 ** 30, "test"))
     monkeypatch.setattr(batch.os, "cpu_count", lambda: 8)
     assert batch.worker_environment(2) == {"POCL_CPU_MAX_CU_NUM": "4",
                                            "CLPHONG_MAX_MEMORY": str(4 * 2 ** 30)}
     monkeypatch.setenv("CLPHONG_MAX_MEMORY", "1G")
     assert "CLPHONG_MAX_MEMORY" not in batch.worker_environment(2)
-    monkeypatch.setattr(tiling, "memory_budget", lambda: tiling.MemoryBudget(None, "no limit"))
+    monkeypatch.setattr(batch, "memory_budget", lambda: MemoryBudget(None, "no limit"))
     monkeypatch.delenv("CLPHONG_MAX_MEMORY")
     assert batch.worker_environment(3) == {"POCL_CPU_MAX_CU_NUM": "2"}
 

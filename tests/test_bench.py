@@ -16,7 +16,11 @@ import math
 import numpy as np
 import pytest
 
-from clphong import bench, reference
+from conftest import patch_everywhere
+
+from clphong.tools import bench
+
+from clphong.reference import shading as reference
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +106,7 @@ def test_numpy_implementation_is_the_same_shading():
 
 
 def test_cli_bench_quick_options_and_bad_input(tmp_path, capsys):
-    from clphong.cli import main
+    from clphong.console.cli import main
 
     rc = main(["bench", "--sizes", "32x24", "--lights", "4", "--small-lights", "16",
                "--paths", "accurate", "--budgets", "1e-3", "--repeats", "1", "--warmup", "0",
@@ -119,12 +123,12 @@ def test_cli_bench_quick_options_and_bad_input(tmp_path, capsys):
 @pytest.mark.parametrize("option", ["--json", "--plot"])
 def test_cli_bench_checks_report_paths_before_running(option, tmp_path, capsys, monkeypatch):
     """A missing folder for --json/--plot is one line, exit 1, before the (minute-long) run."""
-    from clphong.cli import main
+    from clphong.console.cli import main
 
     def no_run(cfg):
         raise AssertionError("the benchmark ran before the output paths were checked")
 
-    monkeypatch.setattr(bench, "run_bench", no_run)
+    patch_everywhere(monkeypatch, bench, "run_bench", no_run)
     bad = tmp_path / "nodir" / "b.out"
     argv = ["bench", "--quick", "--json", str(tmp_path / "b.json"), "--plot", str(tmp_path / "b.png")]
     argv[argv.index(option) + 1] = str(bad)
@@ -136,7 +140,7 @@ def test_cli_bench_checks_report_paths_before_running(option, tmp_path, capsys, 
 
 
 def test_cli_bench_prints_readable_targets_and_where_files_went(tmp_path, capsys):
-    from clphong.cli import main
+    from clphong.console.cli import main
 
     rc = main(["bench", "--sizes", "32x24", "--lights", "4", "--small-lights", "16",
                "--paths", "accurate", "--budgets", "1e-3", "--repeats", "1", "--warmup", "0",
@@ -181,11 +185,11 @@ def test_runs_of_a_case_take_turns(monkeypatch):
     assert all(sorted(r) == sorted(rounds[0]) for r in rounds)
 
 
-# ------------------------------------------------------------------ python -m clphong.bench_cli
+# ------------------------------------------------------------------ python -m clphong.tools.commands
 
 def test_bench_cli_scene_toml_reads_back_as_the_bench_scene(tmp_path):
-    from clphong.bench_cli import scene_toml
-    from clphong.scene import load_scene
+    from clphong.tools.commands import scene_toml
+    from clphong.model.scene import load_scene
 
     scene = bench.bench_scene("wide", 5)
     path = tmp_path / "s.toml"
@@ -201,7 +205,7 @@ def test_bench_cli_scene_toml_reads_back_as_the_bench_scene(tmp_path):
 def test_bench_cli_render_and_batch_run_the_commands(tmp_path, capsys):
     """Tiny frames: every case runs as a subprocess and its figures are read back;
     the batch writes every frame (it fails otherwise); the folder is kept."""
-    from clphong import bench_cli
+    from clphong.tools import commands as bench_cli
 
     assert bench_cli.main(["render", "--size", "64x32", "--lights", "1,2", "--runs", "1",
                            "--folder", str(tmp_path)]) == 0
@@ -217,7 +221,7 @@ def test_bench_cli_render_and_batch_run_the_commands(tmp_path, capsys):
 
 
 def test_bench_cli_errors_are_one_line(tmp_path, capsys):
-    from clphong import bench_cli
+    from clphong.tools import commands as bench_cli
 
     assert bench_cli.main(["render", "--folder", str(tmp_path / "none")]) == 1
     err = capsys.readouterr().err.strip().splitlines()

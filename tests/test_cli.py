@@ -10,9 +10,10 @@ import sys
 import numpy as np
 import pytest
 
-from clphong.cli import main
+from clphong.console.cli import main
 
 from conftest import GBUFFERS
+from conftest import patch_everywhere
 
 SPHERES = [str(GBUFFERS / "spheres.toml"), str(GBUFFERS / "spheres.exr")]
 
@@ -50,7 +51,7 @@ def test_render_single_file_in_process(tmp_path):
 
 def test_render_separate_files(tmp_path):
     import clphong
-    from clphong.output import write_exr
+    from clphong.io.atomic import write_exr
 
     gb = clphong.read_gbuffer(SPHERES[1])
     # one plain-RGB file per buffer; background carried by a zero normal
@@ -143,17 +144,17 @@ def test_plan_command_explains_the_variant(capsys):
     assert "-DMODEL_BLINN=1" in out and "-DCAMERA_ORTHO=1" in out and "-DBLINN_CONST_H=1" in out
     assert "-DMAP_KS=1" in out and "-DMAP_H=1" in out and "-DHAS_POINT=0" in out
     # the plan printed is the one 'render' compiles on this device
-    from clphong.runtime import get_runtime
+    from clphong.device.runtime import get_runtime
     assert f"-DLANES={get_runtime().lanes} " in out
 
 
 def test_path_fast_through_the_cli(tmp_path, capsys):
     """--path fast: the plan says what it compiles (float power, naive sum), and the
     rendered file holds that variant's error bound against the float64 reference."""
-    from clphong import reference
-    from clphong.gbuffer import read_gbuffer
-    from clphong.render import Renderer, prepare_frame
-    from clphong.scene import load_scene
+    from clphong.reference import shading as reference
+    from clphong.io.gbuffer import read_gbuffer
+    from clphong.device.renderer import Renderer, prepare_frame
+    from clphong.model.scene import load_scene
 
     assert main(["plan", *SPHERES, "--path", "fast"]) == 0
     out = capsys.readouterr().out
@@ -314,7 +315,7 @@ class _ClosedPipe:
 @pytest.mark.parametrize("argv", [["inspect", SPHERES[1]], ["inspect", "--json", SPHERES[1]],
                                   ["plan", SPHERES[0]], ["devices"], ["displays"]])
 def test_broken_pipe_ends_quietly_in_process(argv, capsys, monkeypatch):
-    from clphong.cli import EXIT_BROKEN_PIPE
+    from clphong.console.cli import EXIT_BROKEN_PIPE
 
     monkeypatch.setattr(sys, "stdout", _ClosedPipe())
     assert main(argv) == EXIT_BROKEN_PIPE == 141
@@ -334,9 +335,10 @@ def test_broken_pipe_ends_quietly_as_a_subprocess():
 
 
 def test_bench_output_runs_without_a_checkout_and_cleans_up(tmp_path, monkeypatch, capsys):
-    """python -m clphong.bench_output: its frame is built from clphong.samples (no gbuffers/
+    """python -m clphong.tools.output_bench: its frame is built from clphong.tools.samples (no gbuffers/
     folder needed); its temporary folder is removed unless --keep; a bad --folder is one line."""
-    from clphong import bench_cli, bench_output
+    from clphong.tools import commands as bench_cli
+    from clphong.tools import output_bench as bench_output
 
     made = []
 
@@ -366,8 +368,9 @@ def test_bench_output_runs_without_a_checkout_and_cleans_up(tmp_path, monkeypatc
 
 def test_bench_output_frame_is_the_spheres_sample_from_memory(monkeypatch):
     import clphong
-    from clphong import bench_output, samples
-    from clphong.scene import load_scene
+    from clphong.tools import output_bench as bench_output
+    from clphong.tools import samples
+    from clphong.model.scene import load_scene
 
     # the in-memory scene and G-buffer are those of gbuffers/ (so no checkout is needed)
     assert samples.spheres_scene().to_dict() == load_scene(SPHERES[0]).to_dict()
@@ -375,7 +378,7 @@ def test_bench_output_frame_is_the_spheres_sample_from_memory(monkeypatch):
     for name in ("position", "normal", "albedo"):
         assert np.array_equal(getattr(gb, name), getattr(disk, name)), name
     # and the frame does not read gbuffers/ at all
-    monkeypatch.setattr(clphong.gbuffer, "read_gbuffer", None)
+    patch_everywhere(monkeypatch, clphong.io.gbuffer, "read_gbuffer", None)
     frame = bench_output._frame()
     assert frame.shape == (1080, 1920, 3) and np.isfinite(frame).all() and frame.max() > 0
 
@@ -384,8 +387,8 @@ def test_render_channels_maps_channels_as_the_api_does(tmp_path):
     """--channels (explicit mapping): the same pixels as the API reading the file with the
     same mapping; a decoy 'P' layer that detection would take is ignored."""
     import clphong
-    from clphong.gbuffer import parse_channel_mapping
-    from clphong.output import write_exr
+    from clphong.io.gbuffer import parse_channel_mapping
+    from clphong.io.atomic import write_exr
 
     gb = clphong.read_gbuffer(SPHERES[1])
     planes = {"Pw.x": gb.position[..., 0], "Pw.y": gb.position[..., 1], "Pw.z": gb.position[..., 2],
@@ -428,10 +431,10 @@ def test_outputs_that_would_not_fit_in_memory_are_refused_before_shading(tmp_pat
                                                                           monkeypatch):
     """With 7.8 MiB usable the 384x256 sample is read (7.5 MiB), shades in row bands
     and its EXR is written; its SDR and HDR PQ files as well would need
-    1.25·(12 + 38 + 18) B/px = 7.97 MiB (clphong.tiling.output_bytes): one line with
+    1.25·(12 + 38 + 18) B/px = 7.97 MiB (clphong.core.memory.output_bytes): one line with
     both figures, exit 1, no file at all."""
-    from clphong import cli
-    from clphong.tiling import output_bytes
+    from clphong.console import cli
+    from clphong.core.memory import output_bytes
 
     monkeypatch.setenv("CLPHONG_MAX_MEMORY", "7.8M")
     assert output_bytes((256, 384), ["exr"]) < 7.8 * 2 ** 20 < output_bytes((256, 384), ["exr", "sdr", "hdr"])
@@ -455,7 +458,7 @@ def test_outputs_that_would_not_fit_in_memory_are_refused_before_shading(tmp_pat
     (["--sdr", "x.png", "--tonemap", "agx"], None),
 ])
 def test_colour_options_no_output_uses_are_warned_about(extra, warned, tmp_path, capsys):
-    from clphong import cli
+    from clphong.console import cli
 
     argv = ["render", *SPHERES, "-o", str(tmp_path / "a.exr")]
     argv += [str(tmp_path / a) if a.endswith(".png") else a for a in extra]

@@ -21,9 +21,9 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from clphong import color
-from clphong.cli import main
-from clphong.errors import ClphongError, OutputError
+from clphong.color import ocio as color
+from clphong.console.cli import main
+from clphong.core.errors import ClphongError, OutputError
 
 from conftest import GBUFFERS
 
@@ -195,8 +195,8 @@ def test_hdr_pq_encoding_matches_colour_science_in_absolute_nits(cfg):
 # ------------------------------------------------------------------ written files
 
 def test_exr_has_chromaticities_colorspace_and_no_stale_interop_id(tmp_path):
-    from clphong.output import write_exr
-    from clphong.writers import write_scene_linear
+    from clphong.io.atomic import write_exr
+    from clphong.deliver.writers import write_scene_linear
 
     rgb = np.random.default_rng(0).uniform(0, 4, (8, 12, 3)).astype(np.float32)
     for ws, ptype, comp in ((ACESCG, "half", "piz"), (REC709, "float", "zip")):
@@ -216,7 +216,7 @@ def test_exr_has_chromaticities_colorspace_and_no_stale_interop_id(tmp_path):
 
 @pytest.mark.parametrize("ext,bits", [(".png", 8), (".png", 16), (".tif", 8), (".tif", 16)])
 def test_sdr_files_bit_depth_tags_and_values(tmp_path, ext, bits):
-    from clphong.writers import write_sdr
+    from clphong.deliver.writers import write_sdr
 
     x = np.tile(np.linspace(0, 1, 64, dtype=np.float32)[None, :, None], (16, 1, 3))
     p = tmp_path / f"s{ext}"
@@ -230,7 +230,7 @@ def test_sdr_files_bit_depth_tags_and_values(tmp_path, ext, bits):
 
 
 def test_dither_removes_banding_before_8_bit_quantisation(tmp_path):
-    from clphong.writers import write_sdr
+    from clphong.deliver.writers import write_sdr
 
     x = np.tile(np.linspace(0.2, 0.21, 256, dtype=np.float32)[None, :, None], (64, 1, 3))
     err = {}
@@ -246,7 +246,7 @@ def test_dither_removes_banding_before_8_bit_quantisation(tmp_path):
 
 @pytest.mark.parametrize("ext", [".png", ".jxl"])
 def test_hdr_files_carry_cicp_9_16_0_1(tmp_path, ext):
-    from clphong.writers import jpegxl_available, write_hdr
+    from clphong.deliver.writers import jpegxl_available, write_hdr
 
     if ext == ".jxl" and not jpegxl_available():
         pytest.skip("no JPEG XL in this OpenImageIO")
@@ -264,7 +264,7 @@ def test_hdr_files_carry_cicp_9_16_0_1(tmp_path, ext):
 
 
 def test_writers_reject_wrong_extensions(tmp_path):
-    from clphong.writers import write_hdr, write_sdr
+    from clphong.deliver.writers import write_hdr, write_sdr
 
     with pytest.raises(OutputError, match=r"\.png or \.tif"):
         write_sdr(tmp_path / "a.jpg", np.zeros((2, 2, 3)))
@@ -297,7 +297,7 @@ def test_render_every_kind_in_one_run(tmp_path):
 
 def test_render_sdr_alone_matches_the_fused_reference(tmp_path):
     import clphong
-    from clphong.display import DisplayTransform
+    from clphong.device.display import DisplayTransform
 
     p = tmp_path / "agx.png"
     assert main(["render", *SPHERES, "--sdr", str(p), "--bits", "16", "--tonemap", "agx"]) == 0
@@ -344,7 +344,7 @@ def test_displays_command_lists_displays_views_looks_and_operators():
 # ------------------------------------------------------------------ scene keys
 
 def _scene(render):
-    from clphong.scene import parse_scene
+    from clphong.model.scene import parse_scene
 
     return parse_scene({"camera": {"type": "perspective", "position": [0, 0, 5]},
                         "material": {"model": "phong", "k_a": 0, "k_d": 0.5, "k_s": 0, "h": 1},
@@ -352,7 +352,7 @@ def _scene(render):
 
 
 def test_scene_colour_keys_parse_and_round_trip():
-    from clphong.scene import parse_scene
+    from clphong.model.scene import parse_scene
 
     s = _scene({"working_space": "acescg", "exposure": -1.5, "tonemap": "Uncharted2",
                 "white_point": 8, "view": "Un-tone-mapped"})
@@ -373,7 +373,7 @@ def test_scene_colour_keys_parse_and_round_trip():
     ({"exposur": 1}, "render.exposur", "did you mean 'exposure'"),
 ])
 def test_scene_colour_key_errors_name_file_and_key(render, key, words):
-    from clphong.errors import SceneError
+    from clphong.core.errors import SceneError
 
     with pytest.raises(SceneError) as info:
         _scene(render)
@@ -401,7 +401,7 @@ def test_exposure_has_the_scene_keys_range_on_every_output(outputs, ev, tmp_path
     err = _one_line_error(capsys)
     assert f"--exposure {float(ev):g} stops is out of range" in err and "-100..100" in err, err
     assert list(tmp_path.iterdir()) == []
-    from clphong.errors import SceneError
+    from clphong.core.errors import SceneError
 
     with pytest.raises(SceneError, match="out of range"):      # the same rule in the scene
         _scene({"exposure": float(ev)})
@@ -420,9 +420,10 @@ def test_exposure_at_the_limit_is_a_picture_on_every_output(tmp_path):
 
 
 def test_exposure_out_of_range_through_the_api_is_a_tonemap_error(cfg):
-    from clphong.deliver import OutputOptions
-    from clphong.display import MAX_EXPOSURE, DisplayTransform
-    from clphong.tonemap import ToneMapError
+    from clphong.deliver.outputs import OutputOptions
+    from clphong.device.display import DisplayTransform
+    from clphong.model.options import MAX_EXPOSURE
+    from clphong.core.errors import ToneMapError
 
     x = np.ones((1, 1, 3), np.float32)
     for ev in (2000.0, -200.0, float("inf")):
@@ -472,8 +473,8 @@ def test_tonemap_and_view_conflict_names_the_scene_key_it_came_from(tmp_path, ca
 
 def test_contact_sheet_shows_the_views_of_the_display_given(tmp_path):
     import clphong
-    from clphong.contact import write_contact_sheet
-    from clphong.deliver import _load_config
+    from clphong.deliver.contact import write_contact_sheet
+    from clphong.deliver.outputs import _load_config
 
     display = "Display P3 - Display"
     sheet = tmp_path / "sheet.png"
@@ -509,8 +510,8 @@ def test_contact_sheet_for_a_p3_display_is_p3_throughout_and_tagged_so(tmp_path,
     """The operator tiles (sRGB-encoded by the kernel) are converted to the display's
     colour space by OCIO, and the sheet is tagged with it; a TIFF sheet there is refused."""
     import clphong
-    from clphong.contact import TILE_WIDTH, contact_sheet
-    from clphong.deliver import _load_config
+    from clphong.deliver.contact import TILE_WIDTH, contact_sheet
+    from clphong.deliver.outputs import _load_config
 
     p3 = "Display P3 - Display"
     sheet = tmp_path / "sheet.png"

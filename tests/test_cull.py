@@ -4,7 +4,7 @@ The claim under test: for every pixel and channel, the lights a tile drops
 contribute at most ε in total. It is checked two ways, neither tuned to pass:
 
 * exactly, in float64: Σ over the dropped lights of the reference's own
-  contribution (clphong.reference, same float32 inputs) ≤ ε, per pixel and
+  contribution (clphong.reference.shading, same float32 inputs) ≤ ε, per pixel and
   channel, with the kernel's lists read back;
 * end to end: |culled kernel − reference| ≤ ε + the brute-force error bound
   (docs/error-model.md), on top of the first.
@@ -17,9 +17,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clphong import reference
-from clphong.cull import CullingError, read_tile_lists, tile_of_pixels
-from clphong.render import Renderer, prepare_frame
+from clphong.core.floats import U
+from clphong.reference import shading as reference
+from clphong.device.culling import CullingError, read_tile_lists, tile_of_pixels
+from clphong.device.renderer import Renderer, prepare_frame
 
 from conftest import make_gbuffer, make_scene, random_maps
 
@@ -48,14 +49,15 @@ def point_lights(rng, n, *, extent=(4.5, 3.7), height=(0.05, 0.6), att=(1.0, 0.0
     return out
 
 
-def dropped_sum(scene, gbuffer, renderer):
-    """Per pixel and channel, Σ of the float64 contributions of the lights the tile dropped."""
-    lists = read_tile_lists(renderer.runtime, renderer.last_cull)
+def dropped_sum(scene, gbuffer, renderer, cull):
+    """Per pixel and channel, Σ of the float64 contributions of the lights the tile dropped
+    (``cull``: the TileLists of the launch)."""
+    lists = read_tile_lists(renderer.runtime, cull)
     tile = tile_of_pixels(gbuffer.shape, renderer.lanes).reshape(-1)
     px, C, D, S, fg = reference._inputs(scene, gbuffer)
     tile_fg = tile[fg]
     n_point = len(scene.lights_of("point"))
-    kept = np.zeros((renderer.last_cull.n_tiles, n_point), bool)
+    kept = np.zeros((cull.n_tiles, n_point), bool)
     for t, idx in enumerate(lists):
         kept[t, idx] = True
         assert np.all(np.diff(idx.astype(np.int64)) > 0), "lists keep the light order"
@@ -77,10 +79,11 @@ def check_budget_holds(scene, gbuffer, eps):
     brute = Renderer(scene)
     r = Renderer(scene, max_error=eps)
     frame = prepare_frame(gbuffer, lanes=r.lanes)
-    out = r.render(gbuffer, frame=frame).astype(np.float64)
-    assert r.last_cull is not None
+    result = r.shade(frame)
+    out = result.image.astype(np.float64)
+    assert result.cull is not None
     # 1. exact: the dropped lights' float64 contributions sum to ≤ ε
-    dropped = dropped_sum(scene, gbuffer, r)
+    dropped = dropped_sum(scene, gbuffer, r, result.cull)
     worst = np.abs(dropped).max(initial=0.0)
     assert worst <= eps, f"dropped lights sum to {worst:.3g} > ε = {eps:g}"
     # 2. end to end against the float64 reference: ε on top of the error model's bound
@@ -89,7 +92,7 @@ def check_budget_holds(scene, gbuffer, eps):
                                      **_bound_kwargs(brute, frame))
     err = np.abs(out - ref)
     assert np.all(err <= eps + bound), f"max excess {np.max(err - eps - bound):.3g}"
-    return r, dropped
+    return r, dropped, result.cull
 
 
 def _bound_kwargs(renderer, frame):
@@ -106,14 +109,15 @@ def test_zero_budget_is_bit_identical_to_brute_force(seed):
     lights = point_lights(rng, 40, att=(1.0, 0.2, 5.0))
     lights.append(dict(type="point", position=(1.0, 1.0, 0.3), color=(0.0, 0.0, 0.0), intensity=0.0))
     scene = make_scene(lights, model=["phong", "blinn-phong"][seed], h=30.0)
-    brute = Renderer(scene).render(gb)
+    brute = Renderer(scene).render(gb).image
     r = Renderer(scene, max_error=0.0)
     assert r.plan_for(()).defines["CULLING"] == 1     # the culling kernels did run
-    culled = r.render(gb)
+    result = r.render(gb)
+    culled = result.image
     assert np.array_equal(culled, brute)
     # only the black light (bound exactly 0) goes; every other light stays in every
     # tile with shaded pixels (empty and padding tiles keep nothing)
-    lists = read_tile_lists(r.runtime, r.last_cull)
+    lists = read_tile_lists(r.runtime, result.cull)
     shaded = tile_of_pixels(gb.shape, r.lanes)[~gb.background_mask()]
     assert {len(lists[t]) for t in np.unique(shaded)} == {40}
 
@@ -126,9 +130,9 @@ def test_dropped_lights_sum_to_at_most_the_budget(eps):
     gb = heightfield(rng)
     scene = make_scene(point_lights(rng, 120), model="blinn-phong", h=40.0,
                        camera=dict(type="perspective", position=(2.2, 1.8, 4.0)))
-    r, dropped = check_budget_holds(scene, gb, eps)
+    r, dropped, cull = check_budget_holds(scene, gb, eps)
     if eps >= 1e-3:
-        assert r.last_cull.kept_fraction < 1.0   # something was culled
+        assert cull.kept_fraction < 1.0   # something was culled
         assert dropped.max() > 0
 
 
@@ -141,8 +145,8 @@ def test_far_lights_are_culled():
     near = point_lights(rng, 60, att=(1.0, 0.0, 1e4))
     far = point_lights(rng, 60, att=(1.0, 0.0, 1e4), offset=(20.0, 0.0, 0.0))
     scene = make_scene(near + far, model="blinn-phong", h=40.0)
-    r, _ = check_budget_holds(scene, gb, 1e-3)
-    for idx in read_tile_lists(r.runtime, r.last_cull):
+    r, _, cull = check_budget_holds(scene, gb, 1e-3)
+    for idx in read_tile_lists(r.runtime, cull):
         assert np.all(idx < 60)
 
 
@@ -188,13 +192,14 @@ def test_other_lane_widths_and_odd_sizes(lanes):
     rng = np.random.default_rng(5)
     gb = heightfield(rng, 23, 35)
     scene = make_scene(point_lights(rng, 50), model="phong", h=10.0)
-    brute = Renderer(scene, lanes=lanes).render(gb)
+    brute = Renderer(scene, lanes=lanes).render(gb).image
     r = Renderer(scene, lanes=lanes, max_error=1e-3)
-    out = r.render(gb)
-    dropped = dropped_sum(scene, gb, r)
+    result = r.render(gb)
+    out = result.image
+    dropped = dropped_sum(scene, gb, r, result.cull)
     assert dropped.max(initial=0.0) <= 1e-3
     # culled vs brute force: the dropped sum plus the two sums' roundings (2·3u·Σ|c|, error model)
-    tol = 1e-3 + 6 * reference.U * np.abs(brute).astype(np.float64) + 1e-7
+    tol = 1e-3 + 6 * U * np.abs(brute).astype(np.float64) + 1e-7
     assert np.all(np.abs(out.astype(np.float64) - brute) <= tol)
 
 
@@ -208,7 +213,7 @@ def test_directional_and_ambient_lights_are_never_culled():
     scene = make_scene(lights, k_a=1.0)
     r = Renderer(scene, max_error=1.0)     # a budget far above every term
     assert r.plan_for(()).defines["CULLING"] == 0
-    assert np.array_equal(r.render(gb), Renderer(scene).render(gb))
+    assert np.array_equal(r.render(gb).image, Renderer(scene).render(gb).image)
 
 
 # ---------------------------------------------------------------------- options and the cache
@@ -223,7 +228,7 @@ def test_negative_or_nonfinite_budget_is_an_error():
 
 
 def test_plan_says_why_culling_is_on():
-    from clphong.plan import make_plan
+    from clphong.device.plan import make_plan
 
     scene = make_scene([dict(type="point", position=(0.0, 0.0, 1.0))])
     text = str(make_plan(scene, (), lanes=8, max_error=1e-3))
@@ -232,15 +237,15 @@ def test_plan_says_why_culling_is_on():
 
 
 def test_second_render_builds_nothing():
-    from clphong.runtime import get_runtime
+    from clphong.device.runtime import get_runtime
 
     rng = np.random.default_rng(2)
     gb = heightfield(rng, 16, 16)
     scene = make_scene(point_lights(rng, 10), h=5.0)
-    Renderer(scene, max_error=1e-3).render(gb)
+    Renderer(scene, max_error=1e-3).render(gb).image
     rt = get_runtime()
     before = rt.builds
-    Renderer(scene, max_error=1e-3).render(gb)
+    Renderer(scene, max_error=1e-3).render(gb).image
     assert rt.builds == before
 
 
@@ -269,7 +274,7 @@ def test_budget_holds_where_the_bound_is_tight(case):
               for _ in range(100)]
     scene = make_scene(lights, model="blinn-phong", k_a=0.0, k_d=k_d, k_s=k_s, h=10.0,
                        camera=dict(type="orthographic", direction=(0.0, 0.0, -1.0)))
-    r, dropped = check_budget_holds(scene, gb, eps)
+    r, dropped, _ = check_budget_holds(scene, gb, eps)
     # tight: 9 of the 100 go (2 within ε/4 at the super-tile level, 7 within 3ε/4 at
     # the tile level, cull.py), so the dropped sum is ~0.9ε; under the dipping light
     # the worst pixel sees n·l = 0.53
@@ -278,8 +283,8 @@ def test_budget_holds_where_the_bound_is_tight(case):
 
 def test_cli_render_with_a_budget(tmp_path, capsys):
     """--max-error through the CLI: within ε of brute force; a bad budget is one line, exit 1."""
-    from clphong.cli import main
-    from clphong.gbuffer import read_gbuffer
+    from clphong.console.cli import main
+    from clphong.io.gbuffer import read_gbuffer
 
     from conftest import GBUFFERS
 
@@ -291,7 +296,7 @@ def test_cli_render_with_a_budget(tmp_path, capsys):
                                                               "albedo": "R,G,B"}).position
     culled = read_gbuffer(str(tmp_path / "cull.exr"), channels={"position": "R,G,B", "normal": "R,G,B",
                                                                "albedo": "R,G,B"}).position
-    assert np.all(np.abs(culled.astype(np.float64) - brute) <= 1e-3 + 6 * reference.U * np.abs(brute))
+    assert np.all(np.abs(culled.astype(np.float64) - brute) <= 1e-3 + 6 * U * np.abs(brute))
     assert main(args + ["-o", str(tmp_path / "float.exr"), "--path", "float", "--stats"]) == 0
     assert "-DDIRECTIONS_FP64=0" in capsys.readouterr().err
     assert main(args + ["-o", str(tmp_path / "bad.exr"), "--max-error", "-1"]) == 1
@@ -331,7 +336,7 @@ def test_budget_holds_with_negative_albedo():
     rng = np.random.default_rng(12)
     gb = heightfield(rng)
     gb.albedo[...] = rng.uniform(-1.0, 1.0, gb.albedo.shape).astype(np.float32)
-    r, dropped = check_budget_holds(make_scene(point_lights(rng, 60), h=12.0), gb, 1e-3)
+    r, dropped, _ = check_budget_holds(make_scene(point_lights(rng, 60), h=12.0), gb, 1e-3)
     assert np.abs(dropped).max() <= 1e-3
 
 
@@ -359,7 +364,7 @@ def test_super_tile_bounds_merged_from_tiles_equal_direct_bounds(maps):
     bit-identical to tile_bounds run on the super-tiles themselves."""
     import pyopencl as cl
 
-    from clphong import cull
+    from clphong.device import culling as cull
 
     rng = np.random.default_rng(21)
     gb = heightfield(rng, 70, 203, maps=maps)           # odd sizes: partial tiles and super-tiles

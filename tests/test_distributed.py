@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from clphong.cli import main
+from clphong.console.cli import main
 
 from test_batch import _check_outputs, _no_temporaries, _read, shot  # noqa: F401 - fixture
 
@@ -21,8 +21,8 @@ needs_dask = pytest.mark.skipif(distributed is None, reason="needs dask[distribu
 
 def _worker_state():
     """On a worker: (relighters cached, programs built, rigs) of this process."""
-    from clphong.api import _CACHE
-    from clphong.runtime import _RUNTIMES
+    from clphong.pipeline.relighter import _CACHE
+    from clphong.device.runtime import _RUNTIMES
 
     relighters = [v for k, v in _CACHE.items() if k != "__lock__"]
     builds = sum(rt.builds for rt in _RUNTIMES.values())
@@ -78,7 +78,7 @@ def test_local_batch_does_not_import_dask(shot, tmp_path):  # noqa: F811
     root, _ = shot
     code = (
         "import sys\n"
-        "from clphong.cli import main\n"
+        "from clphong.console.cli import main\n"
         f"rc = main(['relight', {str(root / 'seq')!r}, '--rig', {str(root / 'key.toml')!r}, '-q', "
         f"'--frames', '1-2', '-o', {str(tmp_path / '{stem}.out.exr')!r}])\n"
         "assert rc == 0, rc\n"
@@ -105,7 +105,7 @@ def test_scheduler_without_dask_is_one_line(shot, tmp_path, capsys, monkeypatch)
 
 def _worker_renderers():
     """On a worker: the renderer options of every relighter this process cached."""
-    from clphong.api import _CACHE
+    from clphong.pipeline.relighter import _CACHE
 
     return sorted((r.renderer.fp64_directions, r.renderer.plan_for(()).defines["DIRECTIONS_FP64"],
                    r.renderer.max_error, r.renderer.nonfinite)

@@ -1,7 +1,7 @@
 """Fuzzing the two doors that take untrusted files: the G-buffer reader and the scene parser.
 
 Property: whatever the bytes, ``read_gbuffer`` and ``load_scene`` either
-return a valid result or raise a :class:`~clphong.errors.ClphongError` whose
+return a valid result or raise a :class:`~clphong.core.errors.ClphongError` whose
 message is one line naming the file. Any other exception (or a crash) is a bug;
 each one found became a named regression test at the bottom of this file.
 
@@ -30,9 +30,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from clphong.errors import ClphongError, GBufferError, SceneError
-from clphong.gbuffer import GBuffer, read_gbuffer, write_gbuffer
-from clphong.scene import SceneWarning, load_scene, parse_scene
+from clphong.core.errors import ClphongError, GBufferError, SceneError
+from clphong.io.gbuffer import GBuffer, read_gbuffer, write_gbuffer
+from clphong.model.scene import SceneWarning, load_scene, parse_scene
 
 #: Examples per fuzzed target per run (split over the target's tests below).
 EXAMPLES = int(os.environ.get("CLPHONG_FUZZ_EXAMPLES", "1000"))

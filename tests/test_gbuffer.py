@@ -1,4 +1,4 @@
-"""Tests of clphong.gbuffer: reading G-buffers by channel name, in every convention."""
+"""Tests of clphong.io.gbuffer: reading G-buffers by channel name, in every convention."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from clphong.errors import GBufferError
-from clphong.gbuffer import (CHANNEL_KEYS, GBuffer, parse_channel_mapping, read_gbuffer,
+from clphong.core.errors import GBufferError
+from clphong.io.gbuffer import (CHANNEL_KEYS, GBuffer, parse_channel_mapping, read_gbuffer,
                              write_gbuffer)
-from clphong.output import write_exr
+from clphong.io.atomic import write_exr
 from conftest import GBUFFERS
 
 H, W = 5, 7
@@ -554,12 +554,12 @@ def test_write_gbuffer_bad_arguments(tmp_path):
 
 @pytest.mark.parametrize("name", ["spheres", "ortho"])
 def test_shipped_samples_are_the_generator_output(name):
-    """gbuffers/NAME.exr holds exactly what clphong.samples.NAME() computes, rounded to
+    """gbuffers/NAME.exr holds exactly what clphong.tools.samples.NAME() computes, rounded to
     the file's storage type, and the [camera] of gbuffers/NAME.toml is the generator's
-    camera constant (clphong.samples' docstring)."""
+    camera constant (clphong.tools.samples' docstring)."""
     import tomllib
 
-    from clphong import samples
+    from clphong.tools import samples
 
     path = GBUFFERS / f"{name}.exr"
     made = getattr(samples, name)()

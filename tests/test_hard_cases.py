@@ -1,4 +1,4 @@
-"""The hard-case suite (clphong.hardcases) on the default path, plus the input
+"""The hard-case suite (clphong.tools.hardcases) on the default path, plus the input
 and output policies it relies on.
 
 Each case asserts the error model's bound on every pixel (band included), no
@@ -13,11 +13,13 @@ import warnings
 import numpy as np
 import pytest
 
-from clphong import hardcases, reference
-from clphong.errors import GBufferError, InputWarning, OutputError, OutputWarning
-from clphong.hardcases import CASES, TARGET_REL, evaluate, make_scene
-from clphong.inputs import nonfinite_counts
-from clphong.render import Renderer
+from clphong.tools import hardcases
+
+from clphong.reference import shading as reference
+from clphong.core.errors import GBufferError, InputWarning, OutputError, OutputWarning
+from clphong.tools.hardcases import CASES, TARGET_REL, evaluate, make_scene
+from clphong.io.nonfinite import nonfinite_counts
+from clphong.device.renderer import Renderer
 
 
 def test_there_are_at_least_30_cases_in_every_group():
@@ -144,7 +146,7 @@ def test_nonfinite_values_are_counted_per_buffer():
 def test_background_policy_keeps_nan_out_of_every_other_pixel():
     scene, gb = _with_nans()
     with pytest.warns(InputWarning, match="albedo"):
-        rgb = Renderer(scene).render(gb)
+        rgb = Renderer(scene).render(gb).image
     assert np.all(np.isfinite(rgb))
     bad = ~np.isfinite(gb.albedo).all(-1) | ~np.isfinite(gb.position).all(-1) | ~np.isfinite(gb.maps["k_s"])
     assert np.all(rgb[bad] == 0.0)                      # the background value
@@ -155,21 +157,21 @@ def test_background_policy_keeps_nan_out_of_every_other_pixel():
         a[~np.isfinite(a)] = 0.0
     gb2.maps["k_s"][~np.isfinite(gb2.maps["k_s"])] = 0.0
     gb2.coverage[bad] = 0.0
-    clean = Renderer(scene2).render(gb2)
+    clean = Renderer(scene2).render(gb2).image
     assert np.array_equal(rgb[ok], clean[ok])
 
 
 def test_error_policy_names_the_buffer():
     scene, gb = _with_nans()
     with pytest.raises(GBufferError, match=r"albedo: \d+ pixel"):
-        Renderer(scene, nonfinite="error").render(gb)
+        Renderer(scene, nonfinite="error").render(gb).image
 
 
 def test_pass_policy_keeps_nan_in_its_own_pixels():
     scene, gb = _by_name("nan-albedo").build()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InputWarning)
-        rgb = Renderer(scene, nonfinite="pass").render(gb)
+        rgb = Renderer(scene, nonfinite="pass").render(gb).image
     bad = ~np.isfinite(gb.albedo).all(-1) & (gb.coverage != 0)
     assert bad.any() and np.all(np.isnan(rgb[bad][:, 1]))     # the NaN channel stays NaN ...
     assert np.all(np.isfinite(rgb[~bad]))                      # ... and only in its own pixels
@@ -185,7 +187,7 @@ def test_unknown_policy_lists_the_valid_ones():
 def test_values_above_the_half_range_are_clamped_with_a_warning(tmp_path):
     import OpenImageIO as oiio
 
-    from clphong.output import HALF_MAX, write_exr
+    from clphong.io.atomic import HALF_MAX, write_exr
 
     r = evaluate(_by_name("above-half-range"))
     assert r.rgb.max() > HALF_MAX
@@ -206,8 +208,8 @@ def test_table_lists_every_case():
 
 
 def test_cli_nonfinite_policy(tmp_path, capsys):
-    from clphong.cli import main
-    from clphong.gbuffer import read_gbuffer, write_gbuffer
+    from clphong.console.cli import main
+    from clphong.io.gbuffer import read_gbuffer, write_gbuffer
 
     from conftest import GBUFFERS
 
@@ -227,7 +229,7 @@ def test_cli_nonfinite_policy(tmp_path, capsys):
 
 
 def test_shipped_samples_as_cases_hold_the_bound_and_the_target(capsys):
-    """python -m clphong.hardcases --samples: each gbuffers/NAME.toml with NAME.exr."""
+    """python -m clphong.tools.hardcases --samples: each gbuffers/NAME.toml with NAME.exr."""
     from conftest import GBUFFERS
 
     assert hardcases.main(["--samples", str(GBUFFERS)]) == 0
@@ -241,11 +243,12 @@ def test_shipped_samples_as_cases_hold_the_bound_and_the_target(capsys):
 def test_nonfinite_inputs_never_reach_the_display_output(name):
     """The default policy makes NaN/Inf G-buffer pixels background before shading, so
     the fused SDR output, like the scene-linear one, is finite everywhere."""
-    from clphong.display import DisplayTransform, render_display
+    from clphong.device.display import DisplayTransform
 
     scene, gb = _by_name(name).build()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InputWarning)
-        rgb, shown = render_display(Renderer(scene), gb, DisplayTransform("agx"))
+        result = Renderer(scene).render(gb, display=DisplayTransform("agx"))
+    rgb, shown = result.image, result.display
     assert np.all(np.isfinite(rgb)) and np.all(np.isfinite(shown))
     assert shown.min() >= 0.0 and shown.max() <= 1.0

@@ -1,6 +1,6 @@
 """Hostile input and faults: the catalogue of bad inputs, run through the CLI.
 
-Every case runs ``clphong render`` in-process (``clphong.cli.main``) and checks
+Every case runs ``clphong render`` in-process (``clphong.console.cli.main``) and checks
 what a user sees and what is left on disk:
 
 - exactly one ``clphong: error: ...`` line on stderr (warnings aside), naming
@@ -29,10 +29,10 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from clphong import runtime
-from clphong.cli import main
-from clphong.gbuffer import write_gbuffer
-from clphong.output import write_exr
+from clphong.device import runtime
+from clphong.console.cli import main
+from clphong.io.gbuffer import write_gbuffer
+from clphong.io.atomic import write_exr
 
 from conftest import CATALOGUE, random_gbuffer
 
@@ -420,7 +420,7 @@ def test_brightest_accepted_light_renders_no_nan_on_any_path(work, c0):
     import tomllib
 
     import clphong
-    from clphong.errors import SceneError
+    from clphong.core.errors import SceneError
 
     src, _ = work
     gb = clphong.read_gbuffer(src / "gbuf.exr")
@@ -437,7 +437,7 @@ def test_brightest_accepted_light_renders_no_nan_on_any_path(work, c0):
     assert scenes, "the margin refuses even 2^-20 below the limit"
     for scene in scenes:
         for path in (None, "float", "fast"):
-            rgb = clphong.Renderer(scene, path=path).render(gb)
+            rgb = clphong.Renderer(scene, path=path).render(gb).image
             assert not np.isnan(rgb).any(), (scene.lights[0].intensity, path)
 
 
@@ -468,7 +468,7 @@ def test_empty_light_list_renders_black_and_says_why(work, capsys):
 
 def test_ambient_only_scene_matches_the_reference(work, capsys):
     import clphong
-    from clphong import reference
+    from clphong.reference import shading as reference
 
     src, out = work
     text = SCENE.split("[[light]]")[0] + '[[light]]\ntype = "ambient"\ncolor = [1.0, 0.5, 0.25]\nintensity = 2.0\n'
@@ -491,7 +491,7 @@ def test_many_lights_accepted(work, capsys):
     its refusal under a memory limit is :func:`test_scene_file_too_large_for_memory`.
     """
     import clphong
-    from clphong import reference
+    from clphong.reference import shading as reference
 
     src, out = work
     rng = np.random.default_rng(11)
@@ -505,7 +505,7 @@ def test_many_lights_accepted(work, capsys):
     gb = clphong.read_gbuffer(src / "gbuf.exr")
     px = _read(out / "beauty.exr").astype(np.float64)
     r = clphong.Renderer(scene)
-    from clphong.render import prepare_frame
+    from clphong.device.renderer import prepare_frame
     frame = prepare_frame(gb, lanes=r.lanes)
     plan = r.plan_for(frame.map_names)
     bound, _ = reference.error_bound(scene, gb, origin=frame.origin,
@@ -551,7 +551,7 @@ def test_output_not_exr_is_refused_before_work(work, capsys, monkeypatch):
     import importlib
 
     src, out = work
-    render = importlib.import_module("clphong.render")
+    render = importlib.import_module("clphong.device.renderer")
 
     def no_render(*a, **k):                     # the check comes first: nothing is shaded
         raise AssertionError("rendered before checking the output name")
@@ -613,7 +613,7 @@ class _FileSizeLimitedOutput:
 
 
 def test_disk_full_while_writing_keeps_the_previous_output(work, capsys, monkeypatch):
-    from clphong import output
+    from clphong.io import atomic as output
 
     src, out = work
     big = random_gbuffer(np.random.default_rng(9), 64, 64)          # ~48 KB of noise: > limit
@@ -656,7 +656,7 @@ class _FullAtClose(_FileSizeLimitedOutput):
 def test_disk_full_while_writing_any_output_keeps_the_previous_one(work, capsys, monkeypatch,
                                                                    option, name, when):
     """Before, these exited 0 leaving a PNG cut short (or empty), or an empty EXR."""
-    from clphong import output
+    from clphong.io import atomic as output
 
     src, out = work
     big = random_gbuffer(np.random.default_rng(9), 64, 64)
@@ -676,7 +676,7 @@ def test_disk_full_while_writing_any_output_keeps_the_previous_one(work, capsys,
     ("ctrl-c", 130, "clphong: interrupted"),
 ])
 def test_stopped_while_writing_leaves_nothing(work, capsys, monkeypatch, how, code, text):
-    from clphong import output
+    from clphong.io import atomic as output
 
     class Stopped(_FileSizeLimitedOutput):
         limit = 2 ** 40
@@ -768,9 +768,9 @@ def test_frame_too_big_for_one_launch_is_shaded_in_bands(work, capsys, monkeypat
     tolerance. The result is also held to the reference's error bound.
     """
     import clphong
-    from clphong import reference
-    from clphong.render import prepare_frame
-    from clphong.tiling import render_bytes_per_pixel
+    from clphong.reference import shading as reference
+    from clphong.device.renderer import prepare_frame
+    from clphong.device.bands import render_bytes_per_pixel
 
     src, out = work
     gb = random_gbuffer(np.random.default_rng(12), 96, 40, maps=("k_s", "h"))
@@ -778,13 +778,15 @@ def test_frame_too_big_for_one_launch_is_shaded_in_bands(work, capsys, monkeypat
     scene = clphong.load_scene(src / "scene.toml")
     gb = clphong.read_gbuffer(src / "tall.exr")
     r = clphong.Renderer(scene)
-    whole = r.render(gb)
-    assert r.last_bands == 1
+    result = r.render(gb)
+    whole = result.image
+    assert result.bands == 1
     # Room for the (96, 40, 3) output and ~10 rows of shading, not the whole frame.
     limit = 12 * 96 * 40 + render_bytes_per_pixel(3) * (r.lanes * 64 + 10 * 40) + 512 * 3
     monkeypatch.setenv("CLPHONG_MAX_MEMORY", str(limit))
-    banded = r.render(gb)
-    assert r.last_bands > 1
+    result = r.render(gb)
+    banded = result.image
+    assert result.bands > 1
     assert np.array_equal(banded, whole)
     frame = prepare_frame(gb, lanes=r.lanes)
     plan = r.plan_for(frame.map_names)
@@ -793,11 +795,12 @@ def test_frame_too_big_for_one_launch_is_shaded_in_bands(work, capsys, monkeypat
     assert np.all(np.abs(banded - reference.shade(scene, gb)) <= bound)
     # and through the CLI, with room to read the file (8 bytes a pixel and
     # channel, 12 channels) but not to shade it in one launch
-    from clphong import tiling
+    from clphong.device import renderer as renderer_module
 
     calls = []
-    real_plan = tiling.plan_bands
-    monkeypatch.setattr(tiling, "plan_bands", lambda h, rows: calls.append(rows) or real_plan(h, rows))
+    real_plan = renderer_module.plan_bands
+    monkeypatch.setattr(renderer_module, "plan_bands",
+                        lambda h, rows: calls.append(rows) or real_plan(h, rows))
     monkeypatch.setenv("CLPHONG_MAX_MEMORY", str(8 * 12 * 96 * 40 + limit))
     assert 8 * 12 * 96 * 40 + limit < render_bytes_per_pixel(3) * 96 * 40
     assert cli(render_argv(src, out, gbuffer=src / "tall.exr")) == 0
@@ -810,30 +813,31 @@ def test_frame_over_the_devices_largest_buffer_is_shaded_in_bands(monkeypatch):
     POCL_MEMORY_LIMIT=1, 256 MiB: one launch of 3000x2000 failed with INVALID_BUFFER_SIZE).
     Here the limit is lowered to a few rows of a small frame."""
     import clphong
-    from clphong import tiling
-    from clphong.tiling import _gbuf_planes
+    from clphong.device.frame import GBUF_PLANES
 
     r = clphong.Renderer(_scene_of(SCENE))
     block = r.lanes * 64
     rows = 3 * 2 * block // 30                     # three bands of two blocks, whatever the lanes
     gb = random_gbuffer(np.random.default_rng(14), rows, 30)
-    whole = r.render(gb)
-    assert r.last_bands == 1
-    monkeypatch.setattr(tiling, "_device_limits", lambda renderer: (4 * _gbuf_planes() * 2 * block, None))
-    banded = r.render(gb)
-    assert r.last_bands == -(-rows * 30 // (2 * block // 30 * 30)) and r.last_bands > 1
+    result = r.render(gb)
+    whole = result.image
+    assert result.bands == 1
+    monkeypatch.setattr(r.runtime, "limits", lambda: (4 * GBUF_PLANES * 2 * block, None))
+    result = r.render(gb)
+    banded = result.image
+    assert result.bands == -(-rows * 30 // (2 * block // 30 * 30)) and result.bands > 1
     assert np.array_equal(banded, whole)
 
 
 def _scene_of(text):
-    from clphong.scene import parse_scene
+    from clphong.model.scene import parse_scene
     import tomllib
     return parse_scene(tomllib.loads(text), "scene.toml")
 
 
 def test_band_origin_is_the_whole_frames_origin():
-    from clphong.render import frame_origin
-    from clphong.tiling import frame_origin_banded, plan_bands
+    from clphong.core.geometry import frame_origin
+    from clphong.device.bands import frame_origin_banded, plan_bands
 
     gb = random_gbuffer(np.random.default_rng(13), 37, 11)
     gb.position[5:9] += 1000.0                                   # a far-away strip in one band
@@ -844,16 +848,16 @@ def test_band_origin_is_the_whole_frames_origin():
 
 def test_16k_frame_plan_respects_device_and_memory_limits():
     """The plan for 16K x 16K with many lights, without allocating it."""
-    from clphong.render import LOCAL_SIZE
-    from clphong.tiling import band_rows, render_bytes_per_pixel
+    from clphong.device.renderer import LOCAL_SIZE
+    from clphong.device.bands import band_rows, render_bytes_per_pixel
 
     h = w = 16384
     rows = band_rows((h, w), n_map_planes=0, lanes=16, light_bytes=128 * 10_000,
                      budget=16 * 2 ** 30, max_alloc=2 ** 30, global_mem=4 * 2 ** 30)
     assert 1 <= rows < h
     stride = -(-rows * w // (16 * LOCAL_SIZE)) * 16 * LOCAL_SIZE
-    from clphong.tiling import _gbuf_planes
-    assert 4 * _gbuf_planes() * stride <= 2 ** 30                            # largest buffer
+    from clphong.device.frame import GBUF_PLANES
+    assert 4 * GBUF_PLANES * stride <= 2 ** 30                            # largest buffer
     assert 12 * h * w + render_bytes_per_pixel(0) * stride + 128 * 10_000 <= 16 * 2 ** 30
     # not even the output fits: 0 rows, which render_frame turns into a clear refusal
     assert band_rows((h, w), n_map_planes=0, lanes=16, budget=2 ** 30) == 0
@@ -861,14 +865,14 @@ def test_16k_frame_plan_respects_device_and_memory_limits():
 
 def test_frame_whose_output_alone_exceeds_the_limit_is_refused(work, monkeypatch):
     import clphong
-    from clphong.errors import GBufferError
+    from clphong.core.errors import GBufferError
 
     src, _ = work
     gb = clphong.read_gbuffer(src / "gbuf.exr")
     r = clphong.Renderer(clphong.load_scene(src / "scene.toml"))
     monkeypatch.setenv("CLPHONG_MAX_MEMORY", "100")       # less than the 6x8x3 float32 output
     with pytest.raises(GBufferError) as exc:
-        r.render(gb)
+        r.render(gb).image
     msg = str(exc.value)
     assert f"a {W}x{H} frame cannot be shaded here" in msg and "CLPHONG_MAX_MEMORY=100" in msg
     assert "\n" not in msg

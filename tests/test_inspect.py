@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from clphong.cli import main
-from clphong.gbuffer import write_gbuffer
-from clphong.inspect import diff_images, inspect_file
-from clphong.errors import OutputError
-from clphong.output import write_exr
+from clphong.console.cli import main
+from clphong.io.gbuffer import write_gbuffer
+from clphong.io.inspection import diff_images, inspect_file
+from clphong.core.errors import OutputError
+from clphong.io.atomic import write_exr
 
 from conftest import random_gbuffer
 

@@ -1,6 +1,6 @@
 """The OpenCL kernels against the float64 reference and closed forms.
 
-Every tolerance is the error model's bound (clphong.reference.error_bound,
+Every tolerance is the error model's bound (clphong.reference.shading.error_bound,
 docs/error-model.md), or for closed forms a bound stated next to the test.
 """
 
@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clphong import reference
-from clphong.render import Renderer
+from clphong.reference import shading as reference
+from clphong.device.renderer import Renderer
 
 from conftest import (GBUFFERS, check_against_reference, make_gbuffer, make_scene,
                       random_gbuffer, random_lights)
@@ -23,8 +23,8 @@ U = reference.U
 @pytest.mark.parametrize("kernel", ["lanes", "lanes-fp32", "obvious"])
 @pytest.mark.parametrize("name", ["spheres", "ortho"])
 def test_samples_match_reference_within_error_bound(name, kernel):
-    from clphong.gbuffer import read_gbuffer
-    from clphong.scene import load_scene
+    from clphong.io.gbuffer import read_gbuffer
+    from clphong.model.scene import load_scene
 
     scene = load_scene(GBUFFERS / f"{name}.toml")
     gb = read_gbuffer(GBUFFERS / f"{name}.exr")
@@ -60,7 +60,7 @@ def test_every_lane_width_matches_reference(lanes, fp64):
 
 @pytest.mark.parametrize("compensated", [False, True, None], ids=["naive", "neumaier", "default"])
 def test_many_lights_with_and_without_compensation(compensated):
-    from clphong.runtime import get_runtime
+    from clphong.device.runtime import get_runtime
 
     rng = np.random.default_rng(5)
     scene = make_scene(random_lights(rng, 300, 2), h=16.0)
@@ -83,9 +83,9 @@ def test_compensated_sum_is_more_accurate_for_many_lights():
     C = rng.uniform(0.2, 1.0, (4, 16, 3))
     gb = make_gbuffer(P, N, C)
     ref = reference.shade(scene, gb)
-    naive = Renderer(scene, compensated=False).render(gb)
-    comp = Renderer(scene, compensated=True).render(gb)
-    double = Renderer(scene).render(gb)      # SUM_FP64 on a CPU with fp64
+    naive = Renderer(scene, compensated=False).render(gb).image
+    comp = Renderer(scene, compensated=True).render(gb).image
+    double = Renderer(scene).render(gb).image      # SUM_FP64 on a CPU with fp64
     e_naive = np.max(np.abs(naive - ref) / ref)
     e_comp = np.max(np.abs(comp - ref) / ref)
     e_double = np.max(np.abs(double - ref) / ref)
@@ -180,7 +180,7 @@ def test_fast_path_random_gbuffers(seed):
 def test_paths_name_their_options():
     """Renderer(path=...) stands for the options of render.PATHS; a bad name lists
     them, and a path with explicit options is refused (one way to say it)."""
-    from clphong.render import PATHS
+    from clphong.model.options import PATHS
 
     scene = make_scene([dict(type="point", position=(0, 0, 3))], h=32.0)
     assert Renderer(scene, path="float").fp64_directions is False
@@ -213,15 +213,15 @@ def test_integer_power_bound_is_tighter_than_the_exp_form():
     exp form runs in float): the integer form's bound drops exp/log1p's ulps and the
     4u·|k·log1p(−δ)| rounding, so it is never looser (docs/error-model.md). With
     double weights the exp form runs in double, and both are a few 2⁻⁵³·k."""
-    from clphong.render import prepare_frame
+    from clphong.device.renderer import prepare_frame
 
     scene, gb = _highlight(500.0, "blinn-phong")
     bounds = {}
     for int_pow in (True, False):
         r = Renderer(scene, int_pow=int_pow, compensated=True)
         frame = prepare_frame(gb, lanes=r.lanes)
-        r.render(gb, frame=frame)
-        bounds[int_pow], _ = reference.error_bound(scene, gb, origin=frame.origin, plan=r.last_plan)
+        plan = r.shade(frame).plan
+        bounds[int_pow], _ = reference.error_bound(scene, gb, origin=frame.origin, plan=plan)
     ref = reference.shade(scene, gb)
     lit = ref > 1e-6 * ref.max()                 # where the specular value itself is not negligible
     assert np.all(bounds[True] <= bounds[False])
@@ -287,7 +287,7 @@ def test_plan_forms_the_cosine_and_weights_in_double_where_they_apply():
     """SPEC_COS needs double directions and the integer power (and an even k for
     Blinn, whose base is (n·h)²); WEIGHTS_FP64 needs double directions and the
     double sum. `clphong plan` says why either is off."""
-    from clphong.plan import make_plan
+    from clphong.device.plan import make_plan
 
     def defines(h, model="phong", **kw):
         scene = make_scene([dict(type="point", position=(0, 0, 3))], h=h, model=model)
@@ -309,7 +309,7 @@ def test_plan_forms_the_cosine_and_weights_in_double_where_they_apply():
 
 
 def test_plan_uses_the_integer_power_only_where_it_applies():
-    from clphong.plan import INT_POW_MAX, make_plan
+    from clphong.device.plan import INT_POW_MAX, make_plan
 
     def flag(h, model="phong", maps=(), **kw):
         scene = make_scene([dict(type="point", position=(0, 0, 3))], h=h, model=model)
@@ -351,7 +351,7 @@ def test_lambert_cosine_law_over_a_sweep_of_angles():
     scene = make_scene([dict(type="directional", direction=(0, 0, -1), intensity=I)],
                        k_a=0.0, k_d=k_d, k_s=0.0,
                        camera=dict(type="orthographic", direction=(0, 0, -1)))
-    rgb = Renderer(scene).render(_ortho_plane(normals, C))[0]
+    rgb = Renderer(scene).render(_ortho_plane(normals, C)).image[0]
     exact = C * k_d * I * np.maximum(np.cos(theta), 0.0)[:, None]
     # cos θ of the rounded normal: an absolute error ≤ 2u besides the relative one.
     assert np.all(np.abs(rgb - exact) <= _closed_form_tol(exact) + 2 * U * C * k_d * I)
@@ -360,7 +360,7 @@ def test_lambert_cosine_law_over_a_sweep_of_angles():
 def test_directional_light_at_normal_incidence():
     scene = make_scene([dict(type="directional", direction=(0, -1, 0), color=(1, 0.5, 0.25), intensity=3.0)],
                        k_a=0.0, k_d=0.6, k_s=0.0, camera=dict(type="orthographic", direction=(0, -1, 0)))
-    rgb = Renderer(scene).render(_ortho_plane([[0, 1, 0]] * 5, (0.5, 0.5, 0.5)))
+    rgb = Renderer(scene).render(_ortho_plane([[0, 1, 0]] * 5, (0.5, 0.5, 0.5))).image
     exact = 0.5 * 0.6 * 3.0 * np.array([1, 0.5, 0.25])
     assert np.all(np.abs(rgb - exact) <= _closed_form_tol(exact))
 
@@ -368,7 +368,7 @@ def test_directional_light_at_normal_incidence():
 def test_ambient_alone():
     scene = make_scene([dict(type="ambient", color=(0.5, 1.0, 2.0), intensity=0.5)], k_a=0.3)
     C = (0.8, 0.5, 0.25)
-    rgb = Renderer(scene).render(_ortho_plane([[0, 0, 1]] * 3, C))
+    rgb = Renderer(scene).render(_ortho_plane([[0, 0, 1]] * 3, C)).image
     exact = np.array(C) * 0.3 * 0.5 * np.array([0.5, 1.0, 2.0])
     assert np.all(np.abs(rgb - exact) <= _closed_form_tol(exact, 4))
 
@@ -385,7 +385,7 @@ def test_each_attenuation_coefficient_alone(coeffs, falloff):
     for dist, expect in zip(d, falloff(d)):
         scene = make_scene([dict(type="point", position=(0.0, 0.0, float(dist)), intensity=I,
                                  attenuation=coeffs)], k_a=0.0, k_d=k_d, k_s=0.0)
-        rgb = Renderer(scene).render(_ortho_plane([[0, 0, 1]], (1, 1, 1)))
+        rgb = Renderer(scene).render(_ortho_plane([[0, 0, 1]], (1, 1, 1))).image
         exact = k_d * I * expect
         assert np.all(np.abs(rgb - exact) <= _closed_form_tol(exact)), (dist, rgb, exact)
 
@@ -400,7 +400,7 @@ def test_phong_reflection_vector():
     h, I = 20.0, 1.5
     scene = make_scene([dict(type="directional", direction=tuple(-l), intensity=I)],
                        k_a=0.0, k_d=0.0, k_s=1.0, h=h, camera=dict(type="orthographic", direction=tuple(-v)))
-    rgb = Renderer(scene).render(_ortho_plane(normals, (1, 1, 1)))[0, :, 0]
+    rgb = Renderer(scene).render(_ortho_plane(normals, (1, 1, 1))).image[0, :, 0]
     exact = I * np.cos(2 * phis) ** h
     # Error model: δ-form relative error ≤ 4u(1 + h·δ) + h·|Δδ|, |Δδ| ≤ √(2δ)·8u: ≤ 400u here.
     assert np.all(np.abs(rgb - exact) <= 400 * U * exact + 1e-30)
@@ -419,7 +419,7 @@ def test_blinn_half_vector():
     for camera in (dict(type="orthographic", direction=(0, 0, -1)),):
         scene = make_scene([dict(type="directional", direction=tuple(-l), intensity=I)],
                            model="blinn-phong", k_a=0.0, k_d=0.0, k_s=1.0, h=shin, camera=camera)
-        rgb = Renderer(scene).render(_ortho_plane(normals, (1, 1, 1)))[0, :, 0]
+        rgb = Renderer(scene).render(_ortho_plane(normals, (1, 1, 1))).image[0, :, 0]
         exact = I * np.cos(psi) ** (4 * shin)
         assert np.all(np.abs(rgb - exact) <= 400 * U * exact + 1e-30)
         assert abs(rgb[0] - I) <= 8 * U * I
@@ -447,13 +447,14 @@ def test_blinn_half_vector_perspective(options):
     r2 = ys * ys + c * c
     exact = (I * (r2 / (ss * ss + r2)) ** (2 * shin))[..., None] * np.ones(3)
 
-    from clphong.render import prepare_frame
+    from clphong.device.renderer import prepare_frame
 
     r = Renderer(scene, **options)
     frame = prepare_frame(gb, lanes=r.lanes)
-    rgb = r.render(gb, frame=frame)
-    assert r.last_plan.defines["BLINN_CONST_H"] == 0      # the per-pixel half vector
-    bound, _ = reference.error_bound(scene, gb, origin=frame.origin, plan=r.last_plan)
+    result = r.shade(frame)
+    rgb = result.image
+    assert result.plan.defines["BLINN_CONST_H"] == 0      # the per-pixel half vector
+    bound, _ = reference.error_bound(scene, gb, origin=frame.origin, plan=result.plan)
     err = np.abs(rgb.astype(np.float64) - exact)
     assert np.all(err <= bound), np.max(err / bound)
 
@@ -476,7 +477,7 @@ def test_h_zero_defines_0_to_the_0_as_1():
     scene = make_scene([dict(type="directional", direction=(0, 0, -1), intensity=1.0)],
                        k_a=0.0, k_d=0.0, k_s=1.0, h=0.0,
                        camera=dict(type="orthographic", direction=(1, 0, 0)))   # v ⟂ surface
-    rgb = Renderer(scene).render(_ortho_plane([[0, 0, 1], [0.3, 0, 1]], (1, 1, 1)))
+    rgb = Renderer(scene).render(_ortho_plane([[0, 0, 1], [0.3, 0, 1]], (1, 1, 1))).image
     assert np.all(rgb == 1.0)
     assert np.all(reference.shade(scene, _ortho_plane([[0, 0, 1], [0.3, 0, 1]], (1, 1, 1))) == 1.0)
 
@@ -484,7 +485,7 @@ def test_h_zero_defines_0_to_the_0_as_1():
 def test_light_at_the_shaded_point_contributes_nothing():
     scene = make_scene([dict(type="point", position=(0.0, 0.0, 0.0), intensity=5.0)], k_a=0.0)
     gb = _ortho_plane([[0, 0, 1]], (1, 1, 1))
-    rgb = Renderer(scene).render(gb)
+    rgb = Renderer(scene).render(gb).image
     assert np.all(rgb == 0.0)
     assert np.all(reference.shade(scene, gb) == 0.0)
 
@@ -493,7 +494,7 @@ def test_no_specular_behind_the_terminator():
     """Specular only where n·l > 0, even where r·v would be large."""
     scene = make_scene([dict(type="directional", direction=(0, 0, 1), intensity=1.0)],   # from below
                        k_a=0.0, k_d=0.5, k_s=1.0, h=1.0, camera=dict(type="orthographic", direction=(0, 0, 1)))
-    rgb = Renderer(scene).render(_ortho_plane([[0, 0, 1]], (1, 1, 1)))
+    rgb = Renderer(scene).render(_ortho_plane([[0, 0, 1]], (1, 1, 1))).image
     assert np.all(rgb == 0.0)
 
 
@@ -503,9 +504,9 @@ def test_background_pixels_take_the_background_value():
     cov = np.array([[1, 1, 0], [1, 1, 1]], np.float32)
     gb = make_gbuffer(P, N, np.ones_like(P), coverage=cov)
     scene = make_scene([dict(type="ambient")], background=(0.25, 0.5, 1.0))
-    from clphong.errors import InputWarning
+    from clphong.core.errors import InputWarning
     with pytest.warns(InputWarning, match="normal: 1 pixel"):      # counted and reported
-        rgb = Renderer(scene).render(gb)
+        rgb = Renderer(scene).render(gb).image
     bg = np.array([[False, True, True], [True, False, False]])
     assert np.all(rgb[bg] == np.float32([0.25, 0.5, 1.0]))
     assert np.all(rgb[~bg] == np.float32(0.1))
@@ -514,7 +515,7 @@ def test_background_pixels_take_the_background_value():
 # ----------------------------------------------------------------------------- the program cache
 
 def test_programs_are_built_once_per_variant(monkeypatch):
-    from clphong.runtime import get_runtime
+    from clphong.device.runtime import get_runtime
 
     rt = get_runtime()
     monkeypatch.setattr(rt, "_programs", {})     # start from an empty cache; restored afterwards
@@ -524,8 +525,8 @@ def test_programs_are_built_once_per_variant(monkeypatch):
     Renderer(scene)
     assert rt.builds == before + 1
     before = rt.builds
-    Renderer(scene).render(random_gbuffer(rng, 4, 4))
-    Renderer(make_scene(random_lights(rng, 3, 1), h=9.0, model="blinn-phong")).render(random_gbuffer(rng, 4, 4))
+    Renderer(scene).render(random_gbuffer(rng, 4, 4)).image
+    Renderer(make_scene(random_lights(rng, 3, 1), h=9.0, model="blinn-phong")).render(random_gbuffer(rng, 4, 4)).image
     assert rt.builds == before        # same variant: no rebuild, whatever the light values
     Renderer(make_scene(random_lights(rng, 2, 0), k_s=0.0))
     assert rt.builds == before + 1    # a new variant builds once
@@ -559,7 +560,7 @@ def fake_platforms(monkeypatch):
     queues are stand-ins, and no runtime is cached."""
     import pyopencl as cl
 
-    from clphong import runtime
+    from clphong.device import runtime
 
     cpu, gpu = cl.device_type.CPU, cl.device_type.GPU
     platforms = [_FakePlatform("NVIDIA CUDA", [("NVIDIA H100 80GB HBM3", gpu)]),
@@ -577,7 +578,7 @@ def fake_platforms(monkeypatch):
 def test_default_device_is_pocl_cpu_even_when_listed_last(fake_platforms, monkeypatch):
     """The module docstring's order: --device, then PYOPENCL_CTX, then PoCL's CPU device
     (not the first platform's first device, nor PoCL's first device)."""
-    from clphong import runtime
+    from clphong.device import runtime
 
     nvidia, = fake_platforms[0].get_devices()
     pocl_gpu, pocl_cpu = fake_platforms[1].get_devices()
@@ -603,7 +604,7 @@ def test_default_device_is_pocl_cpu_even_when_listed_last(fake_platforms, monkey
 def test_default_device_without_pocl_is_the_first(fake_platforms, monkeypatch):
     import pyopencl as cl
 
-    from clphong import runtime
+    from clphong.device import runtime
 
     monkeypatch.setattr(cl, "get_platforms", lambda: fake_platforms[:1])
     assert runtime.get_runtime().device is fake_platforms[0].get_devices()[0]
@@ -615,14 +616,19 @@ def _rsqrt_dir_on_device(x, ctype, options):
     """kernels/clphong.h's rsqrt_dir of each element of x (one per work-item, LANES = 1)."""
     import pyopencl as cl
 
-    from clphong.runtime import get_runtime, kernel_dir
+    from clphong.device.runtime import get_runtime, kernel_dir
 
     rt = get_runtime()
     src = ('#include "clphong.h"\n'
            f"__kernel void k(__global const {ctype} *x, __global {ctype} *y)"
            "{ size_t i = get_global_id(0); y[i] = rsqrt_dir(x[i]); }")
+    # clphong.h's number formats are #error when unset (kernels/include/plan.h): all float
+    # but what the caller asks for
+    formats = [f"-D{k}=0" for k in ("DIRECTIONS_FP64", "SUM_FP64", "SPEC_INT_POW", "SPEC_COS",
+                                    "POW_FP32", "WEIGHTS_FP64")
+               if not any(o.startswith(f"-D{k}=") for o in options)]
     prog = cl.Program(rt.context, src).build(
-        options=["-DLANES=1", *options, f"-I{kernel_dir()}", "-w"])
+        options=["-DLANES=1", *formats, *options, f"-I{kernel_dir() / 'include'}", "-w"])
     mf = cl.mem_flags
     xb = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
     yb = cl.Buffer(rt.context, mf.WRITE_ONLY, x.nbytes)
@@ -637,7 +643,7 @@ def test_inline_double_rsqrt_is_within_three_ulp():
     ≤ 3·2⁻⁵³ relative over 1e-90 .. 1e90 (its comment states 2.44·2⁻⁵³ measured in
     numpy; the error model needs only 2⁻⁴⁷). Three Newton steps instead of four
     would give 3e-11 and fail."""
-    from clphong.runtime import get_runtime
+    from clphong.device.runtime import get_runtime
 
     if not get_runtime().has_fp64:
         pytest.skip("device without cl_khr_fp64")

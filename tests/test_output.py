@@ -1,4 +1,4 @@
-"""Tests of clphong.output: atomic writes and write_exr."""
+"""Tests of clphong.io.atomic: atomic writes and write_exr."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from clphong import output
-from clphong.errors import OutputError
-from clphong.output import atomic_path, write_exr
+from clphong.io import atomic as output
+from clphong.core.errors import OutputError
+from clphong.io.atomic import atomic_path, write_exr
 
 
 def _read(path):
@@ -54,7 +54,7 @@ def test_write_exr_half_rounds_like_numpy(tmp_path):
     # In range: numpy's rounding. Beyond ±65504: clamped with a warning (the
     # documented policy), never an unannounced Inf.
     expected = np.clip(rgb, -65504.0, 65504.0).astype(np.float16).astype(np.float32)
-    from clphong.errors import OutputWarning
+    from clphong.core.errors import OutputWarning
     with pytest.warns(OutputWarning, match="1 value"):
         write_exr(out, rgb, pixel_type="half", compression="piz")
     spec, pix = _read(out)
@@ -236,7 +236,7 @@ def test_check_image_written_refuses_a_file_cut_anywhere(tmp_path, monkeypatch, 
     """What a disk that fills up leaves: the file cut short. Every cut is found, even
     those OpenImageIO's readers accept (a PNG without its IEND chunk); the whole
     file passes, read back a band at a time."""
-    from clphong.writers import jpegxl_available
+    from clphong.deliver.writers import jpegxl_available
 
     if kind == "jxl" and not jpegxl_available():
         pytest.skip("this OpenImageIO has no JPEG XL writer")

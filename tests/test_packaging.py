@@ -11,7 +11,7 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 
 PROBE = (
-    "import sys, clphong, clphong.runtime as rt; "
+    "import sys, clphong, clphong.device.runtime as rt; "
     "print(clphong.__file__); print(rt.kernel_dir()); "
     "s = clphong.load_scene(sys.argv[1]); g = clphong.read_gbuffer(sys.argv[2]); "
     "print(float(clphong.render(s, g).max()))"
@@ -63,7 +63,7 @@ def test_kernels_found_from_a_built_wheel(tmp_path):
     wheel = next((tmp_path / "dist").glob("clphong-*.whl"))
     import zipfile
     names = zipfile.ZipFile(wheel).namelist()
-    assert "clphong/kernels/shade.cl" in names and "clphong/kernels/clphong.h" in names
+    assert "clphong/kernels/shade.cl" in names and "clphong/kernels/include/clphong.h" in names
     site = tmp_path / "site"
     _pip("install", "--no-deps", "-q", "--target", str(site), str(wheel))
     module, kdir, peak = _probe(site, tmp_path, editable=False)

@@ -19,7 +19,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from clphong.hardcases import TARGET_REL, significant
+from clphong.tools.hardcases import TARGET_REL, significant
 from conftest import check_against_reference, make_gbuffer, make_scene
 
 EXAMPLES = int(os.environ.get("CLPHONG_PROPERTY_EXAMPLES", "25"))

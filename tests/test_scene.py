@@ -1,4 +1,4 @@
-"""Tests of clphong.scene: parsing, validation messages, warnings, attenuation."""
+"""Tests of clphong.model.scene: parsing, validation messages, warnings, attenuation."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from clphong.errors import SceneError
-from clphong.scene import (
+from clphong.core.errors import SceneError
+from clphong.model.scene import (
     LIGHT_TYPES,
     Camera,
     Light,
@@ -591,7 +591,7 @@ def test_fuzzing_dictionary_has_every_scene_key():
     import ast
     from pathlib import Path
 
-    from clphong import scene
+    from clphong.model import scene
 
     lines = (Path(__file__).parent / "scene.dict").read_text(encoding="ascii").splitlines()
     entries = set()
@@ -1002,7 +1002,7 @@ def test_light_arrays_are_cached_read_only_and_not_pickled():
 
     import numpy as np
 
-    from clphong.hardcases import make_scene
+    from clphong.tools.hardcases import make_scene
 
     scene = make_scene([dict(type="point", position=(0, 0, 3), intensity=2.0),
                         dict(type="directional", direction=(0, 0, -1)), dict(type="ambient")])

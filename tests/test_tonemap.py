@@ -1,7 +1,7 @@
 """Tone-mapping operators: the kernels against their float64 twins, published values,
 round trips, the fused shading path, and the operator registry.
 
-Tolerance of every kernel comparison: clphong.tonemap.error_bound, a running
+Tolerance of every kernel comparison: clphong.reference.tonemap.error_bound, a running
 error analysis of the kernel's own order of operations (OpenCL 1.2 ulp limits:
 +−× 0.5 ulp, ÷ 2.5 ulp, log2/exp2 3 ulp, pow 16 ulp; literals' float32
 rounding; each operand's error through the derivative; doubled for second-order
@@ -15,11 +15,12 @@ import math
 import numpy as np
 import pytest
 
-from clphong import tonemap
-from clphong.display import DisplayTransform, apply_display_transform, render_display
-from clphong.errors import ClphongError
+from clphong.model import tonemap as registry
+from clphong.reference import tonemap
+from clphong.device.display import DisplayTransform, apply_display_transform
+from clphong.core.errors import ClphongError
 
-OPS = list(tonemap.OPERATORS)
+OPS = list(registry.OPERATORS)
 U = tonemap.U
 
 
@@ -239,7 +240,7 @@ def test_round_trip_through_the_inverse(op):
 
 @pytest.mark.parametrize("kernel", ["lanes", "obvious"])
 def test_fused_display_output_equals_the_twin_of_the_shaded_frame(kernel):
-    from clphong.render import Renderer
+    from clphong.device.renderer import Renderer
 
     from conftest import make_scene, random_gbuffer, random_lights
 
@@ -247,10 +248,11 @@ def test_fused_display_output_equals_the_twin_of_the_shaded_frame(kernel):
     scene = make_scene(random_lights(rng, 3, 1), background=(0.5, 2.0, 0.0))
     gb = random_gbuffer(rng, 16, 24)
     r = Renderer(scene, kernel=kernel)
-    plain = r.render(gb)
+    plain = r.render(gb).image
     dt = DisplayTransform("agx", exposure=1.5)
-    rgb, shown = render_display(r, gb, dt)
-    assert r.last_display is not None and r.display is None   # it came from the shading launch
+    result = r.render(gb, display=dt)
+    rgb, shown = result.image, result.display
+    assert result.bands == 1 and result.plan.defines["DISPLAY_OUT"] == 1   # from the shading launch
     assert np.array_equal(rgb, plain)                         # scene-linear output unchanged
     assert np.all(np.abs(shown - dt.reference(rgb)) <= dt.error_bound(rgb))
     plan = r.plan_for(())
@@ -258,7 +260,7 @@ def test_fused_display_output_equals_the_twin_of_the_shaded_frame(kernel):
 
 
 def test_plan_names_the_fused_operator():
-    from clphong.plan import make_plan
+    from clphong.device.plan import make_plan
 
     from conftest import make_scene
 
@@ -270,8 +272,8 @@ def test_plan_names_the_fused_operator():
 # ------------------------------------------------------------------ registry
 
 def test_bad_operator_name_lists_the_valid_ones():
-    with pytest.raises(tonemap.ToneMapError) as info:
-        tonemap.operator("reinhart")
+    with pytest.raises(registry.ToneMapError) as info:
+        registry.operator("reinhart")
     msg = str(info.value)
     assert "'reinhart'" in msg and all(repr(n) in msg for n in OPS) and "did you mean" in msg
     assert isinstance(info.value, ClphongError) and isinstance(info.value, ValueError)
@@ -279,18 +281,18 @@ def test_bad_operator_name_lists_the_valid_ones():
 
 
 def test_aliases_and_ids_are_those_of_the_kernel():
-    assert tonemap.operator("Uncharted2").name == "hable"
-    assert tonemap.operator("ACES").name == "aces-hill"
-    assert tonemap.operator("pbr_neutral").name == "pbr-neutral"
-    src = (__import__("clphong.runtime").runtime.kernel_dir() / "tonemap.cl").read_text()
-    for op in tonemap.OPERATORS.values():
+    assert registry.operator("Uncharted2").name == "hable"
+    assert registry.operator("ACES").name == "aces-hill"
+    assert registry.operator("pbr_neutral").name == "pbr-neutral"
+    src = (__import__("clphong.device.runtime").device.runtime.kernel_dir() / "include" / "tonemap.h").read_text()
+    for op in registry.OPERATORS.values():
         define = "TONEMAP_" + op.name.upper().replace("-", "_")
         assert f"#define {define}" in src and src.split(f"#define {define}")[1].split()[0] == str(op.id)
 
 
 @pytest.mark.parametrize("white", [0.0, -1.0, math.inf, math.nan])
 def test_bad_white_point_is_an_error(white):
-    with pytest.raises(tonemap.ToneMapError, match="white point"):
+    with pytest.raises(registry.ToneMapError, match="white point"):
         DisplayTransform("reinhard-extended", white=white)
 
 
@@ -302,9 +304,9 @@ def test_reference_handles_nd_input_and_zero():
 
 
 def test_bench_output_errors_table_covers_every_operator_within_its_bound():
-    """python -m clphong.bench_output --errors: every operator, both encodings, over
+    """python -m clphong.tools.output_bench --errors: every operator, both encodings, over
     1e-4 ... 1e6 (the shoulders and far above them), none beyond its bound."""
-    from clphong.bench_output import operator_errors, operator_errors_table
+    from clphong.tools.output_bench import operator_errors, operator_errors_table
 
     rows = operator_errors(width=96, height=16, seed=1)
     assert {(r["operator"], r["encoding"]) for r in rows} == \

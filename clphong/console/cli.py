@@ -1,0 +1,718 @@
+"""The ``clphong`` command: a thin layer over the library functions.
+
+Usage errors print one line, ``clphong COMMAND: error: … (see clphong COMMAND
+--help)``, and exit 2. Processing errors print one line, ``clphong: error: …``,
+on stderr and exit 1; nothing is left behind, because every output is written
+to a temporary name and renamed into place.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import sys
+import time
+from pathlib import Path
+
+from ..color.ocio import WORKING_SPACES, load_config
+from ..core.errors import ClphongError, OutputError
+from ..deliver.outputs import OutputOptions, OutputPaths, check_outputs, render_outputs
+from ..device.renderer import Renderer
+from ..device.runtime import get_runtime, list_devices
+from ..io.atomic import check_output_path, same_file
+from ..io.gbuffer import parse_channel_mapping, read_gbuffer
+from ..io.inspection import DiffError, diff_images, format_report, inspect_file
+from ..model.scene import load_scene
+from ..model.tonemap import OPERATORS
+from ..pipeline.batch import Rig, parse_frame_range, plan_batch, run_batch
+from ..pipeline.relighter import (
+    Relighter,
+    RelighterSpec,
+    _hashable_channels,
+    check_renderer_options,
+)
+from ..tools.bench import (
+    PATHS,
+    BenchConfig,
+    run_bench,
+    save_report,
+    summary_lines,
+    table,
+)
+from ..tools.samples import write_samples
+
+RENDER_EXAMPLES = """\
+examples:
+  # one multichannel G-buffer (P, N and albedo layers, detected by channel name)
+  clphong render gbuffers/spheres.toml gbuffers/spheres.exr -o spheres.exr
+
+  # separate files, one buffer each (plain R,G,B or X,Y,Z channels)
+  clphong render scene.toml --position P.exr --normal N.exr --albedo A.exr -o out.exr
+
+  # explicit channel names override detection
+  clphong render scene.toml frame.exr --channels position=Pworld --channels normal=Nw.X,Nw.Y,Nw.Z -o out.exr
+"""
+
+class _Parser(argparse.ArgumentParser):
+    """An argparse parser whose usage errors are one line on stderr (exit 2), not the
+    whole usage block; its subparsers are of this class too."""
+
+    def error(self, message):
+        message = " ".join(str(message).split())
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    p = _Parser(
+        prog="clphong",
+        description="OpenCL image-space Phong relighting of EXR G-buffers.",
+    )
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    r = sub.add_parser(
+        "render", help="shade a G-buffer with a scene and write scene-linear EXR",
+        description="Shade a G-buffer (world-space P, N, albedo) with the lights and "
+                    "material of SCENE.toml and write a float32 scene-linear RGB EXR.",
+        epilog=RENDER_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    r.add_argument("scene", metavar="SCENE.toml", help="scene file (see README)")
+    r.add_argument("gbuffer", metavar="GBUFFER.exr", nargs="?",
+                   help="multichannel G-buffer EXR (omit when giving --position/--normal/--albedo)")
+    _add_gbuffer_options(r)
+    r.add_argument("-o", "--output", metavar="OUT.exr",
+                   help="scene-linear EXR output (tagged with the working space)")
+    _add_color_options(r)
+    r.add_argument("--half", action="store_true", help="write half-float instead of float32")
+    _add_device_options(r)
+    _add_renderer_options(r)
+    r.add_argument("--stats", action="store_true", help="print timings and the shading plan on stderr")
+
+    pl = sub.add_parser(
+        "plan", help="print which kernel variant a scene compiles, and why",
+        description="Print the shading plan: the -D defines chosen for SCENE.toml "
+                    "(and the material maps of GBUFFER.exr, if given) with the reason for each.")
+    pl.add_argument("scene", metavar="SCENE.toml")
+    pl.add_argument("gbuffer", metavar="GBUFFER.exr", nargs="?")
+    _add_gbuffer_options(pl)
+    _add_device_options(pl)
+    _add_speed_options(pl)
+
+    _add_relight_parser(sub)
+    _add_inspect_parsers(sub)
+    _add_bench_parser(sub)
+    p._clphong_commands = sub.choices      # name -> subparser (unknown options: main)
+
+    sub.add_parser("devices", help="list the OpenCL devices and the one chosen by default")
+
+    dp = sub.add_parser("displays", help="list OCIO displays, views and looks, working spaces "
+                                         "and tone-mapping operators")
+    dp.add_argument("--ocio-config", metavar="PATH",
+                    help="OCIO config (default: $OCIO, else the built-in ocio://default)")
+
+    s = sub.add_parser("samples", help="regenerate the sample G-buffers (spheres.exr, ortho.exr)",
+                       description="Write spheres.exr and ortho.exr into FOLDER, which must exist "
+                                   "(as for every output) unless -p is given.")
+    s.add_argument("folder", nargs="?", default="gbuffers", metavar="FOLDER",
+                   help="destination folder (default gbuffers)")
+    s.add_argument("-p", "--parents", action="store_true",
+                   help="create FOLDER (and its missing parents) if it does not exist")
+    return p
+
+
+RELIGHT_EXAMPLES = """\
+examples:
+  # every frame on disk, two rigs, outputs named by rig and frame
+  clphong relight shot/gbuf.####.exr --rig key=key.toml --rig fill.toml -o out/{rig}/beauty.####.exr
+
+  # every other frame of 1-240, 2 local worker processes, finish an interrupted run
+  clphong relight shot/gbuf.%04d.exr --rig key.toml -o out/{rig}.{frame:04d}.exr --frames 1-240x2 --jobs 2 --skip-existing
+
+  # also an 8-bit sRGB PNG and a PQ HDR PNG per frame; tone mapping from each rig's [render]
+  # table, here overridden: AgX at +1 EV
+  clphong relight shot/gbuf.####.exr --rig key.toml -o out/{rig}/beauty.####.exr \
+      --sdr out/{rig}/png/beauty.####.png --hdr out/{rig}/hdr/beauty.####.png --tonemap agx --exposure 1
+
+  # frames as tasks on a Dask cluster (pip install 'clphong[dask]')
+  clphong relight shot/ --rig key.toml -o out/{name}.{rig}.####.exr --scheduler tcp://farm-scheduler:8786
+"""
+
+
+def _add_relight_parser(sub):
+    r = sub.add_parser(
+        "relight", help="relight a frame sequence with one or more light rigs",
+        description="Relight every frame of SEQUENCE (P.####.exr, P.%04d.exr or a folder of "
+                    "multichannel EXRs) with each --rig, writing one output per frame per rig. "
+                    "Outputs are written atomically; a bad frame is reported and the others "
+                    "complete (exit status 1 when any failed).",
+        epilog=RELIGHT_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    r.add_argument("sequence", metavar="SEQUENCE", help="frame pattern (#### or %%04d) or folder of EXRs")
+    r.add_argument("--rig", action="append", required=True, metavar="[NAME=]SCENE.toml",
+                   help="a light rig (scene file); repeat for several; NAME defaults to the file stem")
+    r.add_argument("-o", "--output", metavar="TEMPLATE.exr",
+                   help="scene-linear EXR path template: {frame} (e.g. {frame:04d}), ####, %%04d, "
+                        "{rig}, {stem} (input file name), {name} (input name without its frame "
+                        "number); --sdr, --hdr and --contact-sheet take templates too")
+    r.add_argument("--frames", metavar="RANGE", help="frames to relight, e.g. 1-240x2 or 1-10,20 "
+                                                     "(default: every frame on disk)")
+    r.add_argument("-j", "--jobs", type=int, default=1, metavar="N",
+                   help="local worker processes (default 1: one process, reading ahead)")
+    r.add_argument("--skip-existing", "--resume", dest="skip_existing", action="store_true",
+                   help="skip outputs that exist (complete: writes are atomic); finishes an interrupted run")
+    r.add_argument("--dry-run", action="store_true", help="list what would be written, and stop")
+    r.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress bar or totals (failures are still listed)")
+    r.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run frames as tasks on this Dask distributed scheduler (tcp://host:8786)")
+    r.add_argument("--half", action="store_true", help="write half-float instead of float32")
+    _add_color_options(r, templates=True)
+    _add_gbuffer_options(r, files=False)
+    _add_device_options(r)
+    _add_renderer_options(r)
+
+
+def _add_inspect_parsers(sub):
+    i = sub.add_parser("inspect", help="channels, sizes, pixel types, G-buffer convention, camera, NaN/Inf",
+                       description="Print what an image file holds: parts, sizes, channels and pixel "
+                                   "types, the detected G-buffer convention, the camera metadata "
+                                   "(worldToCamera) and per-channel NaN, Inf and negative counts.")
+    i.add_argument("file", metavar="FILE")
+    i.add_argument("--json", action="store_true", help="print the report as JSON")
+    i.add_argument("--no-stats", action="store_true", help="do not read the pixels")
+
+    d = sub.add_parser("diff", help="compare two images by a metric and a tolerance (exit 0 match, 1 differ)",
+                       description="Compare test image B with reference A. Exit status: 0 match, "
+                                   "1 differ, 2 trouble (unreadable file, bad option).")
+    d.add_argument("a", metavar="A", help="reference image")
+    d.add_argument("b", metavar="B", help="test image")
+    d.add_argument("--metric", choices=("max-rel", "mean-abs", "psnr", "flip"), default="max-rel",
+                   help="max-rel: max |B-A|/max(|A|, floor); mean-abs: mean |B-A|; psnr: dB "
+                        "(match when >= tol); flip: mean FLIP error (OpenImageIO FLIP_diff)")
+    d.add_argument("--tol", type=float, required=True, metavar="X",
+                   help="largest allowed error (psnr: smallest allowed dB)")
+    d.add_argument("--heatmap", metavar="OUT", help="write the per-pixel error (EXR: raw; else false colour)")
+    d.add_argument("--channels", metavar="C1,C2,...", help="channels to compare (default: all; flip: R,G,B)")
+    d.add_argument("--floor", type=float, help="max-rel denominator floor (default 1e-6 x max|A|)")
+    d.add_argument("--peak", type=float, help="psnr peak (default max|A|)")
+
+
+def _add_gbuffer_options(p, files: bool = True):
+    if files:
+        p.add_argument("--position", metavar="P.exr", help="file holding world-space positions")
+        p.add_argument("--normal", metavar="N.exr", help="file holding world-space normals")
+        p.add_argument("--albedo", metavar="A.exr", help="file holding the albedo C_d")
+    p.add_argument("--channels", action="append", default=[], metavar="KEY=CHANNELS",
+                   help="override channel detection: KEY is position, normal, albedo, coverage, "
+                        "k_d, k_s, h or specular_color; CHANNELS a layer prefix or a comma-separated list")
+
+
+def _add_device_options(p):
+    p.add_argument("--device", metavar="DEV",
+                   help="OpenCL device: 'P:D' indices or a name substring (default: PoCL CPU, "
+                        "or PYOPENCL_CTX if set); see 'clphong devices'")
+    p.add_argument("--kernel", choices=("lanes", "obvious"), default="lanes",
+                   help="'lanes' (default, fast) or 'obvious' (one pixel per work-item, the baseline)")
+    p.add_argument("--lanes", type=int, choices=(1, 4, 8, 16),
+                   help="pixels per work-item of the lane kernel (default: chosen for the device)")
+
+
+def _add_speed_options(p):
+    p.add_argument("--max-error", type=float, metavar="EPS",
+                   help="tiled light culling: per 16x16 tile, drop point lights only while the sum "
+                        "of their upper bounds stays within EPS x reference white of output radiance "
+                        "per pixel and channel (0: bit-identical to brute force; default: no culling)")
+    p.add_argument("--reference-white", type=float, default=1.0, metavar="W",
+                   help="output radiance of reference white for --max-error (default 1.0)")
+    p.add_argument("--path", choices=("accurate", "float", "fast"), default="accurate",
+                   help="'accurate' (default: directions, weights and sums in double where the "
+                        "device has fp64), 'float' (float32 directions, for devices without fast "
+                        "double: larger error near grazing light and for high shininess; on a CPU "
+                        "with fp64 not faster from 16 lights on) or 'fast' (float32 throughout, "
+                        "the integer power and a naive light sum too: fastest from 16 lights on, "
+                        "relative error 1e-6 to 3e-6 on the bench scene, bounded by ~2k*u); "
+                        "'clphong bench' reports each")
+
+
+def _add_renderer_options(p):
+    """The renderer options of 'render' and 'relight': one definition, the same help."""
+    p.add_argument("--nonfinite", choices=("background", "error", "pass"), default="background",
+                   help="NaN/Inf in the G-buffer: leave those pixels unshaded as background "
+                        "(default, with a warning giving the counts per buffer), stop with an "
+                        "error (relight: that frame fails, the others complete), or pass them "
+                        "through (they stay in their own pixels)")
+    _add_speed_options(p)
+
+
+def _renderer_options(args) -> dict:
+    """Relighter/Renderer keyword arguments from the renderer options, validated (one-line errors)."""
+    opts = dict(path=None if args.path == "accurate" else args.path,
+                max_error=args.max_error, reference_white=args.reference_white,
+                nonfinite=getattr(args, "nonfinite", "background"))
+    check_renderer_options(**opts)
+    return opts
+
+
+def _add_bench_parser(sub):
+    b = sub.add_parser(
+        "bench", help="throughput against error on the fixed benchmark scenes (JSON + Pareto PNG)",
+        description="Time every path and culling budget on the documented scene set "
+                    "(1920x1080, N = 1 ... 65536 point lights, a wide-reach and a small-reach "
+                    "scene; see clphong/bench.py), against the float64 reference and a numpy "
+                    "float32 implementation measured in the same run.")
+    b.add_argument("--json", default="bench.json", metavar="REPORT.json", help="JSON report (default bench.json)")
+    b.add_argument("--plot", default="bench.png", metavar="PARETO.png",
+                   help="Pareto plot of throughput against error (default bench.png; '' for none)")
+    b.add_argument("--quick", action="store_true",
+                   help="480x270, N up to 4096, budgets 0 and 1e-3, 3 repeats: about a minute")
+    b.add_argument("--sizes", metavar="WxH[,WxH]", help="frame sizes (default 1920x1080)")
+    b.add_argument("--lights", metavar="N[,N]", help="point-light counts of the wide scene")
+    b.add_argument("--small-lights", metavar="N[,N]", help="point-light counts of the small-reach scene")
+    b.add_argument("--paths", metavar="P[,P]", help="paths: accurate, accurate-exp, float, float-naive-sum, fast, obvious")
+    b.add_argument("--budgets", metavar="EPS[,EPS]", help="culling budgets, relative to white 1.0")
+    b.add_argument("--repeats", type=int, metavar="R", help="timed frames per case (median)")
+    b.add_argument("--warmup", type=int, metavar="W", help="untimed frames first (default 1)")
+    b.add_argument("--crop-pairs", type=float, metavar="P",
+                   help="brute force runs on the top rows holding about P pixel-light pairs (default 1.5e8)")
+    b.add_argument("--error-pairs", type=float, metavar="P",
+                   help="float64 reference on about P/N sampled pixels (default 3e7)")
+    b.add_argument("--numpy-pairs", type=float, metavar="P",
+                   help="numpy float32 timed on about P pixel-light pairs (default 2e7)")
+    b.add_argument("--device", metavar="DEV", help="OpenCL device (see 'clphong devices')")
+
+
+def _csv(text, conv, what):
+    try:
+        return tuple(conv(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise _Usage(f"{what}: expected a comma-separated list, got {text!r}") from None
+
+
+def _size(text):
+    w, h = text.lower().split("x")
+    w, h = int(w), int(h)
+    if w <= 0 or h <= 0:
+        raise ValueError(text)
+    return (w, h)
+
+
+def cmd_bench(args) -> int:
+    kw = {}
+    if args.sizes:
+        kw["sizes"] = _csv(args.sizes, _size, "--sizes")
+    if args.lights:
+        kw["lights"] = _csv(args.lights, int, "--lights")
+    if args.small_lights:
+        kw["small_lights"] = _csv(args.small_lights, int, "--small-lights")
+    if args.paths:
+        kw["paths"] = _csv(args.paths, str, "--paths")
+        bad = [x for x in kw["paths"] if x not in PATHS]
+        if bad:
+            raise _Usage(f"--paths: unknown path {bad[0]!r}; choose from {', '.join(PATHS)}")
+    if args.budgets:
+        kw["budgets"] = _csv(args.budgets, float, "--budgets")
+    for name in ("repeats", "warmup"):
+        value = getattr(args, name)
+        if value is not None:
+            if value < (1 if name == "repeats" else 0):
+                raise _Usage(f"--{name}: {value} is too small")
+            kw[name] = value
+    if any(n <= 0 for n in kw.get("lights", ()) + kw.get("small_lights", ())):
+        raise _Usage("--lights/--small-lights: counts must be > 0")
+    for name in ("crop_pairs", "error_pairs", "numpy_pairs"):
+        value = getattr(args, name)
+        if value is not None:
+            if not value > 0:
+                raise _Usage(f"--{name.replace('_', '-')}: expected a number > 0")
+            kw[name] = value
+    kw["device"] = args.device
+    kw["log"] = lambda msg: print(msg, file=sys.stderr, flush=True)
+    # The report's names are checked before the run (a minute or more), not after it.
+
+    json_path, plot_path = args.json or None, args.plot or None
+    for out in (json_path, plot_path):
+        if out:
+            check_output_path(out)
+
+    if json_path and plot_path and same_file(json_path, plot_path):
+        raise _Usage(f"--json and --plot name the same file {json_path!r}")
+    cfg = BenchConfig.quick(**kw) if args.quick else BenchConfig(**kw)
+    report = run_bench(cfg)
+    save_report(report, json_path, plot_path)
+    print(table(report))
+    for line in summary_lines(report["summary"]):
+        print(line)
+    if json_path:
+        print(f"report: {json_path}")
+    if plot_path:
+        print(f"Pareto plot: {plot_path}")
+    return 0
+
+
+def _read_gbuffer(args):
+    if args.gbuffer is None and not (args.position or args.normal or args.albedo):
+        raise _Usage("give a G-buffer file, or --position, --normal and --albedo")
+    channels = parse_channel_mapping(args.channels) if args.channels else None
+    return read_gbuffer(args.gbuffer, position=args.position, normal=args.normal,
+                        albedo=args.albedo, channels=channels)
+
+
+class _Usage(Exception):
+    pass
+
+
+def _inputs_of(args) -> list[str]:
+    return [x for x in (args.scene, args.gbuffer, args.position, args.normal, args.albedo) if x]
+
+
+def cmd_render(args) -> int:
+    renderer_options = _renderer_options(args)       # bad values: before any file is touched
+    display_paths = [*args.sdr, *args.hdr, *([args.contact_sheet] if args.contact_sheet else [])]
+    if not args.output and not display_paths:
+        raise _Usage("give at least one output: -o OUT.exr, --sdr OUT.png, --hdr OUT.png or "
+                     "--contact-sheet OUT.png")
+    for out in ([args.output] if args.output else []) + display_paths:
+        for src in _inputs_of(args):
+            if same_file(src, out):
+                raise OutputError(f"{out}: output would overwrite the input {src}; choose another name")
+        check_output_path(out, exr=out == args.output)   # fail before the work, not after
+    t0 = time.perf_counter()
+    scene = load_scene(args.scene)
+    paths = _output_paths(args, args.output)
+    options = check_outputs(_output_options(args).for_scene(scene), paths)   # bad names: before any work
+    gbuffer = _read_gbuffer(args)
+    t_read = time.perf_counter()
+    # The same constructor path as 'relight' and the API (--path, --max-error, --nonfinite).
+    relighter = Relighter(scene, device=args.device, kernel=args.kernel, lanes=args.lanes,
+                          output=options, **renderer_options)
+    # A scene without [camera] takes this frame's worldToCamera (clphong.io.camera).
+    renderer = relighter.renderer_for(gbuffer, source=args.gbuffer or args.position)
+    # The one output step of render, relight and the API: EXR / SDR / HDR / contact sheet.
+    result, times = render_outputs(renderer, gbuffer, relighter.output, paths)
+    t_end = time.perf_counter()
+    t_shade = times.pop("shade")            # the launch (and the fused SDR tone mapping)
+    t_write = sum(times.values())           # per output kind: tone mapping, encoding, writing
+    if args.stats:
+        st = result.stats
+        h, w = gbuffer.shape
+        # The plan that ran (fused display output, culling fallback), not a fresh one.
+        plan = result.plan
+        print(plan, file=sys.stderr)
+        print(f"device: {renderer.runtime.name}", file=sys.stderr)
+        kinds = ", ".join(f"{k} {v:.3f} s" for k, v in times.items())
+        print(f"{w}x{h}: read {t_read - t0:.3f} s, setup {t_end - t_read - t_shade - t_write:.3f} s, "
+              f"shade {t_shade:.3f} s (kernel {st.kernel_seconds:.4f} s), write {t_write:.3f} s"
+              + (f" ({kinds})" if kinds else "") + f", total {t_end - t0:.3f} s", file=sys.stderr)
+        cull = result.cull
+        if cull is not None:
+            print(f"culling: {cull.seconds * 1e3:.1f} ms, tiles keep {cull.kept_fraction:.2%} of "
+                  f"{cull.n_point} point lights on average", file=sys.stderr)
+    return 0
+
+
+def cmd_plan(args) -> int:
+    opts = _renderer_options(args)
+    scene = load_scene(args.scene)
+    maps = ()
+    if args.gbuffer or args.position or args.normal or args.albedo:
+        maps = tuple(_read_gbuffer(args).maps)
+    # The renderer 'render' builds, so the plan printed is the one it compiles
+    # (device, lane width, --path, --max-error).
+    renderer = Renderer(scene, device=args.device, kernel=args.kernel, lanes=args.lanes, **opts)
+    print(renderer.plan_for(maps))
+    return 0
+
+
+def cmd_devices(args) -> int:
+    for line in list_devices():
+        print(line)
+    rt = get_runtime(None)
+    print(f"default: {rt.name} ({rt.lanes} lane(s); LLVM target {rt.llvm_target or 'n/a'})")
+    return 0
+
+
+def cmd_samples(args) -> int:
+    try:
+        written = write_samples(args.folder, parents=args.parents)
+    except OutputError as exc:
+        if "does not exist" not in str(exc):
+            raise
+        raise OutputError(f"{exc}, or give -p to create it") from None
+    for path in written:
+        print(path)
+    return 0
+
+
+def _rig(text: str):
+    """``NAME=SCENE.toml`` or ``SCENE.toml`` (named after the file stem)."""
+    name, sep, path = text.partition("=")
+    if not sep:
+        name, path = Path(text).stem, text
+    if not name or not path:
+        raise _Usage(f"--rig {text!r}: expected SCENE.toml or NAME=SCENE.toml")
+    return Rig(name, load_scene(path))
+
+
+def cmd_relight(args) -> int:
+    if args.jobs < 1:
+        raise _Usage("--jobs must be >= 1")
+    renderer_options = _renderer_options(args)       # bad values: once, before any frame
+    templates = _output_paths(args, args.output)
+    if not templates:
+        raise _Usage("give at least one output template: -o OUT.####.exr, --sdr OUT.####.png, "
+                     "--hdr OUT.####.png or --contact-sheet OUT.####.png")
+    rigs = [_rig(r) for r in args.rig]
+    frames = parse_frame_range(args.frames) if args.frames else None
+    plan = plan_batch(args.sequence, rigs, args.output, sdr=args.sdr, hdr=args.hdr,
+                      contact_sheet=args.contact_sheet, frames=frames,
+                      skip_existing=args.skip_existing)
+    # Each rig's colour settings: its scene's [render] keys, overridden by the options given;
+    # names, OCIO displays/views and extensions are checked before anything runs.
+    base = _output_options(args).checked()          # a bad option fails once, not per rig
+    options = {}
+    for rig in rigs:
+        try:
+            options[rig.name] = check_outputs(base.for_scene(rig.scene), templates)
+        except ClphongError as exc:
+            msg = f"rig {rig.name!r} ({rig.scene.source}): {exc}"
+            try:
+                named = type(exc)(msg)
+            except Exception:  # noqa: BLE001 - a subclass with another constructor
+                named = ClphongError(msg)
+            raise named from None
+    if args.dry_run:
+        for frame, rig, paths in plan.skipped:
+            for path in paths.files:
+                print(f"skip   frame {frame} [{rig}] {path} (exists)")
+        for frame, rig, path in plan.kept:
+            print(f"skip   frame {frame} [{rig}] {path} (exists; the frame's other outputs are written)")
+        for job in plan.jobs:
+            missing = "" if os.path.isfile(job.source) else " (input missing: will fail)"
+            for rig, paths in job.outputs:
+                for path in paths.files:
+                    print(f"write  frame {job.frame} [{rig}] {job.source} -> {path}{missing}")
+        print(f"{plan.files} file(s) to write for {plan.outputs} frame(s) x rig(s), "
+              f"{len(plan.skipped)} skipped", file=sys.stderr)
+        return 0
+    channels = _hashable_channels(parse_channel_mapping(args.channels)) if args.channels else ()
+    specs = {r.name: RelighterSpec(scene=r.scene, device=args.device, kernel=args.kernel,
+                                   lanes=args.lanes, channels=channels, output=options[r.name],
+                                   **renderer_options)
+             for r in rigs}
+    progress = not args.quiet and sys.stderr.isatty()
+    result = run_batch(plan, specs, jobs=args.jobs, scheduler=args.scheduler, progress=progress)
+    lines = result.summary()
+    for line in (lines if not args.quiet else lines[1:]):
+        print(f"clphong relight: {line}" if line is lines[0] else line, file=sys.stderr)
+    if result.interrupted:
+        return 128 + int(result.interrupted)
+    return 1 if result.failed else 0
+
+
+def cmd_inspect(args) -> int:
+    import json
+
+    report = inspect_file(args.file, stats=not args.no_stats)
+    print(json.dumps(report, indent=2) if args.json else format_report(report))
+    return 0
+
+
+def cmd_diff(args) -> int:
+    channels = [c.strip() for c in args.channels.split(",")] if args.channels else None
+    try:
+        result = diff_images(args.a, args.b, metric=args.metric, tol=args.tol, channels=channels,
+                             heatmap=args.heatmap, floor=args.floor, peak=args.peak)
+    except (ClphongError, ValueError) as exc:
+        raise DiffError(str(exc)) from None     # exit 2: could not compare
+    print(result.line())
+    return 0 if result.match else 1
+
+
+def _add_color_options(r, templates: bool = False):
+    """Tone mapping, colour management and output options of 'render' and 'relight'."""
+    what = "TEMPLATE" if templates else "OUT"
+    per = " per frame and rig (a path template, as -o)" if templates else ""
+    g = r.add_argument_group("tone mapping and colour (override the scene's [render] keys"
+                             + (" of each rig)" if templates else ")"))
+    g.add_argument("--exposure", type=float, metavar="EV",
+                   help="exposure in stops: display outputs see the scene-linear value x 2^EV")
+    g.add_argument("--tonemap", metavar="OP",
+                   help="operator of the SDR output without an OCIO view: none (clip), reinhard, "
+                        "reinhard-extended, hable, aces-hill, agx, pbr-neutral")
+    g.add_argument("--white", type=float, metavar="W",
+                   help="white point of reinhard-extended (default 4) and hable (default 11.2)")
+    g.add_argument("--working-space", choices=("lin_rec709", "acescg"),
+                   help="colour space of albedo, lights and the EXR (default lin_rec709)")
+    g.add_argument("--ocio-config", metavar="PATH",
+                   help="OCIO config (default: $OCIO, else the built-in ocio://default)")
+    g.add_argument("--display", help="OCIO display of the SDR output (as oiiotool --ociodisplay)")
+    g.add_argument("--view", help="OCIO view of the SDR output (default: the display's default)")
+    g.add_argument("--look", help="OCIO look(s), comma-separated")
+    o = r.add_argument_group("outputs (any combination; see 'clphong displays' for names)")
+    o.add_argument("--exr-type", choices=("float", "half"), default="float",
+                   help="EXR pixel type (--half is the same as --exr-type half)")
+    o.add_argument("--exr-compression", choices=("zip", "piz"), default="zip")
+    o.add_argument("--sdr", action="append", default=[], metavar=f"{what}.png|{what}.tif",
+                   help=f"display-referred SDR image{per}; repeatable")
+    o.add_argument("--bits", type=int, choices=(8, 16), default=8, help="SDR bit depth")
+    o.add_argument("--no-dither", action="store_true", help="no dither before 8-bit quantisation")
+    o.add_argument("--hdr", action="append", default=[], metavar=f"{what}.png|{what}.jxl",
+                   help=f"HDR Rec.2100 PQ (1000-nit view), 16-bit PNG with cICP or JPEG XL{per}; "
+                        "repeatable")
+    o.add_argument("--hdr-view", help="OCIO view of the HDR output on 'Rec.2100-PQ - Display' "
+                                      "(default 'ACES 2.0 - HDR 1000 nits (Rec.2020)')")
+    o.add_argument("--contact-sheet", metavar=f"{what}.png",
+                   help=f"PNG of the frame through every operator and view, labelled{per}")
+
+
+def _output_options(args):
+    """OutputOptions of the formats and colour options; None fields take each scene's [render] value."""
+    return OutputOptions(
+        pixel_type="half" if args.half else args.exr_type, compression=args.exr_compression,
+        bits=args.bits, dither=not args.no_dither, working_space=args.working_space,
+        exposure=args.exposure, tonemap=args.tonemap, white=args.white, display=args.display,
+        view=args.view, look=args.look, hdr_view=args.hdr_view, ocio_config=args.ocio_config)
+
+
+def _output_paths(args, exr):
+    """OutputPaths (or, for relight, templates) of -o, --sdr, --hdr and --contact-sheet."""
+    return OutputPaths(exr=exr, sdr=args.sdr, hdr=args.hdr, contact_sheet=args.contact_sheet)
+
+
+def cmd_displays(args) -> int:
+    print(load_config(args.ocio_config).describe())
+    print("working spaces: " + ", ".join(f"{k} ({w.description})" for k, w in WORKING_SPACES.items()))
+    print("tone-mapping operators: " + ", ".join(f"{k} ({op.source})" for k, op in OPERATORS.items()))
+    return 0
+
+
+COMMANDS = {"displays": cmd_displays, "render": cmd_render, "plan": cmd_plan, "devices": cmd_devices, "samples": cmd_samples,
+            "relight": cmd_relight, "inspect": cmd_inspect, "diff": cmd_diff,
+            "bench": cmd_bench}
+
+
+def _unrecognized(parser: argparse.ArgumentParser, args, extras: list[str]) -> None:
+    """Report unknown arguments through the subcommand's own parser (its usage line),
+    with a did-you-mean from that subcommand's options; exits 2."""
+    import difflib
+
+    sub = getattr(parser, "_clphong_commands", {}).get(getattr(args, "command", None), parser)
+    options = sorted(sub._option_string_actions)
+    msg = "unrecognized arguments: " + " ".join(extras)
+    hints = []
+    for extra in extras:
+        if extra.startswith("-") and len(extra) > 1:
+            name = extra.partition("=")[0]
+            close = difflib.get_close_matches(name, options, n=1, cutoff=0.75)
+            if close:
+                hints.append((name, close[0]))
+    if len(hints) == 1:
+        msg += f"; did you mean {hints[0][1]}?"
+    elif hints:
+        msg += "; did you mean " + ", ".join(f"{good} (for {bad})" for bad, good in hints) + "?"
+    sub.error(msg)
+
+
+#: The exit status of a process killed by SIGPIPE (128 + 13), as 'yes | head' reports.
+EXIT_BROKEN_PIPE = 141
+
+
+def _stdout_to_devnull() -> None:
+    """After a broken pipe: point stdout at /dev/null, so that the interpreter's
+    final flush does not fail again (Python docs, 'Note on SIGPIPE')."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):     # no real stdout (e.g. captured in tests)
+        pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; return the exit code.
+
+    A closed stdout (``clphong inspect F | head -1``) ends the command quietly
+    with :data:`EXIT_BROKEN_PIPE`, as a command killed by SIGPIPE.
+    """
+    try:
+        code = _main(argv)
+        sys.stdout.flush()        # here, where a broken pipe is still caught
+        return code
+    except BrokenPipeError:
+        _stdout_to_devnull()
+        return EXIT_BROKEN_PIPE
+
+
+def _main(argv: list[str] | None) -> int:
+    parser = _build_parser()
+    args, extras = parser.parse_known_args(argv)
+    if extras:
+        _unrecognized(parser, args, extras)
+    import warnings
+
+    def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+        # clphong's own warnings (policies applied, suspicious scenes) as one line each.
+        text = " ".join(str(message).split())
+        print(f"clphong: warning: {text}", file=sys.stderr if file is None else file)
+
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line_warning
+            with _sigterm_as_interrupt():
+                return COMMANDS[args.command](args)
+    except _Usage as exc:
+        # exits 2, with the subcommand's usage line
+        getattr(parser, "_clphong_commands", {}).get(args.command, parser).error(str(exc))
+    except ClphongError as exc:
+        msg = " ".join(str(exc).split("\n")).strip()
+        print(f"clphong: error: {msg}", file=sys.stderr)
+        return exc.exit_code
+    except MemoryError:
+        # A step whose size clphong could not foresee (clphong.device.bands plans the
+        # big ones); outputs are written atomically, so nothing partial is left.
+        print(f"clphong: error: out of memory in '{args.command}'; free memory, or set "
+              "CLPHONG_MAX_MEMORY lower so that large frames are shaded in smaller bands",
+              file=sys.stderr)
+        return 1
+    except _Terminated:
+        print("clphong: terminated (SIGTERM); no partial output was left", file=sys.stderr)
+        return 128 + 15
+    except KeyboardInterrupt:
+        print("clphong: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that every cleanup (temporary outputs) runs."""
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """Turn SIGTERM into :class:`_Terminated` while a command runs (main thread only).
+
+    Python's default SIGTERM action ends the process at once, which would leave
+    a half-written temporary output (``.NAME.tmp-XXXX.exr``) behind.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _raise(signum, frame):
+        raise _Terminated()
+
+    try:
+        previous = signal.signal(signal.SIGTERM, _raise)
+    except (ValueError, OSError):          # no signals here (e.g. an embedded interpreter)
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,45 @@
+"""Exceptions raised by clphong.
+
+Every error carries a one-line message that names the file, channel or key at
+fault and says what to do about it. The CLI prints ``str(error)`` on one line
+of stderr and exits non-zero.
+"""
+
+
+class ClphongError(Exception):
+    """Base class of every error clphong raises on bad input or environment."""
+
+    exit_code = 1
+
+
+class GBufferError(ClphongError):
+    """A G-buffer file is unreadable, lacks a channel, or is inconsistent."""
+
+
+class SceneError(ClphongError):
+    """A scene file is invalid: bad TOML, an unknown key, a wrong type or value."""
+
+
+class DeviceError(ClphongError):
+    """No usable OpenCL device, or a kernel failed to build."""
+
+
+class OutputError(ClphongError):
+    """An output file cannot be written."""
+
+
+class ToneMapError(ClphongError, ValueError):
+    """An unknown tone-mapping operator or an invalid operator parameter."""
+
+
+class ClphongWarning(UserWarning):
+    """Input or output that clphong handled by a documented policy (the CLI
+    prints each as one line, ``clphong: warning: ...``)."""
+
+
+class InputWarning(ClphongWarning):
+    """Non-finite G-buffer values were handled by the input policy."""
+
+
+class OutputWarning(ClphongWarning):
+    """Output values were changed to fit the file format (e.g. the half range)."""

@@ -1,0 +1,180 @@
+"""A G-buffer and a scene laid out for the kernels: float32 planes and light records.
+
+:func:`prepare_frame` turns a :class:`~clphong.io.gbuffer.GBuffer` into the
+padded planes the kernels read (see ``kernels/include/clphong.h``);
+:func:`pack_lights` packs the scene's lights as records, rebased on the frame's
+origin for the float path; :func:`material_uniforms` gives the material's
+kernel arguments.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.errors import SceneError
+from ..core.floats import F32_ROUNDS_TO_INF
+from ..core.geometry import (
+    frame_origin,
+    half_vector,
+    split_hi_lo,
+    unit_normal_planes,
+    view_vector,
+)
+
+#: Work-items per work-group. PoCL runs anything from 8 to ~1000 equally well
+#: and 1 badly (POCL-NOTES "Local size").
+LOCAL_SIZE = 64
+#: Planes of Frame.gbuf: P xyz, unit N xyz (float), C_d rgb, N's float64 remainder xyz.
+GBUF_PLANES = 12
+
+
+@dataclass
+class Frame:
+    """A G-buffer laid out for the kernels: float32 planes, padded.
+
+    ``gbuf`` holds the planes Px Py Pz Nx Ny Nz Cr Cg Cb, ``stride`` floats
+    each. N is unit (normalised in float64 here) and exactly 0 on background
+    pixels; P is as stored. ``origin`` is the float32 point the kernel subtracts
+    from P (and the host from every light) so that distances keep their digits.
+    """
+
+    gbuf: np.ndarray
+    maps: np.ndarray
+    map_names: tuple[str, ...]
+    shape: tuple[int, int]
+    stride: int
+    origin: np.ndarray        # (3,) float32
+    background: np.ndarray    # (H*W,) bool
+
+    @property
+    def pixels(self) -> int:
+        return self.shape[0] * self.shape[1]
+
+
+def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:
+    """Lay out a :class:`~clphong.io.gbuffer.GBuffer` as kernel planes."""
+    h, w = gbuffer.shape
+    n = h * w
+    block = lanes * LOCAL_SIZE
+    stride = max(block, math.ceil(n / block) * block)
+    background = gbuffer.background_mask().reshape(-1)
+    gbuf = np.empty((GBUF_PLANES, stride), np.float32)
+    gbuf[:, n:] = 0.0                                       # padding: background
+    P, C = gbuffer.position.reshape(-1, 3), gbuffer.albedo.reshape(-1, 3)
+    for a, n64 in enumerate(unit_normal_planes(gbuffer.normal)):
+        n64[background] = 0.0
+        gbuf[a, :n] = P[:, a]
+        gbuf[6 + a, :n] = C[:, a]
+        gbuf[3 + a, :n] = n64
+        # The float64 remainder of the unit normal, for DIRECTIONS_FP64 (shade.cl).
+        gbuf[9 + a, :n] = n64 - gbuf[3 + a, :n]
+    names = []
+    planes = []
+    for name in ("k_d", "k_s", "h"):
+        if name in gbuffer.maps:
+            names.append(name)
+            planes.append(gbuffer.maps[name].reshape(1, -1))
+    if "specular_color" in gbuffer.maps:
+        names.append("specular_color")
+        planes.append(gbuffer.maps["specular_color"].reshape(-1, 3).T)
+    if planes:
+        stacked = np.concatenate(planes, axis=0)
+        maps = np.zeros((stacked.shape[0], stride), np.float32)
+        maps[:, :n] = stacked
+    else:
+        maps = np.zeros((1, lanes), np.float32)
+    return Frame(gbuf=gbuf, maps=maps, map_names=tuple(names), shape=(h, w), stride=stride,
+                 origin=frame_origin(gbuffer.position, background), background=background)
+
+
+@dataclass(frozen=True)
+class LightArrays:
+    """The scene's lights packed as the kernels read them (see kernels/clphong.h)."""
+
+    point: np.ndarray        # (n_point*3, 4) float32: the float path's (and cull.py's source)
+    point64: np.ndarray      # the same records in float64, not rebased, for DIRECTIONS_FP64
+    directional: np.ndarray  # (n_dir*6, 4) float32
+    ambient: np.ndarray      # (3,) float64: k_a·Σ ambient radiance
+    eye: np.ndarray          # (3,) float64: perspective eye − origin, or orthographic unit v
+    eye64: np.ndarray        # (3,) float64: perspective eye (not rebased), or unit v
+
+    def kernel_eye(self, fp64: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The shading kernel's (eye, eye_lo): with DIRECTIONS_FP64 the eye as it
+        is, float32 hi + lo (lo = eye − hi, rounded); else rebased, and lo = 0."""
+        return split_hi_lo(self.eye64) if fp64 else (self.eye, np.zeros(3))
+
+
+
+def _check_reach(scene, o: np.ndarray, rebased: np.ndarray) -> None:
+    """Refuse a point light (``rebased``: the positions minus the frame origin ``o``)
+    or eye that lies beyond float32 from the frame (one end of the range against
+    positions at the other): it would round to ±inf, and the pixels to NaN."""
+    reach = np.abs(rebased).max(axis=1, initial=0.0)
+    far = None
+    if reach.size and reach.max() >= F32_ROUNDS_TO_INF:
+        points = [i for i, lt in enumerate(scene.lights) if lt.type == "point"]
+        far = (f"light[{points[int(np.argmax(reach))]}].position", reach.max())
+    elif scene.camera.type == "perspective":
+        x = np.abs(np.asarray(scene.camera.position) - o).max()
+        if x >= F32_ROUNDS_TO_INF:
+            far = ("camera.position", x)
+    if far is not None:
+        centre = ", ".join(f"{c:.3g}" for c in o)
+        raise SceneError(f"{scene.source}: {far[0]} lies {float(far[1]):.3g} units along an axis "
+                         f"from this frame's positions (centred near ({centre})), beyond the "
+                         "float32 range the kernels compute in (3.4e38)")
+
+
+def pack_lights(scene, origin: np.ndarray) -> LightArrays:
+    """Point lights as float64 records as they are (the fp64 path's: it does not
+    rebase, L − P in double is correctly rounded from them and the float32 P) and
+    as float32 records rebased on ``origin`` in float64 (the float path's, and
+    culling's); other lights as float32 records with hi+lo remainders."""
+    o = np.asarray(origin, np.float64)
+    arrays = scene.light_arrays
+    n_pts = len(arrays["point_position"])
+    rec = np.zeros((max(n_pts, 1), 3, 4))           # (x, y, z, c0) (r, g, b, c1) (c2, 0, 0, 0)
+    rec[:n_pts, 0, :3] = arrays["point_position"]
+    if n_pts:
+        att = arrays["point_attenuation"]
+        rec[:, 0, 3] = att[:, 0]
+        rec[:, 1, :3] = arrays["point_radiance"]
+        rec[:, 1, 3] = att[:, 1]
+        rec[:, 2, 0] = att[:, 2]
+    point64 = rec.reshape(-1, 4).copy()
+    rec[:n_pts, 0, :3] -= o
+    _check_reach(scene, o, rec[:n_pts, 0, :3])
+    point = rec.reshape(-1, 4).astype(np.float32)
+    n_dirs = len(arrays["directional_direction"])
+    directional = np.zeros((max(n_dirs, 1) * 6, 4), np.float32)
+    v = view_vector(scene.camera)
+    if n_dirs:
+        rec = np.zeros((n_dirs, 6, 4))
+        l = -arrays["directional_direction"]
+        rec[:, 0, :3] = l
+        rec[:, 3, :3] = split_hi_lo(l)[1]
+        rec[:, 1, :3] = arrays["directional_radiance"]
+        rec[:, 5, :3] = split_hi_lo(arrays["directional_radiance"])[1]
+        if v is not None:
+            hv, undefined = half_vector(l, v)
+            rec[:, 2, :3] = hv
+            rec[:, 4, :3] = split_hi_lo(hv)[1]
+            rec[:, 2, 3] = np.where(undefined, 1.0, 0.0)
+        directional = rec.reshape(-1, 4).astype(np.float32)
+    amb = arrays["ambient_radiance"] * scene.material.k_a
+    eye64 = v if v is not None else np.asarray(scene.camera.position, np.float64)
+    eye = eye64 if v is not None else eye64 - o
+    return LightArrays(point=point, point64=point64, directional=directional, ambient=amb,
+                       eye=eye, eye64=eye64)
+
+
+def material_uniforms(scene, map_names) -> tuple[float, np.ndarray, float]:
+    """(k_d, S_uniform, exponent) kernel arguments; maps replace uniform values."""
+    m = scene.material
+    cs = np.asarray(m.specular_color, np.float64)
+    ks = 1.0 if "k_s" in map_names else m.k_s
+    S = (np.ones(3) if "specular_color" in map_names else cs) * ks
+    return m.k_d, S, m.exponent

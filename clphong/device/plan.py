@@ -1,0 +1,237 @@
+"""The shading plan: which kernel variant a scene needs, and why.
+
+The plan turns a scene and the material maps a G-buffer carries into the ``-D``
+defines of ``kernels/clphong.h``. Only what the scene uses is compiled in: no
+specular code when ``k_s = 0`` and no k_s map, no point-light loop without point
+lights, a constant view vector for an orthographic camera, Blinn's constant half
+vector for directional lights seen by an orthographic camera, and map loads only
+for the maps present, and a whole specular exponent raised by binary powering
+instead of exp/log1p. ``print(plan)`` says what was chosen and why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .culling import TILE
+
+#: Light sums longer than this use Neumaier compensation. The error of a naive
+#: sum of n non-negative terms is at most (n−1)·u relative, 2u with
+#: compensation; at n ≤ 4 the naive sum is already within 3u.
+COMPENSATE_ABOVE = 4
+
+#: Pixels per work-item, as explicit SIMD lanes (see kernels/clphong.h).
+DEFAULT_LANES = 16
+
+MAP_NAMES = ("k_d", "k_s", "h", "specular_color")
+
+#: The largest whole exponent k (h, or 4h for Blinn-Phong) raised by binary
+#: powering (SPEC_INT_POW): at most 16 squarings and 15 products per light.
+#: Blinn-Phong with h = 10⁴ (k = 4·10⁴) is inside.
+INT_POW_MAX = 65536
+
+
+def int_pow_multiplies(k: int) -> int:
+    """Double multiplies of ``specular_power_cos`` (kernels/brdf.cl) for the
+    whole exponent ``k``: one squaring per bit after the first, one product per
+    set bit but bit 0 (s starts as x or 1)."""
+    k = int(k)
+    if k <= 0:
+        return 0
+    return k.bit_length() - 1 + bin(k).count("1") - (k & 1)
+
+
+@dataclass(frozen=True)
+class ShadingPlan:
+    """The compile-time variant of the shading kernel for one scene."""
+
+    defines: dict[str, int]
+    reasons: tuple[tuple[str, str], ...]
+    kernel: str = "lanes"
+    n_point: int = 0
+    n_directional: int = 0
+    n_ambient: int = 0
+    maps: tuple[str, ...] = ()
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def entry_file(self) -> str:
+        return "shade.cl" if self.kernel == "lanes" else "shade_obvious.cl"
+
+    @property
+    def lanes(self) -> int:
+        return self.defines.get("LANES", 1)
+
+    def __str__(self) -> str:
+        lines = [
+            f"kernel: kernels/{self.entry_file} ({self.kernel}, {self.lanes} pixel(s) per work-item)",
+            f"lights: {self.n_point} point, {self.n_directional} directional, {self.n_ambient} ambient",
+            f"material maps: {', '.join(self.maps) if self.maps else 'none'}",
+            "defines:",
+        ]
+        width = max(len(f"{k}={v}") for k, v in self.defines.items())
+        why = dict(self.reasons)
+        for k, v in self.defines.items():
+            kv = f"{k}={v}"
+            lines.append(f"  -D{kv:<{width}}  {why.get(k, '')}")
+        lines += [f"note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
+
+def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LANES,
+              compensated: bool | None = None, fp64_directions: bool = False,
+              display=None, max_error: float | None = None, has_fp64: bool | None = None,
+              int_pow: bool | str = True) -> ShadingPlan:
+    """Choose the kernel variant for ``scene`` and the material ``maps`` present.
+
+    Parameters
+    ----------
+    scene : clphong.model.scene.Scene
+    maps : iterable of str
+        Names of the per-pixel material maps present (subset of ``MAP_NAMES``).
+    kernel : {"lanes", "obvious"}
+        ``"lanes"``: LANES pixels per work-item in explicit vectors (the fast
+        path). ``"obvious"``: one pixel per work-item with ``float3`` and
+        ``pow()``, kept as the baseline that ``clphong bench`` measures against.
+    lanes : {1, 4, 8, 16}
+    compensated : bool, optional
+        Force Neumaier summation in float on (True) or a naive float sum
+        (False). By default (None) the lane kernel sums in double where the
+        device has fast double (SUM_FP64, ``has_fp64``), and otherwise uses
+        Neumaier above ``COMPENSATE_ABOVE`` lights.
+    fp64_directions : bool
+        Positions, directions, n·l and δ in double (lane kernel only); the
+        caller decides from the device (``Runtime.has_fp64``).
+    has_fp64 : bool, optional
+        Whether the device runs double at a useful speed: ``cl_khr_fp64`` on a
+        CPU (``Runtime.fast_fp64``); by default as ``fp64_directions``. The
+        integer power needs it.
+    int_pow : bool or "float"
+        True (default): raise a whole uniform exponent k ≤ ``INT_POW_MAX`` by
+        binary powering in double (SPEC_INT_POW) where ``has_fp64``; False:
+        always exp(k·log1p(−δ)) (to measure one against the other); "float":
+        binary powering in float (POW_FP32, the "fast" path: float directions
+        only, any device; relative error ~2k·u, docs/error-model.md).
+    max_error : float, optional
+        Culling budget ε in output radiance (``--max-error`` × reference
+        white): with point lights, compile the per-tile light lists of
+        ``kernels/cull.cl`` (CULLING=1). None: every light shades every pixel.
+    display : clphong.device.display.DisplayTransform, optional
+        Fuse exposure, tone mapping and display encoding into the final store
+        (kernels/tonemap.cl); None: scene-linear output only (DISPLAY_OUT=0).
+    """
+    if kernel not in ("lanes", "obvious"):
+        raise ValueError(f"kernel must be 'lanes' or 'obvious', not {kernel!r}")
+    m = scene.material
+    maps = tuple(n for n in MAP_NAMES if n in set(maps))
+    n_point = len(scene.lights_of("point"))
+    n_dir = len(scene.lights_of("directional"))
+    n_amb = len(scene.lights_of("ambient"))
+    blinn = m.model == "blinn-phong"
+    ortho = scene.camera.type == "orthographic"
+    specular = m.k_s > 0 or "k_s" in maps
+    fp64 = fp64_directions if has_fp64 is None else has_fp64
+    sum_fp64 = kernel == "lanes" and fp64 and compensated is None
+    if compensated is None:
+        compensated = not sum_fp64 and n_point + n_dir > COMPENSATE_ABOVE
+    d: dict[str, int] = {}
+    r: list[tuple[str, str]] = []
+
+    def put(name, value, why):
+        d[name] = int(value)
+        r.append((name, why))
+
+    if kernel == "lanes":
+        put("LANES", lanes, "explicit SIMD lanes across pixels (PoCL vectorises no per-pixel light loop by itself)")
+    put("MODEL_BLINN", blinn, f"material.model = {m.model!r}")
+    put("HAS_POINT", n_point > 0, f"{n_point} point light(s)")
+    put("HAS_DIRECTIONAL", n_dir > 0, f"{n_dir} directional light(s)")
+    put("HAS_SPECULAR", specular,
+        "k_s map present" if "k_s" in maps else f"material.k_s = {m.k_s:g}")
+    put("CAMERA_ORTHO", ortho, f"camera.type = {scene.camera.type!r}"
+        + (": v is constant" if ortho else ": v = normalize(eye − P) per pixel"))
+    put("BLINN_CONST_H", blinn and ortho and n_dir > 0 and specular,
+        "Blinn + orthographic camera: each directional light's half vector is constant (host-computed)"
+        if blinn and ortho else "needs Blinn-Phong with an orthographic camera")
+    put("MAP_KD", "k_d" in maps, "per-pixel k_d map" if "k_d" in maps else "uniform k_d")
+    put("MAP_KS", "k_s" in maps, "per-pixel k_s map" if "k_s" in maps else "uniform k_s")
+    put("MAP_H", "h" in maps and specular, "per-pixel shininess map" if "h" in maps else "uniform h")
+    put("MAP_CS", "specular_color" in maps and specular,
+        "per-pixel specular colour map" if "specular_color" in maps else "uniform specular_color")
+    if kernel == "lanes":
+        put("SUM_FP64", sum_fp64,
+            f"{n_point + n_dir} lights summed in double, rounded once: error ≤ u + n·2⁻⁵³"
+            if sum_fp64 else "no fast double on this device, or a float sum was asked for")
+    put("COMPENSATED_SUM", compensated,
+        f"{n_point + n_dir} lights summed: "
+        + ("Neumaier summation keeps the sum's error at ~2u" if compensated
+           else "in double (SUM_FP64)" if sum_fp64
+           else f"naive float sum within {max(n_point + n_dir - 1, 0)}u"))
+    falloff = bool((scene.light_arrays["point_attenuation"][:, 1:] != 0).any())
+    put("HAS_ATTENUATION", falloff,
+        "some point light has c1 or c2 ≠ 0: 1/(c0 + c1·d + c2·d²) per pixel" if falloff
+        else ("every point light has c1 = c2 = 0: the falloff is the constant 1/c0"
+              if n_point else "no point light"))
+    if kernel == "lanes":
+        culling = max_error is not None and n_point > 0
+        put("CULLING", culling,
+            f"--max-error budget ε = {max_error:g}: per-tile point-light lists, dropped lights "
+            "sum to ≤ ε per pixel (kernels/cull.cl)" if culling
+            else ("no point light to cull" if max_error is not None
+                  else "no --max-error budget: every light shades every pixel"))
+        if culling:
+            put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel culling tiles (clphong.device.culling.TILE)")
+        put("DIRECTIONS_FP64", fp64_directions,
+            "directions, n·l and δ in double: relative error a few u at grazing light and "
+            "any shininess (docs/error-model.md)" if fp64_directions
+            else "directions in float (devices without fast double): error grows near grazing "
+                 "light and with k")
+        k = m.exponent
+        whole = float(k).is_integer() and 0 <= k <= INT_POW_MAX
+        in_float = int_pow == "float"
+        if in_float and fp64_directions:
+            raise ValueError("int_pow='float' is for float directions (the fast path)")
+        use = specular and "h" not in maps and whole and (in_float or (fp64 and int_pow))
+        exponent = f"k = {'4h' if blinn else 'h'} = {k:g}"
+        cos_form = use and fp64_directions and (not blinn or int(k) % 2 == 0)
+        kind = "float" if in_float else "double"
+        put("SPEC_INT_POW", use,
+            f"{exponent} is a whole number: binary powering in {kind}, "
+            f"{int_pow_multiplies(int(k) // 2 if cos_form and blinn else k)} {kind} multiplies "
+            "per light "
+            "instead of exp(k·log1p(−δ)), and no rounding of k·log1p(−δ) (docs/error-model.md)" if use
+            else ("no specular term" if not specular
+                  else "per-pixel shininess map: exp(k·log1p(−δ))" if "h" in maps
+                  else f"{exponent} is not a whole number ≤ {INT_POW_MAX}: exp(k·log1p(−δ))" if not whole
+                  else "no fast double on this device (cl_khr_fp64 on a CPU): exp(k·log1p(−δ))" if not fp64
+                  else "integer power turned off: exp(k·log1p(−δ))"))
+        put("SPEC_COS", cos_form,
+            ("the power's base is (n·h)² = (n·l + n·v)²/|l + v|² in double, raised to "
+             f"K/2 = {int(k) // 2}: no square root and no |n − h|²/2 (docs/error-model.md)" if blinn
+             else "the power's base is r·v = 2(n·l)(n·v) − l·v in double: no |r − v|²/2 "
+                  "(docs/error-model.md)") if cos_form
+            else ("no integer power" if not use
+                  else "directions in float: the base stays 1 − δ with δ = |·|²/2, free of cancellation"
+                  if not fp64_directions
+                  else f"Blinn with an odd K = {int(k)}: 1 − δ with δ = |n − h|²/2"))
+        put("POW_FP32", use and in_float,
+            "the fast path: the integer power in float (relative error ~2k·u)" if use and in_float
+            else "no integer power in float (only the fast path's)")
+        weights = fp64_directions and sum_fp64
+        put("WEIGHTS_FP64", weights,
+            "D, S, weights, falloff and each light's L·att·(D·w_d + S·w_s) in double"
+            + ("" if use or not specular else ", and exp(k·log1p(−δ)) too")
+            + ", into the double sum: nothing rounded to float before the result" if weights
+            else ("directions in float: weights in float" if not fp64_directions
+                  else "light sum in float: weights rounded to float"))
+    if display is None:
+        put("DISPLAY_OUT", 0, "no fused display output (scene-linear only, or an OCIO view)")
+    else:
+        why = display.reasons()
+        for name, value in display.defines().items():
+            put(name, value, why[name])
+    notes = []
+    if not n_point and not n_dir:
+        notes.append("no direct lights: only the ambient term is shaded")
+    return ShadingPlan(defines=d, reasons=tuple(r), kernel=kernel, n_point=n_point,
+                       n_directional=n_dir, n_ambient=n_amb, maps=maps, notes=tuple(notes))

@@ -1,0 +1,425 @@
+"""Shading a G-buffer with a scene: the public rendering API.
+
+>>> import clphong
+>>> scene = clphong.load_scene("gbuffers/spheres.toml")
+>>> gbuf = clphong.read_gbuffer("gbuffers/spheres.exr")
+>>> rgb = clphong.render(scene, gbuf)            # (H, W, 3) float32, scene-linear
+
+A :class:`Renderer` compiles its kernel once and then shades many frames; the
+CLI and :func:`render` both go through it. :meth:`Renderer.render` returns a
+:class:`RenderResult`: the image, the fused display output, the plan that ran,
+timings, culling lists, non-finite counts and the number of row bands.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.errors import DeviceError, GBufferError
+from ..core.geometry import split_hi_lo
+from ..core.memory import ENV_VAR, F32, format_size, memory_budget
+from ..io.nonfinite import apply_nonfinite_policy
+from ..model.options import (
+    check_budget,
+    check_int_pow,
+    check_kernel,
+    check_lanes,
+    check_nonfinite,
+    path_options,
+)
+from .bands import (
+    band_align,
+    band_of,
+    band_rows,
+    frame_origin_banded,
+    light_bytes,
+    map_planes,
+    plan_bands,
+    render_bytes_per_pixel,
+)
+from .culling import TileLists, build_tile_lists
+from .display import DisplayTransform, apply_display_transform, display_kernel_args
+from .frame import LOCAL_SIZE, Frame, material_uniforms, pack_lights, prepare_frame
+from .plan import ShadingPlan, make_plan
+from .runtime import float4, get_runtime
+
+
+@dataclass(frozen=True)
+class RenderStats:
+    """Seconds spent on one frame: in the shading kernel (all bands), on buffers and
+    copies around it, and in all of :meth:`Renderer.render`."""
+
+    kernel_seconds: float
+    upload_seconds: float
+    total_seconds: float
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    """What shading one frame gave.
+
+    Attributes
+    ----------
+    image : numpy.ndarray
+        (H, W, 3) float32 scene-linear RGB.
+    display : numpy.ndarray or None
+        (H, W, 3) float32 display output of the ``display`` transform asked for
+        (fused into the shading launch, or applied after the bands); None if none.
+    plan : ShadingPlan
+        The variant that ran (with the fused display output, or the brute-force
+        fallback of culling, as it actually ran).
+    stats : RenderStats
+    cull : TileLists or None
+        The culling lists of the (last) launch; None without culling.
+    nonfinite : dict
+        NaN/Inf counts per buffer, before the non-finite policy.
+    bands : int
+        Row bands the frame was shaded in (1: one launch).
+    """
+
+    image: np.ndarray
+    display: np.ndarray | None
+    plan: ShadingPlan
+    stats: RenderStats
+    cull: TileLists | None = None
+    nonfinite: dict = field(default_factory=dict)
+    bands: int = 1
+
+    def __array__(self, dtype=None, copy=None):
+        return self.image if dtype is None else self.image.astype(dtype)
+
+
+class Renderer:
+    """Shades G-buffers with one scene; compiles each kernel variant once.
+
+    Parameters
+    ----------
+    scene : clphong.model.scene.Scene
+    device : str, optional
+        OpenCL device (see :mod:`clphong.device.runtime`); PoCL's CPU device by default.
+    kernel : {"lanes", "obvious"}
+        The fast lane kernel (default) or the one-pixel-per-work-item baseline.
+    lanes : int, optional
+        Pixels per work-item of the lane kernel (1, 4, 8 or 16); by default
+        chosen for the device (:attr:`clphong.device.runtime.Runtime.lanes`).
+    compensated : bool, optional
+        Force the compensated light sum on or off (default: by light count).
+    fp64_directions : bool, optional
+        Compute positions, directions, n·l and δ in double (the accurate
+        default where the device has fp64) or all in float (for devices
+        without fast double; on a CPU with fp64 not faster from 16 lights
+        on; larger
+        error near grazing light and for large shininess, see
+        ``docs/error-model.md``).
+    nonfinite : {"background", "error", "pass"}
+        What to do with NaN/Inf G-buffer values (:mod:`clphong.io.nonfinite`); the
+        counts per buffer of a frame are in its :attr:`RenderResult.nonfinite`.
+    max_error : float, optional
+        Error budget of tiled light culling (:mod:`clphong.device.culling`), relative to
+        ``reference_white``: point lights are dropped per 16×16 tile only while
+        their summed upper bounds stay within ``max_error·reference_white`` of
+        output radiance, per pixel and channel. 0 drops only lights whose bound
+        is exactly 0 (bit-identical to brute force). None (default): no culling.
+        A frame's lists are described by its :attr:`RenderResult.cull`.
+    reference_white : float
+        Output radiance of reference white (default 1.0, scene-linear).
+    path : {"accurate", "float", "fast"}, optional
+        A shading path (:data:`clphong.model.options.PATHS`): shorthand for ``fp64_directions``,
+        ``compensated`` and ``int_pow``, which must then be left unset (the
+        obvious kernel, float32 with pow(), ignores them). The attribute
+        ``path`` names the path the current options make (None for another
+        mix, and for the obvious kernel).
+    int_pow : bool or "float", optional
+        True (default): a whole specular exponent (h, or 4h for Blinn-Phong,
+        ≤ 65536, no shininess map) is raised by binary powering in double on
+        CPU devices with fp64, on either path (faster, and within the exp/log1p
+        form's error bound); False: always exp(k·log1p(−δ)); "float": binary
+        powering in float on any device, with float directions (implied; the
+        "fast" path, relative error ~2k·u). See :func:`clphong.device.plan.make_plan`.
+
+    The attributes ``max_error`` (the *absolute* budget
+    ``max_error·reference_white``, or None), ``fp64_directions`` and
+    ``nonfinite`` may still be changed after construction; the next frame
+    compiles the variant they select (``fp64_directions = True`` is refused
+    at once on a renderer with ``int_pow="float"``, whose power is float).
+
+    Safe to call from several threads: launches are serialised on the queue.
+    """
+
+    def __init__(self, scene, *, device: str | None = None, kernel: str = "lanes",
+                 lanes: int | None = None, compensated: bool | None = None,
+                 fp64_directions: bool | None = None, nonfinite: str = "background",
+                 max_error: float | None = None, reference_white: float = 1.0,
+                 int_pow: bool | str | None = None, path: str | None = None):
+        self.scene = scene
+        if path is not None:
+            if compensated is not None or fp64_directions is not None or int_pow is not None:
+                raise ValueError("give either path or fp64_directions/compensated/int_pow")
+            opts = path_options(path)
+            fp64_directions = opts.get("fp64_directions")
+            compensated = opts.get("compensated")
+            int_pow = opts.get("int_pow")
+        int_pow = check_int_pow(True if int_pow is None else int_pow)
+        if int_pow == "float":
+            if fp64_directions:
+                raise ValueError("int_pow='float' is for float directions (fp64_directions=False)")
+            fp64_directions = False
+        self.int_pow = int_pow
+        self.kernel_kind = check_kernel(kernel)
+        self.runtime = get_runtime(device)
+        if kernel != "lanes":
+            lanes = 1
+        elif lanes is None:
+            lanes = self.runtime.lanes
+        self.lanes = check_lanes(lanes)
+        self.compensated = compensated
+        self.max_error = check_budget(max_error, reference_white)   # absolute, or None
+        self.reference_white = float(reference_white)
+        if fp64_directions is None:
+            fp64_directions = self.runtime.has_fp64
+        elif fp64_directions and not self.runtime.has_fp64:
+            raise DeviceError(f"{self.runtime.name} has no double precision (cl_khr_fp64); "
+                              "use the float32 directions path")
+        self._fp64_directions = bool(fp64_directions) and kernel == "lanes"
+        self.nonfinite = check_nonfinite(nonfinite)
+        # Launches on one device are serialised: its cached kernel objects hold their
+        # arguments between set_args and the enqueue.
+        self._lock = self.runtime.lock
+        # Compile the variant without maps now, so errors surface at construction.
+        self.plan_for(())
+
+    @property
+    def fp64_directions(self) -> bool:
+        """Whether positions, directions, n·l and δ are computed in double."""
+        return self._fp64_directions
+
+    @fp64_directions.setter
+    def fp64_directions(self, value: bool) -> None:
+        if value and self.int_pow == "float":
+            raise ValueError("this renderer raises the power in float (int_pow='float', the fast "
+                             "path), which takes float directions only; build a Renderer with "
+                             "another path instead")
+        if value and not self.runtime.has_fp64:
+            raise DeviceError(f"{self.runtime.name} has no double precision (cl_khr_fp64)")
+        self._fp64_directions = bool(value) and self.kernel_kind == "lanes"
+
+    @property
+    def path(self) -> str | None:
+        """The shading path (``PATHS``) the current options make, or None for another mix
+        (on a device without fp64, "accurate" and "float" are the same variant)."""
+        if self.kernel_kind != "lanes":
+            return None
+        if (self.int_pow, self.compensated, self.fp64_directions) == ("float", False, False):
+            return "fast"
+        if self.int_pow is True and self.compensated is None:
+            if self.fp64_directions == self.runtime.has_fp64:
+                return "accurate"
+            return "float" if not self.fp64_directions else None
+        return None
+
+    def plan_for(self, map_names, *, culling: bool = True,
+                 display: DisplayTransform | None = None) -> ShadingPlan:
+        """The plan for frames with these material maps (its program built and cached);
+        ``culling=False``: the same variant without culling (the brute-force fallback);
+        ``display``: with that display transform fused into the store."""
+        plan, _ = self._plan_and_program(map_names, culling=culling, display=display)
+        return plan
+
+    def _plan_and_program(self, map_names, *, culling: bool = True,
+                          display: DisplayTransform | None = None):
+        plan = make_plan(self.scene, map_names, kernel=self.kernel_kind, lanes=self.lanes,
+                         compensated=self.compensated, fp64_directions=self.fp64_directions,
+                         display=display, max_error=self.max_error if culling else None,
+                         has_fp64=self.runtime.fast_fp64, int_pow=self.int_pow)
+        return plan, self.runtime.program(plan.entry_file, plan.defines)
+
+    # ------------------------------------------------------------------ a whole frame
+
+    def render(self, gbuffer, *, display: DisplayTransform | None = None,
+               rows: int | None = None) -> RenderResult:
+        """Shade ``gbuffer``: the non-finite policy, then one launch or row bands.
+
+        Parameters
+        ----------
+        gbuffer : clphong.io.gbuffer.GBuffer
+        display : DisplayTransform, optional
+            A display transform whose output :attr:`RenderResult.display` holds:
+            fused into the shading kernel's store in one launch, or run on the
+            whole frame after the bands (the same device code, the same values).
+        rows : int, optional
+            Rows per band; by default :func:`~clphong.device.bands.band_rows` of
+            the memory budget and the device's limits (the whole frame when it fits).
+
+        Returns
+        -------
+        RenderResult
+            Bit-identical whether shaded in one launch or in bands.
+
+        Raises
+        ------
+        GBufferError
+            When not even one row fits beside the output, with the sizes; or the
+            non-finite policy "error" and a NaN/Inf input.
+        DeviceError
+            When an OpenCL allocation or launch fails anyway.
+        """
+        t0 = time.perf_counter()
+        # NaN/Inf inputs: counted per buffer, then the policy (clphong.io.nonfinite).
+        gbuffer, nonfinite = apply_nonfinite_policy(gbuffer, self.nonfinite)
+        h, w = gbuffer.shape
+        if rows is None:
+            rows = self._band_rows(gbuffer, display is not None)
+        if rows >= h:
+            one = self._launch(prepare_frame(gbuffer, lanes=self.lanes), display)
+            return dataclasses.replace(one, nonfinite=nonfinite, stats=dataclasses.replace(
+                one.stats, total_seconds=time.perf_counter() - t0))
+        # Band edges on the culling super-tile grid keep each tile's light list,
+        # and so the result, the same as in one launch (clphong.device.bands).
+        align = band_align(self.lanes)
+        if rows >= align:
+            rows -= rows % align
+        bands = plan_bands(h, rows)
+        origin = frame_origin_banded(gbuffer, bands)
+        try:
+            image = np.empty((h, w, 3), np.float32)
+        except MemoryError:
+            raise GBufferError(f"a {w}x{h} frame: no memory for its "
+                               f"{format_size(F32 * 3 * h * w)} output") from None
+        kernel_s = upload_s = 0.0
+        last = None
+        for y0, y1 in bands:
+            frame = prepare_frame(band_of(gbuffer, y0, y1), lanes=self.lanes)
+            frame.origin = origin
+            last = self._launch(frame, None)
+            image[y0:y1] = last.image
+            kernel_s += last.stats.kernel_seconds
+            upload_s += last.stats.upload_seconds
+            del frame
+        shown = None
+        if display is not None:
+            shown = apply_display_transform(image, display, runtime=self.runtime,
+                                            lanes=self.lanes if self.kernel_kind == "lanes" else None)
+        stats = RenderStats(kernel_seconds=kernel_s, upload_seconds=upload_s,
+                            total_seconds=time.perf_counter() - t0)
+        return RenderResult(image=image, display=shown, plan=last.plan, stats=stats, cull=last.cull,
+                            nonfinite=nonfinite, bands=len(bands))
+
+    def _band_rows(self, gbuffer, display: bool) -> int:
+        """The rows one launch may shade (the memory model and the device's limits)."""
+        h, w = gbuffer.shape
+        m = map_planes(gbuffer)
+        records = light_bytes(self.scene)
+        max_alloc, global_mem = self.runtime.limits()
+        if max_alloc is not None and records > max_alloc:
+            n = sum(1 for lt in self.scene.lights if lt.type != "ambient")
+            raise DeviceError(
+                f"{self.scene.source}: {n} point and directional lights need about "
+                f"{format_size(records)} of light records, more than the largest buffer "
+                f"{self.runtime.name} allows ({format_size(max_alloc)}); use fewer lights")
+        budget = memory_budget()
+        rows = band_rows((h, w), n_map_planes=m, lanes=self.lanes, light_bytes=records,
+                         budget=budget.bytes, max_alloc=max_alloc, global_mem=global_mem,
+                         display=display)
+        if rows <= 0:
+            row_bytes = render_bytes_per_pixel(m, display=display) * w
+            one_row = row_bytes + F32 * 3 * h * w + records
+            raise GBufferError(
+                f"a {w}x{h} frame cannot be shaded here: its output alone needs "
+                f"{format_size(F32 * 3 * h * w)} and one row of shading "
+                f"{format_size(row_bytes)} more ({format_size(one_row)} in "
+                f"all), but only {budget.describe()} is usable; crop the G-buffer or use a "
+                "machine with more memory")
+        return rows
+
+    def _launch(self, frame: Frame, display: DisplayTransform | None) -> RenderResult:
+        """:meth:`shade`, with OpenCL failures as DeviceError."""
+        import pyopencl as cl
+
+        try:
+            return self.shade(frame, display=display)
+        except cl.Error as exc:
+            h, w = frame.shape
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            raise DeviceError(
+                f"shading a {w}x{h} band on {self.runtime.name} failed ({first}); lower "
+                f"{ENV_VAR} (e.g. {ENV_VAR}=1G) to shade in smaller bands, or choose another "
+                "device with --device or PYOPENCL_CTX") from exc
+
+    # ------------------------------------------------------------------ one launch
+
+    def shade(self, frame: Frame, *, display: DisplayTransform | None = None) -> RenderResult:
+        """One launch of the shading kernel on a prepared :class:`~clphong.device.frame.Frame`
+        (no non-finite policy, no memory check: see :meth:`render`)."""
+        import pyopencl as cl
+
+        t0 = time.perf_counter()
+        plan, prog = self._plan_and_program(frame.map_names, display=display)
+        lights = pack_lights(self.scene, frame.origin)
+        k_d, S, k = material_uniforms(self.scene, frame.map_names)
+        ctx, queue = self.runtime.context, self.runtime.queue
+        mf = cl.mem_flags
+        ro = mf.READ_ONLY | mf.COPY_HOST_PTR
+        with self._lock:
+            t1 = time.perf_counter()
+            # The frame's planes are used in place (USE_HOST_PTR): on a CPU device
+            # no copy at all (73 ms -> 4 ms at 1080p); the kernels only read them
+            # and `frame` outlives the launch.
+            g = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=frame.gbuf)
+            mp = cl.Buffer(ctx, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=frame.maps)
+            # DIRECTIONS_FP64 does not rebase: P as stored, lights and eye as they are.
+            fp64 = bool(plan.defines.get("DIRECTIONS_FP64"))
+            origin = np.zeros(3) if fp64 else frame.origin
+            eye, eye_lo = lights.kernel_eye(fp64)
+            # WEIGHTS_FP64 forms D, S, the ambient term and a non-whole power in double: hi + lo
+            _, (kd_lo, *S_lo, k_lo) = split_hi_lo([k_d, *S, k])
+            amb_lo = split_hi_lo(lights.ambient)[1]
+            pl = cl.Buffer(ctx, ro, hostbuf=lights.point64 if fp64 else lights.point)
+            dl = cl.Buffer(ctx, ro, hostbuf=lights.directional)
+            out = np.empty((3, frame.stride), np.float32)
+            ob = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+            bg = self.scene.background
+            cull_args, cull = [], None
+            if plan.defines.get("CULLING"):
+                cull = build_tile_lists(self.runtime, plan, frame, lights.point, plan.n_point,
+                                        budget=self.max_error, k_d=k_d, S=S, gbuf_buffer=g,
+                                        maps_buffer=mp)
+                if cull is None:   # lists too long to pay off: brute force
+                    plan, prog = self._plan_and_program(frame.map_names, culling=False,
+                                                        display=display)
+                else:
+                    cull_args = cull.kernel_args()
+            kern = self.runtime.kernel(prog, "shade")
+            disp, display_args = display_kernel_args(display, ctx, frame.stride)
+            kern.set_args(
+                g, mp, ob, np.uint32(frame.stride),
+                pl, np.uint32(plan.n_point), dl, np.uint32(plan.n_directional),
+                float4(*origin), float4(*eye), float4(*lights.ambient),
+                np.float32(k_d), float4(*S), np.float32(k), float4(*bg),
+                float4(*eye_lo), float4(*amb_lo, kd_lo), float4(*S_lo, k_lo),
+                *display_args, *cull_args)
+            items = frame.stride // self.lanes
+            evt = cl.enqueue_nd_range_kernel(queue, kern, (items,), (LOCAL_SIZE,))
+            cl.enqueue_copy(queue, out, ob, wait_for=[evt])
+            if disp is not None:
+                cl.enqueue_copy(queue, disp, display_args[0], wait_for=[evt])
+            queue.finish()
+            t2 = time.perf_counter()
+        kernel_s = (evt.profile.end - evt.profile.start) * 1e-9
+        h, w = frame.shape
+        image = np.ascontiguousarray(out[:, : h * w].T).reshape(h, w, 3)
+        shown = None if disp is None else np.ascontiguousarray(disp[:, : h * w].T).reshape(h, w, 3)
+        stats = RenderStats(kernel_seconds=kernel_s, upload_seconds=t2 - t1 - kernel_s,
+                            total_seconds=time.perf_counter() - t0)
+        return RenderResult(image=image, display=shown, plan=plan, stats=stats, cull=cull)
+
+
+def render(scene, gbuffer, **kwargs) -> np.ndarray:
+    """Shade ``gbuffer`` with ``scene`` once: (H, W, 3) float32 scene-linear RGB.
+
+    See :class:`Renderer` for the options; :meth:`Renderer.render` gives the
+    whole :class:`RenderResult`."""
+    return Renderer(scene, **kwargs).render(gbuffer).image

@@ -1,0 +1,487 @@
+"""Writing results safely: atomic EXR output through OpenImageIO.
+
+Every file clphong writes goes through :func:`atomic_path`: the data are
+written to a hidden temporary file in the destination folder (same extension,
+so OpenImageIO picks the same format) and renamed onto the destination only
+when the write succeeded and the file is on the disk (``fsync``); an image
+is also checked whole first (:func:`check_image_written`: OpenImageIO's writers
+do not report every write error, e.g. a disk that fills while a PNG is
+closed). A failed or interrupted write therefore never leaves a partial or
+truncated file behind, and never clobbers an existing good file.
+
+Public functions
+----------------
+check_output_path
+    Check an output name and its folder before any work is done.
+atomic_path
+    Context manager yielding a temporary name that is renamed into place.
+check_image_written
+    Check that an image file just written is whole.
+write_image_atomically
+    Write an array with an OpenImageIO spec through :func:`atomic_path`.
+remove_live_temporaries
+    After an interrupt, remove the temporary files of this thread's writes in flight.
+write_exr
+    Write an (H, W, C) array to an OpenEXR file with explicit channel names,
+    pixel type, compression and header attributes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+import threading
+import zlib
+from collections.abc import Iterator, Mapping, Sequence
+
+import numpy as np
+import OpenImageIO as oiio
+
+from ..core.errors import OutputError, OutputWarning
+
+__all__ = ["atomic_path", "check_image_written", "remove_live_temporaries", "check_output_path",
+           "write_image_atomically", "write_exr", "set_attribute", "PIXEL_TYPES"]
+
+#: Pixel types accepted by :func:`write_exr` and ``write_gbuffer``.
+PIXEL_TYPES = ("float", "half")
+
+
+def same_file(a, b) -> bool:
+    """Whether two paths name the same file (through links too); by absolute path
+    when either does not exist yet."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.abspath(a) == os.path.abspath(b)
+
+
+def _one_line(text: str, most: int = 3) -> str:
+    """Collapse a (possibly multi-line) library message onto one line of at most
+    ``most`` of its distinct lines (a failing write can repeat its complaint per
+    block, OpenImageIO a failed open once per attempt)."""
+    parts = list(dict.fromkeys(p.strip() for p in str(text).splitlines() if p.strip()))
+    if len(parts) > most:
+        parts = [*parts[:most - 1], f"... ({len(parts) - most + 1} more)"]
+    return "; ".join(parts) if parts else "unknown error"
+
+
+def _remove_quietly(name: str) -> None:
+    with contextlib.suppress(OSError):
+        os.remove(name)
+
+
+#: Temporary names :func:`atomic_path` has reserved and not yet renamed or
+#: removed, each with the thread that owns it. A name is registered *before*
+#: the file is created and dropped only *after* the rename, so an interrupt that
+#: lands between two bytecodes of ``atomic_path`` (where its own ``except``
+#: cannot see the file yet) still leaves the name here for
+#: :func:`remove_live_temporaries`.
+_LIVE: dict[str, int] = {}
+
+
+def remove_live_temporaries() -> int:
+    """Remove the temporary files of this thread's writes in flight; return how many existed.
+
+    Call it where an interrupt (``KeyboardInterrupt``, SIGTERM turned into an
+    exception) is caught. Other threads' writes are left alone: they may still
+    finish. A name whose file is already gone (renamed into place, or never
+    created) is simply forgotten.
+    """
+    me = threading.get_ident()
+    removed = 0
+    for name, owner in list(_LIVE.items()):
+        if owner == me:
+            with contextlib.suppress(OSError):
+                os.remove(name)
+                removed += 1
+            _LIVE.pop(name, None)
+    return removed
+
+
+def check_output_path(path: str | os.PathLike, *, exr: bool = False) -> None:
+    """Check, before any work, that ``path`` can be an output file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The destination file.
+    exr : bool
+        Also require the ``.exr`` extension (OpenImageIO picks the format
+        from it: ``out.png`` would be written as 8-bit PNG, silently clipping
+        scene-linear values).
+
+    Raises
+    ------
+    OutputError
+        One line naming ``path``: not a file name, a directory, a folder that
+        is missing (or a path through a regular file), or (``exr``) a name
+        not ending in ``.exr``. Writability is checked when the temporary file
+        is created (:func:`atomic_path`).
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    name = os.path.basename(path)
+    if not name:
+        raise OutputError(f"{path}: not a file name")
+    if os.path.isdir(path):
+        raise OutputError(f"{path}: is a directory; give a file name")
+    if exr and os.path.splitext(name)[1].lower() != ".exr":
+        raise OutputError(f"{path}: output files are OpenEXR; give a name ending in .exr")
+    if not os.path.isdir(folder):
+        # Name the first part of the folder's path that is missing or not a folder.
+        part = folder
+        while not os.path.exists(part) and os.path.dirname(part) != part:
+            part = os.path.dirname(part)
+        if os.path.exists(part) and not os.path.isdir(part):
+            raise OutputError(f"{path}: {part} is a file, not a folder; choose another output folder")
+        raise OutputError(f"{path}: folder {folder} does not exist; create it first")
+
+
+#: Bytes of pixels :func:`check_image_written` decodes at a time (bounds its memory).
+READ_BACK_BYTES = 64 << 20
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _read_back(name: str) -> str | None:
+    """Decode every pixel of image ``name``, a band at a time; OpenImageIO's complaint, or None."""
+    inp = oiio.ImageInput.open(name)
+    if inp is None:
+        return _one_line(oiio.geterror())
+    try:
+        spec = inp.spec()
+        step = max(1, spec.tile_height)                 # bands of whole tile rows
+        rows = max(1, READ_BACK_BYTES // max(1, spec.scanline_bytes()) // step) * step
+        z0, z1 = spec.z, spec.z + max(1, spec.depth)
+        for y in range(spec.y, spec.y + spec.height, rows):
+            y1 = min(y + rows, spec.y + spec.height)
+            if spec.tile_width:
+                px = inp.read_tiles(0, 0, spec.x, spec.x + spec.width, y, y1, z0, z1,
+                                    0, spec.nchannels, oiio.UNKNOWN)
+            else:
+                px = inp.read_scanlines(0, 0, y, y1, z0, 0, spec.nchannels, oiio.UNKNOWN)
+            if px is None or inp.has_error:
+                return _one_line(inp.geterror())
+        return None
+    finally:
+        inp.close()
+
+
+def _png_problem(name: str) -> str | None:
+    """Walk the chunks of PNG ``name``: each whole, with a good CRC, up to IEND at the
+    end of the file; what is wrong, or None. (Reading the pixels back with libpng
+    would print its complaint on stderr, and stops before IEND.)"""
+    with open(name, "rb") as f:
+        if f.read(8) != _PNG_SIGNATURE:
+            return "no PNG signature"
+        while True:
+            head = f.read(8)
+            n, kind = int.from_bytes(head[:4], "big"), head[4:]
+            body, crc = f.read(n), f.read(4)
+            if len(head) < 8 or len(body) < n or len(crc) < 4:
+                return "the file ends before its IEND chunk"
+            if zlib.crc32(body, zlib.crc32(kind)) != int.from_bytes(crc, "big"):
+                return f"bad CRC in chunk {kind.decode('latin-1')!r}"
+            if kind == b"IEND":
+                return "data after the IEND chunk" if f.read(1) else None
+
+
+def check_image_written(name: str, display: str | None = None) -> None:
+    """Check that the image file ``name`` just written is whole.
+
+    A PNG must be a whole chain of chunks up to IEND (OpenImageIO's PNG writer
+    reports no error when the disk fills while it closes the file); any other
+    image is read back completely (its EXR and JPEG XL writers can miss such an
+    error too).
+
+    Raises
+    ------
+    OutputError
+        One line naming ``display`` (default ``name``): the write failed.
+    """
+    if os.path.splitext(name)[1].lower() == ".png":
+        problem = _png_problem(name)
+    else:
+        problem = _read_back(name)
+    if problem is not None:
+        raise OutputError(f"{name if display is None else display}: the write failed (disk full?): "
+                          f"the file written is incomplete: {problem}")
+
+
+def _sync(name: str, display: str) -> None:
+    """Flush file ``name`` to the disk: a file system may report a full disk only
+    now, and a crash after the rename must not leave an empty file."""
+    try:
+        fd = os.open(name, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+    except OSError as exc:
+        raise OutputError(f"{display}: the write failed: {exc.strerror or exc}") from exc
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[str]:
+    """Yield a temporary file name that replaces ``path`` on success.
+
+    The temporary file lies in the same folder as ``path`` (so the final
+    :func:`os.replace` is an atomic rename on the same file system) and has
+    the same extension, e.g. ``.out.tmp-1f2e3d4c.exr`` for ``out.exr``. It is
+    created empty (with the permissions the umask allows) to reserve the name
+    and to check that the folder is writable.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The destination file.
+
+    Yields
+    ------
+    str
+        The temporary file name to write to.
+
+    Raises
+    ------
+    OutputError
+        If the folder of ``path`` is missing or not writable, if ``path`` is
+        a directory, if flushing the file to the disk fails (e.g. the disk
+        is full), or if the final rename fails. The temporary file is removed
+        in every failure case.
+
+    Notes
+    -----
+    On any exception raised inside the ``with`` block (including
+    ``KeyboardInterrupt``) the temporary file is deleted and the exception
+    re-raised; ``path`` is left untouched. An interrupt can also land in the
+    few bytecodes between creating the temporary file and entering the
+    ``with`` block, where no ``except`` sees it; the name is registered before
+    the file is created, so the code that catches the interrupt removes it
+    with :func:`remove_live_temporaries`.
+
+    Examples
+    --------
+    >>> with atomic_path("out.exr") as tmp:          # doctest: +SKIP
+    ...     write_the_image(tmp)
+    """
+    path = os.fspath(path)
+    check_output_path(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    stem, ext = os.path.splitext(os.path.basename(path))
+    me = threading.get_ident()
+    tmp = None
+    for _ in range(100):
+        candidate = os.path.join(folder, f".{stem}.tmp-{secrets.token_hex(4)}{ext}")
+        _LIVE[candidate] = me                 # before the file exists: see _LIVE
+        try:
+            fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            # someone else's file: never ours to remove. (An interrupt between the
+            # failed open and this pop would leave it registered: that needs a
+            # 32-bit name collision as well, and is accepted.)
+            _LIVE.pop(candidate, None)
+            continue
+        except OSError as exc:
+            _LIVE.pop(candidate, None)
+            raise OutputError(f"{path}: cannot write in folder {folder}: {exc.strerror or exc}") from exc
+        os.close(fd)
+        tmp = candidate
+        break
+    if tmp is None:  # pragma: no cover - 100 collisions of 32 random bits
+        raise OutputError(f"{path}: could not create a temporary file in {folder}")
+    try:
+        try:
+            yield tmp
+            _sync(tmp, path)
+        except BaseException:
+            _remove_quietly(tmp)
+            raise
+        try:
+            os.replace(tmp, path)
+        except OSError as exc:
+            _remove_quietly(tmp)
+            raise OutputError(f"{path}: cannot replace the file: {exc.strerror or exc}") from exc
+    finally:
+        _LIVE.pop(tmp, None)
+
+
+def set_attribute(spec: oiio.ImageSpec, name: str, value: object) -> None:
+    """Set one header attribute on an ImageSpec, choosing its type.
+
+    Parameters
+    ----------
+    spec : OpenImageIO.ImageSpec
+        The spec to modify.
+    name : str
+        Attribute name, e.g. ``"chromaticities"`` or ``"worldToCamera"``.
+    value : object
+        ``int``, ``float``, ``str`` (and numpy scalars) are set directly.
+        A ``(TypeDesc, value)`` pair is set with that type. A 4x4 array, or
+        16 numbers, becomes a ``matrix``; a 3x3 array a ``matrix33``; any
+        other sequence of numbers ``int[n]`` or ``float[n]`` (e.g. the 8
+        ``chromaticities``); a sequence of strings ``string[n]``.
+
+    Raises
+    ------
+    OutputError
+        If the value has no representable type.
+    """
+    if isinstance(value, tuple) and len(value) == 2 and isinstance(value[0], oiio.TypeDesc):
+        spec.attribute(name, value[0], value[1])
+        return
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, bool):
+        spec.attribute(name, int(value))
+        return
+    if isinstance(value, (int, float, str)):
+        spec.attribute(name, value)
+        return
+    if isinstance(value, Sequence | np.ndarray) and len(value) > 0:
+        if all(isinstance(v, str) for v in value):
+            spec.attribute(name, oiio.TypeDesc(f"string[{len(value)}]"), tuple(value))
+            return
+        arr = np.asarray(value)
+        if arr.dtype.kind in "iub" or arr.dtype.kind == "f":
+            flat = arr.reshape(-1)
+            if arr.shape == (4, 4) or (arr.ndim == 1 and arr.size == 16):
+                spec.attribute(name, oiio.TypeDesc("matrix"), tuple(float(v) for v in flat))
+            elif arr.shape == (3, 3):
+                spec.attribute(name, oiio.TypeDesc("matrix33"), tuple(float(v) for v in flat))
+            elif arr.dtype.kind in "iub":
+                spec.attribute(name, oiio.TypeDesc(f"int[{flat.size}]"), tuple(int(v) for v in flat))
+            else:
+                spec.attribute(name, oiio.TypeDesc(f"float[{flat.size}]"), tuple(float(v) for v in flat))
+            return
+    raise OutputError(f"attribute {name!r}: cannot store a value of type {type(value).__name__} "
+                      "in an image header")
+
+
+def write_image_atomically(display: str, spec, data: np.ndarray, *, what: str = "a writer") -> None:
+    """Write ``data`` with ``spec`` to ``display`` through a temporary file.
+
+    The file appears under its name only when open, write and close all
+    succeeded and it passes :func:`check_image_written`; otherwise an
+    :class:`OutputError` names the step and carries OpenImageIO's message, and
+    no file (partial or temporary) is left.
+    """
+    with atomic_path(display) as tmp:
+        out = oiio.ImageOutput.create(tmp)
+        if out is None:
+            raise OutputError(f"{display}: OpenImageIO cannot create {what}: "
+                              f"{_one_line(oiio.geterror())}")
+        ok = False
+        try:
+            if not out.open(tmp, spec):
+                raise OutputError(f"{display}: cannot open for writing: {_one_line(out.geterror())}")
+            if not out.write_image(np.ascontiguousarray(data)):
+                raise OutputError(f"{display}: writing the pixels failed: {_one_line(out.geterror())}")
+            ok = True
+        finally:
+            closed = out.close()
+        if ok and not closed:
+            raise OutputError(f"{display}: closing the file failed: {_one_line(out.geterror())}")
+        # Writers that failed to write can still return True (and TIFF's sets
+        # has_error when all went well): look at the file itself.
+        check_image_written(tmp, display)
+
+
+#: The largest finite half-float value.
+HALF_MAX = 65504.0
+
+
+def _fit_half(data: np.ndarray, display: str, policy: str) -> np.ndarray:
+    """Clamp finite values beyond ±HALF_MAX (policy "clamp") or refuse ("error")."""
+    import warnings
+
+    if policy not in ("clamp", "error"):
+        raise OutputError(f"{display}: half_overflow {policy!r} is not one of clamp, error")
+    over = np.isfinite(data) & (np.abs(data) > HALF_MAX)
+    n = int(over.sum())
+    if not n:
+        return data
+    peak = float(np.abs(data[over]).max())
+    if policy == "error":
+        raise OutputError(f"{display}: {n} value(s) exceed the half-float range (max {peak:g} > "
+                          f"{HALF_MAX:g}); write float, or lower the exposure")
+    warnings.warn(f"{display}: {n} value(s) above the half-float range (max {peak:g}) clamped to "
+                  f"±{HALF_MAX:g}", OutputWarning, stacklevel=3)
+    return np.clip(data, -HALF_MAX, HALF_MAX)
+
+
+def write_exr(path: str | os.PathLike, rgb: np.ndarray, *, pixel_type: str = "float",
+              compression: str = "zip", attributes: Mapping[str, object] | None = None,
+              channel_names: Sequence[str] = ("R", "G", "B"), tiled: bool = False,
+              half_overflow: str = "clamp") -> None:
+    """Write an image to an OpenEXR file atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination ``.exr`` file. It is replaced only if the write succeeds.
+    rgb : numpy.ndarray
+        (H, W, C) array with ``C == len(channel_names)`` (3 for the default
+        R, G, B), or (H, W) when there is one channel name. Converted to
+        float32; OpenImageIO rounds to half when ``pixel_type="half"``.
+    pixel_type : {"float", "half"}
+        Pixel type stored in the file.
+    compression : str
+        EXR compression (``"zip"``, ``"zips"``, ``"piz"``, ``"none"``,
+        ``"dwaa"``, ...), stored as the ``compression`` attribute.
+    attributes : mapping, optional
+        Header attributes, each applied with :func:`set_attribute` (so
+        ``spec.attribute(k, v)`` for scalars and strings), after
+        ``compression``.
+    channel_names : sequence of str
+        Names of the channels, in the order of the last axis of ``rgb``.
+    tiled : bool
+        Write a tiled file with 64x64 tiles instead of scanlines.
+    half_overflow : {"clamp", "error"}
+        Finite values beyond the half range (|x| > 65504) would become ±Inf in
+        a half file. ``"clamp"`` (default) clamps them to ±65504 and warns
+        (:class:`~clphong.core.errors.OutputWarning`, with the count);
+        ``"error"`` refuses to write. Never an unannounced Inf.
+
+    Raises
+    ------
+    OutputError
+        One-line message naming ``path``: a name not ending in ``.exr``, a bad
+        array shape or pixel type, a missing or read-only folder, or any OpenImageIO failure (with its
+        message). No partial file is left behind.
+    """
+    display = os.fspath(path)
+    check_output_path(display, exr=True)
+    names = [str(n) for n in channel_names]
+    arr = np.asarray(rgb)
+    if arr.ndim == 2 and len(names) == 1:
+        arr = arr[:, :, None]
+    if arr.ndim != 3 or arr.shape[2] != len(names) or len(names) == 0:
+        raise OutputError(f"{display}: expected an (H, W, {len(names)}) array for channels "
+                          f"{','.join(names)}, got shape {arr.shape}")
+    if len(set(names)) != len(names):
+        raise OutputError(f"{display}: duplicate channel names {','.join(names)}")
+    if pixel_type not in PIXEL_TYPES:
+        raise OutputError(f"{display}: pixel type {pixel_type!r} is not one of {', '.join(PIXEL_TYPES)}")
+    if arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise OutputError(f"{display}: cannot write an empty {arr.shape[1]}x{arr.shape[0]} image")
+    data = np.ascontiguousarray(arr, dtype=np.float32)
+    if pixel_type == "half":
+        data = _fit_half(data, display, half_overflow)
+    h, w, c = data.shape
+
+    spec = oiio.ImageSpec(w, h, c, oiio.TypeDesc(pixel_type))
+    spec.channelnames = tuple(names)
+    spec.alpha_channel = names.index("A") if "A" in names else -1
+    spec.attribute("compression", str(compression))
+    if tiled:
+        spec.tile_width = 64
+        spec.tile_height = 64
+        spec.tile_depth = 1
+    for key, value in (attributes or {}).items():
+        set_attribute(spec, str(key), value)
+    # A colorInteropID copied from another image's header (OpenImageIO keeps the
+    # source's on converted buffers) would mislabel the file: drop it, and
+    # OpenImageIO writes the one that matches oiio:ColorSpace.
+    spec.erase_attribute("colorInteropID")
+
+    write_image_atomically(display, spec, data, what="an EXR writer")

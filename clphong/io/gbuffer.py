@@ -1,0 +1,1036 @@
+"""Reading (and writing) G-buffers from OpenEXR files, by channel NAME.
+
+A G-buffer holds, per pixel, the world-space position ``P``, the world-space
+normal ``N`` (as stored, not normalised) and the diffuse albedo ``C_d``;
+optionally a coverage (alpha) and per-pixel material maps. Channels are always
+looked up by their names in the EXR header (``spec.channelnames``), never by
+their index, so the channel order in the file does not matter.
+
+Accepted channel names
+----------------------
+A *vector layer* ``L`` matches the channels ``L.X, L.Y, L.Z``, else
+``L.x, L.y, L.z``, else ``L.R, L.G, L.B``, else ``L.r, L.g, L.b``. A
+*scalar* ``S`` matches the channel ``S`` itself, or the only channel of a
+one-channel layer ``S.*`` (e.g. Blender's value AOV ``k_s.X``).
+
+The conventions are tried in this order; the first one that has all of
+position, normal and albedo wins:
+
+``generic``
+    position ``P``, normal ``N``, albedo ``albedo`` (all vector layers).
+``arnold``
+    Arnold AOVs: position ``P``, normal ``N``, albedo ``albedo`` or
+    ``diffuse_albedo``. Reported as ``arnold`` rather than ``generic`` when
+    the albedo is ``diffuse_albedo``, when ``P`` or ``N`` use R/G/B
+    components, or when the header has ``arnold/*`` attributes.
+``mitsuba``
+    Mitsuba 3's ``aov`` integrator: position ``pos``, normal ``sh_normal``
+    (else ``geo_normal``), albedo ``albedo``.
+``blender``
+    Cycles/EEVEE multilayer EXR: ``<ViewLayer>.Position``,
+    ``<ViewLayer>.Normal`` and ``<ViewLayer>.DiffCol`` or (newer Blender)
+    ``<ViewLayer>.Diffuse Color``. ``<ViewLayer>`` is any view-layer name
+    (``ViewLayer``, ``RenderLayer``, ...) and may be absent (compositor File
+    Output). With several view layers the first complete one, in channel
+    order, is used; ``GBuffer.sources`` names it.
+``rgb-files``
+    Separate files, one per buffer (``position=``, ``normal=``,
+    ``albedo=``), each holding just that buffer as plain ``R, G, B`` (or
+    ``X, Y, Z``, ``x, y, z``, ``r, g, b``). A separate file may also hold the
+    buffer as a layer of any convention above, which is preferred.
+``explicit``
+    Position, normal and albedo all named through ``channels=``.
+
+Coverage (``0`` = background), first found of: for Blender
+``<ViewLayer>.Combined.A`` and ``<ViewLayer>.Alpha``; then ``A``,
+``RGBA.A`` and the albedo layer's ``.A`` (e.g. ``albedo.A``).
+
+Material maps (optional; Blender names may carry the view-layer prefix):
+``k_d`` (scalar) -> ``maps["k_d"]``; ``k_s`` (scalar) -> ``maps["k_s"]``;
+``shininess`` (scalar) -> ``maps["h"]``; ``specular_color`` or ``Cs``
+(vector layer) -> ``maps["specular_color"]``.
+
+``channels=`` (or ``--channels KEY=VALUE`` on the command line) overrides
+detection per buffer; keys are ``position``, ``normal``, ``albedo``,
+``coverage``, ``k_d``, ``k_s``, ``h`` and ``specular_color``. A value is a
+layer prefix (``"Pworld"`` -> ``Pworld.X/Y/Z``, ``.x/y/z`` or ``.R/G/B``;
+for a scalar key the exact channel name or a one-channel layer) or an explicit
+list, or comma-separated string, of exact channel names (3 for vector
+buffers, 1 for scalars).
+
+Half and float pixels, scanline and tiled files are read; the result is
+always float32. Deep and multi-part EXR files are rejected. If the data
+window differs from the display window the pixels are placed in the display
+window and the rest is zero (background). Separate files may have different
+data windows: a pixel is shaded only where position, normal and albedo all
+have data (elsewhere it is background); data windows that do not overlap at
+all are an error. Reading is refused, with the sizes, when the channels would
+not fit in memory (see :mod:`clphong.device.bands`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import OpenImageIO as oiio
+
+from ..core.errors import GBufferError
+from ..core.files import image_signature
+from ..core.memory import require_memory
+from .atomic import PIXEL_TYPES, _one_line, write_exr
+from .nonfinite import all_finite
+
+__all__ = ["GBuffer", "read_gbuffer", "write_gbuffer", "parse_channel_mapping",
+           "CHANNEL_KEYS", "VECTOR_KEYS", "SCALAR_KEYS", "WRITE_CONVENTIONS"]
+
+#: The three buffers every G-buffer needs.
+REQUIRED = ("position", "normal", "albedo")
+#: Keys of ``channels=`` that name 3-channel buffers.
+VECTOR_KEYS = ("position", "normal", "albedo", "specular_color")
+#: Keys of ``channels=`` that name 1-channel buffers.
+SCALAR_KEYS = ("coverage", "k_d", "k_s", "h")
+#: Every valid key of ``channels=``, in a stable order.
+CHANNEL_KEYS = ("position", "normal", "albedo", "coverage", "k_d", "k_s", "h", "specular_color")
+#: Optional buffers: coverage and the material maps.
+OPTIONAL = ("coverage", "k_d", "k_s", "h", "specular_color")
+MAP_KEYS = ("k_d", "k_s", "h", "specular_color")
+#: Conventions :func:`write_gbuffer` can write.
+WRITE_CONVENTIONS = ("generic", "blender", "blender-new", "arnold", "mitsuba")
+
+_COMPONENTS = (("X", "Y", "Z"), ("x", "y", "z"), ("R", "G", "B"), ("r", "g", "b"))
+
+_LOOKED_FOR = {
+    "position": "P.X/Y/Z (or .x/y/z, .R/G/B), pos.*, <ViewLayer>.Position.*",
+    "normal": "N.*, sh_normal.*, geo_normal.*, <ViewLayer>.Normal.*",
+    "albedo": "albedo.*, diffuse_albedo.*, <ViewLayer>.DiffCol.*, <ViewLayer>.Diffuse Color.*",
+}
+
+# Layer names of each required buffer per convention (single-file detection).
+_GENERIC_LAYERS = {"position": ("P",), "normal": ("N",), "albedo": ("albedo", "diffuse_albedo")}
+_MITSUBA_LAYERS = {"position": ("pos",), "normal": ("sh_normal", "geo_normal"), "albedo": ("albedo",)}
+_BLENDER_PASSES = {"position": ("Position",), "normal": ("Normal",), "albedo": ("DiffCol", "Diffuse Color")}
+
+
+# --------------------------------------------------------------------------- GBuffer
+
+
+@dataclass
+class GBuffer:
+    """A G-buffer: per-pixel world-space position, normal and albedo.
+
+    Attributes
+    ----------
+    position : numpy.ndarray
+        (H, W, 3) float32, C-contiguous, world-space position ``P``.
+    normal : numpy.ndarray
+        (H, W, 3) float32, world-space normal ``N`` as stored (not
+        normalised).
+    albedo : numpy.ndarray
+        (H, W, 3) float32 diffuse colour ``C_d``.
+    coverage : numpy.ndarray or None
+        (H, W) float32 alpha/coverage if the file has it; 0 is background.
+    maps : dict of str to numpy.ndarray
+        Optional per-pixel material maps, only those present: ``"k_d"``,
+        ``"k_s"``, ``"h"`` (shininess), each (H, W), and
+        ``"specular_color"`` (H, W, 3); float32.
+    convention : str
+        Detected naming convention: ``"generic"``, ``"blender"``,
+        ``"arnold"``, ``"mitsuba"``, ``"rgb-files"`` or ``"explicit"``.
+    sources : dict of str to str
+        Buffer name -> ``"file.exr: P.X,P.Y,P.Z"`` (for messages and
+        ``inspect``).
+    attributes : dict of str to object
+        Header attributes of the (first) file, e.g. ``"worldToCamera"``.
+    """
+
+    position: np.ndarray
+    normal: np.ndarray
+    albedo: np.ndarray
+    coverage: np.ndarray | None = None
+    maps: dict[str, np.ndarray] = field(default_factory=dict)
+    convention: str = "explicit"
+    sources: dict[str, str] = field(default_factory=dict)
+    attributes: dict[str, object] = field(default_factory=dict)
+
+    def __post_init__(self):
+        shp = np.shape(self.position)
+        if len(shp) != 3 or shp[2] != 3:
+            raise GBufferError(f"position must be an (H, W, 3) array, got shape {shp}")
+        for name in ("normal", "albedo"):
+            if np.shape(getattr(self, name)) != shp:
+                raise GBufferError(f"{name} has shape {np.shape(getattr(self, name))} "
+                                   f"but position has {shp}")
+        if self.coverage is not None and np.shape(self.coverage) != shp[:2]:
+            raise GBufferError(f"coverage has shape {np.shape(self.coverage)}, expected {shp[:2]}")
+        for key, arr in self.maps.items():
+            want = shp if key == "specular_color" else shp[:2]
+            if np.shape(arr) != want:
+                raise GBufferError(f"material map {key} has shape {np.shape(arr)}, expected {want}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W): the image size in pixels."""
+        return (int(self.position.shape[0]), int(self.position.shape[1]))
+
+    def background_mask(self) -> np.ndarray:
+        """Pixels that are background and must not be shaded.
+
+        Returns
+        -------
+        numpy.ndarray
+            (H, W) bool, True where the coverage is 0, where the normal has
+            zero length (``|N|^2`` is computed in float64, so a denormal
+            normal is *not* background), or where any normal component is
+            not finite.
+        """
+        n = np.asarray(self.normal)
+        x, y, z = n[..., 0], n[..., 1], n[..., 2]
+        # |N|² = 0 in float64 exactly where every component is 0 (the square of
+        # the smallest float32 or half denormal, about 2e-90, is a normal float64).
+        mask = (x == 0) & (y == 0) & (z == 0)
+
+        if not all_finite(n):                              # the common case, cheaply
+            mask |= ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(z))
+        if self.coverage is not None:
+            mask |= np.asarray(self.coverage) == 0
+        return mask
+
+
+# --------------------------------------------------------------------------- channel mapping
+
+
+def _show(name: str) -> str:
+    """A channel name for a message: escaped when it has control or undecodable
+    characters (a newline, found by fuzzing), so that the message stays one line."""
+    return name if name.isprintable() else repr(name)
+
+
+def _short(names: Sequence[str], limit: int = 16) -> str:
+    names = [_show(n) for n in names]
+    if not names:
+        return "(no channels)"
+    if len(names) <= limit:
+        return ", ".join(names)
+    return ", ".join(names[:limit]) + f", ... (+{len(names) - limit} more)"
+
+
+def _normalise_mapping(channels) -> dict[str, tuple[str, object]]:
+    """Validate ``channels=``; return key -> ("prefix"|"name"|"list", value)."""
+    if channels is None:
+        return {}
+    if not isinstance(channels, Mapping):
+        raise GBufferError(f"channels must be a mapping of key to channel names, "
+                           f"got {type(channels).__name__}")
+    out: dict[str, tuple[str, object]] = {}
+    for key, value in channels.items():
+        if key not in CHANNEL_KEYS:
+            raise GBufferError(f"unknown channel mapping key {key!r}; valid keys: {', '.join(CHANNEL_KEYS)}")
+        want = 3 if key in VECTOR_KEYS else 1
+        if isinstance(value, str):
+            parts = [p.strip() for p in value.split(",")] if "," in value else None
+            if parts is None:
+                if not value.strip():
+                    raise GBufferError(f"channel mapping {key}= is empty; give a layer prefix or "
+                                       f"{want} channel name(s)")
+                out[key] = ("prefix" if want == 3 else "name", value.strip())
+                continue
+        elif isinstance(value, Sequence):
+            parts = [str(p).strip() for p in value]
+        else:
+            raise GBufferError(f"channel mapping {key}: expected a string or a list of channel "
+                               f"names, got {type(value).__name__}")
+        if any(not p for p in parts):
+            raise GBufferError(f"channel mapping {key}={','.join(map(_show, parts))} has an empty channel name")
+        if len(parts) != want:
+            raise GBufferError(f"channel mapping {key}={','.join(map(_show, parts))}: {key} needs {want} "
+                               f"channel name{'s' if want > 1 else ''}, got {len(parts)}")
+        out[key] = ("list", parts)
+    return out
+
+
+def parse_channel_mapping(items: Sequence[str]) -> dict[str, str | list[str]]:
+    """Parse the command-line form ``--channels KEY=VALUE`` (repeatable).
+
+    Parameters
+    ----------
+    items : sequence of str
+        Items like ``"position=P.X,P.Y,P.Z"`` or ``"normal=Nw"``.
+
+    Returns
+    -------
+    dict
+        Key -> layer prefix (str) or list of channel names, suitable for
+        ``read_gbuffer(..., channels=...)``.
+
+    Raises
+    ------
+    GBufferError
+        Naming the bad item: no ``=``, an unknown key, an empty value, a
+        wrong number of channel names, or a key given twice.
+
+    Examples
+    --------
+    >>> parse_channel_mapping(["position=P.X,P.Y,P.Z", "normal=Nw"])
+    {'position': ['P.X', 'P.Y', 'P.Z'], 'normal': 'Nw'}
+    """
+    if isinstance(items, str):
+        items = [items]
+    result: dict[str, str | list[str]] = {}
+    for item in items:
+        if "=" not in item:
+            raise GBufferError(f"--channels {item!r}: expected KEY=CHANNELS, e.g. position=P.X,P.Y,P.Z")
+        key, value = (s.strip() for s in item.split("=", 1))
+        if key not in CHANNEL_KEYS:
+            raise GBufferError(f"--channels {item!r}: unknown key {key!r}; valid keys: {', '.join(CHANNEL_KEYS)}")
+        if key in result:
+            raise GBufferError(f"--channels {item!r}: {key} is given more than once")
+        if not value:
+            raise GBufferError(f"--channels {item!r}: no channels after '='")
+        parsed: str | list[str] = [p.strip() for p in value.split(",")] if "," in value else value
+        try:
+            _normalise_mapping({key: parsed})
+        except GBufferError as exc:
+            raise GBufferError(f"--channels {item!r}: {exc}") from None
+        result[key] = parsed
+    return result
+
+
+# --------------------------------------------------------------------------- channel lookup
+
+
+class _Channels:
+    """Channel names of one file, with name lookup helpers."""
+
+    def __init__(self, names: Sequence[str]):
+        self.names = list(names)
+        self.set = set(self.names)
+        self.layers: dict[str, list[str]] = {}
+        for n in self.names:
+            if "." in n:
+                self.layers.setdefault(n.rsplit(".", 1)[0], []).append(n)
+
+    def vector(self, layer: str) -> list[str] | None:
+        """Channels of vector layer ``layer`` ("" = plain R,G,B / X,Y,Z)."""
+        for comps in _COMPONENTS:
+            chans = [f"{layer}.{c}" if layer else c for c in comps]
+            if all(c in self.set for c in chans):
+                return chans
+        return None
+
+    def scalar(self, name: str, path: str, key: str) -> list[str] | None:
+        """The channel ``name`` or the only channel of layer ``name``."""
+        if name in self.set:
+            return [name]
+        chans = self.layers.get(name)
+        if not chans:
+            return None
+        if len(chans) == 1:
+            return chans
+        raise GBufferError(f"{path}: layer {name!r} has {len(chans)} channels ({_short(chans, 6)}) "
+                           f"but {key} needs one; choose it with --channels {key}={chans[0]}")
+
+    def blender_prefixes(self) -> list[str]:
+        """View-layer prefixes ("ViewLayer." or "") of Blender passes, in channel order."""
+        prefixes: list[str] = []
+        passes = tuple(p for names in _BLENDER_PASSES.values() for p in names)
+        for layer in self.layers:
+            for p in passes:
+                if layer == p or layer.endswith("." + p):
+                    prefix = layer[: len(layer) - len(p)]
+                    if prefix not in prefixes:
+                        prefixes.append(prefix)
+        return prefixes
+
+
+@dataclass
+class _Layout:
+    """How one file names its buffers: convention, Blender prefix, found channels."""
+
+    convention: str
+    prefix: str = ""                                   # Blender view layer + "." (or "")
+    found: dict[str, list[str]] = field(default_factory=dict)
+    albedo_layer: str | None = None
+
+    @property
+    def view_layer(self) -> str | None:
+        return self.prefix[:-1] if self.prefix else None
+
+
+def _layer_of(chans: list[str]) -> str | None:
+    return chans[0].rsplit(".", 1)[0] if "." in chans[0] else None
+
+
+def _is_rgb(chans: list[str] | None) -> bool:
+    return bool(chans) and chans[0].rsplit(".", 1)[-1] in ("R", "r")
+
+
+def _candidate_layouts(ch: _Channels, attributes: Mapping[str, object]) -> list[_Layout]:
+    """Every convention's view of a multichannel file, in detection order."""
+    def first_present(candidates: Mapping[str, Sequence[str]]) -> dict:
+        """For each buffer, the channels of the first candidate layer present."""
+        found = {}
+        for key, layers in candidates.items():
+            for layer in layers:
+                chans = ch.vector(layer)
+                if chans:
+                    found[key] = chans
+                    break
+        return found
+
+    layouts = []
+    # generic / arnold
+    found = first_present(_GENERIC_LAYERS)
+    arnold = (found.get("albedo", [""])[0].startswith("diffuse_albedo.")
+              or _is_rgb(found.get("position")) or _is_rgb(found.get("normal"))
+              or any(str(k).startswith("arnold/") for k in attributes))
+    layouts.append(_Layout("arnold" if arnold else "generic", "", found,
+                           _layer_of(found["albedo"]) if "albedo" in found else None))
+    # mitsuba
+    found = first_present(_MITSUBA_LAYERS)
+    layouts.append(_Layout("mitsuba", "", found, "albedo" if "albedo" in found else None))
+    # blender, one layout per view layer
+    for prefix in ch.blender_prefixes():
+        found = {}
+        for key, passes in _BLENDER_PASSES.items():
+            for p in passes:
+                chans = ch.vector(prefix + p)
+                if chans:
+                    found[key] = chans
+                    break
+        layouts.append(_Layout("blender", prefix, found,
+                               _layer_of(found["albedo"]) if "albedo" in found else None))
+    return layouts
+
+
+def _detect_single(ch: _Channels, key: str, attributes: Mapping[str, object]) -> _Layout | None:
+    """Find one required buffer in a file given for that buffer alone."""
+    for layout in _candidate_layouts(ch, attributes):
+        if key in layout.found:
+            return _Layout(layout.convention, layout.prefix, {key: layout.found[key]},
+                           layout.albedo_layer if key == "albedo" else None)
+    chans = ch.vector("")
+    if chans:
+        return _Layout("rgb-files", "", {key: chans}, None)
+    return None
+
+
+def _find_optional(ch: _Channels, key: str, layout: _Layout, path: str) -> list[str] | None:
+    """Detect coverage or a material map in a file described by ``layout``."""
+    prefixes = [layout.prefix, ""] if layout.prefix else [""]
+    if key == "coverage":
+        if layout.convention == "blender":
+            for pre in prefixes:
+                for name in (pre + "Combined.A", pre + "Alpha"):
+                    chans = ch.scalar(name, path, key)
+                    if chans:
+                        return chans
+        for name in ("A", "RGBA.A"):
+            if name in ch.set:
+                return [name]
+        if layout.albedo_layer and f"{layout.albedo_layer}.A" in ch.set:
+            return [f"{layout.albedo_layer}.A"]
+        return None
+    if key == "specular_color":
+        for pre in prefixes:
+            for layer in ("specular_color", "Cs"):
+                chans = ch.vector(pre + layer)
+                if chans:
+                    return chans
+        return None
+    name = "shininess" if key == "h" else key
+    for pre in prefixes:
+        chans = ch.scalar(pre + name, path, key)
+        if chans:
+            return chans
+    return None
+
+
+def _explicit(ch: _Channels, key: str, spec: tuple[str, object], path: str,
+              required: bool = True) -> list[str] | None:
+    """Resolve an explicit ``channels=`` entry in one file (None if absent and not required)."""
+    kind, value = spec
+    if kind == "list":
+        missing = [c for c in value if c not in ch.set]
+        if not missing:
+            return list(value)
+        if not required:
+            return None
+        raise GBufferError(f"{path}: channel {missing[0]!r} ({key}, from channels "
+                           f"{key}={','.join(map(_show, value))}) not found; the file has: {_short(ch.names)}")
+    if kind == "prefix":
+        chans = ch.vector(value)
+        if chans or not required:
+            return chans
+        raise GBufferError(f"{path}: no layer {value!r} with .X/.Y/.Z, .x/.y/.z or .R/.G/.B "
+                           f"channels ({key}, from channels {key}={value}); the file has: {_short(ch.names)}")
+    chans = ch.scalar(value, path, key)
+    if chans or not required:
+        return chans
+    raise GBufferError(f"{path}: channel {value!r} ({key}, from channels {key}={value}) not found; "
+                       f"the file has: {_short(ch.names)}")
+
+
+# --------------------------------------------------------------------------- file access
+
+
+def _oiio_message(geterror) -> str:
+    """OpenImageIO's pending error as one line; its binding fails on non-UTF-8 text."""
+    try:
+        text = geterror()             # reading it clears it: call once
+    except UnicodeDecodeError:
+        return "OpenImageIO's message is not UTF-8 text (a corrupt file?)"
+    return _one_line(text) if text else ""
+
+
+def _signature_format(path: str) -> str | None:
+    """The other image format ('a PNG', …) whose magic number ``path`` starts with,
+    if any. Such a file is refused before OpenImageIO opens it: its PNG reader,
+    given a broken PNG, prints libpng's complaint on stderr beside clphong's line."""
+    try:
+        with open(path, "rb") as f:
+            kind = image_signature(f.read(16))
+    except OSError:
+        return None           # OpenImageIO says why
+    return None if kind == "an OpenEXR" else kind
+
+
+@contextlib.contextmanager
+def _c_stderr_captured():
+    """Send what C libraries write on file descriptor 2 to a temporary file (yielded)
+    for the duration, so that it can join a one-line message instead of preceding it."""
+    with tempfile.TemporaryFile() as tmp:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield tmp
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+
+
+def open_image(path: str, *, what: str = "an EXR file", verb: str = "read as EXR"):
+    """``oiio.ImageInput.open(path)`` with one-line errors naming the file.
+
+    Raises :class:`GBufferError` for a missing path, a folder (``"is a
+    directory, not {what}"``), for an EXR, a file with another format's
+    signature, or a file OpenImageIO cannot open (``"cannot {verb}: …"``).
+    Shared by the G-buffer reader and ``clphong inspect``; for the latter (any
+    format) what a C library prints while opening joins the message.
+    """
+    if not os.path.exists(path):
+        raise GBufferError(f"{path}: file not found")
+    if os.path.isdir(path):
+        raise GBufferError(f"{path}: is a directory, not {what}")
+    exr = what == "an EXR file"
+    fmt = _signature_format(path) if exr else None
+    if fmt is not None:
+        raise GBufferError(f"{path}: not an OpenEXR file (it is {fmt} file)")
+    if exr:
+        inp = oiio.ImageInput.open(path)
+        noise = ""
+    else:
+        with _c_stderr_captured() as tmp:
+            inp = oiio.ImageInput.open(path)
+            tmp.seek(0)
+            noise = tmp.read().decode("utf-8", "replace")
+    if inp is None:
+        message = _oiio_message(oiio.geterror) or _one_line(noise) or "unknown error"
+        raise GBufferError(f"{path}: cannot {verb}: {message}")
+    return inp
+
+
+class _ExrFile:
+    """One opened EXR file: validated spec, channel names, pixel reads."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = os.fspath(path)
+        p = self.path
+        inp = open_image(p)
+        self.inp = inp
+        try:
+            fmt = inp.format_name()
+            if fmt != "openexr":
+                raise GBufferError(f"{p}: not an OpenEXR file (OpenImageIO reads it as {fmt})")
+            spec = inp.spec()
+            nparts = spec.get_int_attribute("oiio:subimages", 1)
+            if nparts <= 1 and inp.seek_subimage(1, 0):
+                nparts = 2
+            inp.seek_subimage(0, 0)
+            if nparts > 1:
+                raise GBufferError(f"{p}: multi-part EXR files ({nparts} parts) are not supported: "
+                                   "split the parts (oiiotool --subimage) and pass them with "
+                                   "--position/--normal/--albedo, naming channels with --channels")
+            if spec.deep:
+                raise GBufferError(f"{p}: deep EXR files are not supported; flatten it first "
+                                   "(e.g. oiiotool --flatten)")
+            if spec.depth > 1:
+                raise GBufferError(f"{p}: volume images (depth {spec.depth}) are not supported")
+            if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
+                raise GBufferError(f"{p}: empty image ({spec.width}x{spec.height}, "
+                                   f"{spec.nchannels} channels)")
+            # OpenImageIO's binding decodes header text as UTF-8 (found by fuzzing).
+            try:
+                names = spec.channelnames
+                attributes = {a.name: a.value for a in spec.extra_attribs}
+            except UnicodeDecodeError:
+                raise GBufferError(f"{p}: cannot read as EXR: the header has channel or attribute "
+                                   "names that are not UTF-8 text (a corrupt file?)") from None
+        except BaseException:
+            inp.close()
+            raise
+        self.spec = spec
+        self.channels = _Channels(names)
+        self.attributes = attributes
+        self.size = (int(spec.full_width) or int(spec.width), int(spec.full_height) or int(spec.height))
+        self._data: dict[str, np.ndarray] = {}
+
+    def close(self):
+        if self.inp is not None:
+            self.inp.close()
+            self.inp = None
+
+    def runs(self, names: Sequence[str]) -> list[list[int]]:
+        """Channel indices of ``names`` not yet loaded, grouped in runs read together."""
+        index = {n: i for i, n in enumerate(self.spec.channelnames)}
+        wanted = sorted({index[n] for n in names if n not in self._data})
+        runs: list[list[int]] = []
+        for i in wanted:
+            if runs and i - runs[-1][-1] <= 8:
+                runs[-1].append(i)
+            else:
+                runs.append([i])
+        return runs
+
+    def window(self) -> tuple[int, int, int, int]:
+        """The data window in display-window pixels, clipped: (x0, y0, x1, y1), x1/y1 exclusive."""
+        s = self.spec
+        fw, fh = self.size
+        x0, y0 = s.x - s.full_x, s.y - s.full_y
+        return (min(max(x0, 0), fw), min(max(y0, 0), fh),
+                max(min(x0 + s.width, fw), 0), max(min(y0 + s.height, fh), 0))
+
+    def load_bytes(self, names: Sequence[str]) -> int:
+        """Peak bytes :meth:`load` allocates for ``names`` (see ``_check_read_memory``)."""
+        runs = self.runs(names)
+        if not runs:
+            return 0
+        data_px = int(self.spec.width) * int(self.spec.height)
+        lengths = [run[-1] + 1 - run[0] for run in runs]
+        s = self.spec
+        # OpenImageIO reads whole tiles, all channels, in the file's type and in
+        # float: a header claiming 10560x16384 tiles on a 4x3 image made it
+        # allocate 9 GB (found by fuzzing with atheris).
+        tile = 8 * max(int(s.tile_width), 0) * max(int(s.tile_height), 0) * max(int(s.nchannels), 1)
+        if (s.x, s.y, s.width, s.height) == (s.full_x, s.full_y, *self.size):
+            return tile + 4 * data_px * sum(lengths)   # planes stay views of the runs read
+        display_px = self.size[0] * self.size[1]       # planes are copied into the display window
+        return tile + 4 * (display_px * sum(len(r) for r in runs) + data_px * max(lengths))
+
+    def load(self, names: Sequence[str]) -> None:
+        """Read channels ``names`` (in runs of nearby channels) into the cache."""
+        for run in self.runs(names):
+            lo, hi = run[0], run[-1] + 1
+            pix = self.inp.read_image(0, 0, lo, hi, oiio.TypeDesc("float"))
+            if pix is None:
+                msg = (_oiio_message(self.inp.geterror) or _oiio_message(oiio.geterror)
+                       or "unknown error")
+                raise GBufferError(f"{self.path}: reading channels "
+                                   f"{','.join(map(_show, self.spec.channelnames[lo:hi]))} failed: {msg}")
+            pix = np.asarray(pix, dtype=np.float32).reshape(self.spec.height, self.spec.width, hi - lo)
+            for i in run:
+                self._data[self.spec.channelnames[i]] = self._fit(pix[:, :, i - lo])
+
+    def _fit(self, plane: np.ndarray) -> np.ndarray:
+        """Place a data-window plane in the display window (zeros outside)."""
+        s = self.spec
+        fw, fh = self.size
+        if (s.x, s.y, s.width, s.height) == (s.full_x, s.full_y, fw, fh):
+            return plane
+        out = np.zeros((fh, fw), np.float32)
+        x0, y0 = s.x - s.full_x, s.y - s.full_y
+        dx0, dy0 = max(x0, 0), max(y0, 0)
+        dx1, dy1 = min(x0 + s.width, fw), min(y0 + s.height, fh)
+        if dx1 > dx0 and dy1 > dy0:
+            out[dy0:dy1, dx0:dx1] = plane[dy0 - y0:dy1 - y0, dx0 - x0:dx1 - x0]
+        return out
+
+    def stack(self, names: Sequence[str]) -> np.ndarray:
+        """(H, W, len(names)) float32 array of loaded channels, C-contiguous."""
+        return np.ascontiguousarray(np.stack([self._data[n] for n in names], axis=-1), dtype=np.float32)
+
+
+def _source(f: _ExrFile, chans: list[str], layout: _Layout | None) -> str:
+    text = f"{f.path}: {','.join(chans)}"
+    if layout is not None and layout.view_layer:
+        text += f" (view layer {layout.view_layer!r})"
+    return text
+
+
+def _detect_main(f: _ExrFile, needed: Sequence[str]) -> _Layout:
+    """Pick the first convention of the main file that has every needed buffer."""
+    layouts = _candidate_layouts(f.channels, f.attributes)
+    for layout in layouts:
+        if all(k in layout.found for k in needed):
+            return layout
+    best = max(layouts, key=lambda lo: sum(k in lo.found for k in needed))
+    missing = [k for k in needed if k not in best.found]
+    where = f" in view layer {best.view_layer!r}" if best.view_layer and len(missing) < len(needed) else ""
+    looked = "; ".join(f"{k}: {_LOOKED_FOR[k]}" for k in missing)
+    hint = f"name them with --channels {missing[0]}=LAYER or {missing[0]}=CH1,CH2,CH3"
+    if not any(lo.found for lo in layouts) and f.channels.vector(""):
+        hint = ("a plain R,G,B file holds one buffer: pass such files with --position, --normal "
+                "and --albedo (position=, normal=, albedo=)")
+    raise GBufferError(f"{f.path}: no {', '.join(missing)} channels found{where} (looked for {looked}); "
+                       f"the file has: {_short(f.channels.names)}; {hint}")
+
+
+# --------------------------------------------------------------------------- read_gbuffer
+
+
+def read_gbuffer(path: str | os.PathLike | None = None, *, position: str | os.PathLike | None = None,
+                 normal: str | os.PathLike | None = None, albedo: str | os.PathLike | None = None,
+                 channels: Mapping[str, str | Sequence[str]] | None = None) -> GBuffer:
+    """Read a G-buffer from one multichannel EXR or from separate files.
+
+    Parameters
+    ----------
+    path : str or os.PathLike, optional
+        A multichannel EXR holding the buffers (and optionally coverage and
+        material maps). May be omitted when all of ``position``, ``normal``
+        and ``albedo`` are given.
+    position, normal, albedo : str or os.PathLike, optional
+        A file holding just that buffer (a layer of any convention, or plain
+        R,G,B / X,Y,Z), overriding ``path`` for that buffer.
+    channels : mapping, optional
+        Explicit channel names per key (``position``, ``normal``,
+        ``albedo``, ``coverage``, ``k_d``, ``k_s``, ``h``,
+        ``specular_color``): a layer prefix, or a list / comma-separated
+        string of exact channel names (3 for vectors, 1 for scalars). See
+        :func:`parse_channel_mapping` for the command-line form.
+
+    Returns
+    -------
+    GBuffer
+        float32 arrays; coverage and maps when present; the detected
+        ``convention``, the ``sources`` of each buffer and the header
+        ``attributes`` of the first file (``path``, else ``position``).
+
+    Raises
+    ------
+    GBufferError
+        One line naming the file (and channel): a missing, unreadable,
+        non-EXR, deep or multi-part file; missing position, normal or albedo
+        channels (with what was looked for and what the file has); separate
+        files of different sizes; a bad or unknown ``channels`` entry.
+
+    Notes
+    -----
+    Coverage and maps are searched in ``path`` first, then in the position,
+    normal and albedo files; the first file that has one provides it. The
+    accepted names of each convention are listed in the module docstring.
+    """
+    mapping = _normalise_mapping(channels)
+    overrides = {"position": position, "normal": normal, "albedo": albedo}
+    lacking = [k for k in REQUIRED if path is None and overrides[k] is None]
+    if lacking:
+        raise GBufferError(f"no G-buffer file for {', '.join(lacking)}: give a multichannel EXR, "
+                           "or --position, --normal and --albedo files")
+    main = os.fspath(path) if path is not None else None
+    src = {k: os.fspath(overrides[k]) if overrides[k] is not None else main for k in REQUIRED}
+
+    order: list[str] = []
+    for p in [main, *src.values()]:
+        if p is not None and p not in order:
+            order.append(p)
+    files: dict[str, _ExrFile] = {}
+    try:
+        for p in order:
+            files[p] = _ExrFile(p)
+        _check_sizes(files, src, main)
+        resolved: dict[str, tuple[_ExrFile, list[str], _Layout | None]] = {}
+        layouts: dict[str, _Layout] = {}          # file path -> layout for optional lookups
+        conventions: dict[str, str] = {}
+
+        for key in REQUIRED:
+            if key in mapping:
+                f = files[src[key]]
+                resolved[key] = (f, _explicit(f.channels, key, mapping[key], f.path), None)
+                conventions[key] = "explicit"
+        if main is not None:
+            f = files[main]
+            needed = [k for k in REQUIRED if k not in resolved and src[k] == main]
+            layout = _detect_main(f, needed) if needed else _fallback_layout(f)
+            layouts[main] = layout
+            for key in needed:
+                resolved[key] = (f, layout.found[key], layout)
+                conventions[key] = layout.convention
+        for key in REQUIRED:
+            if key in resolved:
+                continue
+            f = files[src[key]]
+            layout = _detect_single(f.channels, key, f.attributes)
+            if layout is None:
+                raise GBufferError(
+                    f"{f.path}: no {key} channels found (looked for {_LOOKED_FOR[key]}, "
+                    f"or plain R,G,B / X,Y,Z); the file has: {_short(f.channels.names)}; "
+                    f"name them with --channels {key}=LAYER or {key}=CH1,CH2,CH3")
+            layouts.setdefault(f.path, layout)
+            resolved[key] = (f, layout.found[key], layout)
+            conventions[key] = layout.convention
+
+        # Optional buffers: first file (main, position, normal, albedo) that has them.
+        optional: dict[str, tuple[_ExrFile, list[str], _Layout | None]] = {}
+        for key in OPTIONAL:
+            for p in order:
+                f = files[p]
+                layout = layouts.get(p)
+                if key in mapping:
+                    chans = _explicit(f.channels, key, mapping[key], f.path, required=False)
+                else:
+                    if layout is None:
+                        layout = _fallback_layout(f)
+                        layouts[p] = layout
+                    chans = _find_optional(f.channels, key, layout, f.path)
+                if chans:
+                    optional[key] = (f, chans, layout)
+                    break
+            else:
+                if key in mapping:
+                    kind, value = mapping[key]
+                    shown = ",".join(map(_show, value)) if kind == "list" else _show(value)
+                    raise GBufferError(f"{', '.join(order)}: channel(s) {shown!r} for {key} "
+                                       f"(from channels {key}={shown}) not found in any file")
+
+        wanted: dict[str, list[str]] = {}
+        for f, chans, _ in (*resolved.values(), *optional.values()):
+            wanted.setdefault(f.path, []).extend(chans)
+        _check_read_memory(files, wanted)
+        for p, names in wanted.items():
+            files[p].load(names)
+
+        arrays = {k: f.stack(chans) for k, (f, chans, _) in resolved.items()}
+        _background_outside_data_windows(arrays, {k: f for k, (f, _, _) in resolved.items()})
+        coverage = None
+        maps: dict[str, np.ndarray] = {}
+        for key, (f, chans, _) in optional.items():
+            arr = f.stack(chans)
+            if key == "coverage":
+                coverage = np.ascontiguousarray(arr[..., 0])
+            elif key == "specular_color":
+                maps[key] = arr
+            else:
+                maps[key] = np.ascontiguousarray(arr[..., 0])
+        sources = {k: _source(f, chans, lo) for k, (f, chans, lo) in (*resolved.items(), *optional.items())}
+        non_explicit = [conventions[k] for k in REQUIRED if conventions[k] != "explicit"]
+        convention = non_explicit[0] if non_explicit else "explicit"
+        attributes = dict(files[order[0]].attributes)
+    finally:
+        for f in files.values():
+            f.close()
+    return GBuffer(position=arrays["position"], normal=arrays["normal"], albedo=arrays["albedo"],
+                   coverage=coverage, maps={k: maps[k] for k in MAP_KEYS if k in maps},
+                   convention=convention, sources=sources, attributes=attributes)
+
+
+def _check_read_memory(files: Mapping[str, _ExrFile], wanted: Mapping[str, list[str]]) -> None:
+    """Refuse to read channels that would not fit in memory (instead of being killed).
+
+    Peak bytes: what :meth:`_ExrFile.load` keeps (the runs of channels read, or
+    display-window copies of them plus one run when the data window differs)
+    plus the float32 (H, W, k) arrays stacked from them.
+    """
+    need = 0
+    channels = 0
+    for p, names in wanted.items():
+        f = files[p]
+        need += f.load_bytes(names)
+        need += 4 * f.size[0] * f.size[1] * len(names)
+        channels += len(names)
+    first = files[next(iter(wanted))]
+    w, h = first.size
+    d = first.spec
+    window = f" (data window {d.width}x{d.height})" if (d.width, d.height) != (w, h) else ""
+    if d.tile_width * d.tile_height > d.width * d.height:
+        window += f" (tiles of {d.tile_width}x{d.tile_height})"
+    require_memory(need, f"{', '.join(wanted)}: reading {channels} channels of a {w}x{h} "
+                         f"image{window}", GBufferError,
+                   "crop the image (e.g. oiiotool --crop) or free memory")
+
+
+def _background_outside_data_windows(arrays: dict[str, np.ndarray], sources: Mapping[str, _ExrFile]) -> None:
+    """Pixels outside the data window of any required buffer are background.
+
+    Within one file every channel shares the data window, and the zeros
+    outside it make a zero normal, so background. Separate files may have
+    different data windows (e.g. auto-cropped AOVs): a pixel is shaded only
+    where position, normal and albedo all have data, so elsewhere the normal
+    is set to 0. Windows that do not overlap at all leave nothing to shade:
+    an error.
+    """
+    windows = {k: f.window() for k, f in sources.items()}
+    if len(set(windows.values())) <= 1:
+        return
+    x0 = max(w[0] for w in windows.values())
+    y0 = max(w[1] for w in windows.values())
+    x1 = min(w[2] for w in windows.values())
+    y1 = min(w[3] for w in windows.values())
+    if x1 <= x0 or y1 <= y0:
+        shown = "; ".join(f"{k} {sources[k].path} ({w[0]},{w[1]})-({w[2] - 1},{w[3] - 1})"
+                          for k, w in windows.items())
+        raise GBufferError(f"the data windows of the separate buffers do not overlap, so no pixel "
+                           f"has position, normal and albedo: {shown}; render them with the same "
+                           "data window (or oiiotool --fullpixels)")
+    inside = np.zeros(arrays["normal"].shape[:2], bool)
+    inside[y0:y1, x0:x1] = True
+    arrays["normal"][~inside] = 0.0
+
+
+def _fallback_layout(f: _ExrFile) -> _Layout:
+    """Layout of a file only used through explicit mappings: its best-matching convention."""
+    layouts = _candidate_layouts(f.channels, f.attributes)
+    return max(layouts, key=lambda lo: len(lo.found))
+
+
+def _check_sizes(files: Mapping[str, _ExrFile], src: Mapping[str, str], main: str | None) -> None:
+    """All files must have the same (display window) size; name two that differ."""
+    role = {}
+    if main is not None:
+        role[main] = "G-buffer"
+    for key in REQUIRED:
+        role.setdefault(src[key], key)
+    items = list(files.values())
+    first = items[0]
+    for f in items[1:]:
+        if f.size != first.size:
+            raise GBufferError(
+                f"{role[first.path]} {first.path} is {first.size[0]}x{first.size[1]} but "
+                f"{role[f.path]} {f.path} is {f.size[0]}x{f.size[1]}: separate buffers must have "
+                "the same size")
+
+
+# --------------------------------------------------------------------------- write_gbuffer
+
+
+def _channel_layout(convention: str, layer: str, has_cov: bool, maps: Mapping[str, np.ndarray]):
+    """(buffer key, channel names) pairs of ``convention``, for write_gbuffer."""
+    xyz, rgb = ("X", "Y", "Z"), ("R", "G", "B")
+    if convention in ("blender", "blender-new"):
+        pre = f"{layer}." if layer else ""
+        diff = "DiffCol" if convention == "blender" else "Diffuse Color"
+        out = [("position", [f"{pre}Position.{c}" for c in xyz]),
+               ("normal", [f"{pre}Normal.{c}" for c in xyz]),
+               ("albedo", [f"{pre}{diff}.{c}" for c in rgb])]
+        if has_cov:
+            out.append(("combined", [f"{pre}Combined.{c}" for c in "RGBA"]))
+        scal = {"k_d": f"{pre}k_d.X", "k_s": f"{pre}k_s.X", "h": f"{pre}shininess.X"}
+        spec_names = [f"{pre}specular_color.{c}" for c in rgb]
+    else:
+        p, n, a = {"generic": ("P", "N", "albedo"), "arnold": ("P", "N", "diffuse_albedo"),
+                   "mitsuba": ("pos", "sh_normal", "albedo")}[convention]
+        comps = rgb if convention == "arnold" else xyz
+        out = [("position", [f"{p}.{c}" for c in comps]),
+               ("normal", [f"{n}.{c}" for c in comps]),
+               ("albedo", [f"{a}.{c}" for c in rgb])]
+        if convention == "mitsuba":
+            out.append(("image", ["R", "G", "B"]))
+        if has_cov:
+            out.append(("coverage", ["A"]))
+        scal = {"k_d": "k_d", "k_s": "k_s", "h": "shininess"}
+        spec_names = [f"specular_color.{c}" for c in rgb]
+    for key in ("k_d", "k_s", "h"):
+        if key in maps:
+            out.append((key, [scal[key]]))
+    if "specular_color" in maps:
+        out.append(("specular_color", spec_names))
+    return out
+
+
+def write_gbuffer(path: str | os.PathLike, position: np.ndarray, normal: np.ndarray, albedo: np.ndarray,
+                  *, coverage: np.ndarray | None = None, maps: Mapping[str, np.ndarray] | None = None,
+                  convention: str = "generic", pixel_type: str = "float", tiled: bool = False,
+                  compression: str = "zip", layer: str = "ViewLayer",
+                  attributes: Mapping[str, object] | None = None) -> None:
+    """Write a G-buffer as one multichannel EXR, named after a convention.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination file, written atomically (via
+        :func:`clphong.io.atomic.atomic_path`).
+    position, normal, albedo : numpy.ndarray
+        (H, W, 3) arrays.
+    coverage : numpy.ndarray, optional
+        (H, W) coverage/alpha.
+    maps : mapping, optional
+        Material maps ``"k_d"``, ``"k_s"``, ``"h"`` (H, W) and
+        ``"specular_color"`` (H, W, 3).
+    convention : {"generic", "blender", "blender-new", "arnold", "mitsuba"}
+        Channel names to use:
+
+        - generic: ``P.X/Y/Z``, ``N.X/Y/Z``, ``albedo.R/G/B``, ``A``,
+          ``k_d``, ``k_s``, ``shininess``, ``specular_color.R/G/B``;
+        - blender / blender-new: ``<layer>.Position.X/Y/Z``,
+          ``<layer>.Normal.X/Y/Z``, ``<layer>.DiffCol.R/G/B`` (blender-new:
+          ``<layer>.Diffuse Color.R/G/B``), coverage as
+          ``<layer>.Combined.R/G/B/A`` (RGB = albedo x coverage), maps as
+          value AOVs ``<layer>.k_d.X``, ``<layer>.k_s.X``,
+          ``<layer>.shininess.X`` and ``<layer>.specular_color.R/G/B``;
+        - arnold: ``P.R/G/B``, ``N.R/G/B``, ``diffuse_albedo.R/G/B``, ``A``,
+          maps as generic;
+        - mitsuba: ``pos.X/Y/Z``, ``sh_normal.X/Y/Z``, ``albedo.R/G/B``, an
+          ``R, G, B`` image (albedo x coverage) and ``A``, maps as generic.
+    pixel_type : {"float", "half"}
+        Pixel type of every channel.
+    tiled : bool
+        Write 64x64 tiles instead of scanlines.
+    compression : str
+        EXR compression.
+    layer : str
+        Blender view-layer name (``""`` for none).
+    attributes : mapping, optional
+        Extra header attributes (see :func:`clphong.io.atomic.set_attribute`).
+
+    Raises
+    ------
+    GBufferError
+        Bad convention, pixel type, array shape or map name.
+    OutputError
+        The file cannot be written (nothing is left behind).
+    """
+    if convention not in WRITE_CONVENTIONS:
+        raise GBufferError(f"{os.fspath(path)}: unknown convention {convention!r}; "
+                           f"choose one of {', '.join(WRITE_CONVENTIONS)}")
+    if pixel_type not in PIXEL_TYPES:
+        raise GBufferError(f"{os.fspath(path)}: pixel type {pixel_type!r} is not one of {', '.join(PIXEL_TYPES)}")
+    maps = dict(maps or {})
+    unknown = [k for k in maps if k not in MAP_KEYS]
+    if unknown:
+        raise GBufferError(f"{os.fspath(path)}: unknown material map {unknown[0]!r}; "
+                           f"valid maps: {', '.join(MAP_KEYS)}")
+    P = np.asarray(position, np.float32)
+    gb = GBuffer(position=P, normal=np.asarray(normal, np.float32), albedo=np.asarray(albedo, np.float32),
+                 coverage=None if coverage is None else np.asarray(coverage, np.float32),
+                 maps={k: np.asarray(v, np.float32) for k, v in maps.items()})
+    planes = {"position": gb.position, "normal": gb.normal, "albedo": gb.albedo}
+    cov = gb.coverage
+    if cov is not None:
+        planes["coverage"] = cov[..., None]
+        planes["combined"] = np.concatenate([gb.albedo * cov[..., None], cov[..., None]], axis=-1)
+    planes["image"] = gb.albedo * (cov[..., None] if cov is not None else np.float32(1))
+    for k, v in gb.maps.items():
+        planes[k] = v if v.ndim == 3 else v[..., None]
+    names: list[str] = []
+    data: list[np.ndarray] = []
+    for key, chans in _channel_layout(convention, layer, cov is not None, gb.maps):
+        names.extend(chans)
+        data.append(planes[key])
+    write_exr(path, np.concatenate(data, axis=-1), pixel_type=pixel_type, compression=compression,
+              attributes=attributes, channel_names=names, tiled=tiled)
+

@@ -1,0 +1,142 @@
+"""Every user option that takes one of a fixed set of values: one registry each, one validator.
+
+Each registry is a mapping from the valid names to what they stand for; the
+command line builds its ``choices=`` from the same registries, and
+:func:`validate_method` (after colour-science's ``colour.utilities.validate_method``)
+is the one check of a name: a bad one is a ``ValueError`` listing the valid
+ones. Numeric options with a range (exposure) have one checker each here too.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+from ..core.errors import ClphongError, ToneMapError
+
+__all__ = ["validate_method", "PATHS", "path_options", "NONFINITE_POLICIES", "check_nonfinite",
+           "KERNELS", "check_kernel", "LANES", "check_lanes", "INT_POW", "check_int_pow",
+           "MAX_EXPOSURE", "check_exposure", "ENCODINGS", "CullingError", "check_budget"]
+
+
+def validate_method(value, methods, what: str, error: type[Exception] = ValueError):
+    """``value`` if it is one of ``methods`` (a mapping's keys or a sequence), else ``error``.
+
+    The message names the option and lists the valid values:
+    ``nonfinite must be one of background, error, pass, not 'x'``.
+    """
+    valid = tuple(methods)
+    if any(value == v and type(value) is type(v) for v in valid):   # True is not 1
+        return value
+    raise error(f"{what} must be one of {', '.join(str(v) for v in valid)}, not {value!r}")
+
+
+#: The shading paths a user picks (``--path``, ``Renderer(path=...)``) and the
+#: Renderer options each stands for (docs/error-model.md, docs/bench.md):
+#: ``accurate`` (default: double directions, weights and sums where the device
+#: has fp64), ``float`` (float32 directions), ``fast`` (float32 throughout:
+#: directions, the integer power and a naive light sum).
+PATHS: Mapping[str, Mapping] = {
+    "accurate": {},
+    "float": {"fp64_directions": False},
+    "fast": {"fp64_directions": False, "compensated": False, "int_pow": "float"},
+}
+
+
+def path_options(path: str) -> dict:
+    """The Renderer options of a shading path (``PATHS``); a bad name lists the valid ones."""
+    return dict(PATHS[validate_method(path, PATHS, "path")])
+
+
+#: What happens to NaN/Inf G-buffer values (``--nonfinite``; clphong.io.nonfinite).
+NONFINITE_POLICIES: Mapping[str, str] = {
+    "background": "the pixel is not shaded and takes the background value (a warning gives the counts)",
+    "error": "the frame is refused, naming each buffer and its count",
+    "pass": "the values go to the kernels as they are",
+}
+
+
+def check_nonfinite(policy: str) -> str:
+    return validate_method(policy, NONFINITE_POLICIES, "nonfinite")
+
+
+#: The shading kernels (``--kernel``): the SIMD-lane kernel, or the
+#: one-pixel-per-work-item baseline (float32 with pow()).
+KERNELS: Mapping[str, str] = {"lanes": "shade.cl", "obvious": "shade_obvious.cl"}
+
+
+def check_kernel(kernel: str) -> str:
+    return validate_method(kernel, KERNELS, "kernel")
+
+
+#: Pixels per work-item of the lane kernel (``--lanes``).
+LANES = (1, 4, 8, 16)
+
+
+def check_lanes(lanes: int) -> int:
+    return validate_method(lanes, LANES, "lanes")
+
+
+#: The specular power: True, binary powering of a whole exponent in double;
+#: False, always exp(k·log1p(−δ)); "float", binary powering in float (the fast path).
+INT_POW = (True, False, "float")
+
+
+def check_int_pow(int_pow):
+    if isinstance(int_pow, bool) or int_pow == "float":
+        return int_pow
+    raise ValueError(f"int_pow must be True, False or 'float', not {int_pow!r}")
+
+
+#: DISPLAY_ENCODING values: display-linear Rec.709, or sRGB (IEC 61966-2-1) encoded.
+ENCODINGS: Mapping[str, int] = {"linear": 0, "srgb": 1}
+
+#: Largest |exposure| in stops, for every display output and the scene key
+#: ``render.exposure`` alike: 2^±100 (1.3e30, 7.9e-31) and a pixel times it stay
+#: normal float32 numbers.
+MAX_EXPOSURE = 100.0
+
+
+def check_exposure(ev, what: str = "exposure") -> float:
+    """``ev`` as a float if it is a finite number of stops within ±:data:`MAX_EXPOSURE`.
+
+    Raises
+    ------
+    ToneMapError
+        One line naming ``what`` (e.g. ``--exposure``).
+    """
+    ev = float(ev)
+    if not math.isfinite(ev):
+        problem, sep = f"must be a finite number of stops, got {ev!r}", " "
+    elif abs(ev) > MAX_EXPOSURE:
+        problem = (f"{ev:g} stops is out of range (2^EV must stay a float32); "
+                   f"use -{MAX_EXPOSURE:g}..{MAX_EXPOSURE:g}")
+        sep = " "
+    else:
+        return ev
+    error = ToneMapError(f"{what}{sep}{problem}")
+    error.problem = problem           # without the subject, for messages that name it first
+    raise error
+
+
+class CullingError(ClphongError):
+    """The culling options are invalid (e.g. a negative ``--max-error``)."""
+
+
+def check_budget(max_error, reference_white=1.0) -> float | None:
+    """The absolute budget ``max_error·reference_white``, validated; None: no culling.
+
+    ``reference_white`` is checked even without a budget, so a bad value fails
+    the same way whether or not culling is on.
+    """
+    checks = [("--reference-white", reference_white)]
+    if max_error is not None:
+        checks.insert(0, ("--max-error", max_error))
+    for name, x in checks:
+        if not (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x >= 0):
+            raise CullingError(f"{name}: expected a finite number ≥ 0, got {x!r}")
+    if reference_white <= 0:
+        raise CullingError(f"--reference-white: expected a number > 0, got {reference_white!r}")
+    if max_error is None:
+        return None
+    return float(max_error) * float(reference_white)

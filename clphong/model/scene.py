@@ -1,0 +1,1163 @@
+"""Scene files: camera, material and lights, read from TOML and validated.
+
+A scene file looks like this::
+
+    [camera]
+    type = "perspective"          # eye at `position`; v = normalize(eye - P)
+    position = [0.0, 2.0, 6.0]
+    # type = "orthographic"       # viewer at infinity: `direction` is the
+    # direction = [0, -0.5, -1]   # view direction (eye -> scene)
+
+    [material]
+    model = "phong"               # or "blinn-phong" (exponent 4h)
+    k_a = 0.1
+    k_d = 0.7
+    k_s = 0.2
+    h = 32.0
+    # specular_color = [1, 1, 1]  # default white
+
+    [render]                      # optional table
+    # background = [0, 0, 0]      # value written for background pixels
+
+    [[light]]
+    type = "point"
+    position = [3.0, 5.0, 4.0]
+    color = [1.0, 0.9, 0.8]
+    intensity = 25.0
+    attenuation = [1.0, 0.0, 0.0] # 1/(c0 + c1*d + c2*d^2); default no falloff
+
+    [[light]]
+    type = "directional"
+    direction = [-1.0, -1.5, -1.0] # the direction the light TRAVELS
+    color = [1.0, 1.0, 1.0]
+    intensity = 3.0
+
+    [[light]]
+    type = "ambient"
+    color = [1.0, 1.0, 1.0]
+    intensity = 1.0
+
+Rules
+-----
+* ``[material]`` is required; ``[camera]`` and ``[render]`` are optional.
+* Without ``[camera]`` (or with ``type = "metadata"``) each frame's camera
+  is its EXR header's standard ``worldToCamera`` matrix (see
+  :mod:`clphong.io.camera`); ``up = "y"`` (default) or ``"z"`` names the
+  up axis of the world that matrix is written in.
+* The ``[[light]]`` list may be empty or absent: the image is then black
+  except for the background (no light, no shading).
+* Numbers may be written as TOML integers or floats; booleans and strings are
+  not numbers. Every number is stored as a Python ``float`` (float64) and must
+  be finite (no ``nan``, no ``inf``).
+* ``k_a``, ``k_d``, ``k_s``, ``h``, light ``intensity`` and the components of
+  ``color`` and ``specular_color`` must be >= 0. ``h = 0`` is allowed
+  (``0^0 := 1``).
+* Direction vectors (orthographic ``camera.direction``, directional
+  ``light.direction``) must not have zero length; they are stored normalised.
+* ``render.background`` is a 3-vector of finite numbers, or a single number
+  used for all three channels; it defaults to ``[0, 0, 0]``.
+* A point light's attenuation ``p(d) = c0 + c1*d + c2*d^2`` must be > 0 for
+  every distance ``d >= 0`` (see :func:`attenuation_problem`); a nonzero
+  coefficient must be a normal float32 (``|c| >= 1.17549435e-38``: the kernels
+  flush smaller ones to 0), and the light's brightest radiance, ``color x
+  intensity`` times the largest falloff ``1 / min p(d)`` (see
+  :func:`largest_falloff`), must be within the float32 range.
+
+Error messages
+--------------
+Every problem raises :class:`~clphong.core.errors.SceneError` with a single-line
+message ``"<file>: <key path>: <problem>"``. Key paths are dotted TOML paths;
+array elements are indexed **0-based**, like TOML arrays, so ``light[2]`` is
+the third ``[[light]]`` table and ``light[2].color[0]`` its red component.
+Messages about a light add a reminder such as
+``(light[2] is the 3rd [[light]])``. Keys that are not TOML bare keys are
+quoted. For example::
+
+    scene.toml: light[2].intensity: expected a number, got string 'bright' (light[2] is the 3rd [[light]])
+    scene.toml: material.k_dd: unknown key; did you mean 'k_d'?
+    scene.toml:4:9: invalid TOML: Invalid value
+
+Findings that are suspicious but legal are collected in ``Scene.warnings`` and
+emitted with :func:`warnings.warn` as :class:`SceneWarning`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import numbers
+import os
+import re
+import struct
+import sys
+import tomllib
+import warnings as _warnings
+from collections.abc import Mapping
+from dataclasses import dataclass
+from decimal import MAX_EMAX, MIN_EMIN, Context, Decimal, localcontext
+from fractions import Fraction
+from functools import cached_property
+from types import MappingProxyType
+from typing import Any, NoReturn
+
+from ..core.errors import SceneError, ToneMapError
+from ..core.files import image_kind
+from ..core.floats import FLT_MAX, FLT_MIN, U
+from ..core.memory import format_size, require_memory
+from .options import check_exposure
+from .tonemap import operator
+
+__all__ = [
+    "Camera",
+    "Material",
+    "Light",
+    "Scene",
+    "SceneWarning",
+    "load_scene",
+    "parse_scene",
+    "attenuation_problem",
+    "largest_falloff",
+    "kernel_falloff_bound",
+    "CAMERA_TYPES",
+    "CAMERA_UP_AXES",
+    "MATERIAL_MODELS",
+    "LIGHT_TYPES",
+    "ColorSettings",
+    "WORKING_SPACE_NAMES",
+]
+
+Vec3 = tuple[float, float, float]
+
+#: Valid ``camera.type`` values.
+CAMERA_TYPES: tuple[str, ...] = ("perspective", "orthographic", "metadata")
+#: Valid ``camera.up`` values of a ``"metadata"`` camera (world up axis of worldToCamera).
+CAMERA_UP_AXES: tuple[str, ...] = ("y", "z")
+#: Valid ``material.model`` values.
+MATERIAL_MODELS: tuple[str, ...] = ("phong", "blinn-phong")
+#: Valid ``light.type`` values.
+LIGHT_TYPES: tuple[str, ...] = ("point", "directional", "ambient")
+
+_TOP_KEYS = ("camera", "material", "render", "light")
+_CAMERA_KEYS = {"perspective": ("type", "position"), "orthographic": ("type", "direction"),
+                "metadata": ("type", "up")}
+_CAMERA_ALL = frozenset(k for ks in _CAMERA_KEYS.values() for k in ks)
+_CAMERA_ALL_ORDERED = ("type", "position", "direction", "up")
+_MATERIAL_KEYS = ("model", "k_a", "k_d", "k_s", "h", "specular_color")
+_MATERIAL_REQUIRED = ("model", "k_a", "k_d", "k_s", "h")
+_RENDER_KEYS = ("background", "working_space", "exposure", "tonemap", "white_point",
+                "display", "view", "look")
+#: Valid ``render.working_space`` values (clphong.color.ocio.WORKING_SPACES).
+WORKING_SPACE_NAMES: tuple[str, ...] = ("lin_rec709", "acescg")
+_LIGHT_KEYS = {
+    "point": ("type", "color", "intensity", "position", "attenuation"),
+    "directional": ("type", "color", "intensity", "direction"),
+    "ambient": ("type", "color", "intensity"),
+}
+_LIGHT_SETS = {t: frozenset(ks) for t, ks in _LIGHT_KEYS.items()}
+_LIGHT_ALL_ORDERED = ("type", "color", "intensity", "position", "direction", "attenuation")
+_LIGHT_ALL = frozenset(_LIGHT_ALL_ORDERED)
+_LIGHT_REQUIRED = {"point": ("position",), "directional": ("direction",), "ambient": ()}
+
+_WHITE: Vec3 = (1.0, 1.0, 1.0)
+_NO_FALLOFF: Vec3 = (1.0, 0.0, 0.0)
+_EPS = sys.float_info.epsilon
+#: k_a + k_d + k_s may exceed 1 by this much (decimal rounding) without a warning.
+_SUM_TOLERANCE = 1e-9
+_DEC_CTX = Context(prec=40, Emax=MAX_EMAX, Emin=MIN_EMIN)
+
+
+class SceneWarning(UserWarning):
+    """A scene is valid but probably not what was meant (see ``Scene.warnings``)."""
+
+
+# --------------------------------------------------------------------------
+# data model
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Where the viewer is.
+
+    Attributes
+    ----------
+    type : str
+        ``"perspective"`` or ``"orthographic"``.
+    position : tuple of 3 float or None
+        Eye position of a perspective camera (``v = normalize(eye - P)``);
+        None for an orthographic camera.
+    direction : tuple of 3 float or None
+        Unit view direction (eye -> scene) of an orthographic camera, so that
+        ``v = -direction``; None for a perspective camera. Normalised in
+        float64 when parsed.
+    up : str or None
+        For ``type = "metadata"`` (the camera comes from each frame's
+        ``worldToCamera``): ``"y"`` or ``"z"``, the up axis of the world that
+        matrix is written in; None for other types.
+    """
+
+    type: str
+    position: Vec3 | None = None
+    direction: Vec3 | None = None
+    up: str | None = None
+
+    def to_dict(self) -> dict:
+        """The ``[camera]`` table as a dict that :func:`parse_scene` accepts."""
+        d: dict[str, Any] = {"type": self.type}
+        if self.type == "perspective":
+            d["position"] = list(self.position) if self.position is not None else None
+        elif self.type == "metadata":
+            d["up"] = self.up or "y"
+        else:
+            d["direction"] = list(self.direction) if self.direction is not None else None
+        return d
+
+
+@dataclass(frozen=True)
+class Material:
+    """The uniform surface material.
+
+    Attributes
+    ----------
+    model : str
+        ``"phong"`` (``(r.v)^h``) or ``"blinn-phong"`` (``(n.h)^(4h)``).
+    k_a, k_d, k_s : float
+        Ambient, diffuse and specular coefficients, each >= 0.
+    h : float
+        Shininess, >= 0 (``0^0 := 1``).
+    specular_color : tuple of 3 float
+        Colour of the highlights, components >= 0; white by default, so each
+        highlight takes its light's colour.
+    """
+
+    model: str
+    k_a: float
+    k_d: float
+    k_s: float
+    h: float
+    specular_color: Vec3 = _WHITE
+
+    @property
+    def exponent(self) -> float:
+        """The specular exponent the kernels raise to: h for Phong, 4h for Blinn-Phong."""
+        return 4.0 * self.h if self.model == "blinn-phong" else self.h
+
+    def to_dict(self) -> dict:
+        """The ``[material]`` table as a dict that :func:`parse_scene` accepts."""
+        return {"model": self.model, "k_a": self.k_a, "k_d": self.k_d, "k_s": self.k_s,
+                "h": self.h, "specular_color": list(self.specular_color)}
+
+
+@dataclass(frozen=True)
+class Light:
+    """One ``[[light]]``.
+
+    Attributes
+    ----------
+    type : str
+        ``"point"``, ``"directional"`` or ``"ambient"``.
+    color : tuple of 3 float
+        Linear RGB in the working colour space, components >= 0.
+    intensity : float
+        Scale of ``color``, >= 0.
+    position : tuple of 3 float or None
+        Position of a point light; None otherwise.
+    direction : tuple of 3 float or None
+        Unit direction a directional light travels (``l = -direction``);
+        None otherwise. Normalised in float64 when parsed.
+    attenuation : tuple of 3 float
+        ``(c0, c1, c2)`` of ``1/(c0 + c1*d + c2*d^2)`` for a point light;
+        ``(1, 0, 0)`` (no falloff) by default and for other types.
+    """
+
+    type: str
+    color: Vec3 = _WHITE
+    intensity: float = 1.0
+    position: Vec3 | None = None
+    direction: Vec3 | None = None
+    attenuation: Vec3 = _NO_FALLOFF
+
+    @property
+    def radiance(self) -> Vec3:
+        """``color * intensity``, per channel, as float64."""
+        i = self.intensity
+        c = self.color
+        return (c[0] * i, c[1] * i, c[2] * i)
+
+    def to_dict(self) -> dict:
+        """The ``[[light]]`` table as a dict, with only the keys of its type."""
+        d: dict[str, Any] = {"type": self.type, "color": list(self.color),
+                             "intensity": self.intensity}
+        if self.type == "point":
+            d["position"] = list(self.position) if self.position is not None else None
+            d["attenuation"] = list(self.attenuation)
+        elif self.type == "directional":
+            d["direction"] = list(self.direction) if self.direction is not None else None
+        return d
+
+
+@dataclass(frozen=True)
+class ColorSettings:
+    """Tone mapping and colour management keys of ``[render]``.
+
+    Attributes
+    ----------
+    working_space : str
+        ``"lin_rec709"`` (default) or ``"acescg"``: the space albedo, light
+        colours and the scene-linear EXR are in.
+    exposure : float
+        Stops; display outputs see the scene-linear value times 2^exposure.
+    tonemap : str
+        Operator of the fused display path (:data:`clphong.reference.tonemap.OPERATORS`).
+    white_point : float or None
+        White point of ``reinhard-extended`` / ``hable`` (operator default if None).
+    display, view, look : str or None
+        OCIO display, view and look(s); any of them selects the OCIO path.
+    """
+
+    working_space: str = "lin_rec709"
+    exposure: float = 0.0
+    tonemap: str = "none"
+    white_point: float | None = None
+    display: str | None = None
+    view: str | None = None
+    look: str | None = None
+
+    def to_dict(self) -> dict:
+        """The keys of ``[render]`` that are set (None has no TOML form)."""
+        d: dict[str, Any] = {"working_space": self.working_space, "exposure": self.exposure,
+                             "tonemap": self.tonemap}
+        for k in ("white_point", "display", "view", "look"):
+            if getattr(self, k) is not None:
+                d[k] = getattr(self, k)
+        return d
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene.
+
+    Attributes
+    ----------
+    camera : Camera
+    material : Material
+    lights : tuple of Light
+        In file order; may be empty.
+    background : tuple of 3 float
+        Value written for background pixels.
+    source : str
+        Where the scene came from (a file path), used in messages.
+    warnings : tuple of str
+        Non-fatal findings, each a single line naming ``source``.
+    """
+
+    camera: Camera
+    material: Material
+    lights: tuple[Light, ...] = ()
+    background: Vec3 = (0.0, 0.0, 0.0)
+    source: str = "<scene>"
+    warnings: tuple[str, ...] = ()
+    color: "ColorSettings" = None  # type: ignore[assignment]  # set in __post_init__
+
+    def __post_init__(self):
+        if self.color is None:
+            object.__setattr__(self, "color", ColorSettings())
+
+    def lights_of(self, type: str) -> tuple[Light, ...]:  # noqa: A002 - API name
+        """The lights of one type, in file order.
+
+        Parameters
+        ----------
+        type : str
+            One of :data:`LIGHT_TYPES`.
+
+        Returns
+        -------
+        tuple of Light
+
+        Raises
+        ------
+        ValueError
+            If ``type`` is not a light type (a typo would otherwise silently
+            select no lights).
+        """
+        if type not in LIGHT_TYPES:
+            raise ValueError(f"unknown light type {type!r}; expected one of "
+                             f"{_quoted_list(LIGHT_TYPES)}")
+        return self._lights_by_type[type]
+
+    # The scene is immutable, so what is derived from its lights is computed once
+    # (a renderer asks for it every frame and band; 65 536 lights took ~0.25 s a
+    # frame in Python loops). dataclasses.replace() makes a new scene, and new caches.
+    _CACHED = ("_lights_by_type", "light_arrays")
+
+    def __getstate__(self):
+        # Pickles (process pools, Dask) carry the fields only: the caches are
+        # rebuilt where they are used (5 MB more at 65 536 lights otherwise).
+        return {k: v for k, v in self.__dict__.items() if k not in self._CACHED}
+
+    @cached_property
+    def _lights_by_type(self) -> dict[str, tuple[Light, ...]]:
+        by: dict[str, list[Light]] = {t: [] for t in LIGHT_TYPES}
+        for lt in self.lights:
+            by[lt.type].append(lt)
+        return {t: tuple(v) for t, v in by.items()}
+
+    @cached_property
+    def light_arrays(self) -> Mapping[str, Any]:
+        """The lights as read-only float64 numpy arrays, computed once (a read-only mapping).
+
+        Keys: ``point_position``, ``point_radiance``, ``point_attenuation``
+        (N, 3) each (c0, c1, c2); ``directional_direction``,
+        ``directional_radiance`` (M, 3); ``ambient_radiance`` (3,), the sum of
+        the ambient lights' radiance (before k_a).
+        """
+        import numpy as np
+
+        def table(lights, attr):
+            a = np.array([getattr(lt, attr) for lt in lights], np.float64).reshape(-1, 3)
+            a.setflags(write=False)
+            return a
+
+        pts, dirs = self.lights_of("point"), self.lights_of("directional")
+        amb = table(self.lights_of("ambient"), "radiance").sum(axis=0)
+        amb.setflags(write=False)
+        return MappingProxyType({
+            "point_position": table(pts, "position"), "point_radiance": table(pts, "radiance"),
+            "point_attenuation": table(pts, "attenuation"),
+            "directional_direction": table(dirs, "direction"),
+            "directional_radiance": table(dirs, "radiance"), "ambient_radiance": amb})
+
+    def to_dict(self) -> dict:
+        """The scene as plain dicts, lists, floats and strings.
+
+        The result has the layout of a scene file and round-trips:
+        ``parse_scene(s.to_dict(), s.source) == s``. Every optional key is
+        written out explicitly.
+
+        Returns
+        -------
+        dict
+        """
+        return {
+            "camera": self.camera.to_dict(),
+            "material": self.material.to_dict(),
+            "render": {"background": list(self.background), **self.color.to_dict()},
+            "light": [lt.to_dict() for lt in self.lights],
+        }
+
+
+# --------------------------------------------------------------------------
+# attenuation
+# --------------------------------------------------------------------------
+
+
+def attenuation_problem(c0: float, c1: float, c2: float) -> str | None:
+    """Why ``p(d) = c0 + c1*d + c2*d^2`` is not > 0 for all ``d >= 0``, if it is not.
+
+    ``p(d) > 0`` for every ``d >= 0`` exactly when ``c0 > 0`` and
+
+    * ``c2 > 0`` and (``c1 >= 0`` or ``c1^2 < 4*c0*c2``), or
+    * ``c2 == 0`` and ``c1 >= 0``.
+
+    (``c2 < 0`` always fails: the ``d^2`` term wins at large ``d``.) The
+    discriminant is compared exactly, in rational arithmetic on the float64
+    values, so there is no rounding at the boundary.
+
+    Parameters
+    ----------
+    c0, c1, c2 : float
+        Finite coefficients.
+
+    Returns
+    -------
+    str or None
+        None when the polynomial stays positive; otherwise a one-line
+        description of where it reaches zero or goes negative, e.g.
+        ``"p(d) = c0 + c1*d reaches 0 at d = 2.5 and goes negative for d > 2.5
+        (c1 = -0.4 < 0 with c2 = 0); need c1 >= 0"``.
+    """
+    if c0 == 0:
+        return "p(d) = c0 + c1*d + c2*d^2 reaches 0 at d = 0 (c0 = 0); c0 must be > 0"
+    if c0 < 0:
+        return (f"p(d) = c0 + c1*d + c2*d^2 is negative at d = 0 (c0 = {_g(c0)}); "
+                "c0 must be > 0")
+    if c2 < 0:
+        r = _gd(max(_roots(c0, c1, c2)))
+        return (f"p(d) = c0 + c1*d + c2*d^2 reaches 0 at d = {r} and goes negative for "
+                f"d > {r} (c2 = {_g(c2)} < 0, so the d^2 term wins at large d); "
+                "need c2 >= 0")
+    if c1 >= 0:
+        return None
+    if c2 == 0:
+        r = _gd(_quotient(c0, -c1))
+        return (f"p(d) = c0 + c1*d reaches 0 at d = {r} and goes negative for "
+                f"d > {r} (c1 = {_g(c1)} < 0 with c2 = 0); need c1 >= 0")
+    # c0 > 0, c1 < 0, c2 > 0: both roots (if real) are positive.
+    f0, f1, f2 = Fraction(c0), Fraction(c1), Fraction(c2)
+    disc = f1 * f1 - 4 * f0 * f2
+    if disc < 0:
+        return None
+    if disc == 0:
+        r = _gd(_half(_quotient(-c1, c2)))
+        return (f"p(d) = c0 + c1*d + c2*d^2 reaches 0 at d = {r} (a double root: "
+                "c1^2 = 4*c0*c2); need c1 >= 0 or c1^2 < 4*c0*c2")
+    r1, r2 = (_gd(r) for r in sorted(_roots(c0, c1, c2)))
+    return (f"p(d) = c0 + c1*d + c2*d^2 reaches 0 at d = {r1} and goes negative for "
+            f"{r1} < d < {r2} (c1 < 0 and c1^2 > 4*c0*c2); "
+            "need c1 >= 0 or c1^2 < 4*c0*c2")
+
+
+def largest_falloff(c0: float, c1: float, c2: float) -> float:
+    """``1 / min p(d)`` over ``d >= 0``, for a ``p(d) = c0 + c1*d + c2*d^2`` that
+    :func:`attenuation_problem` accepts: ``1/c0`` when ``c1 >= 0``, else the
+    vertex value ``1 / (c0 - c1^2/(4*c2))`` (exact rational arithmetic); ``inf``
+    beyond float64.
+
+    >>> largest_falloff(0.5, 0.0, 1.0), largest_falloff(1.0, -2.0, 2.0)
+    (2.0, 2.0)
+    """
+    if c1 >= 0:
+        return 1.0 / c0            # inf, not an error, beyond float64
+    # c2 > 0: the minimum is at d = -c1/(2*c2) > 0
+    p = Fraction(c0) - Fraction(c1) ** 2 / (4 * Fraction(c2))
+    try:
+        return float(1 / p)
+    except OverflowError:
+        return math.inf
+
+
+def kernel_falloff_bound(c0: float, c1: float, c2: float) -> float:
+    """An upper bound of the falloff ``1/p(d)`` the float32 kernels compute at any
+    ``d >= 0``; ``inf`` where their ``p(d)`` may round to 0 or below.
+
+    docs/error-model.md, row "attenuation 1/p(d)": Horner's roundings (and the
+    coefficients' own) move ``p(d)`` by at most ``4u*(c0 + |c1|*d + |c2|*d^2)``,
+    the reciprocal and the rest add ``3u`` relative (``u = 2^-24``). So the bound
+    is ``(1 + 3u) * largest_falloff`` of ``p(d) - 4u*(c0 + |c1|*d + c2*d^2)``.
+    (A changed ``d``, from the directions' errors, is still some ``d >= 0``.)
+    """
+    k = 4 * U
+    lo = (c0 * (1 - k), c1 - k * abs(c1), c2 * (1 - k))
+    if attenuation_problem(*lo) is not None:
+        return math.inf
+    return largest_falloff(*lo) * (1 + 3 * U)
+
+
+def _roots(c0: float, c1: float, c2: float) -> tuple[Decimal, Decimal]:
+    """Both real roots of ``c2*d^2 + c1*d + c0`` (``c2 != 0``, ``c0 != 0``).
+
+    Only used for messages. Computed with the numerically stable form of the
+    quadratic formula in 40-digit decimal arithmetic, whose exponent range
+    covers any float64 coefficients (their squares and quotients included).
+    """
+    with localcontext(_DEC_CTX):
+        a, b, c = Decimal(c2), Decimal(c1), Decimal(c0)
+        disc = max(b * b - 4 * a * c, Decimal(0))
+        root = disc.sqrt()
+        q = -(b + root if b >= 0 else b - root) / 2
+        return (q / a, c / q)
+
+
+def _quotient(n: float, d: float) -> Decimal:
+    """``n / d`` without overflow or underflow (for messages)."""
+    with localcontext(_DEC_CTX):
+        return Decimal(n) / Decimal(d)
+
+
+def _half(x: Decimal) -> Decimal:
+    with localcontext(_DEC_CTX):
+        return x / 2
+
+
+def _gd(x: Decimal) -> str:
+    """A short form of a (possibly out-of-float-range) root for messages."""
+    if x == 0 or Decimal("1e-300") < abs(x) < Decimal("1e300"):
+        return _g(float(x))
+    return re.sub(r"\.?0+e", "e", f"{x:.5e}")
+
+
+def _f32(x: float) -> float:
+    """``x`` rounded to float32 (as the kernels store it), back as a float."""
+    try:
+        return struct.unpack("f", struct.pack("f", x))[0]
+    except OverflowError:
+        return math.copysign(math.inf, x)
+
+
+# --------------------------------------------------------------------------
+# message helpers
+# --------------------------------------------------------------------------
+
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+\Z")
+_LIGHT_PATH = re.compile(r"light\[(\d+)\]")
+
+
+def _g(x: float) -> str:
+    """A short human form of a float for messages."""
+    return f"{x:.6g}"
+
+
+def _ordinal(n: int) -> str:
+    if 10 <= n % 100 <= 20:
+        suffix = "th"
+    else:
+        suffix = {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
+
+
+def _short(text: str, limit: int = 60) -> str:
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _quoted_list(items) -> str:
+    return ", ".join(repr(i) for i in items)
+
+
+def _key(k: Any) -> str:
+    """A key as it appears in a path: bare if TOML allows it, else quoted."""
+    if isinstance(k, str) and _BARE_KEY.match(k):
+        return k
+    return _short(repr(k), 40)
+
+
+def _join(path: str, key: Any) -> str:
+    return f"{path}.{_key(key)}" if path else _key(key)
+
+
+def _describe(v: Any) -> str:
+    """What a value is, for 'expected X, got Y' messages."""
+    if isinstance(v, bool):
+        return f"boolean {'true' if v else 'false'}"
+    if isinstance(v, int):
+        return f"integer {_short(str(v), 30)}"
+    if isinstance(v, float):
+        return f"float {v!r}"
+    if isinstance(v, str):
+        return f"string {_short(repr(v))}"
+    if isinstance(v, Mapping):
+        return f"table {{{_short(', '.join(_key(k) for k in v), 50)}}}"
+    if isinstance(v, (list, tuple)):
+        return f"array {_short(repr(list(v)))}"
+    if v is None:
+        return "nothing (None)"
+    return f"{type(v).__name__} {_short(repr(v))}"
+
+
+def _one_line(text: str) -> str:
+    """Escape anything that could break a message over several lines."""
+    if text.isprintable():
+        return text
+    return "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text)
+
+
+def _message(source: str, path: str, problem: str) -> str:
+    head = f"{source}: {path}: " if path else f"{source}: "
+    m = _LIGHT_PATH.match(path)
+    note = ""
+    if m:
+        i = int(m.group(1))
+        note = f" (light[{i}] is the {_ordinal(i + 1)} [[light]])"
+    return _one_line(head + problem + note)
+
+
+# --------------------------------------------------------------------------
+# the validator
+# --------------------------------------------------------------------------
+
+
+class _Parser:
+    """Validates plain data against the scene schema; raises on the first problem."""
+
+    def __init__(self, source: str):
+        self.source = source
+        self.warnings: list[str] = []
+
+    # -- reporting --------------------------------------------------------
+
+    def fail(self, path: str, problem: str) -> NoReturn:
+        raise SceneError(_message(self.source, path, problem))
+
+    def warn(self, path: str, problem: str) -> None:
+        self.warnings.append(_message(self.source, path, problem))
+
+    def unknown(self, path: str, key: Any, valid: tuple[str, ...]) -> NoReturn:
+        close = difflib.get_close_matches(key, valid, n=1) if isinstance(key, str) else []
+        if close:
+            hint = f"did you mean {close[0]!r}?"
+        else:
+            hint = f"valid keys are {_quoted_list(valid)}"
+        self.fail(_join(path, key), f"unknown key; {hint}")
+
+    # -- structure --------------------------------------------------------
+
+    def table(self, v: Any, path: str) -> Mapping:
+        if not isinstance(v, Mapping):
+            if isinstance(v, list) and v and all(isinstance(x, Mapping) for x in v):
+                self.fail(path, f"expected a table [{path}], got an array of tables "
+                                f"(write [{path}], not [[{path}]])")
+            self.fail(path, f"expected a table, got {_describe(v)}")
+        return v
+
+    def check_keys(self, t: Mapping, path: str, valid: frozenset, ordered: tuple[str, ...]):
+        if not valid.issuperset(t.keys()):
+            for k in t:
+                if k not in valid:
+                    self.unknown(path, k, ordered)
+
+    # -- values -----------------------------------------------------------
+
+    def num(self, v: Any, path: str, index: int | None = None, f32: bool = True) -> float:
+        """A finite number as float; ``index`` extends ``path`` lazily; ``f32``: it must
+        also be finite as the float32 the kernels take (not for directions, which
+        are normalised first)."""
+        t = type(v)
+        if t is float:
+            x = v
+        elif t is int:
+            x = self._int_to_float(v, path, index)
+        elif isinstance(v, bool) or not isinstance(v, numbers.Real):
+            hint = ""
+            if isinstance(v, str):
+                try:
+                    float(v)
+                    hint = " (write the number without quotes)"
+                except ValueError:
+                    pass
+            self.fail(self._at(path, index), f"expected a number, got {_describe(v)}{hint}")
+        elif isinstance(v, int):
+            x = self._int_to_float(v, path, index)
+        else:
+            try:
+                x = float(v)
+            except (OverflowError, ValueError, TypeError):
+                self.fail(self._at(path, index), f"{_describe(v)} is not a float64 number")
+        if not math.isfinite(x):
+            self.fail(self._at(path, index), f"must be finite, got {x!r}")
+        if f32 and abs(x) > FLT_MAX:
+            self.fits_f32(x, self._at(path, index))
+        return x
+
+    def fits_f32(self, x: float, path: str, what: str = "") -> None:
+        """Fail unless ``x`` (named ``what`` in the message, if given) is finite as a float32."""
+        if not math.isfinite(_f32(x)):
+            self.fail(path, f"{what + ' = ' if what else ''}{_g(x)} is beyond the float32 range "
+                            f"the kernels compute in (|x| <= {_g(FLT_MAX)})")
+
+    def _int_to_float(self, v: int, path: str, index: int | None) -> float:
+        try:
+            return float(v)
+        except OverflowError:
+            self.fail(self._at(path, index),
+                      f"integer {_short(str(v), 30)} is too large for a float64")
+
+    @staticmethod
+    def _at(path: str, index: int | None) -> str:
+        return path if index is None else f"{path}[{index}]"
+
+    def nonneg(self, v: Any, path: str, index: int | None = None, f32: bool = True) -> float:
+        x = self.num(v, path, index, f32)
+        if x < 0:
+            self.fail(self._at(path, index), f"must be >= 0, got {x!r}")
+        return x
+
+    def vec3(self, v: Any, path: str, nonneg: bool = False, f32: bool = True) -> Vec3:
+        if not isinstance(v, (list, tuple)):
+            self.fail(path, f"expected an array of 3 numbers [x, y, z], got {_describe(v)}")
+        if len(v) != 3:
+            self.fail(path, f"expected 3 numbers [x, y, z], got {len(v)}: "
+                            f"{_short(repr(list(v)))}")
+        f = self.nonneg if nonneg else self.num
+        return (f(v[0], path, 0, f32), f(v[1], path, 1, f32), f(v[2], path, 2, f32))
+
+    def unit(self, v: Any, path: str) -> Vec3:
+        """A non-zero 3-vector, normalised in float64.
+
+        A vector already unit to within 4 ulp is kept as it is, so that
+        normalising is idempotent and ``to_dict`` round-trips exactly.
+        """
+        x, y, z = self.vec3(v, path, f32=False)
+        n = math.hypot(x, y, z)
+        if n == 0.0:
+            self.fail(path, f"zero-length vector {[x, y, z]!r} has no direction")
+        if abs(n - 1.0) <= 4 * _EPS:
+            return (x, y, z)
+        if not (1e-150 < n < 1e150):  # rescale to avoid overflow/subnormal loss
+            m = max(abs(x), abs(y), abs(z))
+            x, y, z = x / m, y / m, z / m
+            n = math.hypot(x, y, z)
+        return (x / n, y / n, z / n)
+
+    def enum(self, v: Any, path: str, choices: tuple[str, ...]) -> str:
+        if not isinstance(v, str):
+            self.fail(path, f"expected a string, one of {_quoted_list(choices)}, "
+                            f"got {_describe(v)}")
+        if v not in choices:
+            close = difflib.get_close_matches(v.lower(), choices, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            self.fail(path, f"invalid value {_short(repr(v))}; expected one of "
+                            f"{_quoted_list(choices)}{hint}")
+        return v
+
+    def not_for_type(self, path: str, key: str, kind: str, type_: str,
+                     keys_of: dict[str, tuple[str, ...]]) -> NoReturn:
+        owners = [t for t, ks in keys_of.items() if key in ks]
+        an = "an" if type_[0] in "aeiou" else "a"
+        self.fail(_join(path, key),
+                  f"does not apply to {an} {type_!r} {kind} (only to "
+                  f"{' and '.join(repr(t) for t in owners)} {kind}s); "
+                  f"{an} {type_!r} {kind} takes {_quoted_list(keys_of[type_])}")
+
+    # -- sections ---------------------------------------------------------
+
+    def scene(self, data: Any) -> Scene:
+        if not isinstance(data, Mapping):
+            self.fail("", f"expected a table of scene settings, got {_describe(data)}")
+        self.check_keys(data, "", frozenset(_TOP_KEYS), _TOP_KEYS)
+        if "material" not in data:
+            self.fail("material", "missing required table [material]")
+        # No [camera]: each frame's worldToCamera header attribute gives it.
+        camera = self.camera(data["camera"]) if "camera" in data else Camera("metadata", up="y")
+        material = self.material(data["material"])
+        background: Vec3 = (0.0, 0.0, 0.0)
+        color = ColorSettings()
+        if "render" in data:
+            background = self.render(data["render"])
+            color = self.color_settings(data["render"])
+        lights = self.lights(data.get("light", []))
+        self.check_scene(material, lights)
+        return Scene(camera=camera, material=material, lights=lights, background=background,
+                     source=self.source, warnings=tuple(self.warnings), color=color)
+
+    def camera(self, v: Any) -> Camera:
+        t = self.table(v, "camera")
+        self.check_keys(t, "camera", _CAMERA_ALL, _CAMERA_ALL_ORDERED)
+        if "type" not in t:
+            self.fail("camera.type", f"missing required key; one of {_quoted_list(CAMERA_TYPES)}")
+        type_ = self.enum(t["type"], "camera.type", CAMERA_TYPES)
+        allowed = _CAMERA_KEYS[type_]
+        for k in t:
+            if k not in allowed:
+                self.not_for_type("camera", k, "camera", type_, _CAMERA_KEYS)
+        if type_ == "perspective":
+            if "position" not in t:
+                self.fail("camera.position", "missing; a 'perspective' camera needs the eye "
+                                             "position, e.g. position = [0.0, 2.0, 6.0]")
+            return Camera(type_, position=self.vec3(t["position"], "camera.position"))
+        if type_ == "metadata":
+            up = self.enum(t["up"], "camera.up", CAMERA_UP_AXES) if "up" in t else "y"
+            return Camera(type_, up=up)
+        if "direction" not in t:
+            self.fail("camera.direction", "missing; an 'orthographic' camera needs the view "
+                                          "direction (eye -> scene), e.g. direction = [0, 0, -1]")
+        return Camera(type_, direction=self.unit(t["direction"], "camera.direction"))
+
+    def material(self, v: Any) -> Material:
+        t = self.table(v, "material")
+        self.check_keys(t, "material", frozenset(_MATERIAL_KEYS), _MATERIAL_KEYS)
+        for k in _MATERIAL_REQUIRED:
+            if k not in t:
+                self.fail(f"material.{k}", "missing required key")
+        model = self.enum(t["model"], "material.model", MATERIAL_MODELS)
+        k_a = self.nonneg(t["k_a"], "material.k_a", f32=False)   # only k_a·Σ ambient reaches the kernels
+        k_d = self.nonneg(t["k_d"], "material.k_d")
+        k_s = self.nonneg(t["k_s"], "material.k_s")
+        h = self.nonneg(t["h"], "material.h")
+        cs = _WHITE
+        if "specular_color" in t:
+            cs = self.vec3(t["specular_color"], "material.specular_color", nonneg=True)
+        return Material(model, k_a, k_d, k_s, h, cs)
+
+    def render(self, v: Any) -> Vec3:
+        t = self.table(v, "render")
+        self.check_keys(t, "render", frozenset(_RENDER_KEYS), _RENDER_KEYS)
+        if "background" not in t:
+            return (0.0, 0.0, 0.0)
+        b = t["background"]
+        if isinstance(b, (list, tuple)):
+            return self.vec3(b, "render.background")
+        if isinstance(b, (str, bool)) or not isinstance(b, numbers.Real):
+            self.fail("render.background", "expected a number or an array of 3 numbers "
+                                           f"[r, g, b], got {_describe(b)}")
+        x = self.num(b, "render.background")
+        return (x, x, x)
+
+    def color_settings(self, t: Mapping) -> "ColorSettings":
+        """Tone mapping and colour keys of [render] (the table is already checked)."""
+        ws = "lin_rec709"
+        if "working_space" in t:
+            ws = self.enum(t["working_space"], "render.working_space", WORKING_SPACE_NAMES)
+        exposure = 0.0
+        if "exposure" in t:
+            exposure = self.num(t["exposure"], "render.exposure")
+            try:
+                check_exposure(exposure, "render.exposure")
+            except ToneMapError as exc:
+                self.fail("render.exposure", exc.problem)
+        op_name = "none"
+        if "tonemap" in t:
+            v = t["tonemap"]
+            if not isinstance(v, str):
+                self.fail("render.tonemap", f"expected a string, got {_describe(v)}")
+            try:
+                op_name = operator(v).name
+            except ToneMapError as exc:
+                self.fail("render.tonemap", str(exc))
+        white = None
+        if "white_point" in t:
+            white = self.num(t["white_point"], "render.white_point")
+            if white <= 0:
+                self.fail("render.white_point", f"must be > 0, got {white!r}")
+            if not operator(op_name).uses_white:
+                self.warn("render.white_point", f"{op_name!r} has no white point; only "
+                                                "'reinhard-extended' and 'hable' use it")
+        names = {}
+        for key in ("display", "view", "look"):
+            if key in t:
+                v = t[key]
+                if not isinstance(v, str) or not v.strip():
+                    self.fail(f"render.{key}", f"expected a non-empty string (an OCIO {key} "
+                                               f"name), got {_describe(v)}")
+                names[key] = v
+        return ColorSettings(working_space=ws, exposure=exposure, tonemap=op_name,
+                             white_point=white, **names)
+
+    def lights(self, v: Any) -> tuple[Light, ...]:
+        if not isinstance(v, (list, tuple)):
+            if isinstance(v, Mapping):
+                self.fail("light", "expected an array of tables, got a single table "
+                                   "(write [[light]], not [light])")
+            self.fail("light", f"expected an array of tables [[light]], got {_describe(v)}")
+        one = self.light
+        return tuple([one(lt, i) for i, lt in enumerate(v)])
+
+    def light(self, v: Any, i: int) -> Light:
+        path = f"light[{i}]"
+        if not isinstance(v, Mapping):
+            self.fail(path, f"expected a table, got {_describe(v)}")
+        self.check_keys(v, path, _LIGHT_ALL, _LIGHT_ALL_ORDERED)
+        if "type" not in v:
+            self.fail(path + ".type", f"missing required key; one of "
+                                      f"{_quoted_list(LIGHT_TYPES)}")
+        type_ = v["type"]
+        if type(type_) is not str or type_ not in _LIGHT_KEYS:
+            self.enum(type_, path + ".type", LIGHT_TYPES)
+        if not _LIGHT_SETS[type_].issuperset(v.keys()):
+            allowed = _LIGHT_KEYS[type_]
+            for k in v:
+                if k not in allowed:
+                    self.not_for_type(path, k, "light", type_, _LIGHT_KEYS)
+        # color and intensity reach the kernels only as their product (checked
+        # below), so either may be beyond float32 alone
+        color = _WHITE
+        if "color" in v:
+            color = self.vec3(v["color"], path + ".color", nonneg=True, f32=False)
+        intensity = 1.0
+        if "intensity" in v:
+            intensity = self.nonneg(v["intensity"], path + ".intensity", f32=False)
+        self.fits_f32(max(color) * intensity, path + ".intensity", "color x intensity")
+        if type_ == "point":
+            if "position" not in v:
+                self.fail(path + ".position", "missing; a 'point' light needs a position, "
+                                              "e.g. position = [3.0, 5.0, 4.0]")
+            position = self.vec3(v["position"], path + ".position")
+            att = _NO_FALLOFF
+            if "attenuation" in v:
+                apath = path + ".attenuation"
+                att = self.vec3(v["attenuation"], apath)
+                if att != _NO_FALLOFF:
+                    problem = attenuation_problem(*att)
+                    if problem is not None:
+                        self.fail(apath, f"{problem}; got {list(att)!r}")
+                    a32 = (_f32(att[0]), _f32(att[1]), _f32(att[2]))
+                    for k, (c, c32) in enumerate(zip(att, a32)):
+                        if c != 0 and abs(c32) < FLT_MIN:
+                            least = f"{FLT_MIN:.9g}"
+                            self.fail(f"{apath}[{k}]", f"{c!r} is nonzero but below the smallest "
+                                      "normal float32, so the kernels (which flush subnormals) "
+                                      "take it as 0; " + (f"c0 must be >= {least}" if k == 0 else
+                                                         f"write 0, or at least {least} in magnitude"))
+                    # The kernels form radiance x 1/p(d) in float32: an infinite
+                    # one (times a weight of 0) is a NaN pixel.
+                    falloff = kernel_falloff_bound(*att)
+                    if math.isinf(falloff):
+                        self.fail(apath, f"{list(att)!r}: min p(d) = "
+                                         f"{_g(1 / largest_falloff(*att))} is so close to 0 "
+                                         "that p(d) = c0 + c1*d + c2*d^2 can round to 0 or "
+                                         "below in the kernels' float32 arithmetic (and the "
+                                         "float path and culling store the coefficients as "
+                                         "float32); keep it further from the limit")
+                    radiance = max(color) * intensity           # rounded once to float32
+                    if not math.isfinite(_f32(radiance * falloff * (1 + U))):
+                        self.fail(apath, "color x intensity x the largest falloff 1/min p(d) = "
+                                         f"{_g(radiance * largest_falloff(*att))} is beyond the "
+                                         "float32 range the kernels compute in (|x| <= "
+                                         f"{_g(FLT_MAX)}, less their rounding error); lower the "
+                                         "intensity or raise the minimum of p(d)")
+            return Light(type_, color, intensity, position=position, attenuation=att)
+        if type_ == "directional":
+            if "direction" not in v:
+                self.fail(path + ".direction", "missing; a 'directional' light needs the "
+                                               "direction it travels, e.g. "
+                                               "direction = [-1.0, -1.5, -1.0]")
+            return Light(type_, color, intensity,
+                         direction=self.unit(v["direction"], path + ".direction"))
+        return Light(type_, color, intensity)
+
+    def check_scene(self, m: Material, lights: tuple[Light, ...]) -> None:
+        # The products the host forms before the kernels see them as float32.
+        self.fits_f32(m.exponent, "material.h", "the exponent 4h of 'blinn-phong'")
+        self.fits_f32(m.k_s * max(m.specular_color), "material.k_s", "k_s x specular_color")
+        amb = [math.fsum(lt.radiance[c] for lt in lights if lt.type == "ambient") for c in range(3)]
+        self.fits_f32(m.k_a * max(amb), "material.k_a", "k_a x the ambient lights' summed radiance")
+        total = math.fsum((m.k_a, m.k_d, m.k_s))
+        if total > 1.0 + _SUM_TOLERANCE:
+            self.warn("material", f"k_a + k_d + k_s = {_g(total)} > 1: the surface reflects "
+                                  "more light than it receives (the consistency rule); "
+                                  "allowed, e.g. for HDR scenes")
+        if m.k_a > 0 and not any(lt.type == "ambient" for lt in lights):
+            self.warn("material.k_a", f"k_a = {_g(m.k_a)} but the scene has no ambient light, "
+                                      "so the ambient term is 0; add a [[light]] of "
+                                      "type = \"ambient\"")
+
+
+# --------------------------------------------------------------------------
+# public entry points
+# --------------------------------------------------------------------------
+
+
+def _emit(scene: Scene, stacklevel: int) -> None:
+    for w in scene.warnings:
+        _warnings.warn(w, SceneWarning, stacklevel=stacklevel + 1)
+
+
+def _parse(data: Mapping, source: str) -> Scene:
+    return _Parser(source).scene(data)
+
+
+def parse_scene(data: Mapping, source: str = "<scene>") -> Scene:
+    """Validate scene data (as :func:`tomllib.load` returns it) into a :class:`Scene`.
+
+    Parameters
+    ----------
+    data : Mapping
+        The top-level table: ``camera``, ``material``, optional ``render``
+        and optional ``light`` (a list of tables).
+    source : str, optional
+        Name of where the data came from, used in messages.
+
+    Returns
+    -------
+    Scene
+        With ``source`` set and any warnings in ``Scene.warnings``; each
+        warning is also emitted with :func:`warnings.warn` as
+        :class:`SceneWarning`.
+
+    Raises
+    ------
+    SceneError
+        On the first problem found, with a one-line message
+        ``"<source>: <key path>: <problem>"``.
+    """
+    source = _one_line(str(source))
+    scene = _parse(data, source)
+    _emit(scene, stacklevel=2)
+    return scene
+
+
+_TOML_POS = re.compile(r"\s*\(at line (\d+), column (\d+)\)\s*$")
+#: What tomllib (before Python 3.14) says instead of a line and column at the end.
+_TOML_END = re.compile(r"\s*\(at end of document\)\s*$")
+
+
+def load_scene(path: str | os.PathLike) -> Scene:
+    """Read and validate a TOML scene file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The scene file (UTF-8 TOML).
+
+    Returns
+    -------
+    Scene
+        ``Scene.source`` is ``path`` as given.
+
+    Raises
+    ------
+    SceneError
+        If the file cannot be read (``"<path>: cannot read scene file: ..."``),
+        is not UTF-8, is not valid TOML (``"<path>:<line>:<col>: invalid
+        TOML: ..."``), or fails validation (see :func:`parse_scene`).
+    """
+    source = _one_line(os.fspath(path) if not isinstance(path, bytes)
+                       else os.fsdecode(path))
+    try:
+        with open(path, "rb") as f:
+            _check_scene_memory(source, os.fstat(f.fileno()).st_size)
+            raw = f.read()
+    except FileNotFoundError:
+        raise SceneError(f"{source}: cannot read scene file: no such file") from None
+    except IsADirectoryError:
+        raise SceneError(f"{source}: cannot read scene file: it is a directory") from None
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise SceneError(_one_line(f"{source}: cannot read scene file: {reason}")) from None
+    image = image_kind(source, raw)
+    if image:
+        raise SceneError(f"{source}: this is {image} image, not a scene file; give the scene "
+                         ".toml first: clphong render SCENE.toml GBUFFER.exr ...")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise SceneError(f"{source}:{line}: invalid TOML: not UTF-8 (byte {exc.start}); "
+                         "save the file as UTF-8") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(_toml_message(source, exc, text)) from None
+    except RecursionError:
+        # tomllib parses nested arrays and inline tables recursively: a few
+        # hundred levels exhaust the interpreter's stack (found by fuzzing).
+        raise SceneError(f"{source}: invalid TOML: arrays or inline tables nested too deeply "
+                         "for the parser (a scene needs at most 2 levels)") from None
+    except MemoryError:
+        raise SceneError(f"{source}: out of memory parsing a {len(raw)}-byte scene file") from None
+    scene = _parse(data, source)
+    _emit(scene, stacklevel=2)
+    return scene
+
+
+#: Peak bytes of memory per byte of TOML while parsing (tomllib and the scene
+#: objects), an upper bound from tracemalloc measurements: 14-39 for scene-like
+#: documents (50 000 lights as [[light]] tables 18, as inline tables 23-26),
+#: 102 for the worst found, a document of empty [tN] tables.
+SCENE_BYTES_PER_BYTE = 128
+
+
+def _check_scene_memory(source: str, size: int) -> None:
+    """Refuse a scene file whose parse could exhaust memory (instead of being killed)."""
+    require_memory(SCENE_BYTES_PER_BYTE * size,
+                   f"{source}: parsing a {format_size(size)} scene file", SceneError,
+                   "use fewer lights, or set CLPHONG_MAX_MEMORY (e.g. 16G) if you know "
+                   "there is more memory")
+
+
+def _toml_message(source: str, exc: tomllib.TOMLDecodeError, text: str = "") -> str:
+    msg = str(exc.args[0]) if exc.args else str(exc)
+    line = getattr(exc, "lineno", None)
+    col = getattr(exc, "colno", None)
+    if getattr(exc, "msg", None):  # Python >= 3.14 keeps the bare message
+        msg = exc.msg
+    m = _TOML_POS.search(msg)
+    end = _TOML_END.search(msg)
+    if m:
+        line, col = int(m.group(1)), int(m.group(2))
+        msg = msg[: m.start()]
+    elif end:                     # the position len(text), counted as tomllib counts
+        line = text.count("\n") + 1
+        col = len(text) - text.rfind("\n") if line > 1 else len(text) + 1
+        msg = msg[: end.start()]
+    where = f"{source}:{line}:{col}" if line is not None else source
+    return _one_line(f"{where}: invalid TOML: {msg}")

@@ -1,0 +1,812 @@
+"""Batch relighting: frame sequences × light rigs → one output per frame per rig.
+
+Sequences
+---------
+An input is a frame pattern or a folder:
+
+* ``shot/gbuf.####.exr``: each ``#`` is one digit of zero padding
+  (``####`` → ``0001``; longer numbers are written in full);
+* ``shot/gbuf.%04d.exr`` (printf style; ``%d`` for no padding);
+* ``shot/`` (a folder): every ``*.exr`` in it (hidden files aside) is a frame,
+  numbered by the digits at the end of its own file stem (``gbuf.0012.exr``
+  is frame 12). A file without such a number (``notes.exr``), or two files
+  with the same number (two sequences in one folder), is an error naming the
+  file(s), never a silent renumbering: give a pattern to pick one sequence;
+* a single file: a one-frame sequence.
+
+Without ``frames=`` the frames are those found on disk. With it (a range
+string such as ``1-240x2``, see :func:`parse_frame_range`) exactly those
+frames are relit, and a frame whose file is missing is reported as failed.
+
+Outputs
+-------
+Each frame and rig is delivered as any combination of a scene-linear EXR, SDR
+PNG/TIFF, HDR PQ PNG/JPEG XL and a contact sheet, all from one shading
+through :func:`clphong.deliver.outputs.render_outputs` (the output step of
+``clphong render``), with the rig's :class:`~clphong.deliver.outputs.OutputOptions`
+(its scene's ``[render]`` colour settings, overridable). Each kind has an
+output template: a path with the fields ``{frame}`` (an int: use
+``{frame:04d}``), ``{rig}``, ``{stem}`` (input file name without extension)
+and ``{name}`` (``{stem}`` without its frame number), which may use ``####``
+or ``%04d`` for the frame. Folders are created as needed. Each file is written
+to a temporary name in its folder and renamed into place, so an output path
+either holds a complete image or does not exist; an interrupted run leaves
+no partial file. A frame and rig is complete when all its files exist: a
+rerun with ``skip_existing`` skips those and writes the missing files of the
+others (temporary files left by a killed run are removed first).
+
+Execution
+---------
+``jobs=1`` relights in this process, reading the next frame in a thread while
+the current one shades (OpenImageIO and the OpenCL queue release the GIL).
+``jobs=N`` runs N worker processes; a worker that dies (killed, crashed) has
+the temporary files of its frame removed and that frame retried once on
+another worker, then reported failed. ``scheduler=ADDRESS`` sends each frame as
+a task to a Dask distributed cluster (:mod:`clphong.pipeline.distributed`). Every
+worker builds its :class:`~clphong.pipeline.relighter.Relighter` per rig once and reuses it.
+One bad frame never stops a batch: its failure is recorded with the reason,
+the others complete, and :attr:`BatchResult.failed` lists them.
+"""
+
+from __future__ import annotations
+
+import collections
+import glob
+import os
+import queue
+import re
+import signal
+import string
+import sys
+import threading
+import time
+import warnings
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+
+from ..core.errors import ClphongError
+from ..core.memory import ENV_VAR, memory_budget
+from ..deliver.outputs import OutputPaths, check_extensions
+from ..io.atomic import remove_live_temporaries
+from .distributed import run_on_dask
+from .jobs import (
+    BatchError,
+    Interrupted,
+    Job,
+    Outcome,
+    Rig,
+    failed_outcomes,
+    load_job,
+    relight_job,
+    shade_job,
+)
+from .relighter import cached_relighter
+
+__all__ = ["BatchError", "Rig", "Job", "Outcome", "BatchPlan", "BatchResult", "Interrupted",
+           "parse_frame_range", "expand_sequence", "format_output", "plan_batch", "run_batch",
+           "relight_job", "stale_temporaries", "failed_outcomes"]
+
+
+# --------------------------------------------------------------------------- frames and names
+
+
+_RANGE_ITEM = re.compile(r"^\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*(?:[x:]\s*(\d+)\s*)?)?$")
+
+
+def parse_frame_range(text: str) -> list[int]:
+    """Frames of a range string, in order, without duplicates.
+
+    Parameters
+    ----------
+    text : str
+        Comma-separated items: ``N``, ``A-B`` (inclusive) or ``A-BxS``
+        (every S-th frame from A up to B), e.g. ``"1-240x2"`` or
+        ``"1-10,20,30-40x5"``.
+
+    Raises
+    ------
+    BatchError
+        Naming the bad item: not a range, ``B < A`` or a step < 1.
+
+    Examples
+    --------
+    >>> parse_frame_range("1-9x4,20")
+    [1, 5, 9, 20]
+    """
+    frames: list[int] = []
+    seen: set[int] = set()
+    if not str(text).strip():
+        raise BatchError("frame range is empty; write e.g. 1-240 or 1-240x2")
+    for item in str(text).split(","):
+        m = _RANGE_ITEM.match(item)
+        if not m:
+            raise BatchError(f"frame range {text!r}: {item.strip()!r} is not N, A-B or A-BxSTEP")
+        a = int(m.group(1))
+        b = int(m.group(2)) if m.group(2) is not None else a
+        step = int(m.group(3)) if m.group(3) is not None else 1
+        if step < 1:
+            raise BatchError(f"frame range {text!r}: step in {item.strip()!r} must be >= 1")
+        if b < a:
+            raise BatchError(f"frame range {text!r}: {item.strip()!r} ends before it starts")
+        for f in range(a, b + 1, step):
+            if f not in seen:
+                seen.add(f)
+                frames.append(f)
+    return frames
+
+
+_HASHES = re.compile(r"#+")
+_PRINTF = re.compile(r"%(0?)(\d*)d")
+
+
+def _frame_token(pattern: str) -> tuple[str, str, int] | None:
+    """(prefix, suffix, padding) of the one frame token of a file pattern, or None."""
+    base = os.path.basename(pattern)
+    hashes = list(_HASHES.finditer(base))
+    printf = list(_PRINTF.finditer(base))
+    if len(hashes) + len(printf) > 1:
+        raise BatchError(f"{pattern}: more than one frame token (#### or %04d); use exactly one")
+    if not hashes and not printf:
+        return None
+    m = (hashes or printf)[0]
+    pad = len(m.group(0)) if hashes else (int(m.group(2)) if m.group(2) else 1)
+    folder = pattern[: len(pattern) - len(base)]
+    return folder + base[: m.start()], base[m.end():], pad
+
+
+def _pad(frame: int, pad: int) -> str:
+    return f"{frame:0{pad}d}" if frame >= 0 else f"-{-frame:0{pad}d}"
+
+
+_TRAILING_NUMBER = re.compile(r"^(.*?)(\d+)$")
+
+
+def _split_stem(stem: str) -> tuple[str, int | None]:
+    """('shot', 12) for 'shot.0012' / 'shot_0012'; (stem, None) without a number."""
+    m = _TRAILING_NUMBER.match(stem)
+    if not m:
+        return stem, None
+    return m.group(1).rstrip("._-") or m.group(1), int(m.group(2))
+
+
+def _pattern_of(folder: str, numbered) -> str:
+    """``folder/gbuf.####.exr`` from the first numbered file name of ``numbered`` (for messages)."""
+    for n, f in numbered:
+        if n is not None:
+            stem, ext = os.path.splitext(f)
+            m = _TRAILING_NUMBER.match(stem)
+            return os.path.join(folder, m.group(1) + "#" * len(m.group(2)) + ext)
+    return os.path.join(folder, "NAME.####.exr")
+
+
+def expand_sequence(pattern: str, frames: Sequence[int] | None = None) -> list[tuple[int, str]]:
+    """The (frame, path) pairs of a sequence (see the module docstring).
+
+    A folder's frames are numbered by the digits at the end of each file's
+    own stem, so ``--frames`` means the same frames for a folder as for its
+    ``P.####.exr`` pattern. A folder is refused (rather than renumbered, or
+    partly skipped) when one of its EXRs has no frame number or two have the
+    same one: a stray file there is either a misnamed frame or not part of
+    the shot, which only the user can tell.
+
+    Raises
+    ------
+    BatchError
+        No frames found; a pattern without a frame token given ``frames``; a
+        folder with an un-numbered EXR (the message names it) or with two
+        EXRs of one frame number (it names both).
+    """
+    pattern = os.fspath(pattern)
+    if os.path.isdir(pattern):
+        files = [f for f in sorted(os.listdir(pattern))
+                 if f.lower().endswith(".exr") and not f.startswith(".")
+                 and os.path.isfile(os.path.join(pattern, f))]
+        numbered = [(_split_stem(os.path.splitext(f)[0])[1], f) for f in files]
+        owner: dict[int, str] = {}
+        for n, f in numbered:
+            if n is None:
+                raise BatchError(f"{os.path.join(pattern, f)}: no frame number at the end of its name, and "
+                                 "every .exr in a sequence folder is a frame; move it out, or give a "
+                                 f"pattern such as {_pattern_of(pattern, numbered)}")
+            if n in owner:
+                raise BatchError(f"{os.path.join(pattern, owner[n])} and {os.path.join(pattern, f)} are "
+                                 f"both frame {n} (two sequences in one folder?); give a pattern such as "
+                                 f"{_pattern_of(pattern, [(n, f)])} to pick one")
+            owner[n] = f
+        pairs = sorted((n, os.path.join(pattern, f)) for n, f in numbered)
+        if frames is not None:
+            wanted = set(frames)
+            pairs = [p for p in pairs if p[0] in wanted]
+        if not pairs:
+            what = f" in frames {_short_frames(frames)}" if frames is not None else ""
+            raise BatchError(f"{pattern}: no .exr files{what}")
+        return pairs
+    token = _frame_token(pattern)
+    if token is None:
+        if frames is not None and list(frames) != [_split_stem(os.path.splitext(os.path.basename(pattern))[0])[1]]:
+            raise BatchError(f"{pattern}: a frame range needs a sequence pattern (P.####.exr, P.%04d.exr) "
+                             "or a folder")
+        n = _split_stem(os.path.splitext(os.path.basename(pattern))[0])[1]
+        return [(n if n is not None else 1, pattern)]
+    prefix, suffix, pad = token
+    if frames is not None:
+        return [(f, f"{prefix}{_pad(f, pad)}{suffix}") for f in frames]
+    regex = re.compile(re.escape(os.path.basename(prefix)) + r"(-?\d+)" + re.escape(suffix) + r"$")
+    folder = os.path.dirname(prefix) or "."
+    found = []
+    try:
+        names = os.listdir(folder)
+    except OSError as exc:
+        raise BatchError(f"{pattern}: cannot list folder {folder}: {exc.strerror or exc}") from None
+    for fname in names:
+        m = regex.match(fname)
+        if m and _pad(int(m.group(1)), pad) == m.group(1):
+            found.append((int(m.group(1)), os.path.join(os.path.dirname(prefix), fname)))
+    if not found:
+        raise BatchError(f"{pattern}: no files match the pattern")
+    return sorted(found)
+
+
+def _short_frames(frames) -> str:
+    frames = list(frames or [])
+    return ", ".join(map(str, frames[:5])) + (", ..." if len(frames) > 5 else "")
+
+
+_FIELDS = ("frame", "rig", "stem", "name")
+
+
+def _check_template(template: str) -> None:
+    try:
+        parsed = list(string.Formatter().parse(template))
+    except ValueError as exc:
+        raise BatchError(f"output template {template!r}: {exc}") from None
+    for _, fld, _, _ in parsed:
+        if fld is not None and fld not in _FIELDS:
+            raise BatchError(f"output template {template!r}: unknown field {{{fld}}}; "
+                             f"use {', '.join('{' + f + '}' for f in _FIELDS)}")
+
+
+def format_output(template: str, *, frame: int, rig: str, source: str) -> str:
+    """The output path of one frame and rig.
+
+    Examples
+    --------
+    >>> format_output("out/{rig}/{name}.####.exr", frame=7, rig="key", source="in/shot.0007.exr")
+    'out/key/shot.0007.exr'
+    """
+    stem = os.path.splitext(os.path.basename(source))[0]
+    name = _split_stem(stem)[0]
+    text = _HASHES.sub(lambda m: _pad(frame, len(m.group(0))), template)
+    text = _PRINTF.sub(lambda m: _pad(frame, int(m.group(2)) if m.group(2) else 1), text)
+    try:
+        return text.format(frame=frame, rig=rig, stem=stem, name=name)
+    except (ValueError, KeyError, IndexError) as exc:
+        raise BatchError(f"output template {template!r}: {exc}") from None
+
+
+# --------------------------------------------------------------------------- plan
+
+@dataclass
+class BatchPlan:
+    """The jobs to run, and what already exists.
+
+    ``skipped``: (frame, rig, OutputPaths) of each complete frame and rig
+    (every file exists); ``kept``: (frame, rig, path) of existing files of an
+    incomplete one (its job writes only the missing files).
+    """
+
+    jobs: list[Job]
+    skipped: list[tuple[int, str, OutputPaths]] = field(default_factory=list)
+    kept: list[tuple[int, str, str]] = field(default_factory=list)
+
+    @property
+    def outputs(self) -> int:
+        """Frames × rigs to deliver (the unit of progress and of the summary)."""
+        return sum(len(j.outputs) for j in self.jobs)
+
+    @property
+    def files(self) -> int:
+        """Files to write."""
+        return sum(len(p) for j in self.jobs for _, p in j.outputs)
+
+
+def plan_batch(sequence: str, rigs: Sequence[Rig], template: str | None = None, *,
+               sdr: Sequence[str] = (), hdr: Sequence[str] = (), contact_sheet: Sequence[str] = (),
+               frames: Sequence[int] | None = None, skip_existing: bool = False) -> BatchPlan:
+    """Expand the sequence, name every output, and drop those that exist (with ``skip_existing``).
+
+    Parameters
+    ----------
+    sequence : str
+        Frame pattern or folder (see the module docstring).
+    rigs : sequence of Rig
+    template : str, optional
+        Template of the scene-linear EXR of each frame and rig.
+    sdr, hdr, contact_sheet : sequence of str
+        Templates of the SDR (``.png``/``.tif``), HDR (``.png``/``.jxl``) and
+        contact-sheet files of each frame and rig (a single string is one template).
+    frames : sequence of int, optional
+    skip_existing : bool
+        Skip a frame and rig whose files all exist; write only the missing
+        files of one whose files partly exist.
+
+    Raises
+    ------
+    BatchError
+        No output template, a template with a bad field or extension, two
+        outputs with the same path (a template without ``{rig}`` for several
+        rigs, or without a frame for several frames), or an output that would
+        overwrite an input.
+    """
+    if not rigs:
+        raise BatchError("no light rig given; pass at least one scene file with --rig")
+    names = [r.name for r in rigs]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise BatchError(f"rig name {sorted(dup)[0]!r} is used twice; name rigs with --rig NAME=SCENE.toml")
+    templates = OutputPaths(exr=template, sdr=sdr, hdr=hdr, contact_sheet=contact_sheet)
+    if not templates:
+        raise BatchError("no output template given; give -o OUT.####.exr, --sdr OUT.####.png, "
+                         "--hdr OUT.####.png or --contact-sheet OUT.####.png")
+    for t in templates.files:
+        _check_template(t)
+    try:
+        check_extensions(templates)
+    except ClphongError as exc:
+        raise BatchError(f"output template {exc}") from None
+    pairs = expand_sequence(sequence, frames)
+    owner: dict[str, tuple[int, str]] = {}
+    inputs = {os.path.abspath(p): f for f, p in pairs}
+    plan = BatchPlan([])
+    for frame, src in pairs:
+        outs = []
+        for rig in rigs:
+            def name(kind, tmpl):
+                return format_output(tmpl, frame=frame, rig=rig.name, source=src)
+
+            paths = templates.map(name)
+            for path, tmpl in zip(paths.files, templates.files):
+                key = os.path.abspath(path)
+                if key in owner:
+                    f0, r0 = owner[key]
+                    raise BatchError(f"output template {tmpl!r} gives {path} for both frame {f0} rig "
+                                     f"{r0!r} and frame {frame} rig {rig.name!r}; add {{rig}} or #### "
+                                     "to it (or give each output kind its own name)")
+                owner[key] = (frame, rig.name)
+                if key in inputs:
+                    raise BatchError(f"{path}: output would overwrite the input of frame {inputs[key]}; "
+                                     "choose another output template")
+            if skip_existing:
+                exist = [p for p in paths.files if os.path.isfile(p)]
+                if len(exist) == len(paths):
+                    plan.skipped.append((frame, rig.name, paths))
+                    continue
+                plan.kept.extend((frame, rig.name, p) for p in exist)
+                paths = paths.only(p for p in paths.files if p not in exist)
+            outs.append((rig.name, paths))
+        if outs:
+            plan.jobs.append(Job(frame, src, tuple(outs)))
+    return plan
+
+
+def stale_temporaries(path: str) -> list[str]:
+    """Temporary files that :func:`clphong.io.atomic.atomic_path` left for ``path`` (a killed run)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    stem, ext = os.path.splitext(os.path.basename(path))
+    rx = re.compile(r"^\." + re.escape(stem) + r"\.tmp-[0-9a-f]{8}" + re.escape(ext) + r"$")
+    pattern = os.path.join(glob.escape(folder), "." + glob.escape(stem) + ".tmp-*" + glob.escape(ext))
+    return [p for p in glob.glob(pattern, include_hidden=True) if rx.match(os.path.basename(p))]
+
+
+# --------------------------------------------------------------------------- running
+
+
+@dataclass
+class BatchResult:
+    outcomes: list[Outcome]
+    skipped: int
+    seconds: float
+    stale_removed: int = 0
+    interrupted: int | None = None          # the signal number, if interrupted
+    #: (frame, source, reason) of each frame retried because its worker process died.
+    retried: list[tuple[int, str, str]] = field(default_factory=list)
+
+    @property
+    def written(self) -> list[Outcome]:
+        return [o for o in self.outcomes if o.ok]
+
+    @property
+    def failed(self) -> list[Outcome]:
+        return [o for o in self.outcomes if not o.ok]
+
+    def summary(self) -> list[str]:
+        """Lines for stderr: totals, retries, then one line per failed frame with the reasons.
+
+        The counts and the rate are of outputs: one per frame and rig (each
+        with all its files), the unit of the progress bar too.
+        """
+        n_ok, n_bad = len(self.written), len(self.failed)
+        rate = n_ok / self.seconds if self.seconds > 0 else 0.0
+        head = (f"{n_ok} written, {self.skipped} skipped (exist), {n_bad} failed "
+                f"in {self.seconds:.1f} s ({rate:.2f} outputs/s)")
+        if self.stale_removed:
+            head += f"; removed {self.stale_removed} temporary file(s) of an interrupted run"
+        lines = [head]
+        if self.interrupted:
+            name = signal.Signals(self.interrupted).name
+            lines.append(f"interrupted by {name}: no partial files were left; rerun with "
+                         "--skip-existing to finish")
+        for frame, src, reason in self.retried:
+            lines.append(f"retried frame {frame} ({src}) on another worker: {reason}")
+        by_frame: dict[tuple[int, str], list[Outcome]] = {}
+        for o in self.failed:
+            by_frame.setdefault((o.frame, o.source), []).append(o)
+        if by_frame:
+            lines.append(f"failed: {n_bad} output(s) of {len(by_frame)} frame(s):")
+        listed = []
+        for (frame, src), outs in sorted(by_frame.items()):
+            reasons = {o.error for o in outs}
+            rigs = ", ".join(o.rig for o in outs)
+            if len(reasons) == 1:
+                listed.append(f"  frame {frame} ({src}) [{rigs}]: {reasons.pop()}")
+            else:
+                for o in outs:
+                    listed.append(f"  frame {frame} ({src}) [{o.rig}]: {o.error}")
+        if len(listed) > MAX_FAILURES_LISTED:
+            more = len(listed) - MAX_FAILURES_LISTED
+            listed = listed[:MAX_FAILURES_LISTED] + [f"  ... and {more} more"]
+        return lines + listed
+
+
+#: Failure lines of a batch summary listed in full; the rest are counted ("... and N more").
+MAX_FAILURES_LISTED = 20
+
+
+class _Signals:
+    """Turn SIGTERM (and SIGINT) into :class:`Interrupted` in the main thread while active."""
+
+    def __init__(self):
+        self.old = {}
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self.old[sig] = signal.signal(sig, self._raise)
+        return self
+
+    @staticmethod
+    def _raise(signum, frame):
+        raise Interrupted(signum)
+
+    def __exit__(self, *exc):
+        for sig, handler in self.old.items():
+            signal.signal(sig, handler)
+        return False
+
+
+def _run_inline(jobs: Sequence[Job], specs: dict, on_outcomes: Callable) -> None:
+    """One process: a reader thread prefetches the next G-buffer while this thread shades and writes.
+
+    Writes happen in this (the main) thread, so an interrupt raised here
+    unwinds through :func:`clphong.io.atomic.atomic_path`, which removes the
+    temporary file.
+    """
+    relighters = {rig: cached_relighter(spec) for rig, spec in specs.items()}
+    channels = dict(next(iter(specs.values())).channels) or None
+    ahead: queue.Queue = queue.Queue(maxsize=2)
+    stop = threading.Event()
+
+    def reader():
+        for job in jobs:
+            if stop.is_set():
+                return
+            item = (job, load_job(job, channels))
+            while not stop.is_set():
+                try:
+                    ahead.put(item, timeout=0.1)
+                    break
+                except queue.Full:
+                    continue
+
+    t = threading.Thread(target=reader, name="clphong-reader", daemon=True)
+    t.start()
+    try:
+        for _ in jobs:
+            while True:
+                try:
+                    job, gbuffer = ahead.get(timeout=0.1)
+                    break
+                except queue.Empty:
+                    if not t.is_alive() and ahead.empty():
+                        raise RuntimeError("the frame reader thread stopped unexpectedly")
+            on_outcomes(shade_job(job, gbuffer, relighters))
+    finally:
+        stop.set()
+        t.join(timeout=5)
+
+
+def worker_environment(n: int) -> dict[str, str]:
+    """What each of ``n`` pool workers sets in its environment (where not set
+    already): its share of the cores for PoCL, and its share of the memory this
+    process may use (clphong.device.bands), so that n workers together plan within it."""
+    env = {"POCL_CPU_MAX_CU_NUM": str(max(1, (os.cpu_count() or 1) // n))}
+    budget = memory_budget().bytes
+    if budget is not None and ENV_VAR not in os.environ:
+        env[ENV_VAR] = str(max(1, budget // n))
+    return env
+
+
+def _worker_main(conn, specs, env: dict[str, str]) -> None:  # pragma: no cover - subprocess
+    """A pool worker: relight the jobs that arrive on ``conn`` until a None (or the batch process is gone).
+
+    Replies ``(index, outcomes, warnings)`` per job; the warnings (say, non-finite
+    inputs) are shown by the batch process, as in a one-process batch. SIGTERM
+    or SIGINT end the worker with exit status 128 + the signal number, after
+    removing the temporary file of a write in flight.
+    """
+    for key, value in env.items():      # N workers share the machine: worker_environment
+        os.environ.setdefault(key, value)
+    signal.signal(signal.SIGTERM, _Signals._raise)
+    try:
+        while True:
+            try:
+                item = conn.recv()
+            except (EOFError, OSError):       # the batch process was killed: do not run on orphaned
+                return
+            if item is None:
+                return
+            index, job = item
+            with warnings.catch_warnings(record=True) as caught:
+                outcomes = relight_job(job, specs)
+            shown = [(w.category, str(w.message), w.filename, w.lineno) for w in caught]
+            try:
+                try:
+                    conn.send((index, outcomes, shown))
+                except (AttributeError, TypeError, ValueError):     # a warning class that cannot be pickled
+                    conn.send((index, outcomes, [(UserWarning, *w[1:]) for w in shown]))
+            except OSError:                   # the batch process is gone
+                return
+    except KeyboardInterrupt as exc:
+        remove_live_temporaries()     # a write the interrupt caught before its own cleanup could
+        sys.exit(128 + int(getattr(exc, "signum", signal.SIGINT)))
+    finally:
+        # Nothing is being written any more: a late SIGTERM may simply end the process.
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _death(exitcode: int | None) -> str:
+    """How a worker process ended, for messages: 'killed by SIGKILL', 'SIGTERM, exit code 143'."""
+    if exitcode is not None and exitcode < 0:
+        try:
+            return f"killed by {signal.Signals(-exitcode).name}"
+        except ValueError:
+            return f"killed by signal {-exitcode}"
+    if exitcode is not None and exitcode > 128:
+        try:
+            return f"{signal.Signals(exitcode - 128).name}, exit code {exitcode}"
+        except ValueError:
+            pass
+    return f"exit code {exitcode}"
+
+
+@dataclass
+class _Worker:
+    proc: object
+    conn: object
+    held: list[int] = field(default_factory=list)   # indices of the jobs sent to it, oldest (running) first
+
+
+#: Jobs sent ahead to a pool worker (the one it runs and the next), so that it never waits for work.
+_AHEAD = 2
+
+
+def _run_pool(jobs: Sequence[Job], specs: dict, n: int, on_outcomes: Callable,
+              on_retry: Callable[[Job, str], None] | None = None) -> None:
+    """N worker processes (spawned: OpenCL and threads do not survive fork).
+
+    This process hands each worker its jobs over the worker's own pipe, so it
+    always knows which jobs a worker holds. A worker that ends while holding
+    jobs, whatever its exit status, has died: the temporary files of those
+    jobs' outputs are removed, the job it was running is retried once on
+    another worker (``on_retry`` is told) and fails the second time, the
+    others are sent to other workers, and a new worker replaces it.
+    """
+    import multiprocessing as mp
+    from multiprocessing.connection import wait
+
+    ctx = mp.get_context("spawn")
+    n = max(1, min(n, len(jobs)))
+    env = worker_environment(n)
+    pending = collections.deque(range(len(jobs)))
+    undone = set(range(len(jobs)))
+    first_death: dict[int, str] = {}             # job index -> how its first worker died
+    workers: dict[int, _Worker] = {}             # by process sentinel
+    registry: dict = {}                          # warnings shown (as a module's __warningregistry__)
+    # Each death charges a try to a job (two each), so this many workers is ample; a limit all
+    # the same, so that workers that die before taking any job cannot be replaced forever.
+    spawns_left = n + 2 * len(jobs)
+
+    def spawn():
+        nonlocal spawns_left
+        spawns_left -= 1
+        here, there = ctx.Pipe()
+        p = ctx.Process(target=_worker_main, args=(there, specs, env), daemon=True)
+        p.start()
+        there.close()                            # so that this end reads EOF once the worker is gone
+        workers[p.sentinel] = _Worker(p, here)
+
+    def finish(i, outcomes):
+        if i in undone:
+            undone.discard(i)
+            on_outcomes(outcomes)
+
+    def feed(w):
+        # One job ahead while there are enough for every worker: near the end a
+        # worker holding two frames would leave another idle.
+        while pending and (not w.held or (len(w.held) < _AHEAD and len(pending) >= len(workers))):
+            i = pending.popleft()
+            try:
+                w.conn.send((i, jobs[i]))
+            except OSError:                      # it is dying: its sentinel says so next
+                pending.appendleft(i)
+                return
+            w.held.append(i)
+
+    def receive(w) -> bool:
+        """Take every reply ``w`` has sent; False once its pipe is closed (it has ended)."""
+        while True:
+            try:
+                if not w.conn.poll():
+                    return True
+                i, outcomes, shown = w.conn.recv()
+            except (EOFError, OSError):
+                return False
+            if i in w.held:
+                w.held.remove(i)
+            for category, message, filename, lineno in shown:
+                warnings.warn_explicit(message, category, filename, lineno, registry=registry)
+            finish(i, outcomes)
+
+    def bury(w):
+        del workers[w.proc.sentinel]
+        w.proc.join()
+        w.conn.close()
+        how = _death(w.proc.exitcode)
+        for i in w.held:
+            _remove_temporaries(jobs[i])
+        if w.held:
+            i, rest = w.held[0], w.held[1:]
+            if i in first_death:
+                finish(i, failed_outcomes(jobs[i], f"worker process died twice running it "
+                                                   f"({first_death[i]}, then {how})"))
+            else:
+                first_death[i] = how
+                if on_retry is not None:
+                    on_retry(jobs[i], f"worker process died ({how})")
+                rest = [i, *rest]
+            pending.extendleft(reversed(rest))
+
+    finished = False
+    try:
+        for _ in range(n):
+            spawn()
+        for w in workers.values():
+            feed(w)
+        while undone:
+            if not workers:                      # safety net: never wait on no one
+                for i in sorted(undone):
+                    finish(i, failed_outcomes(jobs[i], "no worker process left to run it"))
+                break
+            ready = set(wait([w.conn for w in workers.values()] + list(workers), timeout=1.0))
+            for w in list(workers.values()):
+                if w.conn in ready or w.proc.sentinel in ready:
+                    if not receive(w) or w.proc.sentinel in ready:
+                        receive(w)               # what it sent before it ended
+                        bury(w)
+            while pending and len(workers) < n and spawns_left > 0:
+                spawn()
+            for w in workers.values():
+                feed(w)
+        finished = True
+    finally:
+        procs = [w.proc for w in workers.values()]
+        if finished:                              # every job is done: let the workers exit
+            for w in workers.values():
+                try:
+                    w.conn.send(None)
+                except OSError:
+                    pass
+            for p in procs:
+                p.join(10)
+        for p in procs:
+            if p.is_alive():
+                p.terminate()                     # SIGTERM: the worker unwinds and removes its temporary file
+        deadline = time.monotonic() + 10
+        for p in procs:
+            p.join(max(0.0, deadline - time.monotonic()))
+            if p.is_alive():
+                p.kill()
+                p.join()
+        for w in workers.values():
+            w.conn.close()
+
+
+def _remove_temporaries(job: Job) -> int:
+    """Remove the temporary files a killed run left for the outputs of ``job``; return how many."""
+    removed = 0
+    for path in (p for _, paths in job.outputs for p in paths.files):
+        for tmp in stale_temporaries(path):
+            try:
+                os.remove(tmp)
+                removed += 1
+            except OSError:
+                pass
+    return removed
+
+
+def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | None = None,
+              progress: bool = False, on_outcome: Callable[[Outcome], None] | None = None) -> BatchResult:
+    """Run a plan; never raises for a bad frame.
+
+    Parameters
+    ----------
+    plan : BatchPlan
+    specs : dict of str to clphong.pipeline.relighter.RelighterSpec
+        One per rig name.
+    jobs : int
+        Local worker processes (1: in this process, with read-ahead).
+    scheduler : str, optional
+        Address of a Dask distributed scheduler (``tcp://host:8786``), or a
+        ``distributed.Client``; frames then run as tasks on its workers.
+    progress : bool
+        Show a tqdm progress bar on stderr: outputs (frames × rigs) done, outputs/s and ETA.
+
+    Returns
+    -------
+    BatchResult
+        With ``interrupted`` set when SIGINT/SIGTERM stopped it.
+    """
+    t0 = time.perf_counter()
+    stale = sum(_remove_temporaries(job) for job in plan.jobs)
+    outcomes: list[Outcome] = []
+    retried: list[tuple[int, str, str]] = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=plan.outputs, unit="output", file=sys.stderr, dynamic_ncols=True,
+                   smoothing=0.1, disable=None)
+
+    def collect(outs: Iterable[Outcome]):
+        for o in outs:
+            outcomes.append(o)
+            if on_outcome is not None:
+                on_outcome(o)
+            if bar is not None:
+                bar.update(1)
+                if not o.ok:
+                    bar.set_postfix_str(f"{len([x for x in outcomes if not x.ok])} failed", refresh=False)
+
+    interrupted = None
+    try:
+        with _Signals():
+            if not plan.jobs:
+                pass
+            elif scheduler is not None:
+                run_on_dask(plan.jobs, specs, scheduler, collect)
+            elif jobs <= 1:
+                _run_inline(plan.jobs, specs, collect)
+            else:
+                _run_pool(plan.jobs, specs, jobs, collect,
+                          on_retry=lambda job, why: retried.append((job.frame, job.source, why)))
+    except Interrupted as exc:
+        interrupted = exc.signum
+    except KeyboardInterrupt:
+        interrupted = signal.SIGINT
+    finally:
+        if interrupted is not None:
+            remove_live_temporaries()   # a write (inline mode) the interrupt caught before its own cleanup could
+        if bar is not None:
+            bar.close()
+    return BatchResult(outcomes, skipped=len(plan.skipped), seconds=time.perf_counter() - t0,
+                       stale_removed=stale, interrupted=interrupted, retried=retried)

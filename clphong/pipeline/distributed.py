@@ -1,0 +1,94 @@
+"""Frames as tasks on a Dask distributed cluster (``clphong relight --scheduler ADDRESS``).
+
+Dask is an optional extra (``pip install "clphong[dask]"``) and is imported
+only here, only when a scheduler is given; local batches never import it.
+
+Each frame (with all its rigs) is one task, :func:`clphong.pipeline.batch.relight_job`.
+The task carries the rigs' :class:`~clphong.pipeline.relighter.RelighterSpec` (the validated
+scenes and options, a few kB); on each worker process
+:func:`clphong.pipeline.relighter.cached_relighter` builds and compiles the relighter on the
+first task and reuses it for every later one. Workers read the G-buffers and
+write the outputs themselves, so inputs and outputs must be on storage that
+every worker sees under the same paths (the usual farm file server).
+
+A farm runs ``dask scheduler`` on one host and ``dask worker tcp://HOST:8786``
+on each render node (with ``--nworkers 1 --nthreads 1``: PoCL already uses
+every core of a node), then::
+
+    clphong relight shot/gbuf.####.exr --rig key.toml -o out/{rig}.####.exr \\
+        --scheduler tcp://HOST:8786
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+from ..core.errors import ClphongError
+from .jobs import Job, Outcome, failed_outcomes, relight_job
+
+__all__ = ["run_on_dask", "SchedulerError"]
+
+
+class SchedulerError(ClphongError):
+    """The Dask scheduler cannot be reached, or Dask is not installed."""
+
+
+def _client(scheduler):
+    try:
+        from distributed import Client
+    except ImportError:
+        raise SchedulerError("--scheduler needs Dask: pip install 'clphong[dask]' "
+                             "(dask[distributed])") from None
+    if not isinstance(scheduler, str):
+        return scheduler, False                      # a Client the caller owns
+    try:
+        return Client(scheduler, timeout="20s", set_as_default=False), True
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise SchedulerError(f"cannot connect to the Dask scheduler at {scheduler}: "
+                             f"{' '.join(str(exc).split())}") from None
+
+
+def run_on_dask(jobs: Sequence[Job], specs: dict, scheduler, on_outcomes: Callable[[list[Outcome]], None]) -> None:
+    """Run every job as a task on a Dask cluster; report outcomes as tasks finish.
+
+    Parameters
+    ----------
+    jobs : sequence of Job
+    specs : dict of str to RelighterSpec
+    scheduler : str or distributed.Client
+        Scheduler address (``tcp://host:8786``) or an existing client.
+    on_outcomes : callable
+        Called with the outcomes of each finished job.
+
+    Notes
+    -----
+    A task that raises (a worker lost, a bug) is reported as failed outcomes
+    for its frame; the other tasks carry on. On an interrupt the pending
+    tasks are cancelled and a client we opened is closed.
+    """
+    client, owned = _client(scheduler)              # first: it explains a missing Dask
+    futures = {}
+    try:
+        from distributed import as_completed
+
+        # Scatter the specs once (broadcast), rather than pickling them into every task.
+        [specs_f] = client.scatter([specs], broadcast=True, hash=False)
+        for job in jobs:
+            fut = client.submit(relight_job, job, specs_f, pure=False,
+                                key=f"clphong-frame-{job.frame}-{id(job):x}")
+            futures[fut] = job
+        for fut in as_completed(list(futures), loop=client.loop):
+            job = futures[fut]
+            try:
+                outs = fut.result()
+            except Exception as exc:  # noqa: BLE001 - a lost worker must not stop the batch
+                reason = f"Dask task failed: {type(exc).__name__}: {' '.join(str(exc).split())}"
+                outs = failed_outcomes(job, reason)
+            on_outcomes(outs)
+            fut.release()
+    finally:
+        pending = [f for f in futures if not f.done()]
+        if pending:
+            client.cancel(pending)
+        if owned:
+            client.close()

@@ -1,0 +1,345 @@
+"""The pipeline-stage API: build a :class:`Relighter` once, relight many frames.
+
+>>> import clphong
+>>> relighter = clphong.Relighter("gbuffers/spheres.toml")      # compiles once
+>>> rgb = relighter.relight("gbuffers/spheres.exr")              # (H, W, 3) float32
+>>> relighter.relight("gbuffers/spheres.exr", out="lit.exr")     # doctest: +SKIP
+>>> relighter.relight("gbuffers/spheres.exr", sdr="lit.png", hdr="lit_pq.png")  # doctest: +SKIP
+
+A frame is a path to a multichannel EXR G-buffer, a
+:class:`~clphong.io.gbuffer.GBuffer`, a mapping ``{"position": P, "normal": N,
+"albedo": C}`` (optionally ``"coverage"`` and material maps) or a tuple
+``(P, N, C)`` of (H, W, 3) float32 or float16 numpy arrays. The result is an
+(H, W, 3) float32 scene-linear array, and, with ``out=`` (scene-linear EXR
+tagged with the working space), ``sdr=`` (PNG/TIFF), ``hdr=`` (PQ PNG or JPEG
+XL) or ``contact_sheet=``, files written by :func:`clphong.deliver.outputs.render_outputs`,
+the same output step as ``clphong render`` (atomically: temporary name, then
+rename). Tone mapping, exposure, display, view and look come from the scene's
+``[render]`` table unless ``output=OutputOptions(...)`` overrides them.
+
+A scene without a ``[camera]`` (or with ``type = "metadata"``) takes each
+frame's camera from its ``worldToCamera`` header attribute
+(:mod:`clphong.io.camera`); numpy input passes the matrix as
+``world_to_camera=``.
+
+A :class:`Relighter` may be shared by several threads: frame preparation runs
+in parallel and kernel launches are serialised by the renderer's lock. The
+``clphong render`` and ``clphong relight`` commands go through this class.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..color.ocio import REC709_CHROMATICITIES, WORKING_SPACES
+from ..core.errors import GBufferError, OutputError
+from ..deliver.outputs import (
+    OUTPUT_KINDS,
+    OutputOptions,
+    OutputPaths,
+    render_outputs,
+    write_output,
+)
+from ..device.renderer import Renderer
+from ..io.atomic import same_file
+from ..io.camera import resolve_camera
+from ..io.gbuffer import MAP_KEYS, GBuffer, read_gbuffer
+from ..model.options import check_budget, check_nonfinite, path_options
+from ..model.scene import Scene, load_scene
+
+__all__ = ["Relighter", "OutputOptions", "OutputPaths", "write_output", "as_gbuffer",
+           "OUTPUT_KINDS", "REC709_CHROMATICITIES", "SCENE_LINEAR_COLORSPACE"]
+
+#: Interop ID of the default working space (linear Rec.709), stored as ``oiio:ColorSpace``;
+#: an EXR in another working space is tagged with that space (:func:`clphong.deliver.outputs.exr_attributes`).
+SCENE_LINEAR_COLORSPACE = WORKING_SPACES["lin_rec709"].interop_id
+#: Pixel types accepted for numpy G-buffer input (anything else is an error).
+_INPUT_DTYPES = (np.float16, np.float32, np.float64)
+
+
+def _array(value, name: str, want_channels: int | None) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.dtype.type not in _INPUT_DTYPES:
+        raise GBufferError(f"{name}: expected a float32 or float16 array, got dtype {arr.dtype}")
+    if want_channels is None:
+        ok = arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] == 1)
+        shape = "(H, W)"
+    else:
+        ok = arr.ndim == 3 and arr.shape[2] == want_channels
+        shape = f"(H, W, {want_channels})"
+    if not ok:
+        raise GBufferError(f"{name}: expected an {shape} array, got shape {arr.shape}")
+    if want_channels is None and arr.ndim == 3:
+        arr = arr[..., 0]
+    return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+def as_gbuffer(frame, *, channels: Mapping | None = None) -> GBuffer:
+    """Turn any accepted frame form into a :class:`~clphong.io.gbuffer.GBuffer`.
+
+    Parameters
+    ----------
+    frame : str, os.PathLike, GBuffer, mapping or (P, N, C) tuple
+        See the module docstring.
+    channels : mapping, optional
+        Channel overrides for file input (see :func:`clphong.read_gbuffer`).
+
+    Raises
+    ------
+    GBufferError
+        An unreadable file, or an array of the wrong shape or dtype (naming
+        the buffer).
+    """
+    if isinstance(frame, GBuffer):
+        return frame
+    if isinstance(frame, (str, os.PathLike)):
+        return read_gbuffer(frame, channels=channels)
+    if isinstance(frame, Mapping):
+        missing = [k for k in ("position", "normal", "albedo") if k not in frame]
+        if missing:
+            raise GBufferError(f"frame mapping lacks {', '.join(missing)}; give position, normal "
+                               "and albedo (H, W, 3) arrays")
+        unknown = [k for k in frame if k not in ("position", "normal", "albedo", "coverage", *MAP_KEYS)]
+        if unknown:
+            raise GBufferError(f"frame mapping: unknown key {unknown[0]!r}; valid keys: position, "
+                               f"normal, albedo, coverage, {', '.join(MAP_KEYS)}")
+        maps = {k: _array(frame[k], k, 3 if k == "specular_color" else None)
+                for k in MAP_KEYS if k in frame}
+        cov = frame.get("coverage")
+        return GBuffer(position=_array(frame["position"], "position", 3),
+                       normal=_array(frame["normal"], "normal", 3),
+                       albedo=_array(frame["albedo"], "albedo", 3),
+                       coverage=None if cov is None else _array(cov, "coverage", None),
+                       maps=maps, convention="explicit")
+    if isinstance(frame, Sequence) and len(frame) == 3:
+        P, N, C = frame
+        return GBuffer(position=_array(P, "position", 3), normal=_array(N, "normal", 3),
+                       albedo=_array(C, "albedo", 3), convention="explicit")
+    raise GBufferError(f"cannot relight a {type(frame).__name__}: give an EXR path, a GBuffer, "
+                       "a mapping of position/normal/albedo arrays or a (P, N, C) tuple")
+
+
+def _hashable_channels(channels) -> tuple:
+    if not channels:
+        return ()
+    return tuple(sorted((k, v if isinstance(v, str) else tuple(v)) for k, v in dict(channels).items()))
+
+
+@dataclass(frozen=True)
+class RelighterSpec:
+    """Everything needed to rebuild an identical :class:`Relighter` elsewhere.
+
+    Picklable and hashable, so worker processes (local pools, Dask workers)
+    can build their relighter once and reuse it (:func:`cached_relighter`).
+    """
+
+    scene: object
+    device: str | None = None
+    kernel: str = "lanes"
+    lanes: int | None = None
+    channels: tuple = ()
+    output: OutputOptions = field(default_factory=OutputOptions)
+    #: Renderer options (see :class:`Relighter`); part of the cache key, so
+    #: workers build a relighter with exactly these.
+    fp64_directions: bool | None = None
+    max_error: float | None = None
+    reference_white: float = 1.0
+    nonfinite: str = "background"
+    path: str | None = None
+
+    def __post_init__(self):
+        check_renderer_options(fp64_directions=self.fp64_directions, max_error=self.max_error,
+                               reference_white=self.reference_white, nonfinite=self.nonfinite,
+                               path=self.path)
+
+    def build(self) -> Relighter:
+        return Relighter(self.scene, device=self.device, kernel=self.kernel, lanes=self.lanes,
+                         channels=dict(self.channels) or None, output=self.output,
+                         fp64_directions=self.fp64_directions, max_error=self.max_error,
+                         reference_white=self.reference_white, nonfinite=self.nonfinite,
+                         path=self.path)
+
+
+def check_renderer_options(*, fp64_directions=None, max_error=None, reference_white=1.0,
+                           nonfinite="background", path=None) -> None:
+    """Check the renderer options of a :class:`Relighter` without compiling anything.
+
+    Raises
+    ------
+    clphong.model.options.CullingError
+        A negative or non-finite ``max_error``, or a ``reference_white`` that
+        is not a finite number > 0.
+    ValueError
+        An unknown ``nonfinite`` policy or ``path``, ``fp64_directions`` not
+        None/bool, or both ``path`` and ``fp64_directions``.
+    """
+    if fp64_directions is not None and not isinstance(fp64_directions, bool):
+        raise ValueError(f"fp64_directions must be None, True or False, not {fp64_directions!r}")
+    if path is not None:
+        path_options(path)
+        if fp64_directions is not None:
+            raise ValueError("give either path or fp64_directions")
+    check_budget(max_error, reference_white)
+    check_nonfinite(nonfinite)
+
+
+_CACHE: dict = {}
+
+
+def cached_relighter(spec: RelighterSpec) -> Relighter:
+    """This process's relighter for ``spec``: built (and compiled) on first use, then reused."""
+    import threading
+
+    lock = _CACHE.setdefault("__lock__", threading.Lock())
+    with lock:
+        r = _CACHE.get(spec)
+        if r is None:
+            r = spec.build()
+            _CACHE[spec] = r
+        return r
+
+
+class Relighter:
+    """A scene compiled once, relighting many frames.
+
+    Parameters
+    ----------
+    scene : clphong.model.scene.Scene or str or os.PathLike
+        The scene (camera, material, lights), or its TOML file.
+    device, kernel, lanes
+        As for :class:`clphong.Renderer`.
+    fp64_directions : bool, optional
+        None (default): directions in double where the device has fp64 (the
+        accurate path); False: float32 directions (``--path float``); True:
+        require fp64.
+    path : {"accurate", "float", "fast"}, optional
+        A shading path (``--path``; :data:`clphong.model.options.PATHS`), instead of
+        ``fp64_directions``.
+    max_error : float, optional
+        Tiled light culling budget relative to ``reference_white``
+        (``--max-error``); None (default): no culling.
+    reference_white : float
+        Output radiance of reference white for ``max_error`` (default 1.0).
+    nonfinite : {"background", "error", "pass"}
+        NaN/Inf input policy (:mod:`clphong.io.nonfinite`); under ``"error"`` a
+        frame with a non-finite value raises
+        :class:`~clphong.core.errors.GBufferError` (in a batch: that frame fails).
+    channels : mapping, optional
+        Channel overrides used when reading frames from files.
+    output : OutputOptions, optional
+        How :meth:`relight` writes files: formats, and colour settings that
+        override the scene's ``[render]`` keys (``None`` fields take the
+        scene's). Resolved and checked here: a bad operator or working space
+        fails at construction.
+
+    Notes
+    -----
+    The kernel variant is compiled at construction (a bad device or kernel
+    fails here, not on the first frame). Thread-safe: several threads may
+    call :meth:`relight` on one instance.
+    """
+
+    def __init__(self, scene, *, device: str | None = None, kernel: str = "lanes",
+                 lanes: int | None = None, channels: Mapping | None = None,
+                 output: OutputOptions | None = None, fp64_directions: bool | None = None,
+                 max_error: float | None = None, reference_white: float = 1.0,
+                 nonfinite: str = "background", path: str | None = None):
+        # Renderer options first: a bad value fails before the scene is read or compiled.
+        check_renderer_options(fp64_directions=fp64_directions, max_error=max_error,
+                               reference_white=reference_white, nonfinite=nonfinite, path=path)
+        if not isinstance(scene, Scene):
+            scene = load_scene(scene)
+        self.scene = scene
+        self.channels = dict(channels) if channels else None
+        self.output = (output or OutputOptions()).for_scene(scene)
+        self.renderer = Renderer(scene, device=device, kernel=kernel, lanes=lanes,
+                                 fp64_directions=fp64_directions, max_error=max_error,
+                                 reference_white=reference_white, nonfinite=nonfinite,
+                                 path=path)
+        self.spec = RelighterSpec(scene=scene, device=device, kernel=kernel, lanes=lanes,
+                                  channels=_hashable_channels(channels), output=self.output,
+                                  fp64_directions=fp64_directions, max_error=max_error,
+                                  reference_white=reference_white, nonfinite=nonfinite,
+                                  path=path)
+
+    @property
+    def camera_from_metadata(self) -> bool:
+        """True when each frame's camera comes from its ``worldToCamera``."""
+        return self.scene.camera.type == "metadata"
+
+    def read(self, frame) -> GBuffer:
+        """The frame as a :class:`~clphong.io.gbuffer.GBuffer` (reads files; validates arrays)."""
+        return as_gbuffer(frame, channels=self.channels)
+
+    def renderer_for(self, gbuffer: GBuffer, *, world_to_camera=None, source: str | None = None):
+        """The renderer for one frame: ours, or, for a metadata camera, a view of it with the frame's camera.
+
+        The view is a shallow copy: it shares the compiled programs and the
+        launch lock, and only its ``scene`` (the eye position, a kernel
+        argument) differs, so nothing is recompiled.
+        """
+        if not self.camera_from_metadata:
+            return self.renderer
+        where = source or gbuffer.sources.get("position", "<frame>").split(":")[0]
+        scene = resolve_camera(self.scene, gbuffer.attributes, world_to_camera_matrix=world_to_camera,
+                               source=where)
+        view = copy.copy(self.renderer)
+        view.scene = scene
+        return view
+
+    def relight(self, frame, out: str | os.PathLike | None = None, *, sdr=None, hdr=None,
+                contact_sheet=None, world_to_camera=None) -> np.ndarray:
+        """Relight one frame, and write any outputs asked for.
+
+        Parameters
+        ----------
+        frame : str, os.PathLike, GBuffer, mapping or tuple
+            The G-buffer (see the module docstring).
+        out : str or os.PathLike or list of them, optional
+            Scene-linear EXR file(s), tagged with the working space.
+        sdr : str or os.PathLike or list of them, optional
+            Display-referred SDR PNG/TIFF file(s): the scene's (or
+            :attr:`output`'s) exposure and tone-mapping operator, fused in the
+            shading kernel, or its OCIO display/view/look.
+        hdr : str or os.PathLike or list of them, optional
+            Rec.2100 PQ 16-bit PNG or JPEG XL file(s).
+        contact_sheet : str or os.PathLike, optional
+            PNG of the frame through every operator and view.
+        world_to_camera : array_like, optional
+            (4, 4) world-to-camera matrix for a metadata-camera scene when the
+            frame has no header (numpy input); overrides the header otherwise.
+
+        Returns
+        -------
+        numpy.ndarray
+            (H, W, 3) float32 scene-linear RGB.
+
+        Raises
+        ------
+        OutputError, ToneMapError, ColorError
+            A bad output name or colour setting (before shading), or a write
+            that fails (nothing partial is left).
+        """
+        paths = OutputPaths(exr=out, sdr=sdr, hdr=hdr, contact_sheet=contact_sheet)
+        if isinstance(frame, (str, os.PathLike)):
+            for p in paths.files:
+                if same_file(frame, p):
+                    raise OutputError(f"{p}: output would overwrite the input {os.fspath(frame)}")
+        gbuffer = self.read(frame)
+        source = os.fspath(frame) if isinstance(frame, (str, os.PathLike)) else None
+        return self.deliver(gbuffer, paths, world_to_camera=world_to_camera, source=source)
+
+    def deliver(self, gbuffer: GBuffer, paths: OutputPaths, *, world_to_camera=None,
+                source: str | None = None) -> np.ndarray:
+        """Shade a G-buffer and write ``paths`` with :attr:`output`: the per-frame step of the API and batches."""
+        renderer = self.renderer_for(gbuffer, world_to_camera=world_to_camera, source=source)
+        result, _ = render_outputs(renderer, gbuffer, self.output, paths)
+        return result.image
+
+    __call__ = relight
+

@@ -1,0 +1,536 @@
+"""The float64 reference: a numpy mirror of every kernel function.
+
+Each function here has the name, argument order and guards of its twin in
+``kernels/*.cl``, evaluated in float64 on the same float32 G-buffer values. It is
+the oracle for every kernel test and every error figure (``clphong bench``).
+
+:func:`error_bound` is the error model of the float32 kernels
+(``docs/error-model.md``): for each pixel and channel it returns an upper bound
+of |kernel − reference| built from the operation count of each term, the
+conditioning of each term, and the documented guards. Tests compare the kernels
+to the reference with exactly this bound; nothing is tuned to pass.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.floats import FLT_MAX, FLT_MIN, U_D, U
+from ..core.geometry import half_vector, unit_normal_planes, view_vector
+
+
+def _dot(a, b):
+    return np.einsum("...i,...i->...", a, b)
+
+
+# --------------------------------------------------------------------------- brdf.cl
+
+def lambert(NoL):
+    """Lambert's cosine law: max(n·l, 0)."""
+    return np.maximum(NoL, 0.0)
+
+
+def phong_delta(n, l, v, NoL):
+    """δ = 1 − r·v = |r − v|²/2 with r = 2n(n·l) − l (unit vectors)."""
+    e = 2.0 * NoL[..., None] * n - l - v
+    return 0.5 * _dot(e, e)
+
+
+def blinn_delta(n, l, v):
+    """δ = 1 − n·h = |n − h|²/2, h = (l + v)/|l + v|; δ = 1 where l = −v."""
+    hv = l + v
+    hh = _dot(hv, hv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        h = hv / np.sqrt(hh)[..., None]
+    e = n - h
+    return np.where(hh <= 0.0, 1.0, 0.5 * _dot(e, e))
+
+
+def blinn_delta_const_h(n, h, undefined=False):
+    """δ = |n − h|²/2 for a half vector constant per light; 1 if it is undefined."""
+    e = n - h
+    return np.where(undefined, 1.0, 0.5 * _dot(e, e))
+
+
+def specular_power(delta, k):
+    """max(1 − δ, 0)^k as exp(k·log1p(−δ)); 0 for δ ≥ 1 unless k = 0 (0⁰ := 1)."""
+    k = np.broadcast_to(np.asarray(k, np.float64), np.shape(delta))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        s = np.exp(k * np.log1p(-np.minimum(delta, 1.0)))
+    return np.where(delta >= 1.0, np.where(k == 0.0, 1.0, 0.0), s)
+
+
+def phong_cos(l, v, NoL, NoV):
+    """max(r·v, 0) with r·v = 2(n·l)(n·v) − l·v (SPEC_COS: the cosine itself, in
+    double); NaN stays NaN."""
+    x = 2.0 * NoL * NoV - _dot(l, v)
+    return np.where(x <= 0.0, 0.0, x)
+
+
+def blinn_cos_sq(l, v, NoL, NoV):
+    """(n·h)² = (n·l + n·v)²/|l + v|² where n·h > 0, else 0; 0 where l = −v; capped
+    at 1 where |l + v| is rounding noise (SPEC_COS)."""
+    hv = l + v
+    hh = _dot(hv, hv)
+    q = NoL + NoV
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        y = np.minimum(q * q / hh, 1.0)
+    return np.where((q > 0.0) & (hh > 0.0), y, 0.0)
+
+
+def blinn_cos_sq_const_h(n, h, undefined=False):
+    """(n·h)² where n·h > 0, else 0, for a half vector constant per light; 0 if undefined."""
+    x = _dot(n, h)
+    return np.where(undefined | ~(x > 0.0), 0.0, x * x)
+
+
+def specular_power_cos(x, K: int):
+    """x^K for x ≥ 0 (the callers clamp) by binary powering, K a whole number ≥ 0
+    (SPEC_INT_POW); 0⁰ := 1; a NaN x stays NaN, also for K = 0."""
+    K = int(K)
+    if K < 0:
+        raise ValueError(f"K must be a whole number ≥ 0, not {K}")
+    x = np.asarray(x, np.float64)
+    if K == 0:
+        return np.where(np.isnan(x), np.nan, 1.0)
+    s = x if K & 1 else np.ones_like(x)
+    b = x
+    e = K >> 1
+    while e:
+        b = b * b
+        if e & 1:
+            s = s * b
+        e >>= 1
+    return s
+
+
+def specular_power_int(delta, K: int):
+    """max(1 − δ, 0)^K: :func:`specular_power_cos` of 1 − δ (0 for δ ≥ 1; NaN stays NaN).
+
+    The same function as :func:`specular_power` (to float64 rounding); the
+    kernel's twin computes it this way, in double.
+    """
+    delta = np.asarray(delta, np.float64)
+    return specular_power_cos(np.where(delta >= 1.0, 0.0, 1.0 - delta), K)
+
+
+# ------------------------------------------------------------------------- lights.cl
+
+def attenuation(c0, c1, c2, d):
+    """1/(c0 + c1·d + c2·d²)."""
+    return 1.0 / (c0 + d * (c1 + d * c2))
+
+
+@dataclass
+class Pixels:
+    """The per-pixel shading inputs (float64), shaded pixels only."""
+
+    p: np.ndarray   # (M, 3) position
+    n: np.ndarray   # (M, 3) unit normal
+    v: np.ndarray   # (M, 3) unit direction to the viewer
+    k: np.ndarray   # (M,) specular exponent: h (Phong) or 4h (Blinn)
+    blinn: bool
+    specular: bool
+
+
+def shade_direction(px: Pixels, l, NoL):
+    """(diffuse, specular) weights for unit l; specular only where n·l > 0."""
+    diffuse = lambert(NoL)
+    if not px.specular:
+        return diffuse, np.zeros_like(diffuse)
+    if px.blinn:
+        delta = blinn_delta(px.n, l, px.v)
+    else:
+        delta = phong_delta(px.n, l, px.v, NoL)
+    return diffuse, np.where(NoL > 0.0, specular_power(delta, px.k), 0.0)
+
+
+def shade_point_light(px: Pixels, L, c0, c1, c2):
+    """Weights of a point light at L, times attenuation(d); nothing when d = 0."""
+    dv = np.asarray(L, np.float64) - px.p
+    d2 = _dot(dv, dv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.sqrt(d2)
+        l = dv / d[..., None]
+    NoL = np.where(d2 <= 0.0, 0.0, _dot(px.n, l))
+    l = np.where((d2 <= 0.0)[..., None], 0.0, l)
+    diffuse, specular = shade_direction(px, l, NoL)
+    with np.errstate(divide="ignore"):
+        # d = 0: no contribution, also where c0 = 0 makes the falloff infinite.
+        att = np.where(d2 <= 0.0, 0.0, attenuation(c0, c1, c2, d))
+    return diffuse * att, specular * att
+
+
+def shade_directional_light(px: Pixels, l, h=None, h_undefined=False):
+    """Weights of a directional light (unit l towards it); constant h if given."""
+    l = np.asarray(l, np.float64)
+    NoL = _dot(px.n, l)
+    if h is not None and px.blinn and px.specular:
+        delta = blinn_delta_const_h(px.n, np.asarray(h, np.float64), h_undefined)
+        return lambert(NoL), np.where(NoL > 0.0, specular_power(delta, px.k), 0.0)
+    return shade_direction(px, np.broadcast_to(l, NoL.shape + (3,)), NoL)
+
+
+# -------------------------------------------------------------------------- shade.cl
+
+def _inputs(scene, gbuffer):
+    """Shaded-pixel inputs and per-pixel material, in float64."""
+    bg = gbuffer.background_mask().reshape(-1)
+    fg = ~bg
+    P = gbuffer.position.reshape(-1, 3)[fg].astype(np.float64)
+    N = gbuffer.normal.reshape(-1, 3)[fg].astype(np.float64)
+    n = np.stack(unit_normal_planes(N), axis=-1)     # as the kernels' host side
+    C = gbuffer.albedo.reshape(-1, 3)[fg].astype(np.float64)
+    m = scene.material
+    maps = gbuffer.maps
+    k_d = maps["k_d"].reshape(-1)[fg].astype(np.float64) if "k_d" in maps else m.k_d
+    k_s = maps["k_s"].reshape(-1)[fg].astype(np.float64) if "k_s" in maps else m.k_s
+    h = maps["h"].reshape(-1)[fg].astype(np.float64) if "h" in maps else np.full(len(P), m.h)
+    Cs = (maps["specular_color"].reshape(-1, 3)[fg].astype(np.float64)
+          if "specular_color" in maps else np.asarray(m.specular_color, np.float64))
+    D = C * np.asarray(k_d)[..., None] if np.ndim(k_d) else C * k_d
+    S = Cs * (np.asarray(k_s)[..., None] if np.ndim(k_s) else k_s) * np.ones((len(P), 3))
+    blinn = m.model == "blinn-phong"
+    k = 4.0 * h if blinn else h
+    # The kernel's exponent is a float32 that -cl-denorms-are-zero flushes: an h
+    # below FLT_MIN is 0 there (and 0⁰ := 1), so it is here.
+    k = np.where(np.abs(k) < FLT_MIN, 0.0, k)
+    v_ortho = view_vector(scene.camera)
+    if v_ortho is not None:
+        v = np.broadcast_to(v_ortho, P.shape)
+    else:
+        # A pixel exactly at the eye is seen head-on: v := n (shade.cl's guard).
+        e = np.asarray(scene.camera.position, np.float64) - P
+        de = np.sqrt(_dot(e, e))[..., None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v = np.where(de > 0, e / de, n)
+    specular = m.k_s > 0 or "k_s" in maps
+    px = Pixels(p=P, n=n, v=v, k=k, blinn=blinn, specular=specular)
+    return px, C, D, S, fg
+
+
+#: Pixel-light pairs evaluated at once by the reference (memory ~ 100 bytes each).
+BATCH_PAIRS = 1 << 20
+
+
+def _light_terms(scene, px: Pixels):
+    """Yield (kind, L, params, diffuse, specular) per batch of K lights of one kind.
+
+    Lights run along a leading axis: ``L`` (K, 1, 3) radiance, ``diffuse`` and
+    ``specular`` (K, M) weights; ``params`` holds the batch's positions (K, 1, 3)
+    and attenuation coefficients (K, 1) for point lights, or unit l (K, 1, 3)
+    for directional ones. Every function above broadcasts over that axis.
+    """
+    v_ortho = view_vector(scene.camera)
+    K = max(1, BATCH_PAIRS // max(len(px.p), 1))
+    arrays = scene.light_arrays
+    dirs, dir_L = arrays["directional_direction"], arrays["directional_radiance"]
+    for a in range(0, len(dirs), K):
+        l = -dirs[a:a + K, None, :]
+        L = dir_L[a:a + K, None, :]
+        if v_ortho is not None:
+            h, undefined = half_vector(l, v_ortho)              # (K, 1, 3), (K, 1)
+            diffuse, specular = shade_directional_light(px, l, h, undefined)
+        else:
+            diffuse, specular = shade_directional_light(px, l)
+        yield "directional", L, {"l": l}, diffuse, specular
+    pts, pt_L, pt_c = arrays["point_position"], arrays["point_radiance"], arrays["point_attenuation"]
+    for a in range(0, len(pts), K):
+        pos = pts[a:a + K, None, :]
+        L = pt_L[a:a + K, None, :]
+        c = pt_c[a:a + K, :, None]                                                 # (K, 3, 1)
+        diffuse, specular = shade_point_light(px, pos, c[:, 0], c[:, 1], c[:, 2])
+        yield "point", L, {"position": pos, "c": (c[:, 0], c[:, 1], c[:, 2])}, diffuse, specular
+
+
+def Lc_max(L):
+    """The largest |radiance| channel of each light (over the last axis)."""
+    return np.max(np.abs(L), axis=-1)
+
+
+def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, ud=U, r_out=0.0,
+                    uw=U):
+    """(absolute error bound, upper bound of the value) of the specular power.
+
+    Ungated by n·l: the caller applies the terminator rule. ``ud`` is the unit
+    roundoff of the direction arithmetic (u in float, 2⁻⁴⁷ with hi+lo inputs in
+    double), ``r_out`` the rounding of δ to float afterwards (0 or u), ``uw``
+    the rounding of the integer power's result (u to float, 2⁻⁵³ with
+    WEIGHTS_FP64).
+    """
+    if px.blinn:
+        delta = blinn_delta(px.n, l, px.v)
+        lv = np.sqrt(_dot(l + px.v, l + px.v))
+        with np.errstate(divide="ignore"):
+            # h = (l + v)/|l + v| turns direction errors of l and v into
+            # (η_l + η_v)/|l + v|: Blinn's half vector is ill-conditioned as l → −v.
+            e_vec = eta_n + 2.0 * (eta_l + eta_v + 2.0 * ud) / lv
+            # SPEC_COS: n·(l + v) and |l + v|² in double, off by the roundings and
+            # the unit vectors' length errors (≤ ud each), ≤ 4ud/|l + v| in x = n·h.
+            e_cos = 8.0 * ud / lv
+    else:
+        delta = phong_delta(px.n, l, px.v, NoL)
+        # r = 2n(n·l) − l: twice the error of n·l and of n, plus l's; then − v.
+        e_vec = 3.0 * eps_NoL + eta_v
+        # SPEC_COS: 2(n·l)(n·v) − l·v in double, terms ≤ 3: length errors of n
+        # (≤ 4ud: |n|² enters 2(n·l)(n·v)) and of l, v (a few 2⁻⁵³), ~20 roundings of
+        # 2⁻⁵³: about 6ud; 8ud kept.
+        e_cos = np.full(np.shape(delta), 8.0 * ud)
+    delta = np.minimum(delta, 2.0)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        if form == "cos":
+            # x = 1 − δ formed directly, in double: the directions' first-order
+            # error √(2δ)·e (as for δ, the same quantity for unit vectors) plus
+            # the absolute e_cos; x^k relative k·|Δx|/x; the powering (Blinn:
+            # (x²)^(k/2), one division more) ≤ 4k·2⁻⁵³; one rounding uw.
+            d_delta = np.sqrt(2.0 * delta) * e_vec + 0.5 * e_vec ** 2 + e_cos
+            s = specular_power(delta, k)
+            ud53 = U_D
+            rel = uw + k * d_delta / np.maximum(1.0 - delta, 1e-300) + 4.0 * k * ud53
+        elif form in ("delta", "int", "int32"):
+            # |Δδ| for δ = |e|²/2 when |Δe| ≤ e_vec and |e| = √(2δ); the exp form
+            # rounds δ to float first (r_out), the integer power takes it as it is.
+            r_delta = r_out if form == "delta" and uw >= U else 0.0
+            d_delta = np.sqrt(2.0 * delta) * e_vec + 0.5 * e_vec ** 2 + (4.0 * ud + r_delta) * delta
+            s = specular_power(delta, k)
+            if form == "delta":
+                y = np.abs(k * np.log1p(-np.minimum(delta, 1.0 - 1e-300)))
+                # log1p 2 ulp, k·(·) 1, exp 3 ulp (relative in y), k rounded to float32
+                # (1 u); then Δδ through d/dδ of k·log1p(−δ) = −k/(1 − δ). With double
+                # weights (uw = 2⁻⁵³) all of it in double, units 2⁻⁵³, and k as hi + lo.
+                pu, uk = (uw, ud) if uw < U else (U, U)
+                rel = 4.0 * pu + (3.0 * pu + uk) * y + k * d_delta / np.maximum(1.0 - delta, 1e-300)
+            else:
+                # x = 1 − δ in double (≤ 2⁻⁵³ absolute), binary powering of a whole k
+                # (≤ 2k·2⁻⁵³ relative), one rounding to float; Δδ through k·x^(k−1).
+                # "int32" (POW_FP32, the fast path): the same in float, unit u.
+                up = U if form == "int32" else U_D
+                rel = uw + k * (d_delta + up) / np.maximum(1.0 - delta, 1e-300) + 2.0 * k * up
+        else:
+            # pow(x, k) with x = r·v: |Δx| ≤ e_vec + 4u, pow 16 ulp: relative k·|Δx|/x.
+            d_delta = e_vec + 4.0 * U
+            x = 1.0 - delta
+            s = specular_power(delta, k)
+            rel = 16.0 * U + k * d_delta / np.maximum(x, 1e-300)
+        upper = specular_power(np.maximum(delta - d_delta, 0.0), k)
+        err = np.minimum(np.nan_to_num(s * rel, nan=np.inf, posinf=np.inf), upper)
+    return err, upper
+
+
+def ambient_radiance(scene) -> np.ndarray:
+    """k_a·Σ ambient radiance (rgb)."""
+    return scene.light_arrays["ambient_radiance"] * scene.material.k_a
+
+
+def shade(scene, gbuffer) -> np.ndarray:
+    """E = E_A + Σ_i (E_D + E_S)_i·attenuation_i per pixel, (H, W, 3) float64."""
+    H, W = gbuffer.shape
+    out = np.empty((H * W, 3))
+    out[:] = np.asarray(scene.background, np.float64)
+    px, C, D, S, fg = _inputs(scene, gbuffer)
+    E = C * ambient_radiance(scene)
+    for _, L, _, diffuse, specular in _light_terms(scene, px):
+        E += np.sum(L * (D * diffuse[..., None] + S * specular[..., None]), axis=0)
+    out[fg] = E
+    return finish_sum(out).reshape(H, W, 3)
+
+
+
+
+def finish_sum(E):
+    """Saturate at ±FLT_MAX as the kernel does (never an Inf from finite inputs); NaN stays."""
+    return np.where(np.abs(E) > FLT_MAX, np.sign(E) * FLT_MAX, E)
+
+
+# ------------------------------------------------------------------- the error model
+
+def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
+                directions="fp32", plan=None, sum_fp64=False, weights="fp32"):
+    """Upper bound of |float32 kernel − :func:`shade`| per pixel and channel.
+
+    Parameters
+    ----------
+    scene, gbuffer
+        As for :func:`shade`.
+    origin : (3,) array, optional
+        The float32 rebasing origin of the float path (``Frame.origin``); 0 if
+        omitted. The fp64 path does not rebase and ignores it.
+    compensated : bool
+        Whether the kernel summed the lights with Neumaier compensation.
+    sum_fp64 : bool
+        Whether it summed them in double, rounded once (SUM_FP64; overrides
+        ``compensated``).
+    form : {"delta", "int", "int32", "cos", "naive"}
+        ``"delta"``: the specular power as exp(k·log1p(−δ)) with δ from
+        |r − v|²/2 (shade.cl). ``"int"``: (1 − δ)^k by binary powering in
+        double, k whole (SPEC_INT_POW). ``"cos"``: the same powering of the
+        cosine formed in double (SPEC_COS: :func:`phong_cos`,
+        :func:`blinn_cos_sq`). ``"int32"``: (1 − δ)^k by binary powering in
+        float (POW_FP32, the fast path). ``"naive"``: pow(r·v, k)
+        (shade_obvious.cl).
+    directions : {"fp32", "fp64"}
+        Whether positions, directions, n·l and δ were computed in float or in
+        double from hi+lo inputs (``DIRECTIONS_FP64``).
+    weights : {"fp32", "fp64"}
+        Whether the weights, the falloff and each light's product were rounded
+        to float (``"fp32"``) or kept in double into the double sum
+        (``WEIGHTS_FP64``).
+    plan : clphong.device.plan.ShadingPlan, optional
+        The plan the kernel ran with; sets ``compensated``, ``sum_fp64``, ``form``,
+        ``directions`` and ``weights`` from its defines.
+
+    Returns
+    -------
+    bound : (H, W, 3) float64 array
+        Absolute bound; 0 on background pixels.
+    band : (H, W) bool array
+        Pixels where some light's n·l lies within its own error of 0, so the
+        float32 kernel may switch the specular term on where the reference has it
+        off, or the reverse. The bound there includes that whole term; report
+        these pixels separately (POCL-NOTES "The terminator").
+
+    Notes
+    -----
+    See ``docs/error-model.md`` for the derivation. Constants: u = 2⁻²⁴; the
+    OpenCL 1.2 ulp limits of the builtins (rsqrt 2, division 2.5, log1p 2,
+    exp 3, pow 16); every first-order bound is doubled to cover the
+    second-order terms and the rounding of the float32 inputs.
+    """
+    if plan is not None:
+        lanes = plan.kernel == "lanes"
+        compensated = lanes and bool(plan.defines.get("COMPENSATED_SUM", 0))
+        sum_fp64 = lanes and bool(plan.defines.get("SUM_FP64", 0))
+        form = (("cos" if plan.defines.get("SPEC_COS", 0)
+                 else "int32" if plan.defines.get("POW_FP32", 0) else "int")
+                if plan.defines.get("SPEC_INT_POW", 0) else "delta") if lanes else "naive"
+        directions = "fp64" if plan.defines.get("DIRECTIONS_FP64", 0) else "fp32"
+        weights = "fp64" if lanes and plan.defines.get("WEIGHTS_FP64", 0) else "fp32"
+    if directions not in ("fp32", "fp64"):
+        raise ValueError(f"directions must be 'fp32' or 'fp64', not {directions!r}")
+    # ud: unit roundoff of the direction arithmetic. In double from float32
+    # inputs and float32 hi+lo pairs (48 significant bits), 2⁻⁴⁷ covers the pairs'
+    # truncation and the double roundings. r_out: n·l and δ rounded to float.
+    if form == "int32" and directions != "fp32":
+        raise ValueError("form 'int32' (the fast path's float power) goes with fp32 directions")
+    if weights not in ("fp32", "fp64") or (weights == "fp64" and directions != "fp64"):
+        raise ValueError(f"weights must be 'fp32', or 'fp64' with fp64 directions, not {weights!r}")
+    fp64 = directions == "fp64"
+    ud, r_out = (2.0 ** -47, U) if fp64 else (U, 0.0)
+    # uw: the rounding of each weight, falloff and light product: to float, or
+    # 2⁻⁵³ in double with WEIGHTS_FP64 (then n·l is not rounded to float either).
+    w64 = weights == "fp64"
+    uw = U_D if w64 else U
+    r_nol = 0.0 if w64 else r_out
+    H, W = gbuffer.shape
+    bound = np.zeros((H * W, 3))
+    band = np.zeros(H * W, bool)
+    px, C, D, S, fg = _inputs(scene, gbuffer)
+    # The float path rounds P − o and the rebased light records; the fp64 path does
+    # not rebase (P and the lights' float64 positions are exact in double), so only
+    # L − P, eye − P and the eye's hi+lo are rounded.
+    o = np.zeros(3) if origin is None or fp64 else np.asarray(origin, np.float64)
+    rp = np.sqrt(_dot(px.p - o, px.p - o)) if np.any(o != 0) else 0.0   # |P − o| if rounded
+    ortho = view_vector(scene.camera) is not None
+    if ortho:
+        eta_v = np.full(len(px.p), ud)
+    else:
+        eye = np.asarray(scene.camera.position, np.float64)
+        de = np.sqrt(_dot(eye - px.p, eye - px.p))
+        with np.errstate(divide="ignore"):
+            eta_v = ud * (2.0 + (rp + np.linalg.norm(eye - o)) / de)
+    eta_n = np.full(len(px.p), ud)                  # unit normal rounded (or as hi+lo)
+    k = np.broadcast_to(px.k, (len(px.p),))
+    total = np.abs(C * ambient_radiance(scene))    # Σ|c_i|, for the summation error
+    # ambient: two roundings, k_a·A rounded to float and C·(k_a·A) (WEIGHTS_FP64:
+    # k_a·A as hi + lo, the product in double: 2u_d); a flush below FLT_MIN (in
+    # float, or the result's final rounding)
+    B = (2.0 * ud if w64 else 2.0 * U) * total + FLT_MIN * (1.0 + np.abs(C))
+    n_direct = 0
+    unbounded = np.zeros(len(px.p), bool)
+    for kind, L, params, diffuse, specular in _light_terms(scene, px):
+        n_direct += len(L)
+        if kind == "point":
+            Lp = params["position"]                                     # (K, 1, 3)
+            dv = Lp - px.p
+            d = np.sqrt(_dot(dv, dv))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                rl = 0.0 if fp64 else np.sqrt(_dot(Lp - o, Lp - o))     # float32 record
+                eta_l = np.where(d > 0, ud * (2.0 + (rp + rl) / d), 0.0)
+                c0, c1, c2 = params["c"]
+                cond = (abs(c0) + abs(c1) * d + abs(c2) * d * d) / (c0 + c1 * d + c2 * d * d)
+                cond = np.where(d > 0, cond, 0.0)     # d = 0 adds nothing (shade_point_light)
+                if not fp64:
+                    # float d², c2·d² or the polynomial outside float's normal
+                    # range: flushed or infinite, the result is not bounded.
+                    terms = np.stack([d * d, np.abs(c2) * d * d, c0 + c1 * d + c2 * d * d])
+                    out_of_range = (d > 0) & np.any((terms > FLT_MAX) | ((terms > 0) & (terms < FLT_MIN)), axis=0)
+                    unbounded |= np.any(out_of_range, axis=0)
+            # d from the rounded position difference and rsqrt; Horner's three
+            # roundings; the coefficients rounded to float32; the division.
+            # fp64: d and the falloff in double, att·L rounded to float once.
+            e_att = (cond * (4.0 * ud + 2.0 * eta_l) + uw) if fp64 else \
+                (cond * (4.0 * U + 2.0 * eta_l) + 3.0 * U)
+            with np.errstate(invalid="ignore"):
+                NoL = np.where(d > 0, _dot(px.n, dv) / d, 0.0)
+                lvec = np.where((d > 0)[..., None], dv / d[..., None], 0.0)
+        else:
+            NoL = _dot(px.n, params["l"])                               # (K, M)
+            eta_l = np.full(NoL.shape, ud)
+            e_att = np.zeros(NoL.shape)
+            lvec = np.broadcast_to(params["l"], NoL.shape + (3,))
+            d = None
+        eps_dir = eta_n + eta_l + 4.0 * ud
+        # n·l as the weights see it: rounded to float (flushed below FLT_MIN) when
+        # it was computed in double and the weights are float.
+        eps_NoL = eps_dir + (r_nol * np.abs(NoL) + FLT_MIN if fp64 and not w64 else 0.0)
+        Lc = np.abs(L)
+        # Diffuse: max(n·l, 0) is continuous, so its error is that of n·l.
+        diff_abs = np.where(NoL > -eps_NoL, eps_NoL, 0.0)
+        if d is None:
+            att = np.ones(NoL.shape)
+        else:
+            with np.errstate(divide="ignore"):
+                att = np.where(d > 0, attenuation(c0, c1, c2, d), 0.0)
+        # The product L·(D·w_d + S·w_s): five roundings, in float or (WEIGHTS_FP64)
+        # in double; D = C·k_d and S = k_s·C_s: k_d, k_s rounded to float and up to
+        # two products (3u), or (WEIGHTS_FP64) in double from hi + lo (3u_d).
+        e_prod = 5.0 * U if not w64 else 3.0 * ud + 5.0 * uw
+        e_diff = diffuse * e_att + att * diff_abs + diffuse * e_prod
+        # Specular: the error of δ (or of r·v for the naive form) through the power.
+        if px.specular:
+            spec_abs, spec_upper = _specular_error(px, lvec, NoL, eps_dir, eta_l, eta_v, eta_n, k,
+                                                   form, ud, r_out, uw)
+            e_spec = specular * (e_att + e_prod) + att * spec_abs
+            # The terminator: within eps_NoL of n·l = 0 the float32 gate n·l > 0
+            # may disagree with float64's, switching the whole term.
+            near = (np.abs(NoL) <= eps_NoL) & (spec_upper > 0)
+            e_spec = np.where(near, e_spec + att * spec_upper, e_spec)
+            band_fg = np.any(near & (np.abs(S).max(axis=1) * Lc_max(L) > 0), axis=0)
+        else:
+            e_spec = np.zeros(NoL.shape)
+            band_fg = np.zeros(len(px.p), bool)
+        idx = np.flatnonzero(fg)
+        band[idx[band_fg]] = True
+        # Underflow: intermediates below FLT_MIN are flushed to zero: the weights
+        # and their products with D and S (each then scaled by att·L), and att·L
+        # itself.
+        DS = np.abs(D) + np.abs(S)
+        floor = FLT_MIN * ((2.0 + DS) * (np.maximum(att, 1.0)[..., None] * Lc) + DS)
+        B += np.sum(Lc * (np.abs(D) * e_diff[..., None] + np.abs(S) * e_spec[..., None]) + floor, axis=0)
+        total += np.sum(Lc * (np.abs(D) * diffuse[..., None] + np.abs(S) * specular[..., None]), axis=0)
+    # The light sum: in double (SUM_FP64) by ≤ n·2⁻⁵³·Σ|c| before the one final
+    # rounding; Neumaier's compensated sum by ≤ 2u|Σ| + O(n·u²)Σ|c|; the naive
+    # one by (n − 1)·u·Σ|c|; plus the final rounding.
+    if sum_fp64:
+        B += (U + (n_direct + 1) * U_D) * total
+    elif compensated:
+        B += (3.0 * U + 2.0 * n_direct * U * U) * total
+    else:
+        B += (max(n_direct, 1) * U + U) * total
+    B[unbounded] = np.inf          # float path out of its range (see docs/error-model.md)
+    bound[fg] = 2.0 * B
+    # Background pixels: the background value rounded to float32.
+    bound[~fg] = U * np.abs(np.asarray(scene.background, np.float64))
+    return bound.reshape(H, W, 3), band.reshape(H, W)

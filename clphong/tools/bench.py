@@ -1,0 +1,591 @@
+"""``clphong bench``: throughput against error, on a fixed, documented scene set.
+
+The scenes (seeded, generated in memory; nothing is read from disk)
+--------------------------------------------------------------------
+G-buffer
+    A gently waving surface ``z = 0.05·sin(1.3x)·cos(1.7y) + 0.03·sin(3.1x + 1)``
+    over ``x ∈ [−8, 8]``, ``y ∈ [−4.5, 4.5]``, one pixel per grid point of a
+    ``W × H`` image (1920×1080 by default), analytic normals, a smooth albedo
+    pattern, and a 4 % background corner. Perspective camera at (0, −4, 10).
+    Blinn-Phong, ``k_a = 0.1, k_d = 0.7, k_s = 0.2, h = 32`` (exponent 128),
+    one ambient light.
+``wide`` (N = 1, 16, 256, 4096, 65 536 point lights)
+    Lights 0.5–3 units above the surface, attenuation (1, 0.1, 0.05): every
+    light reaches every pixel, nothing can be culled at a useful budget.
+``small`` (N = 65 536, and the other N)
+    Lights 0.01–0.05 units above the surface, attenuation (1, 0, 10⁶),
+    k_s = 0.02: each light lights a few pixels, and the sum of the far tails
+    stays below 10⁻³ of reference white.
+
+What is measured
+----------------
+* Each (scene, N, path, budget) runs ``warmup`` frames, then ``repeats``
+  frames; the report gives the median, and every time. The runs of one
+  (scene, N) take turns, one frame each per round, the numpy baseline too
+  (up to 3 of its rounds): a burst of load from another tenant then falls on
+  every path alike, and the ratios within a report hold. Time is device time from
+  OpenCL profiling events: the shading kernel, plus the culling kernels when
+  culling is on (both reported).
+* PLE/s counts pixel-light evaluations of shaded pixels: ``S·N / time``, S
+  the pixels that are not background (``shaded_pixels``; the kernel skips the
+  lights for work-items of background pixels only, and the numpy baseline
+  shades only S too). Brute-force equivalent for culled runs, so speed-ups
+  read directly.
+* Brute force at large N would take minutes a frame; it runs on a crop of the
+  frame's top rows (``crop_rows`` in the report, at least 16 rows and about
+  ``crop_pairs`` pixel-light pairs). Throughput does not depend on the frame
+  height; ``ms_per_frame`` is then scaled to the full frame by its shaded
+  pixels (``extrapolated``: the top rows hold more background than the frame).
+  Culled runs that evaluate nearly every pair (the wide scene, where nothing
+  can be dropped, and ε = 0) use the same crop, but at least 16 rows (one row
+  of tiles); the small-reach scene's culled runs at ε > 0 always shade the
+  full frame. The obvious kernel is skipped above ``OBVIOUS_MAX_LIGHTS``.
+* Error: the float64 reference (:mod:`clphong.reference.shading`) on a seeded random
+  subset of the shaded pixels (``sampled_pixels``: all of them up to
+  ``--error-pairs``/N, at least 500). Relative error is
+  ``|kernel − reference|/reference`` on pixels ≥ 10⁻⁶ of the sample's maximum,
+  max and mean, with pixels in the terminator band (``error_bound``'s ``band``)
+  counted and reported separately (``band_pixels``, ``band_max_rel``). Culled
+  runs also report the max absolute error, to compare with the budget ε.
+* numpy: a plain numpy float32 implementation of the same shading (the same
+  G-buffer planes, a loop over lights, ``np.power`` for the specular power),
+  timed on a crop in the same run; ``numpy_ratio`` = kernel PLE/s / numpy PLE/s.
+* FP32 peak: ``kernels/peak.cl`` (independent multiply-add chains) measures the
+  device's peak GFLOP/s in the same run; ``peak_fraction`` =
+  PLE/s × ``flops_per_ple`` / peak, with the run's own flop count
+  (:func:`flops_per_ple`, itemised in :data:`FLOPS`; on the bench scene 58 on
+  the default path, 71 on the float paths (the integer power of 1 − δ), 93
+  with exp/log1p, 89 for the obvious kernel; double operations count as one
+  flop each).
+
+The report is JSON (``--json``) and a Pareto plot PNG (``--plot``, matplotlib)
+of throughput against error. A benchmark, not a test: the tests only check that
+a tiny run produces a well-formed report.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import statistics
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..device.peak import measure_peak_gflops
+from ..device.plan import int_pow_multiplies
+from ..device.renderer import Renderer, prepare_frame
+from ..device.runtime import get_runtime
+from ..io.atomic import atomic_path
+from ..io.gbuffer import GBuffer
+from ..model.scene import Camera, Light, Material, Scene
+from ..reference import shading as reference
+
+#: Flops per pixel-light evaluation of a point light with attenuation, by part,
+#: counted on kernels/lights.cl + brdf.cl (shade_obvious.cl for the naive
+#: forms) as written. Comparisons, selects and float/double conversions are
+#: not counted; a double operation counts as one flop, as a float one does.
+FLOPS = {
+    "direction": 18,        # L − P 3, d² 5, rsqrt 2 (as sqrt + div), l 3, n·l 5
+    "falloff": 5,           # Horner 4, division 1
+    "gates": 2,             # max(n·l, 0), n·l > 0
+    "product": 12,          # L·(D·w_d + S·w_s): 3 channels × (2 products, 1 add, 1 product)
+    "sum": 3,               # 3 additions (in double with SUM_FP64, or a naive float sum)
+    "sum_compensated": 12,  # Neumaier: 3 channels × 4
+    "blinn_delta": 22,      # l + v 3, |h|² 5, rsqrt 2, h 3, n − h 3, δ 6
+    "phong_delta": 16,      # 2(n·l) 1, r − v 9, δ 6
+    "blinn_cos": 11,        # l + v 3, |l + v|² 5, n·l + n·v 1, q² 1, ÷ 1 (SPEC_COS)
+    "phong_cos": 8,         # l·v 5, 2(n·l) 1, ×(n·v) − l·v 2 (SPEC_COS)
+    "blinn_naive": 18,      # l + v 3, |h|² 5, normalize 5, n·h 5 (shade_obvious.cl)
+    "phong_naive": 12,      # 2(n·l)·n − l 7, r·v 5 (shade_obvious.cl)
+    "exp_form": 31,         # log1p ≈ 15 and exp ≈ 15 (their polynomial steps), k·log 1; pow alike
+    "int_base": 1,          # 1 − δ before the integer power
+}
+
+
+def flops_per_ple(plan, k: float) -> int:
+    """Flops per pixel-light evaluation of ``plan`` (a point light with
+    attenuation) for the exponent ``k``, itemised by :data:`FLOPS`.
+
+    The specular power costs exp/log1p's 31, or with SPEC_INT_POW one squaring
+    per bit of the exponent and one product per set bit
+    (:func:`clphong.device.plan.int_pow_multiplies`): of k, or of k/2 where SPEC_COS
+    raises Blinn's (n·h)².
+    """
+    d = plan.defines
+    n = FLOPS["direction"] + FLOPS["falloff"] + FLOPS["gates"] + FLOPS["product"]
+    # the obvious kernel sums naively in float whatever the plan says
+    compensated = d.get("COMPENSATED_SUM") and plan.kernel != "obvious"
+    n += FLOPS["sum_compensated"] if compensated else FLOPS["sum"]
+    if not d.get("HAS_SPECULAR", 1):
+        return n
+    blinn = bool(d.get("MODEL_BLINN"))
+    if plan.kernel == "obvious":
+        return n + FLOPS["blinn_naive" if blinn else "phong_naive"] + FLOPS["exp_form"]
+    if d.get("SPEC_COS"):
+        return n + (FLOPS["blinn_cos"] + int_pow_multiplies(int(k) // 2) if blinn
+                    else FLOPS["phong_cos"] + int_pow_multiplies(k))
+    n += FLOPS["blinn_delta" if blinn else "phong_delta"]
+    if d.get("SPEC_INT_POW"):
+        return n + FLOPS["int_base"] + int_pow_multiplies(k)
+    return n + FLOPS["exp_form"]
+
+DEFAULT_SIZES = ((1920, 1080),)
+DEFAULT_LIGHTS = (1, 16, 256, 4096, 65536)
+#: The paths: name -> Renderer options.
+PATHS = {
+    "accurate": {},                                         # the default: double directions where fp64 exists
+    "accurate-exp": {"int_pow": False},                     # the same, exp(k·log1p(−δ)) for a whole k too
+    "float": {"fp64_directions": False},                    # float32 directions
+    "float-naive-sum": {"fp64_directions": False, "compensated": False},
+    "fast": {"path": "fast"},                               # float32 throughout, integer power in float
+    "obvious": {"kernel": "obvious"},                       # one pixel per work-item, pow()
+}
+DEFAULT_BUDGETS = (0.0, 1e-4, 1e-3, 1e-2)
+SEED = 2026
+#: The obvious kernel runs at a few MPLE/s: above this many lights even a 4-row
+#: crop takes minutes a frame, so it is skipped (and says so).
+OBVIOUS_MAX_LIGHTS = 4096
+
+
+# ------------------------------------------------------------------------------ scenes
+
+def bench_gbuffer(width: int, height: int, rows: int | None = None):
+    """The benchmark G-buffer (see the module docstring); ``rows``: only the top rows."""
+    h = height if rows is None else min(rows, height)
+    x = np.linspace(-8.0, 8.0, width)
+    y = np.linspace(4.5, -4.5, height)[:h]
+    X, Y = np.meshgrid(x, y)
+    Z = 0.05 * np.sin(1.3 * X) * np.cos(1.7 * Y) + 0.03 * np.sin(3.1 * X + 1.0)
+    dzdx = 0.05 * 1.3 * np.cos(1.3 * X) * np.cos(1.7 * Y) + 0.03 * 3.1 * np.cos(3.1 * X + 1.0)
+    dzdy = -0.05 * 1.7 * np.sin(1.3 * X) * np.sin(1.7 * Y)
+    P = np.stack([X, Y, Z], -1)
+    N = np.stack([-dzdx, -dzdy, np.ones_like(Z)], -1)
+    C = np.stack([0.45 + 0.35 * np.sin(0.7 * X), 0.5 + 0.3 * np.cos(0.9 * Y),
+                  0.4 + 0.3 * np.sin(0.5 * (X + Y))], -1)
+    cov = np.ones(Z.shape, np.float32)
+    cov[(X < -8 + 16 * 0.2) & (Y > 4.5 - 9 * 0.2)] = 0.0      # a 4 % background corner
+    return GBuffer(position=P.astype(np.float32), normal=N.astype(np.float32),
+                   albedo=C.astype(np.float32), coverage=cov, maps={})
+
+
+def bench_scene(kind: str, n_lights: int):
+    """The ``wide`` or ``small`` scene with ``n_lights`` point lights (seeded)."""
+    rng = np.random.default_rng(SEED + n_lights)
+    lights = [Light(type="ambient", color=(1.0, 1.0, 1.0), intensity=0.3)]
+    x = rng.uniform(-8, 8, n_lights)
+    y = rng.uniform(-4.5, 4.5, n_lights)
+    colors = rng.uniform(0.3, 1.0, (n_lights, 3))
+    if kind == "wide":
+        z = rng.uniform(0.5, 3.0, n_lights)
+        att, intensity, k_s = (1.0, 0.1, 0.05), 3.0 * min(1.0, 16.0 / n_lights), 0.2
+    elif kind == "small":
+        z = rng.uniform(0.01, 0.05, n_lights)
+        att, intensity, k_s = (1.0, 0.0, 1.0e6), 2.0, 0.02
+    else:
+        raise ValueError(f"scene kind must be 'wide' or 'small', not {kind!r}")
+    for j in range(n_lights):
+        lights.append(Light(type="point", color=tuple(colors[j]), intensity=intensity,
+                            position=(float(x[j]), float(y[j]), float(z[j])), attenuation=att))
+    return Scene(camera=Camera(type="perspective", position=(0.0, -4.0, 10.0)),
+                 material=Material(model="blinn-phong", k_a=0.1, k_d=0.7, k_s=k_s, h=32.0),
+                 lights=tuple(lights), source=f"bench:{kind}:{n_lights}")
+
+
+# ------------------------------------------------------------------------------- numpy
+
+def numpy_shade(scene, gbuffer) -> np.ndarray:
+    """The same shading in plain numpy float32 (SoA planes, a loop over lights).
+
+    Blinn-Phong with ``np.power(n·h, k)``, point lights with attenuation,
+    directional lights, ambient, on the shaded pixels only; background pixels
+    take the background value.
+    """
+    f = np.float32
+    H, W = gbuffer.shape
+    bg = gbuffer.background_mask().reshape(-1)
+    fg = ~bg                                   # shade only the shaded pixels, as the kernel does
+    P = gbuffer.position.reshape(-1, 3)[fg].T.astype(f)
+    Nv = gbuffer.normal.reshape(-1, 3)[fg].T.astype(f)
+    Nv = Nv / np.sqrt((Nv * Nv).sum(axis=0))
+    Cd = gbuffer.albedo.reshape(-1, 3)[fg].T.astype(f)
+    m = scene.material
+    D = Cd * f(m.k_d)
+    S = (np.asarray(m.specular_color, f) * f(m.k_s))[:, None]
+    k = f(m.exponent)
+    eye = np.asarray(scene.camera.position, f)[:, None]
+    V = eye - P
+    V = V / np.sqrt((V * V).sum(axis=0))
+    amb = np.zeros(3, f)
+    for lt in scene.lights_of("ambient"):
+        amb += np.asarray(lt.radiance, f)
+    E = Cd * (amb * f(m.k_a))[:, None]
+    for lt in scene.lights_of("point"):
+        d = np.asarray(lt.position, f)[:, None] - P
+        d2 = (d * d).sum(axis=0)
+        dist = np.sqrt(d2)
+        l = d / dist
+        NoL = (Nv * l).sum(axis=0)
+        hv = l + V
+        hv /= np.sqrt((hv * hv).sum(axis=0))
+        NoH = np.maximum((Nv * hv).sum(axis=0), f(0))
+        spec = np.where(NoL > 0, np.power(NoH, k), f(0))
+        c0, c1, c2 = (f(c) for c in lt.attenuation)
+        att = f(1) / (c0 + dist * (c1 + dist * c2))
+        E += np.asarray(lt.radiance, f)[:, None] * (D * (np.maximum(NoL, f(0)) * att)
+                                                    + S * (spec * att))
+    out = np.empty((H * W, 3), f)
+    out[bg] = np.asarray(scene.background, f)
+    out[fg] = E.T
+    return out.reshape(H, W, 3)
+
+
+# ------------------------------------------------------------------------------- errors
+
+def shaded_pixels(gbuffer) -> int:
+    """How many pixels of ``gbuffer`` are shaded (not background)."""
+    return int(np.count_nonzero(~gbuffer.background_mask()))
+
+
+def sample_pixels(gbuffer, n: int, seed: int = SEED) -> np.ndarray:
+    """Flat indices of ``n`` shaded pixels, seeded (all of them if fewer)."""
+    fg = np.flatnonzero(~gbuffer.background_mask().reshape(-1))
+    if n >= len(fg):
+        return fg
+    return np.sort(np.random.default_rng(seed).choice(fg, n, replace=False))
+
+
+def sub_gbuffer(gbuffer, idx):
+    """The pixels ``idx`` (flat indices) as a 1 × len(idx) G-buffer."""
+    def take(a):
+        a = np.asarray(a)
+        h, w = gbuffer.shape
+        flat = a.reshape(h * w, -1)[idx]
+        return flat.reshape((1, len(idx)) + a.shape[2:])
+
+    return GBuffer(position=take(gbuffer.position), normal=take(gbuffer.normal),
+                   albedo=take(gbuffer.albedo),
+                   coverage=None if gbuffer.coverage is None else take(gbuffer.coverage),
+                   maps={k: take(v) for k, v in gbuffer.maps.items()})
+
+
+@dataclass
+class Oracle:
+    """The float64 reference on a pixel sample, and the terminator band there."""
+
+    idx: np.ndarray
+    ref: np.ndarray           # (M, 3)
+    band: np.ndarray          # (M,) bool
+
+    def errors(self, rgb: np.ndarray) -> dict:
+        got = rgb.reshape(-1, 3)[self.idx].astype(np.float64)
+        err = np.abs(got - self.ref)
+        big = self.ref >= 1e-6 * max(float(self.ref.max(initial=0.0)), 1e-300)
+        rel = np.where(big, err / np.where(big, self.ref, 1.0), 0.0)
+        inside = rel[~self.band][big[~self.band]]
+        band = rel[self.band][big[self.band]]
+        return {
+            "max_rel": float(inside.max(initial=0.0)),
+            "mean_rel": float(inside.mean()) if inside.size else 0.0,
+            "max_abs": float(err.max(initial=0.0)),
+            "band_pixels": int(self.band.sum()),
+            "band_max_rel": float(band.max(initial=0.0)),
+            "sampled_pixels": int(len(self.idx)),
+        }
+
+
+def make_oracle(scene, gbuffer, frame, n_pixels: int) -> Oracle:
+    idx = sample_pixels(gbuffer, n_pixels)
+    sub = sub_gbuffer(gbuffer, idx)
+    ref = reference.shade(scene, sub).reshape(-1, 3)
+    _, band = reference.error_bound(scene, sub, origin=frame.origin)
+    return Oracle(idx=idx, ref=ref, band=band.reshape(-1))
+
+
+# --------------------------------------------------------------------------------- timing
+
+def time_frame(renderer, gbuffer, frame):
+    """One frame: (device seconds of shading + culling, of culling alone, the RenderResult)."""
+    result = renderer.shade(frame)
+    c = result.cull.seconds if result.cull is not None else 0.0
+    return result.stats.kernel_seconds + c, c, result
+
+
+# --------------------------------------------------------------------------------- the run
+
+@dataclass
+class BenchConfig:
+    sizes: tuple = DEFAULT_SIZES
+    lights: tuple = DEFAULT_LIGHTS
+    paths: tuple = tuple(PATHS)
+    budgets: tuple = DEFAULT_BUDGETS
+    repeats: int = 5
+    warmup: int = 1
+    crop_pairs: float = 1.5e8     # brute force: crop to about this many pixel-light pairs
+    error_pairs: float = 3e7      # reference: sample about this many pixel-light pairs
+    numpy_pairs: float = 2e7      # numpy: crop to about this many pixel-light pairs
+    small_lights: tuple = (65536,)
+    device: str | None = None
+    log: object = None
+
+    @classmethod
+    def quick(cls, **kw):
+        base = dict(sizes=((480, 270),), lights=(1, 16, 256, 4096), budgets=(0.0, 1e-3),
+                    repeats=3, crop_pairs=3e7, error_pairs=5e6, numpy_pairs=5e6,
+                    small_lights=(4096,))
+        base.update(kw)
+        return cls(**base)
+
+
+def _crop_rows(width: int, height: int, n: int, pairs: float, least: int = 4) -> int:
+    rows = int(pairs // max(width * n, 1))
+    return max(min(least, height), min(height, rows))
+
+
+def run_bench(cfg: BenchConfig) -> dict:
+    """Run the benchmark; return the report (a JSON-serialisable dict)."""
+    log = cfg.log or (lambda msg: None)
+    rt = get_runtime(cfg.device)
+    peak = measure_peak_gflops(rt)
+    log(f"device: {rt.name}; FP32 peak {peak:.1f} GFLOP/s (kernels/peak.cl)")
+    report = {
+        "clphong_bench": 1,
+        "machine": {"device": rt.name, "llvm_target": rt.llvm_target, "lanes": rt.lanes,
+                    "host": platform.processor() or platform.machine(),
+                    "cpu_count": os.cpu_count(), "fp32_peak_gflops": peak},
+        "settings": {"sizes": [list(s) for s in cfg.sizes], "lights": list(cfg.lights),
+                     "paths": list(cfg.paths), "budgets": list(cfg.budgets),
+                     "repeats": cfg.repeats, "warmup": cfg.warmup, "crop_pairs": cfg.crop_pairs,
+                     "error_pairs": cfg.error_pairs, "numpy_pairs": cfg.numpy_pairs,
+                     "small_lights": list(cfg.small_lights), "seed": SEED,
+                     "reference_white": 1.0},
+        "numpy": [],
+        "runs": [],
+    }
+    for (W, H) in cfg.sizes:
+        full = bench_gbuffer(W, H)
+        shaded_full = shaded_pixels(full)
+        cases = [("wide", n) for n in cfg.lights] + [("small", n) for n in cfg.small_lights]
+        for kind, n in cases:
+            scene = bench_scene(kind, n)
+            oracle_cache: dict = {}
+            runs = [(p, None) for p in cfg.paths] if kind == "wide" else []
+            runs += [("accurate", b) for b in cfg.budgets]
+            # Set every run of this case up first, then time them round-robin (one
+            # frame of each per round, numpy included), so that the other tenants'
+            # load falls on every path alike and the ratios hold.
+            slots = []
+            for path, budget in runs:
+                opts = dict(PATHS[path])
+                brute = budget is None
+                # crop where (nearly) every pair is evaluated: brute force, the wide scene
+                # (nothing to cull), and ε = 0; the small scene's culled runs use the full frame
+                cropped = brute or kind == "wide" or budget == 0
+                # culled runs keep at least one row of tiles
+                least = 4 if brute else 16
+                rows = _crop_rows(W, H, n, cfg.crop_pairs, least) if cropped else H
+                if path == "obvious":
+                    if n > OBVIOUS_MAX_LIGHTS:
+                        log(f"obvious         {kind:5s} N={n:<6d} skipped (> {OBVIOUS_MAX_LIGHTS} lights)")
+                        continue
+                    rows = _crop_rows(W, H, n, cfg.crop_pairs / 8, least)
+                gb = full if rows == H else bench_gbuffer(W, H, rows)
+                r = Renderer(scene, device=cfg.device, max_error=budget, **opts)
+                frame = prepare_frame(gb, lanes=max(r.lanes, 1))
+                slots.append({"path": path, "budget": budget, "rows": rows, "gb": gb, "r": r,
+                              "frame": frame, "times": [], "cull": []})
+            crop = None
+            if kind == "wide":      # numpy float32, on a crop (wide scene only: same shading)
+                np_rows = _crop_rows(W, H, n, cfg.numpy_pairs)
+                crop, np_times = bench_gbuffer(W, H, np_rows), []
+            for round_ in range(cfg.warmup + cfg.repeats):
+                for slot in slots:
+                    t, c, slot["result"] = time_frame(slot["r"], slot["gb"], slot["frame"])
+                    if round_ >= cfg.warmup:
+                        slot["times"].append(t)
+                        slot["cull"].append(c)
+                if crop is not None and round_ >= cfg.warmup and round_ - cfg.warmup < 3:
+                    t0 = time.perf_counter()
+                    numpy_shade(scene, crop)
+                    np_times.append(time.perf_counter() - t0)
+            np_rate = None
+            if crop is not None:
+                t = statistics.median(np_times)
+                np_rate = shaded_pixels(crop) * n / t
+                report["numpy"].append({"scene": kind, "lights": n, "crop_rows": np_rows,
+                                        "seconds": t, "ple_per_s": np_rate})
+                log(f"numpy float32  {kind:5s} N={n:<6d} {np_rate / 1e6:8.2f} MPLE/s ({W}x{np_rows})")
+            for slot in slots:
+                path, budget, rows, gb, r, frame = (slot[k] for k in ("path", "budget", "rows", "gb", "r", "frame"))
+                brute = budget is None
+                times, result = slot["times"], slot["result"]
+                med, cull_s = statistics.median(times), statistics.median(slot["cull"])
+                key = rows
+                if key not in oracle_cache:
+                    m = max(500, int(cfg.error_pairs // max(n, 1)))
+                    oracle_cache[key] = make_oracle(scene, gb, frame, m)
+                err = oracle_cache[key].errors(result.image)
+                # shaded pixel-light evaluations: background pixels cost no light
+                # (kernel, culling and numpy alike), so they are not counted
+                shaded = shaded_pixels(gb)
+                rate = shaded * n / med
+                flops = flops_per_ple(result.plan, scene.material.exponent)
+                entry = {
+                    "scene": kind, "size": [W, H], "lights": n, "path": path,
+                    "max_error": budget, "crop_rows": rows, "extrapolated": rows != H,
+                    "shaded_pixels": shaded_full,
+                    "ms_per_frame": med * 1e3 * shaded_full / shaded,
+                    "times_ms": [t * 1e3 for t in times],
+                    "cull_ms": cull_s * 1e3 * shaded_full / shaded,
+                    "ple_per_s": rate, "gple_per_s": rate / 1e9,
+                    "numpy_ratio": rate / np_rate if np_rate else None,
+                    # culled runs evaluate fewer pairs than S·N: no peak fraction
+                    "flops_per_ple": flops,
+                    "peak_fraction": rate * flops / (peak * 1e9) if brute else None,
+                    "kept_fraction": result.cull.kept_fraction if result.cull else None,
+                    "error": err,
+                }
+                report["runs"].append(entry)
+                label = path if brute else f"cull ε={budget:g}"
+                log(f"{label:15s} {kind:5s} N={n:<6d} {rate / 1e9:7.3f} GPLE/s "
+                    f"{entry['ms_per_frame']:10.1f} ms/frame"
+                    + (f" ({W}x{rows} crop)" if rows != H else "")
+                    + (f" ×{entry['numpy_ratio']:.0f} numpy" if np_rate else "")
+                    + f"  max rel {err['max_rel']:.2e} mean {err['mean_rel']:.2e}"
+                    f" abs {err['max_abs']:.2e} band {err['band_pixels']}"
+                    + (f" kept {entry['kept_fraction']:.4f}" if entry["kept_fraction"] is not None else ""))
+    report["summary"] = summarise(report)
+    return report
+
+
+def summarise(report: dict) -> dict:
+    """The issue's targets, as measured (None where the run did not include them)."""
+    runs = report["runs"]
+
+    def find(**kw):
+        for r in runs:
+            if all(r.get(k) == v for k, v in kw.items()):
+                return r
+        return None
+
+    out = {}
+    acc256 = find(scene="wide", lights=256, path="accurate", max_error=None)
+    if acc256:
+        out["accurate_256_gple_per_s"] = acc256["gple_per_s"]
+        out["accurate_256_numpy_ratio"] = acc256["numpy_ratio"]
+        out["target_1gple_met"] = acc256["gple_per_s"] >= 1.0
+        out["target_60x_numpy_met"] = (acc256["numpy_ratio"] or 0) >= 60
+    small = [r for r in runs if r["scene"] == "small" and r["max_error"] == 1e-3]
+    if small and acc256:
+        s = max(small, key=lambda r: r["lights"])
+        out["cull_small_lights"] = s["lights"]
+        out["cull_vs_256_brute_time_ratio"] = s["ms_per_frame"] / acc256["ms_per_frame"]
+        out["cull_max_abs_error"] = s["error"]["max_abs"]
+        out["target_3x_met"] = out["cull_vs_256_brute_time_ratio"] <= 3.0
+    return out
+
+
+def summary_lines(summary: dict) -> list[str]:
+    """The issue-4 targets of :func:`summarise`, as sentences a user can read."""
+    def met(ok):
+        return "met" if ok else "not met"
+
+    lines = []
+    if "accurate_256_gple_per_s" in summary:
+        g = summary["accurate_256_gple_per_s"]
+        lines.append(f"issue-4 targets: 1 GPLE/s at 256 lights (accurate path): "
+                     f"{met(summary['target_1gple_met'])} ({g:.3g} GPLE/s)")
+        ratio = summary.get("accurate_256_numpy_ratio")
+        if ratio is None:
+            lines.append("issue-4 targets: 60x numpy float32 at 256 lights: n/a (numpy not measured)")
+        else:
+            lines.append(f"issue-4 targets: 60x numpy float32 at 256 lights: "
+                         f"{met(summary['target_60x_numpy_met'])} ({ratio:.3g}x)")
+    else:
+        lines.append("issue-4 targets: not measured (the run has no 256-light wide-scene "
+                     "accurate brute-force case)")
+    if "cull_vs_256_brute_time_ratio" in summary:
+        lines.append(f"issue-4 targets: culling at eps=1e-3, small scene N={summary['cull_small_lights']}, "
+                     f"within 3x the time of 256 lights brute force: {met(summary['target_3x_met'])} "
+                     f"({summary['cull_vs_256_brute_time_ratio']:.3g}x; max abs error "
+                     f"{summary['cull_max_abs_error']:.2e})")
+    return lines
+
+
+# ---------------------------------------------------------------------------------- output
+
+def save_report(report: dict, json_path=None, plot_path=None) -> None:
+    """Write the JSON report and the Pareto PNG, each to a temporary name then renamed
+    (:func:`clphong.io.atomic.atomic_path`: a failed write leaves nothing behind)."""
+    if json_path:
+        with atomic_path(json_path) as tmp:
+            Path(tmp).write_text(json.dumps(report, indent=1))
+    if plot_path:
+        plot_pareto(report, plot_path)
+
+
+def plot_pareto(report: dict, path) -> None:
+    """Throughput (GPLE/s, brute-force equivalent) against max relative error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    ax = axes[0]
+    for r in report["runs"]:
+        if r["max_error"] is not None:
+            continue
+        x = max(r["error"]["max_rel"], 1e-9)
+        ax.scatter(x, r["gple_per_s"], s=20 + 6 * math.log2(r["lights"] + 1))
+        ax.annotate(f"{r['path']} N={r['lights']}", (x, r["gple_per_s"]), fontsize=7)
+    for n in report["numpy"]:
+        ax.axhline(n["ple_per_s"] / 1e9, color="grey", lw=0.5, ls=":")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("max relative error vs float64 (terminator band excluded)")
+    ax.set_ylabel("GPLE/s")
+    ax.set_title("paths (brute force); dotted: numpy float32")
+    ax = axes[1]
+    for r in report["runs"]:
+        if r["max_error"] is None:
+            continue
+        x = max(r["error"]["max_abs"], 1e-12)
+        ax.scatter(x, r["gple_per_s"], marker="s" if r["scene"] == "small" else "o")
+        ax.annotate(f"{r['scene']} N={r['lights']} ε={r['max_error']:g}", (x, r["gple_per_s"]),
+                    fontsize=7)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("max absolute error vs float64 (radiance; white = 1)")
+    ax.set_ylabel("GPLE/s (brute-force equivalent)")
+    ax.set_title("tiled culling, budget ε")
+    fig.suptitle(f"clphong bench: {report['machine']['device']}", fontsize=9)
+    fig.tight_layout()
+
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        plt.close(fig)
+
+
+def table(report: dict) -> str:
+    """The report as a plain-text table."""
+    lines = [f"{'scene':6s} {'N':>6s} {'path':16s} {'GPLE/s':>8s} {'ms/frame':>10s} {'×numpy':>7s} "
+             f"{'peak':>6s} {'max rel':>9s} {'mean rel':>9s} {'max abs':>9s} {'band':>5s} {'kept':>7s}"]
+    for r in report["runs"]:
+        label = r["path"] if r["max_error"] is None else f"cull ε={r['max_error']:g}"
+        e = r["error"]
+        lines.append(
+            f"{r['scene']:6s} {r['lights']:6d} {label:16s} {r['gple_per_s']:8.3f} "
+            f"{r['ms_per_frame']:10.1f}{'*' if r['extrapolated'] else ' '}"
+            + (f"{r['numpy_ratio']:7.1f} " if r["numpy_ratio"] else f"{'n/a':>7s} ")
+            + (f"{r['peak_fraction']:6.1%} " if r["peak_fraction"] is not None else f"{'':6s} ")
+            + f"{e['max_rel']:9.2e} {e['mean_rel']:9.2e} {e['max_abs']:9.2e} {e['band_pixels']:5d} "
+            + (f"{r['kept_fraction']:7.4f}" if r["kept_fraction"] is not None else f"{'':7s}"))
+    lines.append("* brute force timed on a crop of the top rows; ms/frame scaled to the full frame")
+    return "\n".join(lines)

@@ -1,0 +1,246 @@
+/* clphong device code: the shading kernels' number formats and light records.
+ *
+ * The shading kernels (shade.cl, shade_obvious.cl) and their includes are
+ * specialised only with -D defines chosen by the host's shading plan
+ * (clphong/device/plan.py). Each is checked by the header that reads it, which
+ * refuses to compile without it (#error, no silent default):
+ *
+ *   lanes.h     LANES: pixels per work-item
+ *   plan.h      MODEL_BLINN … CULL_TILE: what the scene needs (model, lights, maps,
+ *               culling)
+ *   tonemap.h   DISPLAY_OUT …: the fused display output
+ *   clphong.h   (this header) the number formats:
+ *
+ *   DIRECTIONS_FP64  positions, directions, n·l and δ in double (the accurate default
+ *                    where the device has cl_khr_fp64); 0: in float (only the integer
+ *                    specular power below may still run in double)
+ *   SUM_FP64         the light sum in double, rounded once (devices with fast double);
+ *                    0: COMPENSATED_SUM decides (Neumaier or naive, in float)
+ *   SPEC_INT_POW     the specular exponent k (h, or 4h for Blinn) is one whole number
+ *                    K ≤ 65536 for every pixel: x^K by binary powering in double
+ *                    (needs cl_khr_fp64) instead of exp(k·log1p(−δ))
+ *   SPEC_COS         with SPEC_INT_POW and DIRECTIONS_FP64: the power's base is the
+ *                    cosine itself, formed in double (Phong r·v = 2(n·l)(n·v) − l·v;
+ *                    Blinn (n·h)² = (n·l + n·v)²/|l + v|², raised to K/2, K even)
+ *                    instead of 1 − δ with δ = |r − v|²/2 or |n − h|²/2 (brdf.h)
+ *   POW_FP32         with SPEC_INT_POW and float directions (the "fast" path): the
+ *                    binary powering in float, not double (relative error ~2K·u)
+ *   WEIGHTS_FP64     with DIRECTIONS_FP64 and SUM_FP64: the weights, the falloff and
+ *                    each light's product L·att·(D·w_d + S·w_s) in double, added to
+ *                    the double sum: nothing is rounded to float before the result
+ *
+ * shade_obvious.cl is all float: it sets these (and LANES, CULLING) itself.
+ *
+ * Names follow the notes (../shared/phong-model-notes.txt): NoL, RoV, NoH, k_a,
+ * k_d, k_s, h, c0, c1, c2, C_d, C_s. Every function here is mirrored by the
+ * float64 reference (clphong/reference/), with the same names and the same
+ * guards.
+ */
+#ifndef CLPHONG_H
+#define CLPHONG_H
+#include "lanes.h"
+
+#ifndef DIRECTIONS_FP64
+#error "DIRECTIONS_FP64 must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef SUM_FP64
+#error "SUM_FP64 must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef SPEC_INT_POW
+#error "SPEC_INT_POW must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef SPEC_COS
+#error "SPEC_COS must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef POW_FP32
+#error "POW_FP32 must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef WEIGHTS_FP64
+#error "WEIGHTS_FP64 must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#if POW_FP32 && !(SPEC_INT_POW && !DIRECTIONS_FP64)
+#error "POW_FP32 needs SPEC_INT_POW and float directions"
+#endif
+#if SPEC_COS && !(SPEC_INT_POW && DIRECTIONS_FP64)
+#error "SPEC_COS needs SPEC_INT_POW and DIRECTIONS_FP64"
+#endif
+#if WEIGHTS_FP64 && !(DIRECTIONS_FP64 && SUM_FP64)
+#error "WEIGHTS_FP64 needs DIRECTIONS_FP64 and SUM_FP64"
+#endif
+
+/* doubleL: LANES doubles, for whatever the plan computes in double
+ * (DIRECTIONS_FP64, SPEC_INT_POW, SUM_FP64); longL its same-size integers. */
+#if DIRECTIONS_FP64 || (SPEC_INT_POW && !POW_FP32) || SUM_FP64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#if LANES == 16
+typedef double16 doubleL;
+typedef long16 longL;
+#define TO_DOUBLE(x) convert_double16(x)
+#define DOUBLE_TO_FLOAT(x) convert_float16(x)
+#define AS_DOUBLE_L(x) as_double16(x)
+#define AS_LONG_L(x) as_long16(x)
+#elif LANES == 8
+typedef double8 doubleL;
+typedef long8 longL;
+#define TO_DOUBLE(x) convert_double8(x)
+#define DOUBLE_TO_FLOAT(x) convert_float8(x)
+#define AS_DOUBLE_L(x) as_double8(x)
+#define AS_LONG_L(x) as_long8(x)
+#elif LANES == 4
+typedef double4 doubleL;
+typedef long4 longL;
+#define TO_DOUBLE(x) convert_double4(x)
+#define DOUBLE_TO_FLOAT(x) convert_float4(x)
+#define AS_DOUBLE_L(x) as_double4(x)
+#define AS_LONG_L(x) as_long4(x)
+#else
+typedef double doubleL;
+typedef long longL;
+#define TO_DOUBLE(x) ((double)(x))
+#define DOUBLE_TO_FLOAT(x) ((float)(x))
+#define AS_DOUBLE_L(x) as_double(x)
+#define AS_LONG_L(x) as_long(x)
+#endif
+#endif
+
+/* dirL: the type of positions, directions, n·l and δ (and dirS its scalar).
+ * float32 directions carry a rounding of ~u each; through n·l near grazing
+ * and through δ into x^k (condition number k) that becomes a relative error far
+ * above u (docs/error-model.md). With DIRECTIONS_FP64 they are computed in double
+ * from the float32 inputs, hi+lo float pairs from the host (normal, eye,
+ * directional lights) and the point lights' float64 records, and only n·l, δ
+ * (for exp/log1p; the integer power takes δ in double) and att·L are rounded to
+ * float, or nothing at all before the sum with WEIGHTS_FP64: the error of every
+ * term is then a few u, relative.
+ * HI_LO(hi, lo): a host float64 value sent as float hi + lo, in dirS (hi alone
+ * in float). */
+#if DIRECTIONS_FP64
+typedef double dirS;
+typedef doubleL dirL;
+#define TO_FLOAT(x) DOUBLE_TO_FLOAT(x)
+#define TO_DIR(x) TO_DOUBLE(x)
+#define HI_LO(hi, lo) ((dirS)(hi) + (dirS)(lo))
+#else
+typedef float dirS;
+typedef floatL dirL;
+#define TO_FLOAT(x) (x)
+#define TO_DIR(x) (x)
+#define HI_LO(hi, lo) (hi)
+#endif
+
+/* RSQRT_DIR(x): 1/√x for dirL, x > 0 (callers select their own value for 0).
+ * In double, PoCL 3.0 calls rsqrt out of line as a square root and a division
+ * on every 4-lane half; inline, four Newton steps y·(1.5 − x/2·y²) from the
+ * exponent-halving first guess (magic constant 0x5FE6EB50C7B537A9, relative
+ * error ≤ 3.4e-2) reach ≤ 2.5 double ulp: measured 2.44·2⁻⁵³ over x = 1e-90 ..
+ * 1e90 and 10⁶ random x in [0.5, 4] against long double (steps 1-4: 1.8e-3,
+ * 4.6e-6, 3.2e-11, 2.7e-16), far inside the 2⁻⁴⁷ unit of the fp64 error model.
+ * x = 0 gives +inf, as rsqrt does.
+ * The lights loop ran 1.12× faster (bench scene, 16 lanes).
+ * In float, likewise (PoCL 3.0 calls the float rsqrt out of line too): three
+ * Newton steps from 0x5F375A86 (relative error ≤ 1.8e-3 after one step, 4.6e-6
+ * after two, 3.2e-11 after three, then float rounding) stay within the
+ * builtin's 2 ulp that the error model assumes (1.92 ulp measured, tested
+ * exhaustively on [1, 4), which covers every float x ≥ 2·FLT_MIN: a factor 4 in
+ * x moves the guess and each step by exactly ½); the float path's lights loop
+ * ran 1.06× faster. Its limits:
+ *  - below 2·FLT_MIN, h = x/2 flushes to 0 (-cl-denorms-are-zero) and the
+ *    result is 3.3–3.5× too large: its one use, Blinn's |l + v|² < 2.4e-38,
+ *    then gives |n − h| > 2, so δ > 1 and no highlight, where the bound already
+ *    allows the whole term;
+ *  - x = +∞ gives −∞, not 0, and a guard for it cost 12 % of the float path's
+ *    lights loop (PoCL 3.0, any form of it): so the float RSQRT_DIR takes finite
+ *    x only (Blinn's |l + v|² ≤ 4, once per light), and RSQRT_DIST, for squared
+ *    distances (to a light, once per light, and to the eye, once per pixel)
+ *    that overflow float beyond ≈ 1.8e19, stays the builtin (rsqrt(+∞) = 0). */
+#if DIRECTIONS_FP64
+inline dirL rsqrt_dir(dirL x)
+{
+    dirL y = AS_DOUBLE_L((longL)(0x5FE6EB50C7B537A9L) - (AS_LONG_L(x) >> 1));
+    const dirL h = 0.5 * x;
+    y = y * (1.5 - h * y * y);
+    y = y * (1.5 - h * y * y);
+    y = y * (1.5 - h * y * y);
+    y = y * (1.5 - h * y * y);
+    return x == 0.0 ? (dirL)(INFINITY) : y;   /* as rsqrt(0) = +inf */
+}
+#else
+inline dirL rsqrt_dir(dirL x)
+{
+    dirL y = AS_FLOAT_L((intL)(0x5F375A86) - (AS_INT_L(x) >> 1));
+    const dirL h = 0.5f * x;
+    y = y * (1.5f - h * y * y);
+    y = y * (1.5f - h * y * y);
+    y = y * (1.5f - h * y * y);
+    return x == 0.0f ? (dirL)(INFINITY) : y;  /* as rsqrt(0) = +inf */
+}
+#endif
+#define RSQRT_DIR(x) rsqrt_dir(x)
+#if DIRECTIONS_FP64
+#define RSQRT_DIST(x) rsqrt_dir(x)
+#else
+#define RSQRT_DIST(x) rsqrt(x)
+#endif
+
+/* sumL: the type of the running light sums; double with SUM_FP64. */
+#if SUM_FP64
+typedef doubleL sumL;
+#define TO_SUM(x) TO_DOUBLE(x)
+#define SUM_TO_FLOAT(x) DOUBLE_TO_FLOAT(x)
+#else
+typedef floatL sumL;
+#define TO_SUM(x) (x)
+#define SUM_TO_FLOAT(x) (x)
+#endif
+
+/* wL: the type of the weights, the falloff and each light's product
+ * L·att·(D·w_d + S·w_s) (wS its scalar): double with WEIGHTS_FP64, else float.
+ * DIR_TO_W, FLOAT_TO_W: from dirL and from floatL. W_HI_LO(hi, lo): a host
+ * float64 value sent as float hi + lo, in wS (hi alone in float). */
+#if WEIGHTS_FP64
+typedef doubleL wL;
+typedef double wS;
+#define DIR_TO_W(x) (x)
+#define FLOAT_TO_W(x) TO_DOUBLE(x)
+#define W_HI_LO(hi, lo) ((double)(hi) + (double)(lo))
+#else
+typedef floatL wL;
+typedef float wS;
+#define DIR_TO_W(x) TO_FLOAT(x)
+#define FLOAT_TO_W(x) (x)
+#define W_HI_LO(hi, lo) (hi)
+#endif
+
+/* powL: the type of the power's base (1 − δ, or the cosine with SPEC_COS) and of
+ * its powers with SPEC_INT_POW (double; from dirL, a conversion to the same type
+ * where the directions are in double). POW_TO_W: to the weights' type. */
+#if SPEC_INT_POW && POW_FP32
+typedef floatL powL;          /* float directions and weights: no conversion */
+#define TO_POW(x) (x)
+#define POW_TO_W(x) (x)
+#elif SPEC_INT_POW
+typedef doubleL powL;
+#define TO_POW(x) TO_DOUBLE(x)
+#if WEIGHTS_FP64
+#define POW_TO_W(x) (x)
+#else
+#define POW_TO_W(x) DOUBLE_TO_FLOAT(x)
+#endif
+#endif
+
+/* Layout of the light records, written by the host's pack_lights (clphong/device/).
+ * Point lights: pointrec_t, double4 with DIRECTIONS_FP64 (the host's float64
+ * values as they are: the rebased position, falloff and radiance need no hi+lo
+ * pairs and no conversion per work-item; 1.07× on the bench scene), else
+ * float4. Directional lights: float4. */
+#if DIRECTIONS_FP64
+typedef double4 pointrec_t;
+#else
+typedef float4 pointrec_t;
+#endif
+#define POINT_LIGHT_FLOAT4S 3       /* (x, y, z, c0) (r, g, b, c1) (c2, 0, 0, 0) */
+#define DIRECTIONAL_LIGHT_FLOAT4S 6 /* (lx, ly, lz, 0) (r, g, b, 0) (hx, hy, hz, undefined)
+                                       (l − float(l), 0) (h − float(h), 0)
+                                       (radiance − float(radiance), 0) */
+
+#endif /* CLPHONG_H */

@@ -1,0 +1,148 @@
+/* Lights and distance falloff, after ../shared/phong-model-notes.txt
+ * ("Compensation of Light Distance", "Multiple Lights"). Mirrored by the float64
+ * reference (clphong/reference/). */
+#ifndef CLPHONG_LIGHTS_H
+#define CLPHONG_LIGHTS_H
+#include "clphong.h"
+#include "plan.h"
+#include "brdf.h"
+
+/* 1/(c0 + c1·d + c2·d²), Horner form, in dirL: with DIRECTIONS_FP64 it cannot
+ * under- or overflow for float inputs (c2·d² at d = 1e-20 is 1e-40, below float's
+ * normal range). The scene parser rejects polynomials that go negative for
+ * d ≥ 0; c0 = 0 reaches 0 only at d = 0, where shade_point_light adds nothing. */
+inline dirL attenuation(dirS c0, dirS c1, dirS c2, dirL d)
+{
+#if HAS_ATTENUATION
+    return 1.0f / MUL_ADD(d, MUL_ADD(d, (dirL)(c2), (dirL)(c1)), (dirL)(c0));
+#else
+    /* every point light has c1 = c2 = 0 (clphong/device/plan.py): the same 1/c0,
+       once per light instead of a division per pixel */
+    return (dirL)(1.0f / c0);
+#endif
+}
+
+/* A pixel's shading inputs, all rebased or unit as described in shade.cl. */
+typedef struct {
+    dirL px, py, pz;        /* position, minus the frame origin (0 with DIRECTIONS_FP64) */
+    dirL nx, ny, nz;        /* unit normal */
+    dirL vx, vy, vz;        /* unit direction to the viewer */
+#if SPEC_COS
+    dirL NoV;               /* n·v */
+#endif
+#if HAS_SPECULAR && SPEC_INT_POW
+    uint K;                 /* the whole specular exponent, the same for every pixel
+                               (K/2 with SPEC_COS and Blinn: the base is (n·h)²) */
+#elif HAS_SPECULAR
+    wL k;                   /* specular exponent: h (Phong) or 4h (Blinn); the scene's
+                               float64 value (as hi + lo) with WEIGHTS_FP64 */
+#endif
+} pixel_t;
+
+/* The specular power of δ at pixel p in the plan's form (brdf.h), as wL. */
+#if SPEC_INT_POW
+#define SPECULAR_POWER(delta, p) specular_power_int((delta), (p)->K)
+#elif WEIGHTS_FP64
+#define SPECULAR_POWER(delta, p) specular_power_fp64((delta), (p)->k)
+#else
+#define SPECULAR_POWER(delta, p) FLOAT_TO_W(specular_power(TO_FLOAT(delta), (p)->k))
+#endif
+
+/* Diffuse and specular weights of one light at a pixel: the factors of
+ * C_d·k_d and C_s·k_s, before the light's radiance and falloff (wL: double with
+ * WEIGHTS_FP64, else float). */
+typedef struct {
+    wL diffuse;
+    wL specular;
+} weights_t;
+
+/* Both terms for a unit direction l towards the light. The specular term is on
+ * only where n·l > 0 (the notes' E_S needs a lit side); the gate uses n·l
+ * as the weights have it (rounded to float unless WEIGHTS_FP64), whose sign is
+ * that of the dirL value (or 0). */
+inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, dirL NoL_dir)
+{
+    weights_t w;
+    const wL NoL = DIR_TO_W(NoL_dir);
+    w.diffuse = lambert(NoL);
+#if HAS_SPECULAR && SPEC_COS
+#if MODEL_BLINN
+    const dirL x = blinn_cos_sq(lx, ly, lz, p->vx, p->vy, p->vz, NoL_dir, p->NoV);
+#else
+    const dirL x = phong_cos(lx, ly, lz, p->vx, p->vy, p->vz, NoL_dir, p->NoV);
+#endif
+    w.specular = SELECT((wL)(0.0f), specular_power_cos(x, p->K), NoL > 0.0f);
+#elif HAS_SPECULAR
+#if MODEL_BLINN
+    const dirL delta = blinn_delta(p->nx, p->ny, p->nz, lx, ly, lz, p->vx, p->vy, p->vz);
+#else
+    const dirL delta = phong_delta(p->nx, p->ny, p->nz, lx, ly, lz, p->vx, p->vy, p->vz, NoL_dir);
+#endif
+    w.specular = SELECT((wL)(0.0f), SPECULAR_POWER(delta, p), NoL > 0.0f);
+#else
+    w.specular = (wL)(0.0f);
+#endif
+    return w;
+}
+
+/* A point light at L (rebased on the frame origin, or as it is with
+ * DIRECTIONS_FP64), falloff coefficients c0, c1,
+ * c2 and radiance R, all in dirS (double from the host's float64 records with
+ * DIRECTIONS_FP64, shade.cl): l = (L − P)/d. Returns the unattenuated weights, and in
+ * *ar, *ag, *ab the light's radiance times attenuation(d), formed in dirL and
+ * then converted to the weights' type (rounded to float unless WEIGHTS_FP64), so
+ * that a huge falloff and a tiny intensity (or the reverse) meet before anything
+ * is rounded to float.
+ * Guards: a light exactly at the shaded point (d = 0) has no direction; it
+ * contributes nothing (l := 0, d := 0, so n·l = 0 switches both terms off), as in
+ * the reference; rsqrt(0) = inf would give 0·inf = NaN. In float, d² overflows for
+ * d ≳ 1.8e19: d := ∞ there, so the falloff is 0 (and l = 0) instead of ∞·0 = NaN. */
+inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
+                                   dirS c0, dirS c1, dirS c2, dirS Rr, dirS Rg, dirS Rb,
+                                   wL *ar, wL *ag, wL *ab)
+{
+    const dirL dx = Lx - p->px, dy = Ly - p->py, dz = Lz - p->pz;
+    const dirL d2 = MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz));
+    const dirL inv_d = SELECT_DIR(RSQRT_DIST(d2), (dirL)(0.0f), d2 <= (dirL)(0.0f));
+    const dirL lx = dx * inv_d, ly = dy * inv_d, lz = dz * inv_d;
+    const dirL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
+    weights_t w = shade_direction(p, lx, ly, lz, NoL);
+#if DIRECTIONS_FP64
+    /* finite in double: |P| ≤ FLT_MAX, and the scene refuses a light position
+       beyond float (clphong/model/scene.py), so d² < 3·(2·FLT_MAX)² */
+    const dirL d = d2 * inv_d;
+#else
+    const dirL d = SELECT_DIR(d2 * inv_d, d2, isinf(d2));
+#endif
+    /* d = 0: no contribution, also where c0 = 0 makes the falloff infinite. */
+    const dirL att = SELECT_DIR(attenuation(c0, c1, c2, d), (dirL)(0.0f), d2 <= (dirL)(0.0f));
+    *ar = DIR_TO_W(att * Rr);
+    *ag = DIR_TO_W(att * Rg);
+    *ab = DIR_TO_W(att * Rb);
+    return w;
+}
+
+/* A directional light: l is constant (unit, towards the light; l_lo and h_lo
+ * are the host's float64 remainders, used with DIRECTIONS_FP64), no falloff. */
+inline weights_t shade_directional_light(const pixel_t *p, float4 l, float4 l_lo, float4 h, float4 h_lo)
+{
+    const dirS lx = HI_LO(l.x, l_lo.x), ly = HI_LO(l.y, l_lo.y), lz = HI_LO(l.z, l_lo.z);
+    const dirL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
+#if BLINN_CONST_H && HAS_SPECULAR
+    weights_t w;
+    const wL NoLw = DIR_TO_W(NoL);
+    w.diffuse = lambert(NoLw);
+#if SPEC_COS
+    const dirL x = blinn_cos_sq_const_h(p->nx, p->ny, p->nz, h, h_lo);
+    w.specular = SELECT((wL)(0.0f), specular_power_cos(x, p->K), NoLw > 0.0f);
+#else
+    const dirL delta = blinn_delta_const_h(p->nx, p->ny, p->nz, h, h_lo);
+    w.specular = SELECT((wL)(0.0f), SPECULAR_POWER(delta, p), NoLw > 0.0f);
+#endif
+    return w;
+#else
+    return shade_direction(p, (dirL)(lx), (dirL)(ly), (dirL)(lz), NoL);
+#endif
+}
+
+#endif /* CLPHONG_LIGHTS_H */

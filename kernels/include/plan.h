@@ -1,0 +1,76 @@
+/* clphong device code: what the scene needs, as the shading plan chose it.
+ *
+ * The shading kernels (shade.cl, shade_obvious.cl) and lights.h compile in only
+ * what the scene uses, with these -D defines of the host's shading plan
+ * (clphong/device/plan.py), which must set every one of them (clphong.h lists
+ * the other headers' defines):
+ *
+ *   MODEL_BLINN      0: Phong (r·v)^h           1: Blinn-Phong (n·h)^(4h)
+ *   HAS_POINT        point lights present (with 1/(c0 + c1·d + c2·d²) falloff)
+ *   HAS_DIRECTIONAL  directional lights present (no falloff)
+ *   HAS_SPECULAR     k_s > 0 somewhere (uniform or in a map)
+ *   CAMERA_ORTHO     viewer at infinity: v is constant
+ *   BLINN_CONST_H    orthographic camera + Blinn: each directional light's half vector is
+ *                    constant and precomputed on the host (Blinn 1977)
+ *   MAP_KD, MAP_KS, MAP_H, MAP_CS   per-pixel material maps present
+ *   COMPENSATED_SUM  Neumaier-compensated light sum (error ~2u instead of ~N·u)
+ *   HAS_ATTENUATION  some point light has c1 ≠ 0 or c2 ≠ 0; 0: the falloff is 1/c0,
+ *                    a constant per light (no distance polynomial, no division per pixel)
+ *   CULLING          point lights come from per-tile lists built by cull.cl, whose
+ *                    dropped lights sum to at most the user's budget ε
+ *                    (clphong/device/culling.py)
+ *   CULL_TILE        with CULLING: screen tile edge of the lists, pixels (the culling
+ *                    pass's TILE, clphong/device/culling.py, which builds them)
+ *
+ * shade_obvious.cl reads no culling lists: it sets CULLING = 0 itself. The plan
+ * sets BLINN_CONST_H, COMPENSATED_SUM and HAS_ATTENUATION for it too, unused.
+ */
+#ifndef CLPHONG_PLAN_H
+#define CLPHONG_PLAN_H
+
+#ifndef MODEL_BLINN
+#error "MODEL_BLINN must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef HAS_POINT
+#error "HAS_POINT must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef HAS_DIRECTIONAL
+#error "HAS_DIRECTIONAL must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef HAS_SPECULAR
+#error "HAS_SPECULAR must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef CAMERA_ORTHO
+#error "CAMERA_ORTHO must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef BLINN_CONST_H
+#error "BLINN_CONST_H must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef MAP_KD
+#error "MAP_KD must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef MAP_KS
+#error "MAP_KS must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef MAP_H
+#error "MAP_H must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef MAP_CS
+#error "MAP_CS must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef COMPENSATED_SUM
+#error "COMPENSATED_SUM must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef HAS_ATTENUATION
+#error "HAS_ATTENUATION must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef CULLING
+#error "CULLING must be set by the shading plan (clphong/device/plan.py)"
+#endif
+/* CULL_TILE is read only with CULLING (shade.cl's tile of a work-item): only then
+   is it required. */
+#if CULLING && !defined(CULL_TILE)
+#error "CULL_TILE must be set by the shading plan (clphong/device/plan.py) with CULLING"
+#endif
+
+#endif /* CLPHONG_PLAN_H */
