@@ -21,7 +21,7 @@ from .core.errors import (
     SceneError,
 )
 from .device.plan import ShadingPlan, make_plan
-from .device.renderer import Renderer, render
+from .device.renderer import Renderer, RenderResult, render
 from .io.atomic import write_exr
 from .io.gbuffer import GBuffer, read_gbuffer
 from .model.scene import Scene, load_scene, parse_scene

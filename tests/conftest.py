@@ -16,7 +16,6 @@ GBUFFERS = REPO / "gbuffers"
 # bypasses the file validation, so tests may use c0 = 0).
 from clphong.tools.hardcases import make_gbuffer, make_scene  # noqa: E402,F401
 
-
 #: The bad-input catalogue: (case, exit code, the one error line) of every case of
 #: tests/test_hostile.py that runs the CLI through its fails(); printed as a Markdown
 #: table at the end of the run when CLPHONG_CATALOGUE is set:
@@ -52,6 +51,30 @@ def random_maps(rng, h, w, maps):
             for name, (top, extra) in ranges.items() if name in maps}
 
 
+def heightfield(rng, h=37, w=45, *, offset=(0.0, 0.0, 0.0), bumps=0.3, maps=()):
+    """A wavy surface seen from above: spatially coherent P and N, so tiles are small."""
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64) * 0.1
+    z = bumps * np.sin(xs * 1.7) * np.cos(ys * 1.3)
+    P = np.stack([xs, ys, z], -1) + np.asarray(offset)
+    dzdx = bumps * 1.7 * np.cos(xs * 1.7) * np.cos(ys * 1.3)
+    dzdy = -bumps * 1.3 * np.sin(xs * 1.7) * np.sin(ys * 1.3)
+    N = np.stack([-dzdx, -dzdy, np.ones_like(z)], -1)
+    C = rng.uniform(0.1, 1.0, (h, w, 3))
+    cov = (rng.uniform(size=(h, w)) > 0.05).astype(np.float32)
+    return make_gbuffer(P, N, C, cov, random_maps(rng, h, w, maps))
+
+
+def point_lights(rng, n, *, extent=(4.5, 3.7), height=(0.05, 0.6), att=(1.0, 0.0, 300.0),
+                 offset=(0.0, 0.0, 0.0), intensity=(0.5, 3.0)):
+    out = []
+    for _ in range(n):
+        pos = np.array([rng.uniform(-0.3, extent[0]), rng.uniform(-0.3, extent[1]),
+                        rng.uniform(*height)]) + offset
+        out.append(dict(type="point", position=tuple(pos), color=tuple(rng.uniform(0.2, 1, 3)),
+                        intensity=float(rng.uniform(*intensity)), attenuation=att))
+    return out
+
+
 def random_lights(rng, n_point=3, n_dir=1, n_amb=1):
     lights = []
     for _ in range(n_point):
@@ -67,16 +90,17 @@ def random_lights(rng, n_point=3, n_dir=1, n_amb=1):
 
 
 def check_against_reference(scene, gbuffer, *, kernel="lanes", lanes=None, compensated=None,
-                            fp64_directions=None, int_pow=True):
+                            fp64_directions=None, int_pow=True, device=None):
     """Render, compare with the float64 reference, assert |err| ≤ the error bound.
 
+    ``device``: a device selector (the ``device`` fixture's "P:D"); None, the default device.
     Returns (rgb, ref, bound, band) for further checks.
     """
-    from clphong.reference import shading as reference
     from clphong.device.renderer import Renderer, prepare_frame
+    from clphong.reference import shading as reference
 
     r = Renderer(scene, kernel=kernel, lanes=lanes, compensated=compensated,
-                 fp64_directions=fp64_directions, int_pow=int_pow)
+                 fp64_directions=fp64_directions, int_pow=int_pow, device=device)
     frame = prepare_frame(gbuffer, lanes=r.lanes)
     result = r.shade(frame)
     rgb, plan = result.image, result.plan      # plan: the variant that ran
@@ -106,3 +130,63 @@ def patch_everywhere(monkeypatch, module, name, replacement):
         if (mod_name == "clphong" or mod_name.startswith("clphong.")) and \
                 getattr(mod, name, None) is original:
             monkeypatch.setattr(mod, name, replacement)
+
+
+# ------------------------------------------------------------------------- OpenCL devices
+#
+# In the style of PyOpenCL's ``pytest_generate_tests_for_pyopencl``: a test that takes a
+# ``device`` argument runs once per OpenCL device present, and gets a selector string
+# ("P:D", platform and device index) that clphong.device.runtime.get_runtime and
+# Renderer(..., device=...) accept. Ids name the platform and device kind ("pocl-cpu").
+# With no device at all it is parametrised with one skipped case.
+
+def _device_ids(plat, dev):
+    import pyopencl as cl
+
+    pname = plat.name.lower()
+    short = ("pocl" if "portable computing language" in pname or "pocl" in pname
+             else pname.split()[0] if pname.split() else "platform")
+    kinds = [k for k, flag in (("cpu", cl.device_type.CPU), ("gpu", cl.device_type.GPU),
+                               ("accelerator", cl.device_type.ACCELERATOR)) if dev.type & flag]
+    return f"{short}-{kinds[0] if kinds else 'device'}"
+
+
+def opencl_devices():
+    """[(selector "P:D", id)] of every OpenCL device present; [] when none (or no pyopencl)."""
+    try:
+        import pyopencl as cl
+
+        platforms = cl.get_platforms()
+    except Exception:                    # no pyopencl, no ICD loader, no platform
+        return []
+    out = []
+    for pi, plat in enumerate(platforms):
+        try:
+            devs = plat.get_devices()
+        except Exception:
+            devs = []
+        for di, dev in enumerate(devs):
+            out.append((f"{pi}:{di}", _device_ids(plat, dev)))
+    # ids unique: a second device of the same kind gets its index appended
+    seen: dict[str, int] = {}
+    for _, ident in out:
+        seen[ident] = seen.get(ident, 0) + 1
+    return [(sel, ident if seen[ident] == 1 else f"{ident}-{sel.replace(':', '.')}")
+            for sel, ident in out]
+
+
+_DEVICES = None
+
+
+def pytest_generate_tests(metafunc):
+    global _DEVICES
+    if "device" not in metafunc.fixturenames:
+        return
+    if _DEVICES is None:
+        _DEVICES = opencl_devices()
+    if _DEVICES:
+        metafunc.parametrize("device", [sel for sel, _ in _DEVICES],
+                             ids=[ident for _, ident in _DEVICES])
+    else:
+        metafunc.parametrize("device", [pytest.param(None, marks=pytest.mark.skip(
+            reason="no OpenCL device found"))], ids=["no-device"])

@@ -32,9 +32,9 @@ import warnings
 import atheris
 
 with atheris.instrument_imports():
+    import clphong.core.memory  # noqa: F401 - the memory checks the reader calls
     import clphong.io.gbuffer
     import clphong.model.scene
-    import clphong.core.memory  # noqa: F401 - the memory checks the reader calls
 
 from clphong.core.errors import ClphongError  # noqa: E402
 

@@ -12,8 +12,8 @@ what a user sees and what is left on disk:
 A few cases also run as subprocesses (the real entry point, real environment).
 Cases already covered elsewhere are not repeated: a missing G-buffer or scene
 file, an unknown scene key via the API, the output overwriting the G-buffer
-and a missing output folder are in tests/test_cli.py; OpenImageIO failures at
-each stage of a write are in tests/test_output.py.
+and a missing output folder are in tests/console/test_cli.py; OpenImageIO failures at
+each stage of a write are in tests/io/test_atomic.py.
 """
 
 from __future__ import annotations
@@ -28,13 +28,12 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 import pytest
-
-from clphong.device import runtime
-from clphong.console.cli import main
-from clphong.io.gbuffer import write_gbuffer
-from clphong.io.atomic import write_exr
-
 from conftest import CATALOGUE, random_gbuffer
+
+from clphong.console.cli import main
+from clphong.device import runtime
+from clphong.io.atomic import write_exr
+from clphong.io.gbuffer import write_gbuffer
 
 H, W = 6, 8
 
@@ -768,9 +767,9 @@ def test_frame_too_big_for_one_launch_is_shaded_in_bands(work, capsys, monkeypat
     tolerance. The result is also held to the reference's error bound.
     """
     import clphong
-    from clphong.reference import shading as reference
-    from clphong.device.renderer import prepare_frame
     from clphong.device.bands import render_bytes_per_pixel
+    from clphong.device.renderer import prepare_frame
+    from clphong.reference import shading as reference
 
     src, out = work
     gb = random_gbuffer(np.random.default_rng(12), 96, 40, maps=("k_s", "h"))
@@ -830,8 +829,9 @@ def test_frame_over_the_devices_largest_buffer_is_shaded_in_bands(monkeypatch):
 
 
 def _scene_of(text):
-    from clphong.model.scene import parse_scene
     import tomllib
+
+    from clphong.model.scene import parse_scene
     return parse_scene(tomllib.loads(text), "scene.toml")
 
 
@@ -848,8 +848,8 @@ def test_band_origin_is_the_whole_frames_origin():
 
 def test_16k_frame_plan_respects_device_and_memory_limits():
     """The plan for 16K x 16K with many lights, without allocating it."""
-    from clphong.device.renderer import LOCAL_SIZE
     from clphong.device.bands import band_rows, render_bytes_per_pixel
+    from clphong.device.renderer import LOCAL_SIZE
 
     h = w = 16384
     rows = band_rows((h, w), n_map_planes=0, lanes=16, light_bytes=128 * 10_000,

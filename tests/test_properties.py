@@ -16,11 +16,11 @@ from __future__ import annotations
 import os
 
 import numpy as np
+from conftest import check_against_reference, make_gbuffer, make_scene
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from clphong.tools.hardcases import TARGET_REL, significant
-from conftest import check_against_reference, make_gbuffer, make_scene
 
 EXAMPLES = int(os.environ.get("CLPHONG_PROPERTY_EXAMPLES", "25"))
 SETTINGS = settings(max_examples=EXAMPLES, deadline=None, derandomize=False,

@@ -30,6 +30,7 @@ from ..model.options import check_exposure
 __all__ = [
     "ColorError", "WorkingSpace", "WORKING_SPACES", "working_space", "ColorConfig",
     "load_config", "DEFAULT_CONFIG", "HDR_DISPLAY", "HDR_VIEW", "PQ_CICP", "SRGB_CICP",
+    "SRGB_DISPLAY_INTEROP",
 ]
 
 #: The config used when neither --ocio-config nor $OCIO is given.
@@ -42,6 +43,9 @@ HDR_VIEW = "ACES 2.0 - HDR 1000 nits (Rec.2020)"
 PQ_CICP = (9, 16, 0, 1)
 #: cICP of sRGB: BT.709 primaries (1), IEC 61966-2-1 transfer (13), RGB, full range.
 SRGB_CICP = (1, 13, 0, 1)
+#: The colour interop ID of sRGB display-referred images (``oiio:ColorSpace`` of
+#: the SDR output without an OCIO view; the only space a TIFF output may carry).
+SRGB_DISPLAY_INTEROP = "srgb_rec709_display"
 
 
 class ColorError(ClphongError):

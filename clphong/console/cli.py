@@ -18,12 +18,14 @@ from pathlib import Path
 from ..color.ocio import WORKING_SPACES, load_config
 from ..core.errors import ClphongError, OutputError
 from ..deliver.outputs import OutputOptions, OutputPaths, check_outputs, render_outputs
+from ..deliver.writers import EXR_COMPRESSIONS, SDR_BITS
 from ..device.renderer import Renderer
 from ..device.runtime import get_runtime, list_devices
-from ..io.atomic import check_output_path, same_file
+from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
 from ..io.gbuffer import parse_channel_mapping, read_gbuffer
-from ..io.inspection import DiffError, diff_images, format_report, inspect_file
-from ..model.scene import load_scene
+from ..io.inspection import METRICS, DiffError, diff_images, format_report, inspect_file
+from ..model.options import KERNELS, LANES, NONFINITE_POLICIES, PATHS
+from ..model.scene import MAP_KEYS, load_scene
 from ..model.tonemap import OPERATORS
 from ..pipeline.batch import Rig, parse_frame_range, plan_batch, run_batch
 from ..pipeline.relighter import (
@@ -33,8 +35,11 @@ from ..pipeline.relighter import (
     check_renderer_options,
 )
 from ..tools.bench import (
-    PATHS,
+    PATHS as BENCH_PATHS,
+)
+from ..tools.bench import (
     BenchConfig,
+    check_paths,
     run_bench,
     save_report,
     summary_lines,
@@ -185,7 +190,7 @@ def _add_inspect_parsers(sub):
                                    "1 differ, 2 trouble (unreadable file, bad option).")
     d.add_argument("a", metavar="A", help="reference image")
     d.add_argument("b", metavar="B", help="test image")
-    d.add_argument("--metric", choices=("max-rel", "mean-abs", "psnr", "flip"), default="max-rel",
+    d.add_argument("--metric", choices=METRICS, default="max-rel",
                    help="max-rel: max |B-A|/max(|A|, floor); mean-abs: mean |B-A|; psnr: dB "
                         "(match when >= tol); flip: mean FLIP error (OpenImageIO FLIP_diff)")
     d.add_argument("--tol", type=float, required=True, metavar="X",
@@ -203,16 +208,17 @@ def _add_gbuffer_options(p, files: bool = True):
         p.add_argument("--albedo", metavar="A.exr", help="file holding the albedo C_d")
     p.add_argument("--channels", action="append", default=[], metavar="KEY=CHANNELS",
                    help="override channel detection: KEY is position, normal, albedo, coverage, "
-                        "k_d, k_s, h or specular_color; CHANNELS a layer prefix or a comma-separated list")
+                        f"{', '.join(MAP_KEYS[:-1])} or {MAP_KEYS[-1]}; "
+                        "CHANNELS a layer prefix or a comma-separated list")
 
 
 def _add_device_options(p):
     p.add_argument("--device", metavar="DEV",
                    help="OpenCL device: 'P:D' indices or a name substring (default: PoCL CPU, "
                         "or PYOPENCL_CTX if set); see 'clphong devices'")
-    p.add_argument("--kernel", choices=("lanes", "obvious"), default="lanes",
+    p.add_argument("--kernel", choices=tuple(KERNELS), default="lanes",
                    help="'lanes' (default, fast) or 'obvious' (one pixel per work-item, the baseline)")
-    p.add_argument("--lanes", type=int, choices=(1, 4, 8, 16),
+    p.add_argument("--lanes", type=int, choices=LANES,
                    help="pixels per work-item of the lane kernel (default: chosen for the device)")
 
 
@@ -223,7 +229,7 @@ def _add_speed_options(p):
                         "per pixel and channel (0: bit-identical to brute force; default: no culling)")
     p.add_argument("--reference-white", type=float, default=1.0, metavar="W",
                    help="output radiance of reference white for --max-error (default 1.0)")
-    p.add_argument("--path", choices=("accurate", "float", "fast"), default="accurate",
+    p.add_argument("--path", choices=tuple(PATHS), default="accurate",
                    help="'accurate' (default: directions, weights and sums in double where the "
                         "device has fp64), 'float' (float32 directions, for devices without fast "
                         "double: larger error near grazing light and for high shininess; on a CPU "
@@ -235,7 +241,7 @@ def _add_speed_options(p):
 
 def _add_renderer_options(p):
     """The renderer options of 'render' and 'relight': one definition, the same help."""
-    p.add_argument("--nonfinite", choices=("background", "error", "pass"), default="background",
+    p.add_argument("--nonfinite", choices=tuple(NONFINITE_POLICIES), default="background",
                    help="NaN/Inf in the G-buffer: leave those pixels unshaded as background "
                         "(default, with a warning giving the counts per buffer), stop with an "
                         "error (relight: that frame fails, the others complete), or pass them "
@@ -267,7 +273,7 @@ def _add_bench_parser(sub):
     b.add_argument("--sizes", metavar="WxH[,WxH]", help="frame sizes (default 1920x1080)")
     b.add_argument("--lights", metavar="N[,N]", help="point-light counts of the wide scene")
     b.add_argument("--small-lights", metavar="N[,N]", help="point-light counts of the small-reach scene")
-    b.add_argument("--paths", metavar="P[,P]", help="paths: accurate, accurate-exp, float, float-naive-sum, fast, obvious")
+    b.add_argument("--paths", metavar="P[,P]", help="paths: " + ", ".join(BENCH_PATHS))
     b.add_argument("--budgets", metavar="EPS[,EPS]", help="culling budgets, relative to white 1.0")
     b.add_argument("--repeats", type=int, metavar="R", help="timed frames per case (median)")
     b.add_argument("--warmup", type=int, metavar="W", help="untimed frames first (default 1)")
@@ -305,9 +311,10 @@ def cmd_bench(args) -> int:
         kw["small_lights"] = _csv(args.small_lights, int, "--small-lights")
     if args.paths:
         kw["paths"] = _csv(args.paths, str, "--paths")
-        bad = [x for x in kw["paths"] if x not in PATHS]
-        if bad:
-            raise _Usage(f"--paths: unknown path {bad[0]!r}; choose from {', '.join(PATHS)}")
+        try:
+            kw["paths"] = check_paths(kw["paths"])
+        except ValueError as exc:
+            raise _Usage(f"--paths: {exc}") from None
     if args.budgets:
         kw["budgets"] = _csv(args.budgets, float, "--budgets")
     for name in ("repeats", "warmup"):
@@ -536,11 +543,11 @@ def _add_color_options(r, templates: bool = False):
     g.add_argument("--exposure", type=float, metavar="EV",
                    help="exposure in stops: display outputs see the scene-linear value x 2^EV")
     g.add_argument("--tonemap", metavar="OP",
-                   help="operator of the SDR output without an OCIO view: none (clip), reinhard, "
-                        "reinhard-extended, hable, aces-hill, agx, pbr-neutral")
+                   help="operator of the SDR output without an OCIO view: "
+                        + ", ".join(n + (" (clip)" if n == "none" else "") for n in OPERATORS))
     g.add_argument("--white", type=float, metavar="W",
                    help="white point of reinhard-extended (default 4) and hable (default 11.2)")
-    g.add_argument("--working-space", choices=("lin_rec709", "acescg"),
+    g.add_argument("--working-space", choices=tuple(WORKING_SPACES),
                    help="colour space of albedo, lights and the EXR (default lin_rec709)")
     g.add_argument("--ocio-config", metavar="PATH",
                    help="OCIO config (default: $OCIO, else the built-in ocio://default)")
@@ -548,12 +555,12 @@ def _add_color_options(r, templates: bool = False):
     g.add_argument("--view", help="OCIO view of the SDR output (default: the display's default)")
     g.add_argument("--look", help="OCIO look(s), comma-separated")
     o = r.add_argument_group("outputs (any combination; see 'clphong displays' for names)")
-    o.add_argument("--exr-type", choices=("float", "half"), default="float",
+    o.add_argument("--exr-type", choices=PIXEL_TYPES, default="float",
                    help="EXR pixel type (--half is the same as --exr-type half)")
-    o.add_argument("--exr-compression", choices=("zip", "piz"), default="zip")
+    o.add_argument("--exr-compression", choices=EXR_COMPRESSIONS, default="zip")
     o.add_argument("--sdr", action="append", default=[], metavar=f"{what}.png|{what}.tif",
                    help=f"display-referred SDR image{per}; repeatable")
-    o.add_argument("--bits", type=int, choices=(8, 16), default=8, help="SDR bit depth")
+    o.add_argument("--bits", type=int, choices=SDR_BITS, default=8, help="SDR bit depth")
     o.add_argument("--no-dither", action="store_true", help="no dither before 8-bit quantisation")
     o.add_argument("--hdr", action="append", default=[], metavar=f"{what}.png|{what}.jxl",
                    help=f"HDR Rec.2100 PQ (1000-nit view), 16-bit PNG with cICP or JPEG XL{per}; "

@@ -37,14 +37,15 @@ from ..color import ocio as color
 from ..core.errors import OutputError, OutputWarning
 from ..core.memory import output_bytes, require_memory
 from ..device.display import DisplayTransform
-from ..io.atomic import PIXEL_TYPES, same_file
+from ..io.atomic import check_pixel_type, same_file
 from ..model import tonemap
 from ..model.options import check_exposure
 from .contact import write_contact_sheet
 from .writers import (
-    EXR_COMPRESSIONS,
     HDR_EXTENSIONS,
     SDR_EXTENSIONS,
+    check_bits,
+    check_compression,
     jpegxl_available,
     write_hdr,
     write_scene_linear,
@@ -63,7 +64,7 @@ EXTENSIONS = {"exr": (".exr",), "sdr": SDR_EXTENSIONS, "hdr": HDR_EXTENSIONS,
 _WHAT = {"exr": "scene-linear", "sdr": "SDR", "hdr": "HDR", "contact_sheet": "contact-sheet"}
 #: The display colour space (interop ID) a TIFF can be tagged with: OpenImageIO's TIFF
 #: writer records only sRGB (EXIF ColorSpace = 1); TIFF has no cICP.
-TIFF_COLORSPACE = "srgb_rec709_display"
+TIFF_COLORSPACE = color.SRGB_DISPLAY_INTEROP
 
 #: OutputOptions fields taken from the scene's [render] table when None (field -> ColorSettings key).
 _FROM_SCENE = {"working_space": "working_space", "exposure": "exposure", "tonemap": "tonemap",
@@ -148,14 +149,9 @@ class OutputOptions:
 
     def checked(self) -> "OutputOptions":
         """Validate names and values; normalise operator and working-space names."""
-        if self.pixel_type not in PIXEL_TYPES:
-            raise OutputError(f"EXR pixel type must be one of {', '.join(PIXEL_TYPES)}, "
-                              f"not {self.pixel_type!r}")
-        if self.compression not in EXR_COMPRESSIONS:
-            raise OutputError(f"EXR compression must be one of {', '.join(EXR_COMPRESSIONS)}, "
-                              f"not {self.compression!r}")
-        if self.bits not in (8, 16):
-            raise OutputError(f"SDR bit depth must be 8 or 16, not {self.bits!r}")
+        check_pixel_type(self.pixel_type)
+        check_compression(self.compression)
+        check_bits(self.bits)
         changes = {}
         if self.tonemap is not None:
             op = tonemap.operator(self.tonemap)
@@ -439,7 +435,7 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
     if paths.sdr:
         t0 = time.perf_counter()
         if shown is not None:
-            space, cicp = "srgb_rec709_display", color.SRGB_CICP
+            space, cicp = color.SRGB_DISPLAY_INTEROP, color.SRGB_CICP
         else:
             display, view, looks = cfg.check_display_view(options.display, options.view, options.look)
             shown = cfg.display_view(rgb, ws, display, view, looks, exposure=options.exposure)

@@ -22,16 +22,34 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..color.ocio import PQ_CICP, WorkingSpace
+from ..color.ocio import PQ_CICP, SRGB_DISPLAY_INTEROP, WorkingSpace
 from ..core.errors import OutputError
 from ..io.atomic import write_exr, write_image_atomically
 
 __all__ = ["write_scene_linear", "write_sdr", "write_hdr", "SDR_EXTENSIONS", "HDR_EXTENSIONS",
-           "EXR_COMPRESSIONS", "jpegxl_available"]
+           "EXR_COMPRESSIONS", "check_compression", "SDR_BITS", "check_bits", "jpegxl_available"]
 
 SDR_EXTENSIONS = (".png", ".tif", ".tiff")
 HDR_EXTENSIONS = (".png", ".jxl")
 EXR_COMPRESSIONS = ("zip", "piz")
+#: Bit depths of the SDR outputs (``--bits``).
+SDR_BITS = (8, 16)
+
+
+def check_compression(compression, where: str | None = None) -> str:
+    """``compression`` if it is one of :data:`EXR_COMPRESSIONS`; else an OutputError naming ``where``."""
+    if compression in EXR_COMPRESSIONS:
+        return compression
+    subject = f"{where}: EXR compression" if where else "EXR compression"
+    raise OutputError(f"{subject} must be one of {', '.join(EXR_COMPRESSIONS)}, not {compression!r}")
+
+
+def check_bits(bits, where: str | None = None) -> int:
+    """``bits`` if it is one of :data:`SDR_BITS`; else an OutputError naming ``where``."""
+    if bits in SDR_BITS and not isinstance(bits, bool):
+        return bits
+    subject = f"{where}: SDR bit depth" if where else "SDR bit depth"
+    raise OutputError(f"{subject} must be {' or '.join(map(str, SDR_BITS))}, not {bits!r}")
 #: Seed of the 8-bit dither (fixed: the same frame gives the same file).
 DITHER_SEED = 1
 
@@ -69,9 +87,7 @@ def write_scene_linear(path, rgb, ws: WorkingSpace, *, pixel_type: str = "float"
     """
     path = os.fspath(path)
     _ext(path, (".exr",), "scene-linear")
-    if compression not in EXR_COMPRESSIONS:
-        raise OutputError(f"{path}: EXR compression must be one of {', '.join(EXR_COMPRESSIONS)}, "
-                          f"not {compression!r}")
+    check_compression(compression, path)
     tags = {"chromaticities": ws.chromaticities, "oiio:ColorSpace": ws.interop_id,
             "Software": software}
     tags.update(attributes or {})
@@ -102,7 +118,7 @@ def _check(path: str, rgb) -> np.ndarray:
 
 
 def write_sdr(path, display_rgb, *, bits: int = 8, dither: bool = True,
-              colorspace: str = "srgb_rec709_display", cicp: tuple | None = None) -> None:
+              colorspace: str = SRGB_DISPLAY_INTEROP, cicp: tuple | None = None) -> None:
     """Write display-encoded SDR code values (0..1) as an 8/16-bit PNG or TIFF.
 
     Parameters
@@ -121,8 +137,7 @@ def write_sdr(path, display_rgb, *, bits: int = 8, dither: bool = True,
     """
     path = os.fspath(path)
     ext = _ext(path, SDR_EXTENSIONS, "SDR")
-    if bits not in (8, 16):
-        raise OutputError(f"{path}: SDR bit depth must be 8 or 16, not {bits!r}")
+    check_bits(bits, path)
     oiio = _oiio()
     data = _check(path, display_rgb)
     attrs = {"oiio:ColorSpace": colorspace, "Software": "clphong"}

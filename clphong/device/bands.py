@@ -28,6 +28,7 @@ import numpy as np
 
 from ..core.geometry import origin_of_bounds, position_bounds
 from ..core.memory import F32, MODEL_MARGIN
+from ..model.scene import MATERIAL_MAPS
 from .culling import TILE, super_tiles
 from .frame import GBUF_PLANES, LOCAL_SIZE
 
@@ -36,7 +37,7 @@ from .frame import GBUF_PLANES, LOCAL_SIZE
 
 def map_planes(gbuffer) -> int:
     """float32 planes of the material maps a frame uploads (0 to 6)."""
-    return sum(3 if k == "specular_color" else 1 for k in gbuffer.maps)
+    return sum(MATERIAL_MAPS[k] for k in gbuffer.maps)
 
 
 def render_bytes_per_pixel(n_map_planes: int, gbuf_planes: int | None = None,

@@ -23,6 +23,7 @@ from ..core.geometry import (
     unit_normal_planes,
     view_vector,
 )
+from ..model.scene import MATERIAL_MAPS
 
 #: Work-items per work-group. PoCL runs anything from 8 to ~1000 equally well
 #: and 1 badly (POCL-NOTES "Local size").
@@ -73,13 +74,10 @@ def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:
         gbuf[9 + a, :n] = n64 - gbuf[3 + a, :n]
     names = []
     planes = []
-    for name in ("k_d", "k_s", "h"):
+    for name, channels in MATERIAL_MAPS.items():             # the kernels' order
         if name in gbuffer.maps:
             names.append(name)
-            planes.append(gbuffer.maps[name].reshape(1, -1))
-    if "specular_color" in gbuffer.maps:
-        names.append("specular_color")
-        planes.append(gbuffer.maps["specular_color"].reshape(-1, 3).T)
+            planes.append(gbuffer.maps[name].reshape(-1, channels).T)
     if planes:
         stacked = np.concatenate(planes, axis=0)
         maps = np.zeros((stacked.shape[0], stride), np.float32)

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from ..model.options import check_float_power, check_kernel
+from ..model.scene import MAP_KEYS
 from .culling import TILE
 
 #: Light sums longer than this use Neumaier compensation. The error of a naive
@@ -23,7 +25,8 @@ COMPENSATE_ABOVE = 4
 #: Pixels per work-item, as explicit SIMD lanes (see kernels/clphong.h).
 DEFAULT_LANES = 16
 
-MAP_NAMES = ("k_d", "k_s", "h", "specular_color")
+#: The material maps in kernel order (clphong.model.scene.MAP_KEYS).
+MAP_NAMES = MAP_KEYS
 
 #: The largest whole exponent k (h, or 4h for Blinn-Phong) raised by binary
 #: powering (SPEC_INT_POW): at most 16 squarings and 15 products per light.
@@ -120,8 +123,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         Fuse exposure, tone mapping and display encoding into the final store
         (kernels/tonemap.cl); None: scene-linear output only (DISPLAY_OUT=0).
     """
-    if kernel not in ("lanes", "obvious"):
-        raise ValueError(f"kernel must be 'lanes' or 'obvious', not {kernel!r}")
+    check_kernel(kernel)
     m = scene.material
     maps = tuple(n for n in MAP_NAMES if n in set(maps))
     n_point = len(scene.lights_of("point"))
@@ -189,8 +191,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         k = m.exponent
         whole = float(k).is_integer() and 0 <= k <= INT_POW_MAX
         in_float = int_pow == "float"
-        if in_float and fp64_directions:
-            raise ValueError("int_pow='float' is for float directions (the fast path)")
+        check_float_power(int_pow, fp64_directions)
         use = specular and "h" not in maps and whole and (in_float or (fp64 and int_pow))
         exponent = f"k = {'4h' if blinn else 'h'} = {k:g}"
         cos_form = use and fp64_directions and (not blinn or int(k) % 2 == 0)

@@ -25,6 +25,7 @@ from ..core.memory import ENV_VAR, F32, format_size, memory_budget
 from ..io.nonfinite import apply_nonfinite_policy
 from ..model.options import (
     check_budget,
+    check_float_power,
     check_int_pow,
     check_kernel,
     check_lanes,
@@ -164,9 +165,8 @@ class Renderer:
             compensated = opts.get("compensated")
             int_pow = opts.get("int_pow")
         int_pow = check_int_pow(True if int_pow is None else int_pow)
+        check_float_power(int_pow, fp64_directions)
         if int_pow == "float":
-            if fp64_directions:
-                raise ValueError("int_pow='float' is for float directions (fp64_directions=False)")
             fp64_directions = False
         self.int_pow = int_pow
         self.kernel_kind = check_kernel(kernel)

@@ -41,10 +41,18 @@ import OpenImageIO as oiio
 from ..core.errors import OutputError, OutputWarning
 
 __all__ = ["atomic_path", "check_image_written", "remove_live_temporaries", "check_output_path",
-           "write_image_atomically", "write_exr", "set_attribute", "PIXEL_TYPES"]
+           "write_image_atomically", "write_exr", "set_attribute", "PIXEL_TYPES", "check_pixel_type"]
 
 #: Pixel types accepted by :func:`write_exr` and ``write_gbuffer``.
 PIXEL_TYPES = ("float", "half")
+
+
+def check_pixel_type(pixel_type, where: str | None = None, error: type[Exception] = OutputError) -> str:
+    """``pixel_type`` if it is one of :data:`PIXEL_TYPES`; else ``error`` naming ``where`` (a file)."""
+    if pixel_type in PIXEL_TYPES:
+        return pixel_type
+    subject = f"{where}: pixel type" if where else "EXR pixel type"
+    raise error(f"{subject} {pixel_type!r} is not one of {', '.join(PIXEL_TYPES)}")
 
 
 def same_file(a, b) -> bool:
@@ -460,8 +468,7 @@ def write_exr(path: str | os.PathLike, rgb: np.ndarray, *, pixel_type: str = "fl
                           f"{','.join(names)}, got shape {arr.shape}")
     if len(set(names)) != len(names):
         raise OutputError(f"{display}: duplicate channel names {','.join(names)}")
-    if pixel_type not in PIXEL_TYPES:
-        raise OutputError(f"{display}: pixel type {pixel_type!r} is not one of {', '.join(PIXEL_TYPES)}")
+    check_pixel_type(pixel_type, display)
     if arr.shape[0] == 0 or arr.shape[1] == 0:
         raise OutputError(f"{display}: cannot write an empty {arr.shape[1]}x{arr.shape[0]} image")
     data = np.ascontiguousarray(arr, dtype=np.float32)

@@ -36,15 +36,15 @@ from collections.abc import Mapping
 import numpy as np
 
 from ..core.errors import GBufferError
-from ..model.scene import Camera
+from ..model.scene import CAMERA_UP_AXES, Camera
 
 __all__ = ["UP_AXES", "WORLD_TO_CAMERA", "Z_UP_TO_Y_UP", "world_to_camera", "eye_from_matrix",
            "camera_from_attributes", "camera_from_matrix", "resolve_camera"]
 
 #: Name of the OpenEXR standard attribute.
 WORLD_TO_CAMERA = "worldToCamera"
-#: Valid ``up`` values: the up axis of the world the matrix is written in.
-UP_AXES = ("y", "z")
+#: Valid ``up`` values: the up axis of the world the matrix is written in (the scene's camera.up).
+UP_AXES = CAMERA_UP_AXES
 #: Rotation taking a Z-up world point to the Y-up world (column vectors):
 #: (x, y, z) → (x, z, −y). An exact signed permutation, so no rounding.
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0],

@@ -83,7 +83,8 @@ import OpenImageIO as oiio
 from ..core.errors import GBufferError
 from ..core.files import image_signature
 from ..core.memory import require_memory
-from .atomic import PIXEL_TYPES, _one_line, write_exr
+from ..model.scene import MAP_KEYS, MATERIAL_MAPS
+from .atomic import _one_line, check_pixel_type, write_exr
 from .nonfinite import all_finite
 
 __all__ = ["GBuffer", "read_gbuffer", "write_gbuffer", "parse_channel_mapping",
@@ -92,14 +93,13 @@ __all__ = ["GBuffer", "read_gbuffer", "write_gbuffer", "parse_channel_mapping",
 #: The three buffers every G-buffer needs.
 REQUIRED = ("position", "normal", "albedo")
 #: Keys of ``channels=`` that name 3-channel buffers.
-VECTOR_KEYS = ("position", "normal", "albedo", "specular_color")
+VECTOR_KEYS = REQUIRED + tuple(k for k, c in MATERIAL_MAPS.items() if c == 3)
 #: Keys of ``channels=`` that name 1-channel buffers.
-SCALAR_KEYS = ("coverage", "k_d", "k_s", "h")
+SCALAR_KEYS = ("coverage",) + tuple(k for k, c in MATERIAL_MAPS.items() if c == 1)
+#: Optional buffers: coverage and the material maps (clphong.model.scene.MAP_KEYS).
+OPTIONAL = ("coverage", *MAP_KEYS)
 #: Every valid key of ``channels=``, in a stable order.
-CHANNEL_KEYS = ("position", "normal", "albedo", "coverage", "k_d", "k_s", "h", "specular_color")
-#: Optional buffers: coverage and the material maps.
-OPTIONAL = ("coverage", "k_d", "k_s", "h", "specular_color")
-MAP_KEYS = ("k_d", "k_s", "h", "specular_color")
+CHANNEL_KEYS = REQUIRED + OPTIONAL
 #: Conventions :func:`write_gbuffer` can write.
 WRITE_CONVENTIONS = ("generic", "blender", "blender-new", "arnold", "mitsuba")
 
@@ -1007,8 +1007,7 @@ def write_gbuffer(path: str | os.PathLike, position: np.ndarray, normal: np.ndar
     if convention not in WRITE_CONVENTIONS:
         raise GBufferError(f"{os.fspath(path)}: unknown convention {convention!r}; "
                            f"choose one of {', '.join(WRITE_CONVENTIONS)}")
-    if pixel_type not in PIXEL_TYPES:
-        raise GBufferError(f"{os.fspath(path)}: pixel type {pixel_type!r} is not one of {', '.join(PIXEL_TYPES)}")
+    check_pixel_type(pixel_type, os.fspath(path), GBufferError)
     maps = dict(maps or {})
     unknown = [k for k in maps if k not in MAP_KEYS]
     if unknown:

@@ -16,6 +16,7 @@ from ..core.errors import ClphongError, ToneMapError
 
 __all__ = ["validate_method", "PATHS", "path_options", "NONFINITE_POLICIES", "check_nonfinite",
            "KERNELS", "check_kernel", "LANES", "check_lanes", "INT_POW", "check_int_pow",
+           "check_fp64_directions", "check_float_power",
            "MAX_EXPOSURE", "check_exposure", "ENCODINGS", "CullingError", "check_budget"]
 
 
@@ -86,6 +87,19 @@ def check_int_pow(int_pow):
     if isinstance(int_pow, bool) or int_pow == "float":
         return int_pow
     raise ValueError(f"int_pow must be True, False or 'float', not {int_pow!r}")
+
+
+def check_fp64_directions(fp64_directions):
+    """``fp64_directions``: None (the device decides), True or False."""
+    if fp64_directions is None or isinstance(fp64_directions, bool):
+        return fp64_directions
+    raise ValueError(f"fp64_directions must be None, True or False, not {fp64_directions!r}")
+
+
+def check_float_power(int_pow, fp64_directions):
+    """The power in float (``int_pow="float"``, the fast path) takes float directions."""
+    if int_pow == "float" and fp64_directions:
+        raise ValueError("int_pow='float' is for float directions (fp64_directions=False)")
 
 
 #: DISPLAY_ENCODING values: display-linear Rec.709, or sRGB (IEC 61966-2-1) encoded.

@@ -124,9 +124,17 @@ __all__ = [
     "LIGHT_TYPES",
     "ColorSettings",
     "WORKING_SPACE_NAMES",
+    "MATERIAL_MAPS",
+    "MAP_KEYS",
 ]
 
 Vec3 = tuple[float, float, float]
+
+#: The per-pixel material maps (G-buffer ``maps``) and their channels, in the
+#: order the kernels read them (kernels/shade.cl MAP_* rows): each overrides
+#: the scene material's value of the same name.
+MATERIAL_MAPS: Mapping[str, int] = MappingProxyType({"k_d": 1, "k_s": 1, "h": 1, "specular_color": 3})
+MAP_KEYS: tuple[str, ...] = tuple(MATERIAL_MAPS)
 
 #: Valid ``camera.type`` values.
 CAMERA_TYPES: tuple[str, ...] = ("perspective", "orthographic", "metadata")

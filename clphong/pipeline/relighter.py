@@ -49,8 +49,13 @@ from ..device.renderer import Renderer
 from ..io.atomic import same_file
 from ..io.camera import resolve_camera
 from ..io.gbuffer import MAP_KEYS, GBuffer, read_gbuffer
-from ..model.options import check_budget, check_nonfinite, path_options
-from ..model.scene import Scene, load_scene
+from ..model.options import (
+    check_budget,
+    check_fp64_directions,
+    check_nonfinite,
+    path_options,
+)
+from ..model.scene import MATERIAL_MAPS, Scene, load_scene
 
 __all__ = ["Relighter", "OutputOptions", "OutputPaths", "write_output", "as_gbuffer",
            "OUTPUT_KINDS", "REC709_CHROMATICITIES", "SCENE_LINEAR_COLORSPACE"]
@@ -108,8 +113,8 @@ def as_gbuffer(frame, *, channels: Mapping | None = None) -> GBuffer:
         if unknown:
             raise GBufferError(f"frame mapping: unknown key {unknown[0]!r}; valid keys: position, "
                                f"normal, albedo, coverage, {', '.join(MAP_KEYS)}")
-        maps = {k: _array(frame[k], k, 3 if k == "specular_color" else None)
-                for k in MAP_KEYS if k in frame}
+        maps = {k: _array(frame[k], k, c if c > 1 else None)
+                for k, c in MATERIAL_MAPS.items() if k in frame}
         cov = frame.get("coverage")
         return GBuffer(position=_array(frame["position"], "position", 3),
                        normal=_array(frame["normal"], "normal", 3),
@@ -178,8 +183,7 @@ def check_renderer_options(*, fp64_directions=None, max_error=None, reference_wh
         An unknown ``nonfinite`` policy or ``path``, ``fp64_directions`` not
         None/bool, or both ``path`` and ``fp64_directions``.
     """
-    if fp64_directions is not None and not isinstance(fp64_directions, bool):
-        raise ValueError(f"fp64_directions must be None, True or False, not {fp64_directions!r}")
+    check_fp64_directions(fp64_directions)
     if path is not None:
         path_options(path)
         if fp64_directions is not None:

@@ -145,6 +145,16 @@ PATHS = {
     "fast": {"path": "fast"},                               # float32 throughout, integer power in float
     "obvious": {"kernel": "obvious"},                       # one pixel per work-item, pow()
 }
+
+
+def check_paths(paths) -> tuple:
+    """``paths`` as a tuple if each is one of :data:`PATHS`; a bad one is a ValueError listing them."""
+    bad = [p for p in paths if p not in PATHS]
+    if bad:
+        raise ValueError(f"unknown path {bad[0]!r}; choose from {', '.join(PATHS)}")
+    return tuple(paths)
+
+
 DEFAULT_BUDGETS = (0.0, 1e-4, 1e-3, 1e-2)
 SEED = 2026
 #: The obvious kernel runs at a few MPLE/s: above this many lights even a 4-row

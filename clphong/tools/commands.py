@@ -39,6 +39,7 @@ from pathlib import Path
 
 from ..core.errors import ClphongError, OutputError
 from ..io.gbuffer import write_gbuffer
+from ..model.options import KERNELS
 from .bench import bench_gbuffer, bench_scene
 
 SIZE = (1920, 1080)
@@ -218,7 +219,7 @@ def main(argv=None) -> int:
     sub = p.add_subparsers(dest="what", required=True)
     r = sub.add_parser("render", help="clphong render: kernel, in-process and whole-command time")
     r.add_argument("--lights", type=_ints, default=[1, 16, 256], help="point-light counts")
-    r.add_argument("--kernels", default="lanes,obvious",
+    r.add_argument("--kernels", default=",".join(KERNELS),
                    help="kernels to compare (the first is the ratios' base)")
     r.add_argument("--runs", type=int, default=3, help="timed runs per case (median; default 3)")
     b = sub.add_parser("batch", help="clphong relight: frames per second")
@@ -235,8 +236,8 @@ def main(argv=None) -> int:
     try:
         if args.what == "render":
             kernels = [k for k in args.kernels.split(",") if k]
-            if args.runs < 1 or not kernels or set(kernels) - {"lanes", "obvious"}:
-                p.error("--runs must be >= 1 and --kernels a list of lanes, obvious")
+            if args.runs < 1 or not kernels or set(kernels) - set(KERNELS):
+                p.error(f"--runs must be >= 1 and --kernels a list of {', '.join(KERNELS)}")
             rows = in_folder(args.folder, args.keep,
                              lambda f: bench_render(f, args.lights, kernels, args.runs, args.size))
             print(f"clphong render at {args.size[0]}x{args.size[1]}, median of {args.runs} runs; "

@@ -34,6 +34,7 @@ from ..core.floats import FLT_MIN
 from ..device.renderer import Renderer, prepare_frame
 from ..io.gbuffer import GBuffer, read_gbuffer
 from ..io.nonfinite import apply_nonfinite_policy
+from ..model.options import KERNELS
 from ..model.scene import Camera, Light, Material, Scene, load_scene
 from ..reference import shading as reference
 from .commands import markdown_table
@@ -572,7 +573,7 @@ def main(argv=None) -> int:
                                 description="Run the hard-case suite and print its table.")
     p.add_argument("--fp32-directions", action="store_true",
                    help="use the float32-directions fast path instead of the default")
-    p.add_argument("--kernel", choices=("lanes", "obvious"), default="lanes",
+    p.add_argument("--kernel", choices=tuple(KERNELS), default="lanes",
                    help="the lane kernel (default) or the one-pixel-per-work-item baseline")
     p.add_argument("-k", metavar="SUBSTRING", help="only cases whose name contains this")
     p.add_argument("--samples", nargs="?", const="gbuffers", metavar="DIR",

@@ -9,11 +9,9 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import GBUFFERS, patch_everywhere
 
 from clphong.console.cli import main
-
-from conftest import GBUFFERS
-from conftest import patch_everywhere
 
 SPHERES = [str(GBUFFERS / "spheres.toml"), str(GBUFFERS / "spheres.exr")]
 
@@ -151,10 +149,10 @@ def test_plan_command_explains_the_variant(capsys):
 def test_path_fast_through_the_cli(tmp_path, capsys):
     """--path fast: the plan says what it compiles (float power, naive sum), and the
     rendered file holds that variant's error bound against the float64 reference."""
-    from clphong.reference import shading as reference
-    from clphong.io.gbuffer import read_gbuffer
     from clphong.device.renderer import Renderer, prepare_frame
+    from clphong.io.gbuffer import read_gbuffer
     from clphong.model.scene import load_scene
+    from clphong.reference import shading as reference
 
     assert main(["plan", *SPHERES, "--path", "fast"]) == 0
     out = capsys.readouterr().out
@@ -368,9 +366,9 @@ def test_bench_output_runs_without_a_checkout_and_cleans_up(tmp_path, monkeypatc
 
 def test_bench_output_frame_is_the_spheres_sample_from_memory(monkeypatch):
     import clphong
+    from clphong.model.scene import load_scene
     from clphong.tools import output_bench as bench_output
     from clphong.tools import samples
-    from clphong.model.scene import load_scene
 
     # the in-memory scene and G-buffer are those of gbuffers/ (so no checkout is needed)
     assert samples.spheres_scene().to_dict() == load_scene(SPHERES[0]).to_dict()
@@ -387,8 +385,8 @@ def test_render_channels_maps_channels_as_the_api_does(tmp_path):
     """--channels (explicit mapping): the same pixels as the API reading the file with the
     same mapping; a decoy 'P' layer that detection would take is ignored."""
     import clphong
-    from clphong.io.gbuffer import parse_channel_mapping
     from clphong.io.atomic import write_exr
+    from clphong.io.gbuffer import parse_channel_mapping
 
     gb = clphong.read_gbuffer(SPHERES[1])
     planes = {"Pw.x": gb.position[..., 0], "Pw.y": gb.position[..., 1], "Pw.z": gb.position[..., 2],

@@ -5,12 +5,17 @@ from __future__ import annotations
 import numpy as np
 import OpenImageIO as oiio
 import pytest
+from conftest import GBUFFERS
 
 from clphong.core.errors import GBufferError
-from clphong.io.gbuffer import (CHANNEL_KEYS, GBuffer, parse_channel_mapping, read_gbuffer,
-                             write_gbuffer)
 from clphong.io.atomic import write_exr
-from conftest import GBUFFERS
+from clphong.io.gbuffer import (
+    CHANNEL_KEYS,
+    GBuffer,
+    parse_channel_mapping,
+    read_gbuffer,
+    write_gbuffer,
+)
 
 H, W = 5, 7
 

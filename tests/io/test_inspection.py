@@ -7,14 +7,13 @@ import math
 
 import numpy as np
 import pytest
+from conftest import random_gbuffer
 
 from clphong.console.cli import main
-from clphong.io.gbuffer import write_gbuffer
-from clphong.io.inspection import diff_images, inspect_file
 from clphong.core.errors import OutputError
 from clphong.io.atomic import write_exr
-
-from conftest import random_gbuffer
+from clphong.io.gbuffer import write_gbuffer
+from clphong.io.inspection import diff_images, inspect_file
 
 
 def _read(path):

@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import make_gbuffer, make_scene
 
 from clphong.device.bands import band_align
 from clphong.device.culling import TILE, super_tiles
 from clphong.device.renderer import Renderer
-
-from conftest import make_gbuffer, make_scene
 
 
 def _tall_frame(rng, h=768, w=96):
@@ -47,13 +46,13 @@ def test_band_align_is_the_culling_super_tile_edge():
 
 @pytest.mark.parametrize("lanes", [8, 16])
 @pytest.mark.parametrize("rows", [128, 384, 640])
-def test_culled_frame_in_bands_equals_one_launch(lanes, rows):
+def test_culled_frame_in_bands_equals_one_launch(lanes, rows, device):
     """Bit-identical (np.array_equal) to the whole-frame launch, bands asked for at odd
     multiples of 128 rows; tolerance: none."""
     rng = np.random.default_rng(3)
     gb = _tall_frame(rng)
     r = Renderer(make_scene(_lights(rng), model="blinn-phong", h=30.0), lanes=lanes,
-                 max_error=1e-3)
+                 max_error=1e-3, device=device)
     whole = r.render(gb)
     assert whole.bands == 1 and whole.plan.defines["CULLING"] == 1
     assert whole.cull.kept_fraction < 0.5            # culling really drops lights here

@@ -15,12 +15,10 @@ import math
 
 import numpy as np
 import pytest
-
 from conftest import patch_everywhere
 
-from clphong.tools import bench
-
 from clphong.reference import shading as reference
+from clphong.tools import bench
 
 
 @pytest.fixture(scope="module")
@@ -188,8 +186,8 @@ def test_runs_of_a_case_take_turns(monkeypatch):
 # ------------------------------------------------------------------ python -m clphong.tools.commands
 
 def test_bench_cli_scene_toml_reads_back_as_the_bench_scene(tmp_path):
-    from clphong.tools.commands import scene_toml
     from clphong.model.scene import load_scene
+    from clphong.tools.commands import scene_toml
 
     scene = bench.bench_scene("wide", 5)
     path = tmp_path / "s.toml"

@@ -13,13 +13,12 @@ import warnings
 import numpy as np
 import pytest
 
-from clphong.tools import hardcases
-
-from clphong.reference import shading as reference
 from clphong.core.errors import GBufferError, InputWarning, OutputError, OutputWarning
-from clphong.tools.hardcases import CASES, TARGET_REL, evaluate, make_scene
-from clphong.io.nonfinite import nonfinite_counts
 from clphong.device.renderer import Renderer
+from clphong.io.nonfinite import nonfinite_counts
+from clphong.reference import shading as reference
+from clphong.tools import hardcases
+from clphong.tools.hardcases import CASES, TARGET_REL, evaluate, make_scene
 
 
 def test_there_are_at_least_30_cases_in_every_group():
@@ -208,10 +207,10 @@ def test_table_lists_every_case():
 
 
 def test_cli_nonfinite_policy(tmp_path, capsys):
+    from conftest import GBUFFERS
+
     from clphong.console.cli import main
     from clphong.io.gbuffer import read_gbuffer, write_gbuffer
-
-    from conftest import GBUFFERS
 
     g = read_gbuffer(GBUFFERS / "spheres.exr")
     A = g.albedo.copy()

@@ -6,14 +6,19 @@ import threading
 
 import numpy as np
 import pytest
+from conftest import (
+    GBUFFERS,
+    make_scene,
+    patch_everywhere,
+    random_gbuffer,
+    random_lights,
+)
 
 import clphong
-from clphong.pipeline.relighter import Relighter, write_output
-from clphong.io.camera import eye_from_matrix
 from clphong.core.errors import GBufferError, OutputError
+from clphong.io.camera import eye_from_matrix
 from clphong.io.gbuffer import write_gbuffer
-
-from conftest import GBUFFERS, make_scene, patch_everywhere, random_gbuffer, random_lights
+from clphong.pipeline.relighter import Relighter, write_output
 
 SPHERES = (GBUFFERS / "spheres.toml", GBUFFERS / "spheres.exr")
 
@@ -333,8 +338,8 @@ def test_scene_camera_up_is_validated():
 def test_renderer_options_are_constructor_arguments_and_part_of_the_spec():
     import pickle
 
-    from clphong.pipeline.relighter import RelighterSpec, cached_relighter
     from clphong.device.renderer import Renderer
+    from clphong.pipeline.relighter import RelighterSpec, cached_relighter
 
     rng = np.random.default_rng(21)
     scene = make_scene(random_lights(rng, n_point=4))

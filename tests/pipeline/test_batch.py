@@ -12,14 +12,22 @@ import time
 
 import numpy as np
 import pytest
+from conftest import patch_everywhere, random_gbuffer
 
-from clphong.pipeline.relighter import RelighterSpec
-from clphong.pipeline.batch import (BatchError, BatchPlan, BatchResult, Outcome, expand_sequence,
-                           format_output, parse_frame_range, plan_batch, run_batch, Rig)
 from clphong.console.cli import main
-
-from conftest import random_gbuffer
-from conftest import patch_everywhere
+from clphong.pipeline.batch import (
+    BatchError,
+    BatchPlan,
+    BatchResult,
+    Outcome,
+    Rig,
+    expand_sequence,
+    format_output,
+    parse_frame_range,
+    plan_batch,
+    run_batch,
+)
+from clphong.pipeline.relighter import RelighterSpec
 
 H, W = 24, 32
 
@@ -58,7 +66,7 @@ def shot(tmp_path_factory):
 
     The expected image of each frame and rig is rendered independently, one
     frame at a time through clphong.render (itself held against the float64
-    reference by test_kernels.py); a batch must reproduce it bit for bit,
+    reference by tests/device/test_renderer.py); a batch must reproduce it bit for bit,
     because it runs the same kernel on the same data.
     """
     import clphong
@@ -832,8 +840,9 @@ h = 24.0
 @pytest.fixture(scope="module")
 def culled_shot(tmp_path_factory):
     """4 frames of a 96x48 wavy surface and a rig of 60 small-reach point lights (culling prunes)."""
+    from conftest import heightfield, point_lights
+
     from clphong.io.gbuffer import write_gbuffer
-    from test_cull import heightfield, point_lights
 
     root = tmp_path_factory.mktemp("culled")
     (root / "seq").mkdir()

@@ -15,10 +15,10 @@ import math
 import numpy as np
 import pytest
 
+from clphong.core.errors import ClphongError
+from clphong.device.display import DisplayTransform, apply_display_transform
 from clphong.model import tonemap as registry
 from clphong.reference import tonemap
-from clphong.device.display import DisplayTransform, apply_display_transform
-from clphong.core.errors import ClphongError
 
 OPS = list(registry.OPERATORS)
 U = tonemap.U
@@ -41,11 +41,11 @@ ACESCG_TO_REC709 = ((1.70505, -0.62179, -0.08326), (-0.13026, 1.14080, -0.01055)
 
 @pytest.mark.parametrize("encoding", ["linear", "srgb"])
 @pytest.mark.parametrize("op", OPS)
-def test_operator_kernel_matches_float64_twin_within_error_model(op, encoding):
+def test_operator_kernel_matches_float64_twin_within_error_model(op, encoding, device):
     x = hdr_inputs(OPS.index(op))
     for exposure, matrix in ((0.0, None), (0.7, ACESCG_TO_REC709)):
         dt = DisplayTransform(op, exposure=exposure, matrix=matrix, encoding=encoding)
-        got = apply_display_transform(x, dt).astype(np.float64)
+        got = apply_display_transform(x, dt, device=device).astype(np.float64)
         ref, bound = dt.reference(x), dt.error_bound(x)
         err = np.abs(got - ref)
         worst = np.unravel_index(np.argmax(err - bound), err.shape)
@@ -59,7 +59,7 @@ def test_operator_kernel_matches_float64_twin_within_error_model(op, encoding):
 
 
 @pytest.mark.parametrize("op", OPS)
-def test_huge_and_infinite_inputs_saturate_to_white(op):
+def test_huge_and_infinite_inputs_saturate_to_white(op, device):
     """Far above its shoulder every operator shows its white (AgX's is 0.9985),
     the same from 2^24 up to float32's largest value and +inf (an overflowed sum):
     x² in the ACES fit and Hable overflowed above ~1.8e19 (inf/inf = NaN, shown
@@ -68,7 +68,7 @@ def test_huge_and_infinite_inputs_saturate_to_white(op):
     x = np.stack([big, big, big], -1)[None]
     for exposure in (0.0, 70.0):
         dt = DisplayTransform(op, exposure=exposure, encoding="srgb")
-        got = apply_display_transform(x, dt).astype(np.float64)
+        got = apply_display_transform(x, dt, device=device).astype(np.float64)
         assert np.all(got[0, 1:] == got[0, -1]) and np.all(got > 0.99), (op, exposure, got)
         with np.errstate(over="ignore", invalid="ignore"):
             ref, bound = dt.reference(x), dt.error_bound(x)
@@ -80,20 +80,20 @@ def test_huge_and_infinite_inputs_saturate_to_white(op):
     ("reinhard-extended", dict(white=4.0 * (1 + 1e-4))),
     ("none", dict(exposure=1e-4)),
 ])
-def test_error_model_detects_a_small_change_of_a_parameter(op, perturb):
+def test_error_model_detects_a_small_change_of_a_parameter(op, perturb, device):
     """The tolerance can fail: a 1e-4 relative change of a parameter exceeds it somewhere."""
     x = hdr_inputs(3)
-    got = apply_display_transform(x, DisplayTransform(op, encoding="linear")).astype(np.float64)
+    got = apply_display_transform(x, DisplayTransform(op, encoding="linear"), device=device).astype(np.float64)
     wrong = DisplayTransform(op, encoding="linear", **perturb)
     assert np.any(np.abs(got - wrong.reference(x)) > wrong.error_bound(x))
 
 
-def test_exposure_is_stops_applied_before_tone_mapping():
+def test_exposure_is_stops_applied_before_tone_mapping(device):
     """exposure = 1 on x equals exposure 0 on 2x exactly (×2 is exact in float32)."""
     x = hdr_inputs(5)
     for op in OPS:
-        a = apply_display_transform(x, DisplayTransform(op, exposure=1.0))
-        b = apply_display_transform(2 * x, DisplayTransform(op, exposure=0.0))
+        a = apply_display_transform(x, DisplayTransform(op, exposure=1.0), device=device)
+        b = apply_display_transform(2 * x, DisplayTransform(op, exposure=0.0), device=device)
         assert np.array_equal(a, b), op
 
 
@@ -151,10 +151,10 @@ PINS_AT_018 = {
 
 
 @pytest.mark.parametrize("op", OPS)
-def test_each_operator_at_middle_grey_matches_the_published_formula(op):
+def test_each_operator_at_middle_grey_matches_the_published_formula(op, device):
     x = np.full((1, 8, 3), 0.18, np.float32)
     dt = DisplayTransform(op, encoding="linear")
-    got = apply_display_transform(x, dt)[0, 0].astype(np.float64)
+    got = apply_display_transform(x, dt, device=device)[0, 0].astype(np.float64)
     if op == "agx":
         want = _agx_grey(0.18)
     elif op == "aces-hill":
@@ -167,7 +167,7 @@ def test_each_operator_at_middle_grey_matches_the_published_formula(op):
     assert np.all(np.abs(got - want) <= tol), (got, want)
 
 
-def test_pbr_neutral_is_the_identity_minus_the_fresnel_offset_below_compression():
+def test_pbr_neutral_is_the_identity_minus_the_fresnel_offset_below_compression(device):
     """Khronos PBR Neutral: output = input − offset while the offset peak < 0.8 − 0.04."""
     rng = np.random.default_rng(2)
     x = rng.uniform(0.0, 0.75, (16, 32, 3)).astype(np.float32)
@@ -177,11 +177,11 @@ def test_pbr_neutral_is_the_identity_minus_the_fresnel_offset_below_compression(
     want = x64 - offset
     assert want.max(axis=-1).max() < 0.76
     dt = DisplayTransform("pbr-neutral", encoding="linear")
-    got = apply_display_transform(x, dt).astype(np.float64)
+    got = apply_display_transform(x, dt, device=device).astype(np.float64)
     assert np.all(np.abs(got - want) <= dt.error_bound(x))
 
 
-def test_srgb_encoding_matches_colour_science():
+def test_srgb_encoding_matches_colour_science(device):
     """The kernel's IEC 61966-2-1 encoding against colour.models.eotf_inverse_sRGB."""
     colour = pytest.importorskip("colour")
     x = np.concatenate([np.linspace(0, 1, 4000), np.geomspace(1e-6, 0.01, 4000)])
@@ -190,7 +190,7 @@ def test_srgb_encoding_matches_colour_science():
     want = colour.models.eotf_inverse_sRGB(x.astype(np.float64))
     # The twin is the published formula: equal to colour-science to float64 rounding.
     assert np.max(np.abs(dt.reference(x) - want)) < 1e-12
-    got = apply_display_transform(x, dt).astype(np.float64)
+    got = apply_display_transform(x, dt, device=device).astype(np.float64)
     assert np.all(np.abs(got - want) <= dt.error_bound(x))
 
 
@@ -213,13 +213,13 @@ def _jacobian(op, x, h=1e-6):
 
 
 @pytest.mark.parametrize("op", OPS)
-def test_round_trip_through_the_inverse(op):
+def test_round_trip_through_the_inverse(op, device):
     """kernel(x) then the float64 inverse gives x back, within the kernel's error through J⁻¹."""
     lo, hi = ROUND_TRIP_RANGE[op]
     rng = np.random.default_rng(OPS.index(op) + 10)
     x = np.exp(rng.uniform(math.log(max(lo, 1e-6)), math.log(hi), (12, 16, 3))).astype(np.float32)
     dt = DisplayTransform(op, encoding="linear")
-    y = apply_display_transform(x, dt).astype(np.float64)
+    y = apply_display_transform(x, dt, device=device).astype(np.float64)
     ref = dt.reference(x)
     ok = np.all((ref > 1e-3) & (ref < 1 - 1e-3), axis=-1)     # not clipped: invertible there
     assert ok.sum() > 50
@@ -239,15 +239,15 @@ def test_round_trip_through_the_inverse(op):
 # ------------------------------------------------------------------ fused in the shading kernel
 
 @pytest.mark.parametrize("kernel", ["lanes", "obvious"])
-def test_fused_display_output_equals_the_twin_of_the_shaded_frame(kernel):
-    from clphong.device.renderer import Renderer
-
+def test_fused_display_output_equals_the_twin_of_the_shaded_frame(kernel, device):
     from conftest import make_scene, random_gbuffer, random_lights
+
+    from clphong.device.renderer import Renderer
 
     rng = np.random.default_rng(4)
     scene = make_scene(random_lights(rng, 3, 1), background=(0.5, 2.0, 0.0))
     gb = random_gbuffer(rng, 16, 24)
-    r = Renderer(scene, kernel=kernel)
+    r = Renderer(scene, kernel=kernel, device=device)
     plain = r.render(gb).image
     dt = DisplayTransform("agx", exposure=1.5)
     result = r.render(gb, display=dt)
@@ -260,9 +260,9 @@ def test_fused_display_output_equals_the_twin_of_the_shaded_frame(kernel):
 
 
 def test_plan_names_the_fused_operator():
-    from clphong.device.plan import make_plan
-
     from conftest import make_scene
+
+    from clphong.device.plan import make_plan
 
     plan = make_plan(make_scene(), display=DisplayTransform("hable", exposure=-1))
     assert plan.defines["DISPLAY_OUT"] == 1 and plan.defines["TONEMAP"] == 3

@@ -8,8 +8,8 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from clphong.io import atomic as output
 from clphong.core.errors import OutputError
+from clphong.io import atomic as output
 from clphong.io.atomic import atomic_path, write_exr
 
 

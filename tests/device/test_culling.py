@@ -16,37 +16,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import heightfield, make_gbuffer, make_scene, point_lights
 
 from clphong.core.floats import U
-from clphong.reference import shading as reference
 from clphong.device.culling import CullingError, read_tile_lists, tile_of_pixels
 from clphong.device.renderer import Renderer, prepare_frame
-
-from conftest import make_gbuffer, make_scene, random_maps
-
-
-def heightfield(rng, h=37, w=45, *, offset=(0.0, 0.0, 0.0), bumps=0.3, maps=()):
-    """A wavy surface seen from above: spatially coherent P and N, so tiles are small."""
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64) * 0.1
-    z = bumps * np.sin(xs * 1.7) * np.cos(ys * 1.3)
-    P = np.stack([xs, ys, z], -1) + np.asarray(offset)
-    dzdx = bumps * 1.7 * np.cos(xs * 1.7) * np.cos(ys * 1.3)
-    dzdy = -bumps * 1.3 * np.sin(xs * 1.7) * np.sin(ys * 1.3)
-    N = np.stack([-dzdx, -dzdy, np.ones_like(z)], -1)
-    C = rng.uniform(0.1, 1.0, (h, w, 3))
-    cov = (rng.uniform(size=(h, w)) > 0.05).astype(np.float32)
-    return make_gbuffer(P, N, C, cov, random_maps(rng, h, w, maps))
-
-
-def point_lights(rng, n, *, extent=(4.5, 3.7), height=(0.05, 0.6), att=(1.0, 0.0, 300.0),
-                 offset=(0.0, 0.0, 0.0), intensity=(0.5, 3.0)):
-    out = []
-    for _ in range(n):
-        pos = np.array([rng.uniform(-0.3, extent[0]), rng.uniform(-0.3, extent[1]),
-                        rng.uniform(*height)]) + offset
-        out.append(dict(type="point", position=tuple(pos), color=tuple(rng.uniform(0.2, 1, 3)),
-                        intensity=float(rng.uniform(*intensity)), attenuation=att))
-    return out
+from clphong.reference import shading as reference
 
 
 def dropped_sum(scene, gbuffer, renderer, cull):
@@ -103,14 +78,14 @@ def _bound_kwargs(renderer, frame):
 # ----------------------------------------------------------------------------- ε = 0
 
 @pytest.mark.parametrize("seed", range(2))
-def test_zero_budget_is_bit_identical_to_brute_force(seed):
+def test_zero_budget_is_bit_identical_to_brute_force(seed, device):
     rng = np.random.default_rng(seed)
     gb = heightfield(rng, 29, 51)
     lights = point_lights(rng, 40, att=(1.0, 0.2, 5.0))
     lights.append(dict(type="point", position=(1.0, 1.0, 0.3), color=(0.0, 0.0, 0.0), intensity=0.0))
     scene = make_scene(lights, model=["phong", "blinn-phong"][seed], h=30.0)
-    brute = Renderer(scene).render(gb).image
-    r = Renderer(scene, max_error=0.0)
+    brute = Renderer(scene, device=device).render(gb).image
+    r = Renderer(scene, max_error=0.0, device=device)
     assert r.plan_for(()).defines["CULLING"] == 1     # the culling kernels did run
     result = r.render(gb)
     culled = result.image
@@ -187,13 +162,13 @@ def test_budget_holds_on_adversarial_scenes(case):
 
 
 @pytest.mark.parametrize("lanes", [1, 4])
-def test_other_lane_widths_and_odd_sizes(lanes):
+def test_other_lane_widths_and_odd_sizes(lanes, device):
     """Work-items that wrap onto the next row are bounded with the tile that shades them."""
     rng = np.random.default_rng(5)
     gb = heightfield(rng, 23, 35)
     scene = make_scene(point_lights(rng, 50), model="phong", h=10.0)
-    brute = Renderer(scene, lanes=lanes).render(gb).image
-    r = Renderer(scene, lanes=lanes, max_error=1e-3)
+    brute = Renderer(scene, lanes=lanes, device=device).render(gb).image
+    r = Renderer(scene, lanes=lanes, max_error=1e-3, device=device)
     result = r.render(gb)
     out = result.image
     dropped = dropped_sum(scene, gb, r, result.cull)
@@ -205,26 +180,26 @@ def test_other_lane_widths_and_odd_sizes(lanes):
 
 # ------------------------------------------------------------------------- what is never culled
 
-def test_directional_and_ambient_lights_are_never_culled():
+def test_directional_and_ambient_lights_are_never_culled(device):
     rng = np.random.default_rng(9)
     gb = heightfield(rng, 20, 20)
     lights = [dict(type="directional", direction=(0.1, 0.0, -1.0), intensity=1e-6),
               dict(type="ambient", intensity=1e-6)]
     scene = make_scene(lights, k_a=1.0)
-    r = Renderer(scene, max_error=1.0)     # a budget far above every term
+    r = Renderer(scene, max_error=1.0, device=device)     # a budget far above every term
     assert r.plan_for(()).defines["CULLING"] == 0
-    assert np.array_equal(r.render(gb).image, Renderer(scene).render(gb).image)
+    assert np.array_equal(r.render(gb).image, Renderer(scene, device=device).render(gb).image)
 
 
 # ---------------------------------------------------------------------- options and the cache
 
-def test_negative_or_nonfinite_budget_is_an_error():
+def test_negative_or_nonfinite_budget_is_an_error(device):
     scene = make_scene([dict(type="point", position=(0.0, 0.0, 1.0))])
     for bad in (-1e-3, float("nan"), float("inf")):
         with pytest.raises(CullingError, match="--max-error"):
-            Renderer(scene, max_error=bad)
+            Renderer(scene, max_error=bad, device=device)
     with pytest.raises(CullingError, match="--reference-white"):
-        Renderer(scene, max_error=1e-3, reference_white=0.0)
+        Renderer(scene, max_error=1e-3, reference_white=0.0, device=device)
 
 
 def test_plan_says_why_culling_is_on():
@@ -236,16 +211,16 @@ def test_plan_says_why_culling_is_on():
     assert "-DCULLING=0" in str(make_plan(scene, (), lanes=8))
 
 
-def test_second_render_builds_nothing():
+def test_second_render_builds_nothing(device):
     from clphong.device.runtime import get_runtime
 
     rng = np.random.default_rng(2)
     gb = heightfield(rng, 16, 16)
     scene = make_scene(point_lights(rng, 10), h=5.0)
-    Renderer(scene, max_error=1e-3).render(gb).image
-    rt = get_runtime()
+    Renderer(scene, max_error=1e-3, device=device).render(gb).image
+    rt = get_runtime(device=device)
     before = rt.builds
-    Renderer(scene, max_error=1e-3).render(gb).image
+    Renderer(scene, max_error=1e-3, device=device).render(gb).image
     assert rt.builds == before
 
 
@@ -283,10 +258,10 @@ def test_budget_holds_where_the_bound_is_tight(case):
 
 def test_cli_render_with_a_budget(tmp_path, capsys):
     """--max-error through the CLI: within ε of brute force; a bad budget is one line, exit 1."""
+    from conftest import GBUFFERS
+
     from clphong.console.cli import main
     from clphong.io.gbuffer import read_gbuffer
-
-    from conftest import GBUFFERS
 
     args = ["render", str(GBUFFERS / "spheres.toml"), str(GBUFFERS / "spheres.exr")]
     assert main(args + ["-o", str(tmp_path / "brute.exr")]) == 0
@@ -342,7 +317,7 @@ def test_budget_holds_with_negative_albedo():
 
 # ------------------------------------------------------------------ plan: falloff compiled out
 
-def test_constant_falloff_compiles_the_polynomial_out():
+def test_constant_falloff_compiles_the_polynomial_out(device):
     """c1 = c2 = 0 for every point light: HAS_ATTENUATION=0 (1/c0 once per light),
     still within the error model's bound of the float64 reference."""
     from conftest import check_against_reference, random_gbuffer
@@ -352,14 +327,14 @@ def test_constant_falloff_compiles_the_polynomial_out():
                    intensity=float(rng.uniform(1, 5)), attenuation=(float(c0), 0.0, 0.0))
               for c0 in (1.0, 2.5, 0.3)]
     scene = make_scene(lights, model="blinn-phong", h=20.0)
-    assert Renderer(scene).plan_for(()).defines["HAS_ATTENUATION"] == 0
-    check_against_reference(scene, random_gbuffer(rng, 12, 20))
+    assert Renderer(scene, device=device).plan_for(()).defines["HAS_ATTENUATION"] == 0
+    check_against_reference(scene, random_gbuffer(rng, 12, 20), device=device)
     lights[0]["attenuation"] = (1.0, 0.0, 1e-3)
-    assert Renderer(make_scene(lights)).plan_for(()).defines["HAS_ATTENUATION"] == 1
+    assert Renderer(make_scene(lights), device=device).plan_for(()).defines["HAS_ATTENUATION"] == 1
 
 
 @pytest.mark.parametrize("maps", [(), ("k_d", "k_s", "h", "specular_color")])
-def test_super_tile_bounds_merged_from_tiles_equal_direct_bounds(maps):
+def test_super_tile_bounds_merged_from_tiles_equal_direct_bounds(maps, device):
     """merge_bounds (super-tiles from the tiles' records, one pass over the frame) is
     bit-identical to tile_bounds run on the super-tiles themselves."""
     import pyopencl as cl
@@ -369,7 +344,7 @@ def test_super_tile_bounds_merged_from_tiles_equal_direct_bounds(maps):
     rng = np.random.default_rng(21)
     gb = heightfield(rng, 70, 203, maps=maps)           # odd sizes: partial tiles and super-tiles
     scene = make_scene([dict(type="point", position=(1.0, 1.0, 0.5))], k_s=0.3)
-    r = Renderer(scene, max_error=1e-3)
+    r = Renderer(scene, max_error=1e-3, device=device)
     frame = prepare_frame(gb, lanes=r.lanes)
     plan = r.plan_for(frame.map_names)
     rt = r.runtime

@@ -593,7 +593,7 @@ def test_fuzzing_dictionary_has_every_scene_key():
 
     from clphong.model import scene
 
-    lines = (Path(__file__).parent / "scene.dict").read_text(encoding="ascii").splitlines()
+    lines = (Path(__file__).resolve().parent.parent / "scene.dict").read_text(encoding="ascii").splitlines()
     entries = set()
     for ln in lines:
         if ln.strip() and not ln.startswith("#"):

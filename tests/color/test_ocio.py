@@ -20,12 +20,11 @@ import sys
 import numpy as np
 import OpenImageIO as oiio
 import pytest
+from conftest import GBUFFERS
 
 from clphong.color import ocio as color
 from clphong.console.cli import main
 from clphong.core.errors import ClphongError, OutputError
-
-from conftest import GBUFFERS
 
 colour = pytest.importorskip("colour")
 U = 2.0 ** -24
@@ -195,8 +194,8 @@ def test_hdr_pq_encoding_matches_colour_science_in_absolute_nits(cfg):
 # ------------------------------------------------------------------ written files
 
 def test_exr_has_chromaticities_colorspace_and_no_stale_interop_id(tmp_path):
-    from clphong.io.atomic import write_exr
     from clphong.deliver.writers import write_scene_linear
+    from clphong.io.atomic import write_exr
 
     rgb = np.random.default_rng(0).uniform(0, 4, (8, 12, 3)).astype(np.float32)
     for ws, ptype, comp in ((ACESCG, "half", "piz"), (REC709, "float", "zip")):
@@ -420,10 +419,10 @@ def test_exposure_at_the_limit_is_a_picture_on_every_output(tmp_path):
 
 
 def test_exposure_out_of_range_through_the_api_is_a_tonemap_error(cfg):
+    from clphong.core.errors import ToneMapError
     from clphong.deliver.outputs import OutputOptions
     from clphong.device.display import DisplayTransform
     from clphong.model.options import MAX_EXPOSURE
-    from clphong.core.errors import ToneMapError
 
     x = np.ones((1, 1, 3), np.float32)
     for ev in (2000.0, -200.0, float("inf")):

@@ -7,10 +7,9 @@ import sys
 
 import numpy as np
 import pytest
+from test_batch import _check_outputs, _no_temporaries, _read, shot  # noqa: F401 - fixture
 
 from clphong.console.cli import main
-
-from test_batch import _check_outputs, _no_temporaries, _read, shot  # noqa: F401 - fixture
 
 try:
     import distributed
@@ -21,8 +20,8 @@ needs_dask = pytest.mark.skipif(distributed is None, reason="needs dask[distribu
 
 def _worker_state():
     """On a worker: (relighters cached, programs built, rigs) of this process."""
-    from clphong.pipeline.relighter import _CACHE
     from clphong.device.runtime import _RUNTIMES
+    from clphong.pipeline.relighter import _CACHE
 
     relighters = [v for k, v in _CACHE.items() if k != "__lock__"]
     builds = sum(rt.builds for rt in _RUNTIMES.values())
