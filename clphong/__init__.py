@@ -32,6 +32,6 @@ __version__ = "0.1.0"
 __all__ = [
     "ClphongError", "DeviceError", "GBufferError", "OutputError", "SceneError",
     "GBuffer", "read_gbuffer", "write_exr", "ShadingPlan", "make_plan",
-    "Renderer", "render", "Scene", "load_scene", "parse_scene", "__version__",
+    "Renderer", "RenderResult", "render", "Scene", "load_scene", "parse_scene", "__version__",
     "Relighter", "OutputOptions", "write_output",
 ]
