@@ -25,7 +25,7 @@ CATALOGUE: list[tuple[str, int, str]] = []
 
 def pytest_terminal_summary(terminalreporter):
     if os.environ.get("CLPHONG_CATALOGUE") and CATALOGUE:
-        from clphong.tools.commands import markdown_table
+        from clphong.tools.report import markdown_table
 
         terminalreporter.write_line(f"\nbad-input catalogue ({len(CATALOGUE)} cases):")
         rows = [(case, f"`{msg}`".replace("|", "\\|"), code) for case, code, msg in CATALOGUE]

@@ -34,9 +34,7 @@ from ..pipeline.relighter import (
     _hashable_channels,
     check_renderer_options,
 )
-from ..tools.bench import (
-    PATHS as BENCH_PATHS,
-)
+from ..tools.bench import PATHS as BENCH_PATHS
 from ..tools.bench import (
     BenchConfig,
     check_paths,

@@ -8,7 +8,7 @@ G-buffer once and writes every file asked for, choosing the path for each:
   (``chromaticities`` and ``oiio:ColorSpace``, :func:`exr_attributes`);
 * SDR without an OCIO display, view or look: exposure, the tone-mapping
   operator and sRGB encoding run fused in the shading kernel's store
-  (:func:`clphong.device.display.render_display`), no round trip through the host;
+  (``Renderer.render(gbuffer, display=...)``), no round trip through the host;
 * SDR with a display/view/look: scene-linear → ``ImageBufAlgo.ociodisplay``
   (the view does the tone mapping, as in oiiotool, Blender and Nuke);
 * HDR: Rec.2100 PQ through the 1000-nit view (``HDR_DISPLAY``/``HDR_VIEW``);

@@ -34,6 +34,8 @@ HDR_EXTENSIONS = (".png", ".jxl")
 EXR_COMPRESSIONS = ("zip", "piz")
 #: Bit depths of the SDR outputs (``--bits``).
 SDR_BITS = (8, 16)
+#: Seed of the 8-bit dither (fixed: the same frame gives the same file).
+DITHER_SEED = 1
 
 
 def check_compression(compression, where: str | None = None) -> str:
@@ -50,8 +52,7 @@ def check_bits(bits, where: str | None = None) -> int:
         return bits
     subject = f"{where}: SDR bit depth" if where else "SDR bit depth"
     raise OutputError(f"{subject} must be {' or '.join(map(str, SDR_BITS))}, not {bits!r}")
-#: Seed of the 8-bit dither (fixed: the same frame gives the same file).
-DITHER_SEED = 1
+
 
 
 def _oiio():

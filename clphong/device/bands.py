@@ -45,7 +45,7 @@ def render_bytes_per_pixel(n_map_planes: int, gbuf_planes: int | None = None,
     """Peak host bytes per pixel of one launch (prepare_frame + Renderer.render).
 
     The model, per pixel, for ``g`` G-buffer planes and ``m`` map planes of
-    float32 (``render.prepare_frame`` and ``Renderer.render``):
+    float32 (``frame.prepare_frame`` and ``Renderer.shade``):
 
     - ``Frame.gbuf`` and ``Frame.maps``: ``4(g + m)``; the background mask: 1;
     - their device copies (PoCL's CPU device keeps buffers in host memory, and
@@ -55,7 +55,7 @@ def render_bytes_per_pixel(n_map_planes: int, gbuf_planes: int | None = None,
     - the float64 temporaries of ``prepare_frame`` (normals, their lengths and
       remainders, up to 72) are freed before the device buffers exist.
 
-    - with ``display`` (the fused SDR output, ``Renderer.display``), its device
+    - with ``display`` (the fused SDR output, ``Renderer.render(..., display=...)``), its device
       buffer, host buffer and (H, W, 3) array: another ``3 * 12``.
 
     That is ``8(g + m) + 37`` (``+ 36``). Measured peaks (VmHWM − VmRSS around one

@@ -27,7 +27,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.floats import U
-from ..model.options import CullingError, check_budget  # noqa: F401 - re-exported
 from .runtime import float4
 
 #: Screen tile edge in pixels (``CULL_TILE`` in kernels/cull.cl).

@@ -36,7 +36,7 @@ class DisplayTransform:
     Parameters
     ----------
     operator : str
-        Tone-mapping operator name (:data:`clphong.reference.tonemap.OPERATORS`).
+        Tone-mapping operator name (:data:`clphong.model.tonemap.OPERATORS`).
     exposure : float
         Stops; the scene-linear value is multiplied by 2^exposure first.
     white : float, optional

@@ -25,8 +25,6 @@ COMPENSATE_ABOVE = 4
 #: Pixels per work-item, as explicit SIMD lanes (see kernels/clphong.h).
 DEFAULT_LANES = 16
 
-#: The material maps in kernel order (clphong.model.scene.MAP_KEYS).
-MAP_NAMES = MAP_KEYS
 
 #: The largest whole exponent k (h, or 4h for Blinn-Phong) raised by binary
 #: powering (SPEC_INT_POW): at most 16 squarings and 15 products per light.
@@ -91,7 +89,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     ----------
     scene : clphong.model.scene.Scene
     maps : iterable of str
-        Names of the per-pixel material maps present (subset of ``MAP_NAMES``).
+        Names of the per-pixel material maps present (subset of ``clphong.model.scene.MAP_KEYS``, in any order).
     kernel : {"lanes", "obvious"}
         ``"lanes"``: LANES pixels per work-item in explicit vectors (the fast
         path). ``"obvious"``: one pixel per work-item with ``float3`` and
@@ -125,7 +123,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     """
     check_kernel(kernel)
     m = scene.material
-    maps = tuple(n for n in MAP_NAMES if n in set(maps))
+    maps = tuple(n for n in MAP_KEYS if n in set(maps))
     n_point = len(scene.lights_of("point"))
     n_dir = len(scene.lights_of("directional"))
     n_amb = len(scene.lights_of("ambient"))

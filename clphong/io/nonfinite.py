@@ -30,9 +30,7 @@ import warnings
 import numpy as np
 
 from ..core.errors import GBufferError, InputWarning
-from ..model.options import NONFINITE_POLICIES, check_nonfinite
-
-POLICIES = tuple(NONFINITE_POLICIES)
+from ..model.options import check_nonfinite
 
 
 def all_finite(array) -> bool:

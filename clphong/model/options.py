@@ -121,14 +121,13 @@ def check_exposure(ev, what: str = "exposure") -> float:
     """
     ev = float(ev)
     if not math.isfinite(ev):
-        problem, sep = f"must be a finite number of stops, got {ev!r}", " "
+        problem = f"must be a finite number of stops, got {ev!r}"
     elif abs(ev) > MAX_EXPOSURE:
         problem = (f"{ev:g} stops is out of range (2^EV must stay a float32); "
                    f"use -{MAX_EXPOSURE:g}..{MAX_EXPOSURE:g}")
-        sep = " "
     else:
         return ev
-    error = ToneMapError(f"{what}{sep}{problem}")
+    error = ToneMapError(f"{what} {problem}")
     error.problem = problem           # without the subject, for messages that name it first
     raise error
 

@@ -316,7 +316,7 @@ class ColorSettings:
     exposure : float
         Stops; display outputs see the scene-linear value times 2^exposure.
     tonemap : str
-        Operator of the fused display path (:data:`clphong.reference.tonemap.OPERATORS`).
+        Operator of the fused display path (:data:`clphong.model.tonemap.OPERATORS`).
     white_point : float or None
         White point of ``reinhard-extended`` / ``hable`` (operator default if None).
     display, view, look : str or None

@@ -41,6 +41,7 @@ from ..core.errors import ClphongError, OutputError
 from ..io.gbuffer import write_gbuffer
 from ..model.options import KERNELS
 from .bench import bench_gbuffer, bench_scene
+from .report import markdown_table
 
 SIZE = (1920, 1080)
 
@@ -119,12 +120,6 @@ def bench_render(folder: Path, lights, kernels, runs: int, size=SIZE) -> list[di
                          **{f"{key}_ratio": med[key] / first[key] if first[key] > 0 else math.nan
                             for key in med}))
     return rows
-
-
-def markdown_table(header, rows) -> str:
-    """A Markdown table of column titles and rows of cells (anything str() takes)."""
-    lines = [header, ["---"] * len(header), *rows]
-    return "\n".join("| " + " | ".join(str(c) for c in line) + " |" for line in lines)
 
 
 def render_table(rows: list[dict]) -> str:

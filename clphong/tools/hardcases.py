@@ -37,7 +37,7 @@ from ..io.nonfinite import apply_nonfinite_policy
 from ..model.options import KERNELS
 from ..model.scene import Camera, Light, Material, Scene, load_scene
 from ..reference import shading as reference
-from .commands import markdown_table
+from .report import markdown_table
 
 #: Max relative error of the default path on pixels ≥ 1e-6 of the image max
 #: (issue 5), outside the terminator band.

@@ -31,7 +31,8 @@ from ..io.gbuffer import read_gbuffer
 from ..model.scene import load_scene
 from ..model.tonemap import OPERATORS
 from . import samples
-from .commands import in_folder, markdown_table
+from .commands import in_folder
+from .report import markdown_table
 
 
 def _frame(scene_path=None, gbuffer_path=None) -> np.ndarray:

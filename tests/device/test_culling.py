@@ -19,8 +19,9 @@ import pytest
 from conftest import heightfield, make_gbuffer, make_scene, point_lights
 
 from clphong.core.floats import U
-from clphong.device.culling import CullingError, read_tile_lists, tile_of_pixels
+from clphong.device.culling import read_tile_lists, tile_of_pixels
 from clphong.device.renderer import Renderer, prepare_frame
+from clphong.model.options import CullingError
 from clphong.reference import shading as reference
 
 
