@@ -280,13 +280,13 @@ def test_deep_exr(work, capsys):
           "deep EXR files are not supported", "oiiotool --flatten")
 
 
-def test_multipart_exr(work, capsys):
+def test_multipart_exr_duplicate_channel(work, capsys):
     src, out = work
     gb = random_gbuffer(np.random.default_rng(4), H, W)
     path = str(src / "parts.exr")
     specs = []
     for name, chans in (("geo", ("P.X", "P.Y", "P.Z", "N.X", "N.Y", "N.Z")),
-                        ("col", ("albedo.R", "albedo.G", "albedo.B"))):
+                        ("col", ("albedo.R", "albedo.G", "N.Y"))):          # N.Y in two parts
         s = oiio.ImageSpec(W, H, len(chans), "float")
         s.channelnames = chans
         s.attribute("name", name)
@@ -296,7 +296,7 @@ def test_multipart_exr(work, capsys):
     assert o.write_image(np.ascontiguousarray(np.concatenate([gb.position, gb.normal], -1)))
     assert o.open(path, specs[1], "AppendSubimage") and o.write_image(gb.albedo) and o.close()
     fails(render_argv(src, out, gbuffer=path), capsys, src.parent, "parts.exr",
-          "multi-part EXR files (2 parts) are not supported", "--channels")
+          "channel 'N.Y' is in part 0 and in part 1 (col)", "unique across parts")
 
 
 def _huge_display_window(src, size):

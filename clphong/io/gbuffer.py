@@ -43,7 +43,8 @@ position, normal and albedo wins:
 
 Coverage (``0`` = background), first found of: for Blender
 ``<ViewLayer>.Combined.A`` and ``<ViewLayer>.Alpha``; then ``A``,
-``RGBA.A`` and the albedo layer's ``.A`` (e.g. ``albedo.A``).
+``RGBA.A``, ``rgba.A`` (a multi-part beauty part named ``rgba``) and the
+albedo layer's ``.A`` (e.g. ``albedo.A``).
 
 Material maps (optional; Blender names may carry the view-layer prefix):
 ``k_d`` (scalar) -> ``maps["k_d"]``; ``k_s`` (scalar) -> ``maps["k_s"]``;
@@ -59,7 +60,13 @@ list, or comma-separated string, of exact channel names (3 for vector
 buffers, 1 for scalars).
 
 Half and float pixels, scanline and tiled files are read; the result is
-always float32. Deep and multi-part EXR files are rejected. If the data
+always float32. Multi-part files (Blender 5's default multilayer output, Nuke,
+Arnold, Karma, RenderMan) are read as one set of channels: the channels of
+every part are gathered by their full names, and in a part named by its layer
+(``ViewLayer.Position``) a bare channel name (``X``) gets that prefix
+(``ViewLayer.Position.X``). A channel name found in two parts is an error. The
+parts must share one display window; each may have its own data window. Deep
+files are rejected. If the data
 window differs from the display window the pixels are placed in the display
 window and the rest is zero (background). Separate files may have different
 data windows: a pixel is shaded only where position, normal and albedo all
@@ -430,7 +437,7 @@ def _find_optional(ch: _Channels, key: str, layout: _Layout, path: str) -> list[
                     chans = ch.scalar(name, path, key)
                     if chans:
                         return chans
-        for name in ("A", "RGBA.A"):
+        for name in ("A", "RGBA.A", "rgba.A"):          # rgba.A: Nuke's multi-part beauty
             if name in ch.set:
                 return [name]
         if layout.albedo_layer and f"{layout.albedo_layer}.A" in ch.set:
@@ -546,8 +553,32 @@ def open_image(path: str, *, what: str = "an EXR file", verb: str = "read as EXR
     return inp
 
 
+@dataclass
+class _Part:
+    """One part (OpenImageIO subimage) of an EXR file."""
+
+    index: int
+    spec: object
+    name: str
+    full_names: list[str]                               # channel names as gathered
+
+
+def _gathered_names(part_name: str, names: Sequence[str], multipart: bool) -> list[str]:
+    """The full channel names of one part.
+
+    In a multi-part file a part named by its layer (``ViewLayer.Position``)
+    may store bare channel names (``X, Y, Z``): they get the part name as
+    prefix. A name that already carries a layer (``ViewLayer.Position.X``,
+    ``diffuse.R``) is kept as it is, and so is every name of a single-part file.
+    """
+    if not multipart or not part_name:
+        return list(names)
+    return [n if "." in n or n.startswith(part_name + ".") else f"{part_name}.{n}" for n in names]
+
+
 class _ExrFile:
-    """One opened EXR file: validated spec, channel names, pixel reads."""
+    """One opened EXR file, single- or multi-part: validated specs, the channel
+    names of every part gathered by their full names, pixel reads."""
 
     def __init__(self, path: str | os.PathLike):
         self.path = os.fspath(path)
@@ -558,59 +589,88 @@ class _ExrFile:
             fmt = inp.format_name()
             if fmt != "openexr":
                 raise GBufferError(f"{p}: not an OpenEXR file (OpenImageIO reads it as {fmt})")
-            spec = inp.spec()
-            nparts = spec.get_int_attribute("oiio:subimages", 1)
-            if nparts <= 1 and inp.seek_subimage(1, 0):
-                nparts = 2
-            inp.seek_subimage(0, 0)
-            if nparts > 1:
-                raise GBufferError(f"{p}: multi-part EXR files ({nparts} parts) are not supported: "
-                                   "split the parts (oiiotool --subimage) and pass them with "
-                                   "--position/--normal/--albedo, naming channels with --channels")
-            if spec.deep:
-                raise GBufferError(f"{p}: deep EXR files are not supported; flatten it first "
-                                   "(e.g. oiiotool --flatten)")
-            if spec.depth > 1:
-                raise GBufferError(f"{p}: volume images (depth {spec.depth}) are not supported")
-            if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
-                raise GBufferError(f"{p}: empty image ({spec.width}x{spec.height}, "
-                                   f"{spec.nchannels} channels)")
-            # OpenImageIO's binding decodes header text as UTF-8 (found by fuzzing).
-            try:
-                names = spec.channelnames
-                attributes = {a.name: a.value for a in spec.extra_attribs}
-            except UnicodeDecodeError:
-                raise GBufferError(f"{p}: cannot read as EXR: the header has channel or attribute "
-                                   "names that are not UTF-8 text (a corrupt file?)") from None
+            specs = []
+            while inp.seek_subimage(len(specs), 0):
+                specs.append(inp.spec())
+            if not specs:
+                raise GBufferError(f"{p}: cannot read as EXR: "
+                                   f"{_oiio_message(inp.geterror) or 'no readable part'}")
+            multipart = len(specs) > 1
+            self.parts = []
+            owner: dict[str, int] = {}
+            for i, spec in enumerate(specs):
+                part = f"part {i}" if multipart else ""
+                where = f"{p}: {part}: " if multipart else f"{p}: "
+                if spec.deep:
+                    raise GBufferError(f"{where}deep EXR files are not supported; flatten it first "
+                                       "(e.g. oiiotool --flatten)")
+                if spec.depth > 1:
+                    raise GBufferError(f"{where}volume images (depth {spec.depth}) are not supported")
+                if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
+                    raise GBufferError(f"{where}empty image ({spec.width}x{spec.height}, "
+                                       f"{spec.nchannels} channels)")
+                # OpenImageIO's binding decodes header text as UTF-8 (found by fuzzing).
+                try:
+                    names = list(spec.channelnames)
+                    name = spec.get_string_attribute("name", "") if multipart else ""
+                    if i == 0:
+                        attributes = {a.name: a.value for a in spec.extra_attribs}
+                except UnicodeDecodeError:
+                    raise GBufferError(f"{where}cannot read as EXR: the header has channel or attribute "
+                                       "names that are not UTF-8 text (a corrupt file?)") from None
+                full = _gathered_names(name, names, multipart)
+                for n in full:
+                    if n in owner:
+                        raise GBufferError(
+                            f"{p}: channel {_show(n)!r} is in part {owner[n]} and in part {i}"
+                            f"{f' ({_show(name)})' if name else ''}: a channel name must be unique "
+                            "across parts; pick one with --channels or split the file "
+                            "(oiiotool --subimage)")
+                    owner[n] = i
+                self.parts.append(_Part(i, spec, name, full))
         except BaseException:
             inp.close()
             raise
-        self.spec = spec
-        self.channels = _Channels(names)
+        first = self.parts[0].spec
+        self.size = (int(first.full_width) or int(first.width), int(first.full_height) or int(first.height))
+        for part in self.parts[1:]:
+            s = part.spec
+            size = (int(s.full_width) or int(s.width), int(s.full_height) or int(s.height))
+            if size != self.size or (s.full_x, s.full_y) != (first.full_x, first.full_y):
+                inp.close()
+                raise GBufferError(f"{p}: part {part.index} has a {size[0]}x{size[1]} display window "
+                                   f"but part 0 has {self.size[0]}x{self.size[1]}: the parts must share "
+                                   "one display window")
+        self.spec = first
+        self.channels = _Channels([n for part in self.parts for n in part.full_names])
+        self._where = {n: (part, k) for part in self.parts for k, n in enumerate(part.full_names)}
         self.attributes = attributes
-        self.size = (int(spec.full_width) or int(spec.width), int(spec.full_height) or int(spec.height))
         self._data: dict[str, np.ndarray] = {}
+
+    @property
+    def multipart(self) -> bool:
+        return len(self.parts) > 1
 
     def close(self):
         if self.inp is not None:
             self.inp.close()
             self.inp = None
 
-    def runs(self, names: Sequence[str]) -> list[list[int]]:
-        """Channel indices of ``names`` not yet loaded, grouped in runs read together."""
-        index = {n: i for i, n in enumerate(self.spec.channelnames)}
-        wanted = sorted({index[n] for n in names if n not in self._data})
-        runs: list[list[int]] = []
-        for i in wanted:
-            if runs and i - runs[-1][-1] <= 8:
-                runs[-1].append(i)
+    def runs(self, names: Sequence[str]) -> list[tuple[_Part, list[int]]]:
+        """(part, channel indices) of ``names`` not yet loaded, grouped in runs read together."""
+        wanted = sorted({(self._where[n][0].index, self._where[n][1]) for n in names if n not in self._data})
+        runs: list[tuple[_Part, list[int]]] = []
+        for part, i in wanted:
+            if runs and runs[-1][0].index == part and i - runs[-1][1][-1] <= 8:
+                runs[-1][1].append(i)
             else:
-                runs.append([i])
+                runs.append((self.parts[part], [i]))
         return runs
 
-    def window(self) -> tuple[int, int, int, int]:
-        """The data window in display-window pixels, clipped: (x0, y0, x1, y1), x1/y1 exclusive."""
-        s = self.spec
+    def window(self, names: Sequence[str] | None = None) -> tuple[int, int, int, int]:
+        """The data window (of the part holding ``names[0]``; else part 0) in
+        display-window pixels, clipped: (x0, y0, x1, y1), x1/y1 exclusive."""
+        s = self._where[names[0]][0].spec if names else self.spec
         fw, fh = self.size
         x0, y0 = s.x - s.full_x, s.y - s.full_y
         return (min(max(x0, 0), fw), min(max(y0, 0), fh),
@@ -618,38 +678,43 @@ class _ExrFile:
 
     def load_bytes(self, names: Sequence[str]) -> int:
         """Peak bytes :meth:`load` allocates for ``names`` (see ``_check_read_memory``)."""
-        runs = self.runs(names)
-        if not runs:
-            return 0
-        data_px = int(self.spec.width) * int(self.spec.height)
-        lengths = [run[-1] + 1 - run[0] for run in runs]
-        s = self.spec
-        # OpenImageIO reads whole tiles, all channels, in the file's type and in
-        # float: a header claiming 10560x16384 tiles on a 4x3 image made it
-        # allocate 9 GB (found by fuzzing with atheris).
-        tile = 8 * max(int(s.tile_width), 0) * max(int(s.tile_height), 0) * max(int(s.nchannels), 1)
-        if (s.x, s.y, s.width, s.height) == (s.full_x, s.full_y, *self.size):
-            return tile + 4 * data_px * sum(lengths)   # planes stay views of the runs read
-        display_px = self.size[0] * self.size[1]       # planes are copied into the display window
-        return tile + 4 * (display_px * sum(len(r) for r in runs) + data_px * max(lengths))
+        total = 0
+        display_px = self.size[0] * self.size[1]
+        by_part: dict[int, list[list[int]]] = {}
+        for part, run in self.runs(names):
+            by_part.setdefault(part.index, []).append(run)
+        for index, runs in by_part.items():
+            s = self.parts[index].spec
+            data_px = int(s.width) * int(s.height)
+            lengths = [run[-1] + 1 - run[0] for run in runs]
+            # OpenImageIO reads whole tiles, all channels, in the file's type and in
+            # float: a header claiming 10560x16384 tiles on a 4x3 image made it
+            # allocate 9 GB (found by fuzzing with atheris).
+            total += 8 * max(int(s.tile_width), 0) * max(int(s.tile_height), 0) * max(int(s.nchannels), 1)
+            if (s.x, s.y, s.width, s.height) == (s.full_x, s.full_y, *self.size):
+                total += 4 * data_px * sum(lengths)     # planes stay views of the runs read
+            else:                                       # planes are copied into the display window
+                total += 4 * (display_px * sum(len(r) for r in runs) + data_px * max(lengths))
+        return total
 
     def load(self, names: Sequence[str]) -> None:
-        """Read channels ``names`` (in runs of nearby channels) into the cache."""
-        for run in self.runs(names):
+        """Read channels ``names`` (in runs of nearby channels of one part) into the cache."""
+        for part, run in self.runs(names):
+            s = part.spec
             lo, hi = run[0], run[-1] + 1
-            pix = self.inp.read_image(0, 0, lo, hi, oiio.TypeDesc("float"))
+            pix = self.inp.read_image(part.index, 0, lo, hi, oiio.TypeDesc("float"))
             if pix is None:
                 msg = (_oiio_message(self.inp.geterror) or _oiio_message(oiio.geterror)
                        or "unknown error")
+                where = f" of part {part.index}" if self.multipart else ""
                 raise GBufferError(f"{self.path}: reading channels "
-                                   f"{','.join(map(_show, self.spec.channelnames[lo:hi]))} failed: {msg}")
-            pix = np.asarray(pix, dtype=np.float32).reshape(self.spec.height, self.spec.width, hi - lo)
+                                   f"{','.join(map(_show, part.full_names[lo:hi]))}{where} failed: {msg}")
+            pix = np.asarray(pix, dtype=np.float32).reshape(s.height, s.width, hi - lo)
             for i in run:
-                self._data[self.spec.channelnames[i]] = self._fit(pix[:, :, i - lo])
+                self._data[part.full_names[i]] = self._fit(pix[:, :, i - lo], s)
 
-    def _fit(self, plane: np.ndarray) -> np.ndarray:
-        """Place a data-window plane in the display window (zeros outside)."""
-        s = self.spec
+    def _fit(self, plane: np.ndarray, s) -> np.ndarray:
+        """Place a data-window plane of a part with spec ``s`` in the display window (zeros outside)."""
         fw, fh = self.size
         if (s.x, s.y, s.width, s.height) == (s.full_x, s.full_y, fw, fh):
             return plane
@@ -665,9 +730,16 @@ class _ExrFile:
         """(H, W, len(names)) float32 array of loaded channels, C-contiguous."""
         return np.ascontiguousarray(np.stack([self._data[n] for n in names], axis=-1), dtype=np.float32)
 
+    def part_of(self, names: Sequence[str]) -> str:
+        """" (part N)" naming the part that holds ``names`` in a multi-part file, else ""."""
+        if not self.multipart or not names:
+            return ""
+        part = self._where[names[0]][0]
+        return f" (part {part.index}{f' {_show(part.name)}' if part.name else ''})"
+
 
 def _source(f: _ExrFile, chans: list[str], layout: _Layout | None) -> str:
-    text = f"{f.path}: {','.join(chans)}"
+    text = f"{f.path}: {','.join(chans)}{f.part_of(chans)}"
     if layout is not None and layout.view_layer:
         text += f" (view layer {layout.view_layer!r})"
     return text
@@ -726,7 +798,7 @@ def read_gbuffer(path: str | os.PathLike | None = None, *, position: str | os.Pa
     ------
     GBufferError
         One line naming the file (and channel): a missing, unreadable,
-        non-EXR, deep or multi-part file; missing position, normal or albedo
+        non-EXR or deep file, a channel name in two parts of one file; missing position, normal or albedo
         channels (with what was looked for and what the file has); separate
         files of different sizes; a bad or unknown ``channels`` entry.
 
@@ -816,7 +888,7 @@ def read_gbuffer(path: str | os.PathLike | None = None, *, position: str | os.Pa
             files[p].load(names)
 
         arrays = {k: f.stack(chans) for k, (f, chans, _) in resolved.items()}
-        _background_outside_data_windows(arrays, {k: f for k, (f, _, _) in resolved.items()})
+        _background_outside_data_windows(arrays, {k: (f, chans) for k, (f, chans, _) in resolved.items()})
         coverage = None
         maps: dict[str, np.ndarray] = {}
         for key, (f, chans, _) in optional.items():
@@ -864,17 +936,19 @@ def _check_read_memory(files: Mapping[str, _ExrFile], wanted: Mapping[str, list[
                    "crop the image (e.g. oiiotool --crop) or free memory")
 
 
-def _background_outside_data_windows(arrays: dict[str, np.ndarray], sources: Mapping[str, _ExrFile]) -> None:
+def _background_outside_data_windows(arrays: dict[str, np.ndarray],
+                                     sources: Mapping[str, tuple[_ExrFile, list[str]]]) -> None:
     """Pixels outside the data window of any required buffer are background.
 
-    Within one file every channel shares the data window, and the zeros
-    outside it make a zero normal, so background. Separate files may have
-    different data windows (e.g. auto-cropped AOVs): a pixel is shaded only
+    Within one part every channel shares the data window, and the zeros
+    outside it make a zero normal, so background. Separate files, and the parts
+    of one multi-part file, may have different data windows (e.g. auto-cropped
+    AOVs): a pixel is shaded only
     where position, normal and albedo all have data, so elsewhere the normal
     is set to 0. Windows that do not overlap at all leave nothing to shade:
     an error.
     """
-    windows = {k: f.window() for k, f in sources.items()}
+    windows = {k: f.window(chans) for k, (f, chans) in sources.items()}
     if len(set(windows.values())) <= 1:
         return
     x0 = max(w[0] for w in windows.values())
@@ -882,7 +956,8 @@ def _background_outside_data_windows(arrays: dict[str, np.ndarray], sources: Map
     x1 = min(w[2] for w in windows.values())
     y1 = min(w[3] for w in windows.values())
     if x1 <= x0 or y1 <= y0:
-        shown = "; ".join(f"{k} {sources[k].path} ({w[0]},{w[1]})-({w[2] - 1},{w[3] - 1})"
+        shown = "; ".join(f"{k} {sources[k][0].path}{sources[k][0].part_of(sources[k][1])} "
+                          f"({w[0]},{w[1]})-({w[2] - 1},{w[3] - 1})"
                           for k, w in windows.items())
         raise GBufferError(f"the data windows of the separate buffers do not overlap, so no pixel "
                            f"has position, normal and albedo: {shown}; render them with the same "

@@ -514,22 +514,107 @@ def test_error_deep(tmp_path):
                                                    "flatten it first (e.g. oiiotool --flatten)")
 
 
-def test_error_multipart(tmp_path):
-    P, N, A, _, _ = _data(24)
-    path = str(tmp_path / "mp.exr")
-    specs = []
-    for name, chans in (("geo", ("P.X", "P.Y", "P.Z", "N.X", "N.Y", "N.Z")), ("col", ("albedo.R", "albedo.G", "albedo.B"))):
-        s = oiio.ImageSpec(W, H, len(chans), "float")
-        s.channelnames = chans
+def _multipart(path, parts, windows=None):
+    """Write a multi-part EXR: parts = [(part name, {channel: (H, W) array}), ...];
+    windows = {part index: (x, y, w, h) data window} (default: the whole image)."""
+    specs, datas = [], []
+    for i, (name, planes) in enumerate(parts):
+        data = np.ascontiguousarray(np.stack([np.asarray(v, np.float32) for v in planes.values()], -1))
+        x, y, w, h = (windows or {}).get(i, (0, 0, W, H))
+        data = np.ascontiguousarray(data[y:y + h, x:x + w])
+        s = oiio.ImageSpec(w, h, len(planes), "float")
+        s.x, s.y, s.full_x, s.full_y, s.full_width, s.full_height = x, y, 0, 0, W, H
+        s.channelnames = tuple(planes)
         s.attribute("name", name)
+        s.attribute("compression", "zip")
         specs.append(s)
-    out = oiio.ImageOutput.create(path)
-    assert out.open(path, specs)
-    assert out.write_image(np.ascontiguousarray(np.concatenate([P, N], -1)))
-    assert out.open(path, specs[1], "AppendSubimage") and out.write_image(A) and out.close()
+        datas.append(data)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), specs), out.geterror()
+    for i, data in enumerate(datas):
+        if i:
+            assert out.open(str(path), specs[i], "AppendSubimage"), out.geterror()
+        assert out.write_image(data), out.geterror()
+    assert out.close()
+    return str(path)
+
+
+def test_multipart_full_channel_names(tmp_path):
+    """Parts whose channels carry their full names (Nuke, Arnold) are gathered as one file."""
+    P, N, A, cov, maps = _data(24)
+    path = _multipart(tmp_path / "mp.exr", [("geo", {**_vec("P", P), **_vec("N", N)}),
+                                            ("col", _vec("albedo", A, "RGB")),
+                                            ("rgba", {"R": A[..., 0], "A": cov}),   # Nuke's beauty part
+                                            ("k_s", {"X": maps["k_s"]})])     # a value AOV part
+    gb = read_gbuffer(path)
+    _assert_same(gb, P, N, A, cov, {"k_s": maps["k_s"]})
+    assert gb.convention == "generic"
+    assert gb.sources["position"] == f"{path}: P.X,P.Y,P.Z (part 0 geo)"
+    assert gb.sources["albedo"] == f"{path}: albedo.R,albedo.G,albedo.B (part 1 col)"
+    assert gb.sources["coverage"] == f"{path}: rgba.A (part 2 rgba)"
+
+
+@pytest.mark.parametrize("diffuse", ["Diffuse Color", "DiffCol"])
+def test_multipart_blender5_bare_names(tmp_path, diffuse):
+    """Blender 5's default: one part per pass, named by its layer; bare channel names get that prefix."""
+    P, N, A, cov, _ = _data(26)
+    layer = "View Layer"                      # a space in the view-layer name
+    combined = np.concatenate([A * cov[..., None], cov[..., None]], -1)
+    path = _multipart(tmp_path / "b5.exr", [
+        (f"{layer}.Combined", _vec(f"{layer}.Combined", combined, "RGBA")),
+        (f"{layer}.Position", _vec("", P)),
+        (f"{layer}.Normal", _vec("", N)),
+        (f"{layer}.{diffuse}", _vec("", A, "RGB"))])
+    gb = read_gbuffer(path)
+    _assert_same(gb, P, N, A, cov)
+    assert gb.convention == "blender"
+    assert gb.sources["albedo"].startswith(f"{path}: {layer}.{diffuse}.R,")
+    assert gb.sources["coverage"] == (f"{path}: {layer}.Combined.A (part 0 {layer}.Combined) "
+                                      f"(view layer '{layer}')")
+    # --channels names channels by their gathered full names
+    gb = read_gbuffer(path, channels={"normal": f"{layer}.Position"})
+    assert np.array_equal(gb.normal, P)
+
+
+def test_multipart_data_windows_per_part(tmp_path):
+    """Each part has its own data window: a pixel is shaded only where all three buffers have data."""
+    P, N, A, _, _ = _data(27)
+    N = N + np.float32(3)                     # no zero normals of their own
+    path = _multipart(tmp_path / "win.exr", [("P", _vec("P", P)), ("N", _vec("N", N)),
+                                             ("albedo", _vec("albedo", A, "RGB"))],
+                      windows={0: (1, 1, W - 1, H - 1), 2: (0, 0, W - 2, H)})
+    gb = read_gbuffer(path)
+    inside = np.zeros((H, W), bool)
+    inside[1:, 1:W - 2] = True
+    assert np.array_equal(~gb.background_mask(), inside)
+    assert np.array_equal(gb.position[1:, 1:], P[1:, 1:]) and not gb.position[0].any()
+
+
+def test_error_multipart_duplicate_channel(tmp_path):
+    P, N, A, _, _ = _data(24)
+    path = _multipart(tmp_path / "dup.exr", [("geo", {**_vec("P", P), **_vec("N", N)}),
+                                             ("col", {**_vec("albedo", A, "RGB"), "P.Y": A[..., 0]})])
     msg = _one_line_error(read_gbuffer, path)
-    assert msg.startswith(f"{path}: multi-part EXR files (2 parts) are not supported")
-    assert "split the parts" in msg
+    assert msg.startswith(f"{path}: channel 'P.Y' is in part 0 and in part 1 (col): "
+                          "a channel name must be unique across parts")
+
+
+def test_error_multipart_deep_part(tmp_path):
+    path = str(tmp_path / "deep2.exr")
+    specs = []
+    for name in ("one", "two"):               # OpenImageIO writes deep parts with deep parts only
+        deep = oiio.ImageSpec(W, H, 2, "float")
+        deep.channelnames = ("A", "Z")
+        deep.deep = True
+        deep.attribute("name", name)
+        specs.append(deep)
+    dd = oiio.DeepData()
+    dd.init(specs[0])
+    out = oiio.ImageOutput.create(path)
+    assert out.open(path, specs) and out.write_deep_image(dd)
+    assert out.open(path, specs[1], "AppendSubimage") and out.write_deep_image(dd) and out.close()
+    msg = _one_line_error(read_gbuffer, path)
+    assert msg.startswith(f"{path}: part 0: deep EXR files are not supported")
 
 
 def test_error_ambiguous_scalar_layer(tmp_path):
