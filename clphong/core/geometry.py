@@ -92,3 +92,67 @@ def half_vector(l: np.ndarray, v: np.ndarray):
     if h.ndim == 1:
         return h, bool(undefined)
     return h, undefined
+
+
+#: Pixels per block of :func:`nearest_within`'s bounding boxes (a row segment).
+NEAR_BLOCK = 256
+
+
+def nearest_within(planes: np.ndarray, shaded: np.ndarray, points: np.ndarray,
+                   radii: np.ndarray, inner: float = 0.0) -> list[tuple[int, float] | None]:
+    """For each point, the nearest shaded pixel closer than its radius, if any.
+
+    Parameters
+    ----------
+    planes : numpy.ndarray
+        (3, n) float32 positions, one plane per axis.
+    shaded : numpy.ndarray
+        (n,) bool: the pixels to consider (finite positions only count).
+    points : numpy.ndarray
+        (m, 3) float64 points.
+    radii : numpy.ndarray
+        (m,) float64 search radii (0: nothing is searched).
+    inner : float
+        Pixels nearer than this are skipped too.
+
+    Returns
+    -------
+    list
+        Per point, ``(pixel index, distance)`` of the nearest pixel with
+        ``0 < d < radius`` and ``d >= inner``, distances in float64 from the float32 positions;
+        else None. A pixel at distance exactly 0 is skipped: a light there adds
+        nothing (the kernels' and the reference's d = 0 guard).
+
+    Boxes of :data:`NEAR_BLOCK` consecutive pixels are tested first, so the
+    exact distances are computed only in the blocks a radius reaches: radii are
+    tiny (the near field where a falloff overflows), so that is almost never.
+    """
+    n = planes.shape[1]
+    m = len(points)
+    found: list[tuple[int, float] | None] = [None] * m
+    todo = [j for j in range(m) if radii[j] > 0]
+    if not todo or n == 0:
+        return found
+    blocks = -(-n // NEAR_BLOCK)
+    pad = blocks * NEAR_BLOCK - n
+    ok = np.pad(shaded & np.isfinite(planes).all(axis=0), (0, pad)).reshape(blocks, NEAR_BLOCK)
+    lo = np.empty((blocks, 3))
+    hi = np.empty((blocks, 3))
+    for a in range(3):
+        c = np.pad(planes[a], (0, pad)).reshape(blocks, NEAR_BLOCK)
+        lo[:, a] = c.min(axis=1, where=ok, initial=np.inf)
+        hi[:, a] = c.max(axis=1, where=ok, initial=-np.inf)
+    for j in todo:
+        p = np.asarray(points[j], np.float64)
+        gap = np.maximum(np.maximum(lo - p, p - hi), 0.0)        # inf for empty blocks
+        near = np.flatnonzero(np.sqrt((gap * gap).sum(axis=1)) < radii[j])
+        best = None
+        for b in near:
+            s = slice(b * NEAR_BLOCK, min((b + 1) * NEAR_BLOCK, n))
+            d = np.sqrt(sum((planes[a, s].astype(np.float64) - p[a]) ** 2 for a in range(3)))
+            d = np.where(ok[b, : s.stop - s.start] & (d > 0) & (d >= inner), d, np.inf)
+            k = int(np.argmin(d))
+            if d[k] < radii[j] and (best is None or d[k] < best[1]):
+                best = (s.start + k, float(d[k]))
+        found[j] = best
+    return found

@@ -65,7 +65,8 @@ def pack_cull_lights(point: np.ndarray, n_point: int) -> np.ndarray:
     * ``p_vertex_lo``: a lower bound of ``p(vertex) = c0 − c1²/(4c2)``;
     * ``p_scale = 1 − 8u·κ_p`` (rounded down), ``κ_p = max_d (c0 + |c1|d + c2d²)/p(d)``
       the condition number of p: the float32 p is ≥ p_scale·p; 0 (no bound, the
-      light is never culled) where ``c0 ≤ 0`` or κ_p is too large;
+      light is never culled) where ``c0 < 0``, or κ_p is too large; ``c0 = 0``
+      with ``c1, c2 ≥ 0`` (1/d²) is bounded like any increasing p;
     * ``|L|``: the distance of the (rebased) light from the frame origin, for
       the error of n·l.
     """
@@ -84,7 +85,10 @@ def pack_cull_lights(point: np.ndarray, n_point: int) -> np.ndarray:
         p_vertex = np.where(dipping, c0 - c1 * c1 / (4 * c2), c0)
         root = 2 * np.sqrt(np.maximum(c0 * c2, 0.0))
         kappa = np.where(dipping, (root - c1) / (root + c1), 1.0)
-    ok = (c0 > 0) & (p_vertex > 0) & np.isfinite(kappa) & (kappa > 0) & (kappa < 1e5)
+    # c0 = 0 with c1, c2 ≥ 0 (physical falloff, 1/d²): p increases from p(0) = 0,
+    # so p⁻ = p(d⁻) > 0 off the tile's box, and 0 (no bound: kept) inside it.
+    physical = (c0 == 0) & (c1 >= 0) & (c2 >= 0) & ((c1 > 0) | (c2 > 0))
+    ok = (((c0 > 0) & (p_vertex > 0)) | physical) & np.isfinite(kappa) & (kappa > 0) & (kappa < 1e5)
     p_scale = np.where(ok, 1.0 - 8.0 * U * np.where(ok, kappa, 1.0), 0.0)
     rec[:, 0, :3] = pos
     rec[:, 0, 3] = pt[:, 0, 3]

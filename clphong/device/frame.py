@@ -15,10 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.errors import SceneError
-from ..core.floats import F32_ROUNDS_TO_INF
+from ..core.floats import F32_ROUNDS_TO_INF, FLT_MAX, FLT_MIN, U
 from ..core.geometry import (
     frame_origin,
     half_vector,
+    nearest_within,
     split_hi_lo,
     unit_normal_planes,
     view_vector,
@@ -167,6 +168,83 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
     eye = eye64 if v is not None else eye64 - o
     return LightArrays(point=point, point64=point64, directional=directional, ambient=amb,
                        eye=eye, eye64=eye64)
+
+
+#: On the float path a pixel nearer a light than this has d² flushed to 0 (the
+#: d = 0 guard: no contribution), so its falloff cannot overflow there.
+FLOAT_PATH_INNER = math.sqrt(FLT_MIN) * (1 - 64 * U)
+
+
+def near_field_radius(c1, c2, radiance, fp64: bool):
+    """The distance below which a point light with ``c0 = 0`` overflows the kernels.
+
+    With ``c0 = 0`` (and ``c1, c2 >= 0``) the falloff ``1/p(d)``, ``p(d) = c1*d +
+    c2*d^2``, grows without bound as d -> 0. A pixel at ``0 < d < radius`` would
+    take ``radiance x 1/p(d)`` beyond float32 (the kernels store it in float, or
+    saturate the sum to FLT_MAX): ``p(d)`` must stay above ``radiance x (1 +
+    16u) / FLT_MAX``, with p's own rounding (4u, doubled, docs/error-model.md row
+    "attenuation 1/p(d)": κ_p = 1 here). On the float path p is formed in float
+    and flushed to 0 below FLT_MIN, so it must also stay above 4·FLT_MIN where
+    d² is a normal float (:data:`FLOAT_PATH_INNER`; nearer, d² flushes to 0 and
+    the d = 0 guard adds nothing: wrong, but finite, and ``error_bound`` says ∞).
+    Arrays of the lights' coefficients and largest radiance component.
+    """
+    c1 = np.asarray(c1, np.float64)
+    c2 = np.asarray(c2, np.float64)
+    q = np.asarray(radiance, np.float64) * (1 + 16 * U) / FLT_MAX
+    if not fp64:
+        q = np.maximum(q, 4 * FLT_MIN)
+    q = q / (1 - 8 * U)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # the positive root of c2·d² + c1·d = q, in the stable form
+        d = 2 * q / (c1 + np.sqrt(c1 * c1 + 4 * c2 * q))
+    return np.where(np.isfinite(d), d, 0.0) * (1 + 64 * U)
+
+
+def check_near_field(scene, frame: Frame, lights: LightArrays, fp64: bool) -> None:
+    """Refuse a frame in which a point light with ``c0 = 0`` (e.g. 1/d²) is so
+    near a shaded pixel that its falloff overflows float32 there.
+
+    The scene loader cannot know the distances; this is that check, per frame,
+    at the nearest shaded pixel to each such light (:func:`near_field_radius`).
+    The distances are those the kernel of the path forms: from the float32
+    positions and the float64 light records with ``fp64`` directions, else from
+    the rebased float32 positions and records. A pixel exactly at the light
+    (d = 0) adds nothing and is not an error.
+
+    Raises
+    ------
+    SceneError
+        Naming the light, the pixel, its distance and the falloff's value there.
+    """
+    points = [i for i, lt in enumerate(scene.lights) if lt.type == "point"]
+    recs = (lights.point64 if fp64 else lights.point.astype(np.float64)).reshape(-1, 3, 4)[:len(points)]
+    physical = np.flatnonzero(recs[:, 0, 3] == 0) if len(points) else np.zeros(0, int)
+    if physical.size == 0:
+        return
+    r = recs[physical]
+    radius = near_field_radius(r[:, 1, 3], r[:, 2, 0], np.abs(r[:, 1, :3]).max(axis=1), fp64)
+    if not radius.any():
+        return
+    n = frame.pixels
+    planes = frame.gbuf[:3, :n]
+    if not fp64:
+        planes = planes - frame.origin[:, None]     # as the float kernel rebases (float32)
+    hits = nearest_within(planes, ~frame.background[:n], r[:, 0, :3], radius,
+                          inner=0.0 if fp64 else FLOAT_PATH_INNER)
+    for k, hit in zip(physical, hits):
+        if hit is None:
+            continue
+        pixel, d = hit
+        c1, c2 = recs[k, 1, 3], recs[k, 2, 0]
+        value = float(np.abs(recs[k, 1, :3]).max()) / (c1 * d + c2 * d * d)
+        y, x = divmod(pixel, frame.shape[1])
+        i = points[k]
+        raise SceneError(
+            f"{scene.source}: light[{i}]: pixel ({x}, {y}) is {d:.3g} units from this point "
+            f"light, where its radiance x 1/(c1*d + c2*d^2) = {value:.3g} is beyond the float32 "
+            f"range the kernels compute in ({FLT_MAX:.3g}{'' if fp64 else ', or p(d) below FLT_MIN on the float path'}); "
+            "move the light off the surface, or give attenuation c0 > 0")
 
 
 def material_uniforms(scene, map_names) -> tuple[float, np.ndarray, float]:

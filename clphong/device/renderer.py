@@ -44,7 +44,7 @@ from .bands import (
 )
 from .culling import TileLists, build_tile_lists
 from .display import DisplayTransform, apply_display_transform, display_kernel_args
-from .frame import LOCAL_SIZE, Frame, material_uniforms, pack_lights, prepare_frame
+from .frame import check_near_field, LOCAL_SIZE, Frame, material_uniforms, pack_lights, prepare_frame
 from .plan import ShadingPlan, make_plan
 from .runtime import float4, get_runtime
 
@@ -359,6 +359,7 @@ class Renderer:
         t0 = time.perf_counter()
         plan, prog = self._plan_and_program(frame.map_names, display=display)
         lights = pack_lights(self.scene, frame.origin)
+        check_near_field(self.scene, frame, lights, bool(plan.defines.get("DIRECTIONS_FP64")))
         k_d, S, k = material_uniforms(self.scene, frame.map_names)
         ctx, queue = self.runtime.context, self.runtime.queue
         mf = cl.mem_flags

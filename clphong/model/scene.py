@@ -126,6 +126,10 @@ __all__ = [
     "WORKING_SPACE_NAMES",
     "MATERIAL_MAPS",
     "MAP_KEYS",
+    "INVERSE_SQUARE",
+    "WATTS_TO_RADIANCE",
+    "DEFAULT_GROUP",
+    "AOV_NAMES",
 ]
 
 Vec3 = tuple[float, float, float]
@@ -157,17 +161,29 @@ _RENDER_KEYS = ("background", "working_space", "exposure", "tonemap", "white_poi
 #: Valid ``render.working_space`` values (clphong.color.ocio.WORKING_SPACES).
 WORKING_SPACE_NAMES: tuple[str, ...] = ("lin_rec709", "acescg")
 _LIGHT_KEYS = {
-    "point": ("type", "color", "intensity", "position", "attenuation"),
-    "directional": ("type", "color", "intensity", "direction"),
-    "ambient": ("type", "color", "intensity"),
+    "point": ("type", "color", "intensity", "power", "position", "attenuation", "group"),
+    "directional": ("type", "color", "intensity", "direction", "group"),
+    "ambient": ("type", "color", "intensity", "group"),
 }
 _LIGHT_SETS = {t: frozenset(ks) for t, ks in _LIGHT_KEYS.items()}
-_LIGHT_ALL_ORDERED = ("type", "color", "intensity", "position", "direction", "attenuation")
+_LIGHT_ALL_ORDERED = ("type", "color", "intensity", "power", "position", "direction",
+                      "attenuation", "group")
 _LIGHT_ALL = frozenset(_LIGHT_ALL_ORDERED)
 _LIGHT_REQUIRED = {"point": ("position",), "directional": ("direction",), "ambient": ()}
 
 _WHITE: Vec3 = (1.0, 1.0, 1.0)
 _NO_FALLOFF: Vec3 = (1.0, 0.0, 0.0)
+#: A point light given by its ``power`` falls off as 1/d² (Cycles' convention).
+INVERSE_SQUARE: Vec3 = (0.0, 0.0, 1.0)
+#: Radiance per watt of a point light given by ``power`` (Cycles): radiant
+#: intensity P/(4π) W/sr, times the Lambert BRDF's 1/π, so that k_d = 1 and the
+#: albedo reproduce Cycles' direct diffuse light.
+WATTS_TO_RADIANCE = 1.0 / (4.0 * math.pi ** 2)
+#: Name of the light-group layer of lights without a ``group``.
+DEFAULT_GROUP = "default"
+#: Layer names the outputs use for their own passes: not light-group names.
+AOV_NAMES = ("diffuse", "specular")
+_GROUP_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]{0,62}\Z")
 _EPS = sys.float_info.epsilon
 #: k_a + k_d + k_s may exceed 1 by this much (decimal rounding) without a warning.
 _SUM_TOLERANCE = 1e-9
@@ -275,7 +291,15 @@ class Light:
         None otherwise. Normalised in float64 when parsed.
     attenuation : tuple of 3 float
         ``(c0, c1, c2)`` of ``1/(c0 + c1*d + c2*d^2)`` for a point light;
-        ``(1, 0, 0)`` (no falloff) by default and for other types.
+        ``(1, 0, 0)`` (no falloff) by default and for other types. ``c0 = 0``
+        (e.g. pure inverse-square ``(0, 0, 1)``) is allowed: the falloff is then
+        unbounded as d -> 0, and its float32 range is checked per frame, at the
+        nearest shaded pixel (:mod:`clphong.device.frame`).
+    power : float or None
+        The point light's power in watts as given (Cycles' convention); then
+        ``intensity = power / (4*pi^2)`` and ``attenuation = (0, 0, 1)``.
+    group : str or None
+        Light-group name (``None``: the ``"default"`` group).
     """
 
     type: str
@@ -284,6 +308,13 @@ class Light:
     position: Vec3 | None = None
     direction: Vec3 | None = None
     attenuation: Vec3 = _NO_FALLOFF
+    power: float | None = None
+    group: str | None = None
+
+    @property
+    def group_name(self) -> str:
+        """The light-group layer this light adds to: its ``group`` or ``"default"``."""
+        return self.group if self.group is not None else DEFAULT_GROUP
 
     @property
     def radiance(self) -> Vec3:
@@ -294,13 +325,19 @@ class Light:
 
     def to_dict(self) -> dict:
         """The ``[[light]]`` table as a dict, with only the keys of its type."""
-        d: dict[str, Any] = {"type": self.type, "color": list(self.color),
-                             "intensity": self.intensity}
+        d: dict[str, Any] = {"type": self.type, "color": list(self.color)}
+        if self.power is not None:
+            d["power"] = self.power
+        else:
+            d["intensity"] = self.intensity
         if self.type == "point":
             d["position"] = list(self.position) if self.position is not None else None
-            d["attenuation"] = list(self.attenuation)
+            if self.power is None:
+                d["attenuation"] = list(self.attenuation)
         elif self.type == "directional":
             d["direction"] = list(self.direction) if self.direction is not None else None
+        if self.group is not None:
+            d["group"] = self.group
         return d
 
 
@@ -461,9 +498,12 @@ class Scene:
 
 
 def attenuation_problem(c0: float, c1: float, c2: float) -> str | None:
-    """Why ``p(d) = c0 + c1*d + c2*d^2`` is not > 0 for all ``d >= 0``, if it is not.
+    """Why ``p(d) = c0 + c1*d + c2*d^2`` is not > 0 for all ``d > 0``, if it is not.
 
-    ``p(d) > 0`` for every ``d >= 0`` exactly when ``c0 > 0`` and
+    ``p(d) > 0`` for every ``d > 0`` exactly when either ``c0 = 0``, ``c1 >= 0``,
+    ``c2 >= 0`` and not both are 0 (physical falloffs such as pure inverse-square
+    ``(0, 0, 1)``: ``p(0) = 0``, where a light adds nothing, the kernels' d = 0
+    guard), or ``c0 > 0`` and
 
     * ``c2 > 0`` and (``c1 >= 0`` or ``c1^2 < 4*c0*c2``), or
     * ``c2 == 0`` and ``c1 >= 0``.
@@ -486,10 +526,15 @@ def attenuation_problem(c0: float, c1: float, c2: float) -> str | None:
         (c1 = -0.4 < 0 with c2 = 0); need c1 >= 0"``.
     """
     if c0 == 0:
-        return "p(d) = c0 + c1*d + c2*d^2 reaches 0 at d = 0 (c0 = 0); c0 must be > 0"
+        if c1 == 0 and c2 == 0:
+            return "p(d) = 0 for every d (c0 = c1 = c2 = 0): no finite falloff"
+        if c1 < 0 or c2 < 0:
+            return (f"with c0 = 0, p(d) = d*(c1 + c2*d) is negative for small or large d "
+                    f"(c1 = {_g(c1)}, c2 = {_g(c2)}); with c0 = 0 both must be >= 0")
+        return None
     if c0 < 0:
         return (f"p(d) = c0 + c1*d + c2*d^2 is negative at d = 0 (c0 = {_g(c0)}); "
-                "c0 must be > 0")
+                "c0 must be >= 0")
     if c2 < 0:
         r = _gd(max(_roots(c0, c1, c2)))
         return (f"p(d) = c0 + c1*d + c2*d^2 reaches 0 at d = {r} and goes negative for "
@@ -960,16 +1005,27 @@ class _Parser:
         color = _WHITE
         if "color" in v:
             color = self.vec3(v["color"], path + ".color", nonneg=True, f32=False)
-        intensity = 1.0
-        if "intensity" in v:
-            intensity = self.nonneg(v["intensity"], path + ".intensity", f32=False)
-        self.fits_f32(max(color) * intensity, path + ".intensity", "color x intensity")
+        group = self.group(v["group"], path + ".group") if "group" in v else None
+        power = None
+        if "power" in v:
+            for other in ("intensity", "attenuation"):
+                if other in v:
+                    self.fail(path + ".power", f"give power (watts, with Cycles' 1/d^2 falloff) "
+                                               f"or {other}, not both")
+            power = self.nonneg(v["power"], path + ".power", f32=False)
+            intensity = power * WATTS_TO_RADIANCE
+            self.fits_f32(max(color) * intensity, path + ".power", "color x power/(4 pi^2)")
+        else:
+            intensity = 1.0
+            if "intensity" in v:
+                intensity = self.nonneg(v["intensity"], path + ".intensity", f32=False)
+            self.fits_f32(max(color) * intensity, path + ".intensity", "color x intensity")
         if type_ == "point":
             if "position" not in v:
                 self.fail(path + ".position", "missing; a 'point' light needs a position, "
                                               "e.g. position = [3.0, 5.0, 4.0]")
             position = self.vec3(v["position"], path + ".position")
-            att = _NO_FALLOFF
+            att = INVERSE_SQUARE if power is not None else _NO_FALLOFF
             if "attenuation" in v:
                 apath = path + ".attenuation"
                 att = self.vec3(v["attenuation"], apath)
@@ -986,8 +1042,10 @@ class _Parser:
                                       "take it as 0; " + (f"c0 must be >= {least}" if k == 0 else
                                                          f"write 0, or at least {least} in magnitude"))
                     # The kernels form radiance x 1/p(d) in float32: an infinite
-                    # one (times a weight of 0) is a NaN pixel.
-                    falloff = kernel_falloff_bound(*att)
+                    # one (times a weight of 0) is a NaN pixel. With c0 = 0 the
+                    # falloff is unbounded as d -> 0: checked per frame instead,
+                    # at the nearest shaded pixel (clphong.device.frame).
+                    falloff = kernel_falloff_bound(*att) if att[0] != 0 else 0.0
                     if math.isinf(falloff):
                         self.fail(apath, f"{list(att)!r}: min p(d) = "
                                          f"{_g(1 / largest_falloff(*att))} is so close to 0 "
@@ -1002,15 +1060,28 @@ class _Parser:
                                          "float32 range the kernels compute in (|x| <= "
                                          f"{_g(FLT_MAX)}, less their rounding error); lower the "
                                          "intensity or raise the minimum of p(d)")
-            return Light(type_, color, intensity, position=position, attenuation=att)
+            return Light(type_, color, intensity, position=position, attenuation=att,
+                         power=power, group=group)
         if type_ == "directional":
             if "direction" not in v:
                 self.fail(path + ".direction", "missing; a 'directional' light needs the "
                                                "direction it travels, e.g. "
                                                "direction = [-1.0, -1.5, -1.0]")
             return Light(type_, color, intensity,
-                         direction=self.unit(v["direction"], path + ".direction"))
-        return Light(type_, color, intensity)
+                         direction=self.unit(v["direction"], path + ".direction"), group=group)
+        return Light(type_, color, intensity, group=group)
+
+    def group(self, v: Any, path: str) -> str:
+        if type(v) is not str:
+            self.fail(path, f"expected a group name (a string), got {_describe(v)}")
+        if not _GROUP_NAME.match(v):
+            self.fail(path, f"{_short(repr(v))} is not a light-group name: it names EXR layers "
+                            "(NAME.R, NAME.G, NAME.B), so use 1-63 letters, digits, '_' or '-', "
+                            "starting with a letter or '_'")
+        if v in AOV_NAMES:
+            self.fail(path, f"{v!r} is the name of an AOV layer ({', '.join(AOV_NAMES)}); "
+                            "choose another group name")
+        return v
 
     def check_scene(self, m: Material, lights: tuple[Light, ...]) -> None:
         # The products the host forms before the kernels see them as float32.

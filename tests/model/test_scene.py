@@ -289,8 +289,24 @@ ERROR_CASES = [
     ("zero-light-direction", lambda d: set_at(d, ("light", 1, "direction"), [0.0, -0.0, 0]),
      "light[1].direction", ["zero-length vector"]),
     # attenuation that reaches zero or goes negative
-    ("attenuation-c0-zero", lambda d: set_at(d, ("light", 0, "attenuation"), [0, 0, 1]),
-     "light[0].attenuation", ["reaches 0 at d = 0"]),
+    ("attenuation-c0-zero-negative-c1", lambda d: set_at(d, ("light", 0, "attenuation"), [0, -1, 1]),
+     "light[0].attenuation", ["with c0 = 0", "both must be >= 0"]),
+    ("power-and-intensity", lambda d: set_at(d, ("light", 0, "power"), 100),
+     "light[0].power", ["or intensity, not both"]),
+    ("power-and-attenuation", lambda d: (d["light"][0].pop("intensity"),
+                                         set_at(d, ("light", 0, "power"), 100)),
+     "light[0].power", ["or attenuation, not both"]),
+    ("power-on-directional", lambda d: set_at(d, ("light", 1, "power"), 100),
+     "light[1].power", ["does not apply to a 'directional' light"]),
+    ("power-negative", lambda d: (d["light"][0].pop("intensity"), d["light"][0].pop("attenuation"),
+                                  set_at(d, ("light", 0, "power"), -1)),
+     "light[0].power", [">= 0"]),
+    ("group-not-string", lambda d: set_at(d, ("light", 0, "group"), 3),
+     "light[0].group", ["expected a group name"]),
+    ("group-bad-name", lambda d: set_at(d, ("light", 0, "group"), "key.light"),
+     "light[0].group", ["is not a light-group name", "NAME.R"]),
+    ("group-aov-name", lambda d: set_at(d, ("light", 0, "group"), "specular"),
+     "light[0].group", ["name of an AOV layer"]),
     ("attenuation-c0-negative", lambda d: set_at(d, ("light", 0, "attenuation"), [-1, 0, 1]),
      "light[0].attenuation", ["negative at d = 0"]),
     ("attenuation-linear-negative", lambda d: set_at(d, ("light", 0, "attenuation"), [1, -0.4, 0]),
@@ -302,7 +318,7 @@ ERROR_CASES = [
     ("attenuation-double-root", lambda d: set_at(d, ("light", 0, "attenuation"), [1, -2, 1]),
      "light[0].attenuation", ["reaches 0 at d = 1 ", "double root"]),
     ("attenuation-zero", lambda d: set_at(d, ("light", 0, "attenuation"), [0, 0, 0]),
-     "light[0].attenuation", ["reaches 0 at d = 0"]),
+     "light[0].attenuation", ["p(d) = 0 for every d"]),
     # top level
     ("top-not-table", lambda d: d.clear() or None, "material", ["missing required table"]),
 ]
@@ -371,6 +387,29 @@ def test_numpy_scalars_accepted():
     s = parse_quietly(data)
     assert type(s.material.h) is float and s.material.h == 8.0
     assert type(s.material.k_d) is float
+
+
+@pytest.mark.parametrize("att", [(0, 0, 1), (0, 1, 0), (0, 0.5, 2)])
+def test_physical_attenuation_c0_zero_allowed(att):
+    data = base()
+    data["light"][0]["attenuation"] = list(att)
+    assert parse_quietly(data).lights[0].attenuation == tuple(map(float, att))
+
+
+def test_power_is_cycles_radiant_intensity_over_pi():
+    """power = P watts: L = color·P/(4π²), 1/d² (radiant intensity P/(4π) W/sr times the
+    Lambert BRDF's 1/π), computed here from the closed form, not from the module's constant."""
+    data = base()
+    light = data["light"][0]
+    for k in ("intensity", "attenuation"):
+        light.pop(k)
+    light["power"] = 1000.0
+    light["group"] = "key"
+    lt = parse_quietly(data).lights[0]
+    assert lt.attenuation == (0.0, 0.0, 1.0) and lt.power == 1000.0 and lt.group == "key"
+    assert lt.intensity == pytest.approx(1000.0 / (4 * math.pi) / math.pi, rel=1e-15)
+    again = parse_quietly({**data, "light": [lt.to_dict(), *data["light"][1:]]}).lights[0]
+    assert again == lt
 
 
 def test_negative_attenuation_coefficients_allowed_when_positive():
@@ -832,8 +871,15 @@ D_GRID = np.arange(0, 100 * 256 + 1, dtype=np.float64) / 256.0
 
 
 def brute_force_positive(c0, c1, c2) -> bool:
-    p = c0 + c1 * D_GRID + c2 * D_GRID * D_GRID
+    """p(d) > 0 on the grid's d > 0 (c0 = 0 is allowed: p(0) = 0 adds no light, the
+    d = 0 guard), and near 0, where the grid is coarse: the sign of p's lowest term."""
+    d = D_GRID[1:]
+    p = c0 + c1 * d + c2 * d * d
     if p.min() <= 0:
+        return False
+    if c0 == 0 and (c1 < 0 or (c1 == 0 and c2 <= 0)):
+        return False
+    if c0 < 0:
         return False
     if c2 > 0 and c1 < 0:  # the vertex, where a double root would touch 0
         v = Fraction(-c1) / (2 * Fraction(c2))
@@ -854,7 +900,8 @@ def test_attenuation_condition_matches_brute_force(c0, c1, c2):
     problem = attenuation_problem(c0, c1, c2)
     assert (problem is None) == brute_force_positive(c0, c1, c2), (c0, c1, c2, problem)
     # the closed form of the brief
-    exact = c0 > 0 and ((c2 > 0 and (c1 >= 0 or c1 * c1 < 4 * c0 * c2)) or (c2 == 0 and c1 >= 0))
+    exact = ((c0 > 0 and ((c2 > 0 and (c1 >= 0 or c1 * c1 < 4 * c0 * c2)) or (c2 == 0 and c1 >= 0)))
+             or (c0 == 0 and c1 >= 0 and c2 >= 0 and (c1 > 0 or c2 > 0)))
     assert (problem is None) == exact
     if problem is not None:
         assert "\n" not in problem
@@ -875,9 +922,18 @@ wide = st.one_of(st.floats(-1e6, 1e6), st.sampled_from([0.0, -0.0, 1.0, -1.0, 2.
 @settings(max_examples=600, deadline=None)
 @given(wide, wide, wide)
 def test_attenuation_condition_exact_witnesses(c0, c1, c2):
-    """Accepted: p > 0 at its minimum over d >= 0; rejected: a d >= 0 with p <= 0."""
+    """Accepted: p > 0 at its minimum over d > 0; rejected: a d > 0 with p <= 0, or
+    p(0) < 0, or p = 0 everywhere. (c0 = 0 is accepted when p > 0 for every d > 0.)"""
     c = (c0, c1, c2)
     problem = attenuation_problem(*c)
+    if c0 == 0:
+        tiny = Fraction(1, 10**700)              # p's sign for small d > 0 is that of c1 (else c2)
+        if problem is None:
+            assert c1 >= 0 and c2 >= 0 and (c1 > 0 or c2 > 0)
+            assert p_exact(c, tiny) > 0 and p_exact(c, 1 + abs(Fraction(c1)) + 10**400) > 0
+        else:
+            assert c1 < 0 or c2 < 0 or (c1 == 0 and c2 == 0), (c, problem)
+        return
     # candidate minimisers / witnesses, exact
     cands = [Fraction(0)]
     if c2 != 0 and -c1 / c2 >= 0:

@@ -1,0 +1,135 @@
+"""Tests of clphong.device.frame: physical (c0 = 0) falloff, checked per frame at the
+nearest shaded pixel, and shaded within the error model however near the light."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import check_against_reference, heightfield, make_gbuffer, make_scene
+
+from clphong.core.errors import SceneError
+from clphong.core.floats import FLT_MAX, FLT_MIN
+from clphong.core.geometry import nearest_within
+from clphong.device.frame import FLOAT_PATH_INNER, near_field_radius
+from clphong.device.renderer import Renderer
+from clphong.model.scene import WATTS_TO_RADIANCE, parse_scene
+
+
+def _flat(h=16, w=20):
+    """A flat floor z = 0 facing +z, pixels 0.1 apart (exact float32 positions)."""
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64) * 0.125
+    P = np.stack([xs, ys, np.zeros_like(xs)], -1)
+    N = np.broadcast_to([0.0, 0.0, 1.0], P.shape)
+    C = np.full(P.shape, 0.5)
+    return make_gbuffer(P, N, C)
+
+
+def _power_scene(positions, watts=100.0, model="phong"):
+    lights = [dict(type="point", position=tuple(map(float, p)), power=watts) for p in positions]
+    data = {"camera": {"type": "perspective", "position": [1.0, 1.0, 5.0]},
+            "material": {"model": model, "k_a": 0.0, "k_d": 0.7, "k_s": 0.3, "h": 16.0},
+            "light": lights}
+    return parse_scene(data, source="phys.toml")
+
+
+def test_near_field_radius_is_where_the_falloff_overflows():
+    # 1/d²: R/d² = FLT_MAX at d = sqrt(R/FLT_MAX); the radius sits just outside it
+    R = 1e3
+    r = float(near_field_radius(0.0, 1.0, R, fp64=True))
+    assert math.sqrt(R / FLT_MAX) < r < math.sqrt(R / FLT_MAX) * (1 + 1e-5)
+    # linear 1/(c1·d)
+    r = float(near_field_radius(2.0, 0.0, R, fp64=True))
+    assert R / (2 * FLT_MAX) < r < R / (2 * FLT_MAX) * (1 + 1e-5)
+    # the float path also needs p(d) ≥ 4·FLT_MIN: a dim light's radius is set by that
+    r = float(near_field_radius(0.0, 1.0, 1e-30, fp64=False))
+    assert math.sqrt(4 * FLT_MIN) < r < math.sqrt(4 * FLT_MIN) * (1 + 1e-5)
+
+
+def test_nearest_within_matches_brute_force():
+    rng = np.random.default_rng(3)
+    planes = rng.uniform(-1, 1, (3, 3000)).astype(np.float32)
+    shaded = rng.uniform(size=3000) > 0.2
+    points = rng.uniform(-1, 1, (20, 3))
+    radii = rng.uniform(0, 0.2, 20)
+    radii[:3] = 0
+    got = nearest_within(planes, shaded, points, radii)
+    for j, p in enumerate(points):
+        d = np.sqrt(((planes.astype(np.float64).T - p) ** 2).sum(axis=1))
+        d[~shaded] = np.inf
+        k = int(np.argmin(d))
+        want = (k, d[k]) if 0 < d[k] < radii[j] else None
+        assert got[j] == want
+
+
+@pytest.mark.parametrize("fp64", [True, False], ids=["fp64", "float"])
+def test_light_that_overflows_at_the_nearest_pixel_is_named(fp64):
+    gb = _flat()
+    P = gb.position[5, 7].astype(np.float64)
+    # 1000 W at 1e-20 above pixel (7, 5): R/d² ≈ 2.5e41 > FLT_MAX on either path
+    scene = _power_scene([(1.0, 1.0, 2.0), P + [0.0, 0.0, 1e-20 if fp64 else 2e-19]], watts=1000.0)
+    r = Renderer(scene, fp64_directions=fp64)
+    with pytest.raises(SceneError) as info:
+        r.render(gb)
+    msg = str(info.value)
+    assert msg.startswith("phys.toml: light[1]: pixel (7, 5) is ") and "\n" not in msg
+    assert "beyond the float32 range" in msg and "c0 > 0" in msg
+
+
+def test_light_exactly_at_a_pixel_adds_nothing_there():
+    gb = _flat()
+    P = gb.position[5, 7].astype(np.float64)
+    scene = _power_scene([P], watts=1000.0)
+    rgb, ref, _, _ = check_against_reference(scene, gb)
+    assert rgb[5, 7].tolist() == [0.0, 0.0, 0.0] and np.all(np.isfinite(rgb))
+
+
+@pytest.mark.parametrize("height", [1.0, 1e-3, 1e-8, 1e-15])
+@pytest.mark.parametrize("model", ["phong", "blinn-phong"])
+def test_inverse_square_near_the_surface_within_the_error_bound(height, model, device):
+    """d → 0: 1/d² light just above a pixel of a wavy surface; the error model's bound holds
+    (the default path: d from double differences, so d's relative error stays ~2⁻⁴⁷)."""
+    rng = np.random.default_rng(11)
+    gb = heightfield(rng, 24, 30)
+    P = gb.position[12, 15].astype(np.float64)
+    n = gb.normal[12, 15].astype(np.float64)
+    n /= np.linalg.norm(n)
+    scene = _power_scene([P + height * n, (1.5, 1.2, 0.8)], watts=1e-6 * height ** 2 + 5.0, model=model)
+    rgb, ref, bound, _ = check_against_reference(scene, gb, device=device)
+    rel = np.abs(rgb - ref) / np.maximum(np.abs(ref), 1e-30)
+    assert rel[ref > 1e-6 * ref.max()].max() < 5e-6        # the accuracy target
+
+
+def test_power_light_matches_the_closed_form_lambert():
+    """One 1/d² light of P watts over a flat floor: the diffuse radiance is
+    albedo·P/(4π²)·cosθ/d², computed here in float64 from the geometry."""
+    gb = _flat()
+    light = np.array([1.1, 0.9, 0.7])
+    scene = parse_scene({"camera": {"type": "perspective", "position": [1.0, 1.0, 5.0]},
+                         "material": {"model": "phong", "k_a": 0.0, "k_d": 1.0, "k_s": 0.0, "h": 1.0},
+                         "light": [{"type": "point", "position": light.tolist(), "power": 250.0}]},
+                        source="p.toml")
+    rgb = Renderer(scene).render(gb).image
+    P = gb.position.astype(np.float64)
+    to = light - P
+    d = np.linalg.norm(to, axis=-1)
+    want = 0.5 * 250.0 / (4 * math.pi ** 2) * (to[..., 2] / d) / d ** 2
+    assert WATTS_TO_RADIANCE == 1 / (4 * math.pi ** 2)
+    np.testing.assert_allclose(rgb[..., 0], want, rtol=5e-6)
+
+
+def test_power_lights_cull_with_a_bounded_error():
+    """c0 = 0 lights take part in culling: each dropped light's bound holds (max_error)."""
+    rng = np.random.default_rng(5)
+    gb = heightfield(rng, 64, 64, bumps=0.1)
+    lights = [dict(type="point", position=(float(rng.uniform(0, 6.4)), float(rng.uniform(0, 6.4)),
+                                           float(rng.uniform(0.05, 0.3))),
+                   color=(1.0, 1.0, 1.0), intensity=float(rng.uniform(0.001, 0.01)),
+                   attenuation=(0.0, 0.0, 1.0)) for _ in range(40)]
+    scene = make_scene(lights)
+    eps = 1e-3
+    full = Renderer(scene).render(gb).image
+    res = Renderer(scene, max_error=eps).render(gb)
+    assert res.cull is not None and res.cull.kept_fraction < 0.9      # lights are culled
+    assert np.abs(res.image.astype(np.float64) - full).max() <= eps + 1e-6
