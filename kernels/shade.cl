@@ -14,7 +14,11 @@
  *         C is the albedo C_d.
  *   maps: the planes named by MAP_KD, MAP_KS, MAP_H, MAP_CS (k_d, k_s, h, C_s rgb),
  *         in that order, only those present.
- *   out:  R G B.
+ *         With COVERAGE, plane 12 is the coverage α (the host un-premultiplied C_d).
+ *   out:  R G B (the beauty, α·E + (1 − α)·background with COVERAGE), then with
+ *         N_GROUPS the light groups' R G B (α·E_g each), then with AOV_DIFFUSE
+ *         the diffuse R G B (ambient included), with AOV_SPECULAR the specular
+ *         R G B (α-premultiplied too), all from this one pass.
  * Each work-item shades LANES consecutive pixels as one vector.
  *
  * Defines: all of the shading plan's (clphong/device/plan.py), each required by
@@ -73,6 +77,16 @@ inline floatL finish_sum(floatL s, floatL c)
     return SELECT(t, SELECT((floatL)(-FLT_MAX), (floatL)(FLT_MAX), t > 0.0f), ABS(t) > FLT_MAX);
 }
 #endif
+
+/* A layer's value premultiplied by coverage (α = 1 without COVERAGE). */
+#if COVERAGE
+#define COVER(x) (alpha * (x))
+#else
+#define COVER(x) (x)
+#endif
+/* The first out plane of the diffuse and the specular layer. */
+#define OUT_DIFFUSE (3 + 3 * N_GROUPS)
+#define OUT_SPECULAR (OUT_DIFFUSE + 3 * AOV_DIFFUSE)
 
 __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
 {
@@ -164,21 +178,79 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
     sumL sg = TO_SUM(FLOAT_TO_W(Cg) * W_HI_LO(ambient.y, material_lo.y));
     sumL sb = TO_SUM(FLOAT_TO_W(Cb) * W_HI_LO(ambient.z, material_lo.z));
     floatL cr = (floatL)(0.0f), cg = (floatL)(0.0f), cb = (floatL)(0.0f);
+#if AOV_DIFFUSE
+    sumL dr = sr, dg = sg, db = sb;          /* the diffuse layer holds the ambient term */
+    floatL dcr = (floatL)(0.0f), dcg = (floatL)(0.0f), dcb = (floatL)(0.0f);
+#endif
+#if AOV_SPECULAR
+    sumL qr = (sumL)(0.0), qg = (sumL)(0.0), qb = (sumL)(0.0);
+    floatL qcr = (floatL)(0.0f), qcg = (floatL)(0.0f), qcb = (floatL)(0.0f);
+#endif
 
     /* Background pixels (zero normal, set by the host) take the background value
        below; a work-item of background pixels only skips the lights (the sky of
        a render, or a frame's padding, costs nothing per light). */
     const intL bg = (intL)((Nx == 0.0f) & (Ny == 0.0f) & (Nz == 0.0f));
     const uint lit = !ALL_LANES(bg);
+#if COVERAGE
+    const floatL alpha = vloadL(i, gbuf + 12 * stride);
+#endif
+#if N_GROUPS
+    /* Light groups: the host sorts the lights by group; group g's directional
+       lights are [dir_end[g-1], dir_end[g]), its point lights those below
+       point_end[g] (group_table = dir_end[0..G-1], point_end[0..G-1]). Each group
+       is summed on its own (from its own ambient term) beside the beauty sum. */
+#if HAS_POINT && CULLING
+    /* the tile's list, walked once across the groups (it is in light order) */
+#endif
+    uint m_next = 0u;
+    for (uint g = 0; g < N_GROUPS; ++g) {
+        const float4 A_g = group_ambient[2 * g], A_lo = group_ambient[2 * g + 1];
+        sumL gr = TO_SUM(FLOAT_TO_W(Cr) * W_HI_LO(A_g.x, A_lo.x));
+        sumL gg = TO_SUM(FLOAT_TO_W(Cg) * W_HI_LO(A_g.y, A_lo.y));
+        sumL gb = TO_SUM(FLOAT_TO_W(Cb) * W_HI_LO(A_g.z, A_lo.z));
+        floatL gcr = (floatL)(0.0f), gcg = (floatL)(0.0f), gcb = (floatL)(0.0f);
+        const uint d_begin = g ? group_table[g - 1] : 0u, d_end = group_table[g];
+        const uint p_end = group_table[N_GROUPS + g];
+#define GROUP_ADD(xr, xg, xb) do { ACCUMULATE(gr, gcr, xr); ACCUMULATE(gg, gcg, xg); \
+                                   ACCUMULATE(gb, gcb, xb); } while (0)
+#else
+#define GROUP_ADD(xr, xg, xb) do { } while (0)
+#endif
+#if AOV_DIFFUSE
+#define DIFFUSE_ADD(xr, xg, xb) do { ACCUMULATE(dr, dcr, xr); ACCUMULATE(dg, dcg, xg); \
+                                     ACCUMULATE(db, dcb, xb); } while (0)
+#else
+#define DIFFUSE_ADD(xr, xg, xb) do { } while (0)
+#endif
+#if AOV_SPECULAR
+#define SPECULAR_ADD(xr, xg, xb) do { ACCUMULATE(qr, qcr, xr); ACCUMULATE(qg, qcg, xg); \
+                                      ACCUMULATE(qb, qcb, xb); } while (0)
+#else
+#define SPECULAR_ADD(xr, xg, xb) do { } while (0)
+#endif
+/* One light's contribution (its radiance × falloff Lr, Lg, Lb and weights w) to
+   the beauty and to every layer the plan asks for. The beauty's product is the
+   fused one whatever the layers (it stays bit-identical without them). */
+#define ADD_LIGHT(Lr, Lg, Lb, w) do { \
+        const wL xr_ = (Lr) * MUL_ADD(Dr_w, (w).diffuse, Sr_w * (w).specular); \
+        const wL xg_ = (Lg) * MUL_ADD(Dg_w, (w).diffuse, Sg_w * (w).specular); \
+        const wL xb_ = (Lb) * MUL_ADD(Db_w, (w).diffuse, Sb_w * (w).specular); \
+        ACCUMULATE(sr, cr, xr_); ACCUMULATE(sg, cg, xg_); ACCUMULATE(sb, cb, xb_); \
+        GROUP_ADD(xr_, xg_, xb_); \
+        DIFFUSE_ADD((Lr) * (Dr_w * (w).diffuse), (Lg) * (Dg_w * (w).diffuse), (Lb) * (Db_w * (w).diffuse)); \
+        SPECULAR_ADD((Lr) * (Sr_w * (w).specular), (Lg) * (Sg_w * (w).specular), (Lb) * (Sb_w * (w).specular)); \
+    } while (0)
 
+#if !N_GROUPS
+    const uint d_begin = 0u, d_end = n_directional;
+#endif
 #if HAS_DIRECTIONAL
-    for (uint j = 0; j < (lit ? n_directional : 0u); ++j) {
+    for (uint j = (lit ? d_begin : d_end); j < d_end; ++j) {
         __global const float4 *rec = directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * j;
         const float4 L = rec[1], L_lo = rec[5];   /* radiance, as hi + lo */
         const weights_t w = shade_directional_light(&p, rec[0], rec[3], rec[2], rec[4]);
-        ACCUMULATE(sr, cr, W_HI_LO(L.x, L_lo.x) * MUL_ADD(Dr_w, w.diffuse, Sr_w * w.specular));
-        ACCUMULATE(sg, cg, W_HI_LO(L.y, L_lo.y) * MUL_ADD(Dg_w, w.diffuse, Sg_w * w.specular));
-        ACCUMULATE(sb, cb, W_HI_LO(L.z, L_lo.z) * MUL_ADD(Db_w, w.diffuse, Sb_w * w.specular));
+        ADD_LIGHT(W_HI_LO(L.x, L_lo.x), W_HI_LO(L.y, L_lo.y), W_HI_LO(L.z, L_lo.z), w);
     }
 #endif
 #if HAS_POINT
@@ -188,8 +260,16 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
     const uint q0 = (uint)(i * LANES);
     const uint tile = (q0 / width / CULL_TILE) * tiles_x + (q0 % width) / CULL_TILE;
     const uint2 range = tile < n_tiles && lit ? tile_ranges[tile] : (uint2)(0, 0);
+#if N_GROUPS
+    /* this group's part of the tile's list: the entries below p_end */
+    uint m = range.x + m_next;
+    for (; m < range.x + range.y && tile_lights[m] < p_end; ++m) {
+#else
     for (uint m = range.x; m < range.x + range.y; ++m) {
+#endif
         const uint j = tile_lights[m];
+#elif N_GROUPS
+    for (uint j = (g ? group_table[N_GROUPS + g - 1] : 0u); j < (lit ? p_end : 0u); ++j) {
 #else
     for (uint j = 0; j < (lit ? n_point : 0u); ++j) {
 #endif
@@ -200,21 +280,57 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
         wL ar, ag, ab;                 /* radiance × attenuation(d) */
         const weights_t w = shade_point_light(&p, X.x, X.y, X.z, X.w, L.w, Q.x, L.x, L.y, L.z,
                                               &ar, &ag, &ab);
-        ACCUMULATE(sr, cr, ar * MUL_ADD(Dr_w, w.diffuse, Sr_w * w.specular));
-        ACCUMULATE(sg, cg, ag * MUL_ADD(Dg_w, w.diffuse, Sg_w * w.specular));
-        ACCUMULATE(sb, cb, ab * MUL_ADD(Db_w, w.diffuse, Sb_w * w.specular));
+        ADD_LIGHT(ar, ag, ab, w);
+    }
+#if CULLING && N_GROUPS
+    m_next = m - range.x;
+#endif
+#endif
+#if N_GROUPS
+        /* group g: α·E_g (0 on background pixels) */
+        const floatL Gr = SELECT(finish_sum(gr, gcr), (floatL)(0.0f), bg);
+        const floatL Gg = SELECT(finish_sum(gg, gcg), (floatL)(0.0f), bg);
+        const floatL Gb = SELECT(finish_sum(gb, gcb), (floatL)(0.0f), bg);
+        vstoreL(COVER(Gr), i, out + (3 + 3 * g) * stride);
+        vstoreL(COVER(Gg), i, out + (4 + 3 * g) * stride);
+        vstoreL(COVER(Gb), i, out + (5 + 3 * g) * stride);
     }
 #endif
 
+    /* the straight (un-premultiplied) shade S, the background where not shaded */
     const floatL Er = SELECT(finish_sum(sr, cr), (floatL)(background.x), bg);
     const floatL Eg = SELECT(finish_sum(sg, cg), (floatL)(background.y), bg);
     const floatL Eb = SELECT(finish_sum(sb, cb), (floatL)(background.z), bg);
-    vstoreL(Er, i, out + 0 * stride);
-    vstoreL(Eg, i, out + 1 * stride);
-    vstoreL(Eb, i, out + 2 * stride);
+#if COVERAGE
+    /* α·S + (1 − α)·background: S itself where α = 1, the background where α = 0 */
+    const floatL Or = MUL_ADD(alpha, Er, (1.0f - alpha) * background.x);
+    const floatL Og = MUL_ADD(alpha, Eg, (1.0f - alpha) * background.y);
+    const floatL Ob = MUL_ADD(alpha, Eb, (1.0f - alpha) * background.z);
+#else
+    const floatL Or = Er, Og = Eg, Ob = Eb;
+#endif
+    vstoreL(Or, i, out + 0 * stride);
+    vstoreL(Og, i, out + 1 * stride);
+    vstoreL(Ob, i, out + 2 * stride);
+#if AOV_DIFFUSE
+    vstoreL(COVER(SELECT(finish_sum(dr, dcr), (floatL)(0.0f), bg)), i, out + (OUT_DIFFUSE + 0) * stride);
+    vstoreL(COVER(SELECT(finish_sum(dg, dcg), (floatL)(0.0f), bg)), i, out + (OUT_DIFFUSE + 1) * stride);
+    vstoreL(COVER(SELECT(finish_sum(db, dcb), (floatL)(0.0f), bg)), i, out + (OUT_DIFFUSE + 2) * stride);
+#endif
+#if AOV_SPECULAR
+    vstoreL(COVER(SELECT(finish_sum(qr, qcr), (floatL)(0.0f), bg)), i, out + (OUT_SPECULAR + 0) * stride);
+    vstoreL(COVER(SELECT(finish_sum(qg, qcg), (floatL)(0.0f), bg)), i, out + (OUT_SPECULAR + 1) * stride);
+    vstoreL(COVER(SELECT(finish_sum(qb, qcb), (floatL)(0.0f), bg)), i, out + (OUT_SPECULAR + 2) * stride);
+#endif
 #if DISPLAY_OUT
-    /* Tone mapping fused into the store: no round trip through the host. */
+    /* Tone mapping fused into the store: no round trip through the host. With
+       DISPLAY_STRAIGHT (a display output with straight alpha) the un-premultiplied S. */
+#if DISPLAY_STRAIGHT
     display_store(Er, Eg, Eb, i, display, stride, exposure, tonemap_params,
                   display_m0, display_m1, display_m2);
+#else
+    display_store(Or, Og, Ob, i, display, stride, exposure, tonemap_params,
+                  display_m0, display_m1, display_m2);
+#endif
 #endif
 }

@@ -119,9 +119,21 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h, as shade.cl */
         E += att * L.xyz * (D * fmax(NoL, 0.0f) + S * spec);
     }
 #endif
-    out[i] = E.x; out[stride + i] = E.y; out[2 * stride + i] = E.z;
+#if COVERAGE
+    /* α·S + (1 − α)·background, as shade.cl */
+    const float alpha = gbuf[12 * stride + i];
+    const float3 O = alpha * E + (1.0f - alpha) * background.xyz;
+#else
+    const float3 O = E;
+#endif
+    out[i] = O.x; out[stride + i] = O.y; out[2 * stride + i] = O.z;
 #if DISPLAY_OUT
+#if DISPLAY_STRAIGHT
     display_store(E.x, E.y, E.z, i, display, stride, exposure, tonemap_params,
                   display_m0, display_m1, display_m2);
+#else
+    display_store(O.x, O.y, O.z, i, display, stride, exposure, tonemap_params,
+                  display_m0, display_m1, display_m2);
+#endif
 #endif
 }

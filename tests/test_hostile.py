@@ -352,8 +352,10 @@ def _scene(src: Path, text: str, name="bad.toml") -> Path:
      ["bad.toml: camera.direction: zero-length vector"]),
     ("attenuation-zero", SCENE.replace("attenuation = [1.0, 0.0, 0.02]", "attenuation = [1.0, -2.0, 1.0]"),
      ["bad.toml: light[0].attenuation: p(d) = c0 + c1*d + c2*d^2 reaches 0 at d = 1"]),
-    ("attenuation-c0-zero", SCENE.replace("attenuation = [1.0, 0.0, 0.02]", "attenuation = [0, 0, 1]"),
-     ["bad.toml: light[0].attenuation:", "c0 must be > 0"]),
+    ("attenuation-c0-zero-c1-negative", SCENE.replace("attenuation = [1.0, 0.0, 0.02]", "attenuation = [0, -1, 1]"),
+     ["bad.toml: light[0].attenuation:", "with c0 = 0 both must be >= 0"]),
+    ("power-and-intensity", SCENE.replace("attenuation = [1.0, 0.0, 0.02]", "power = 100.0"),
+     ["bad.toml: light[0].power: give power (watts, with Cycles' 1/d^2 falloff) or intensity, not both"]),
     ("not-utf8", None, ["bad.toml:6: invalid TOML: not UTF-8 (byte 80)"]),
     # finite in float64, infinite as the kernels' float32 (NaN pixels before)
     ("beyond-float32", SCENE.replace("position = [3.0, 5.0, 4.0]", "position = [3.0, 5.0, 4e38]"),

@@ -29,8 +29,10 @@ from ..model.scene import MATERIAL_MAPS
 #: Work-items per work-group. PoCL runs anything from 8 to ~1000 equally well
 #: and 1 badly (POCL-NOTES "Local size").
 LOCAL_SIZE = 64
-#: Planes of Frame.gbuf: P xyz, unit N xyz (float), C_d rgb, N's float64 remainder xyz.
+#: Planes of Frame.gbuf: P xyz, unit N xyz (float), C_d rgb, N's float64 remainder xyz
+#: (and, with partly covered pixels, the coverage α: COVERAGE_PLANE).
 GBUF_PLANES = 12
+COVERAGE_PLANE = 12
 
 
 @dataclass
@@ -50,6 +52,7 @@ class Frame:
     stride: int
     origin: np.ndarray        # (3,) float32
     background: np.ndarray    # (H*W,) bool
+    coverage: bool = False    # gbuf has the α plane: some pixel is partly covered
 
     @property
     def pixels(self) -> int:
@@ -63,7 +66,9 @@ def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:
     block = lanes * LOCAL_SIZE
     stride = max(block, math.ceil(n / block) * block)
     background = gbuffer.background_mask().reshape(-1)
-    gbuf = np.empty((GBUF_PLANES, stride), np.float32)
+    cov = gbuffer.coverage
+    partial = cov is not None and bool(((cov > 0) & (cov < 1)).any())
+    gbuf = np.empty((GBUF_PLANES + partial, stride), np.float32)
     gbuf[:, n:] = 0.0                                       # padding: background
     P, C = gbuffer.position.reshape(-1, 3), gbuffer.albedo.reshape(-1, 3)
     for a, n64 in enumerate(unit_normal_planes(gbuffer.normal)):
@@ -73,6 +78,8 @@ def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:
         gbuf[3 + a, :n] = n64
         # The float64 remainder of the unit normal, for DIRECTIONS_FP64 (shade.cl).
         gbuf[9 + a, :n] = n64 - gbuf[3 + a, :n]
+    if partial:
+        gbuf[COVERAGE_PLANE, :n] = np.clip(cov.reshape(-1), 0.0, 1.0)
     names = []
     planes = []
     for name, channels in MATERIAL_MAPS.items():             # the kernels' order
@@ -86,7 +93,8 @@ def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:
     else:
         maps = np.zeros((1, lanes), np.float32)
     return Frame(gbuf=gbuf, maps=maps, map_names=tuple(names), shape=(h, w), stride=stride,
-                 origin=frame_origin(gbuffer.position, background), background=background)
+                 origin=frame_origin(gbuffer.position, background), background=background,
+                 coverage=partial)
 
 
 @dataclass(frozen=True)
@@ -99,6 +107,8 @@ class LightArrays:
     ambient: np.ndarray      # (3,) float64: k_a·Σ ambient radiance
     eye: np.ndarray          # (3,) float64: perspective eye − origin, or orthographic unit v
     eye64: np.ndarray        # (3,) float64: perspective eye (not rebased), or unit v
+    group_table: np.ndarray = None    # (2·max(G, 1),) uint32: directional ends, point ends
+    group_ambient: np.ndarray = None  # (2·max(G, 1), 4) float32: k_a·A_g as hi, lo rows
 
     def kernel_eye(self, fp64: bool) -> tuple[np.ndarray, np.ndarray]:
         """The shading kernel's (eye, eye_lo): with DIRECTIONS_FP64 the eye as it
@@ -114,7 +124,7 @@ def _check_reach(scene, o: np.ndarray, rebased: np.ndarray) -> None:
     reach = np.abs(rebased).max(axis=1, initial=0.0)
     far = None
     if reach.size and reach.max() >= F32_ROUNDS_TO_INF:
-        points = [i for i, lt in enumerate(scene.lights) if lt.type == "point"]
+        points = list(scene.light_arrays["point_index"])
         far = (f"light[{points[int(np.argmax(reach))]}].position", reach.max())
     elif scene.camera.type == "perspective":
         x = np.abs(np.asarray(scene.camera.position) - o).max()
@@ -166,8 +176,17 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
     amb = arrays["ambient_radiance"] * scene.material.k_a
     eye64 = v if v is not None else np.asarray(scene.camera.position, np.float64)
     eye = eye64 if v is not None else eye64 - o
+    G = len(scene.light_groups)
+    table = np.zeros(2 * max(G, 1), np.uint32)
+    gamb = np.zeros((2 * max(G, 1), 4), np.float32)
+    if G:
+        table[:G] = arrays["directional_group_end"]
+        table[G:] = arrays["point_group_end"]
+        hi, lo = split_hi_lo(arrays["ambient_group_radiance"] * scene.material.k_a)
+        gamb[0:2 * G:2, :3] = hi
+        gamb[1:2 * G:2, :3] = lo
     return LightArrays(point=point, point64=point64, directional=directional, ambient=amb,
-                       eye=eye, eye64=eye64)
+                       eye=eye, eye64=eye64, group_table=table, group_ambient=gamb)
 
 
 #: On the float path a pixel nearer a light than this has d² flushed to 0 (the
@@ -217,7 +236,7 @@ def check_near_field(scene, frame: Frame, lights: LightArrays, fp64: bool) -> No
     SceneError
         Naming the light, the pixel, its distance and the falloff's value there.
     """
-    points = [i for i, lt in enumerate(scene.lights) if lt.type == "point"]
+    points = list(scene.light_arrays["point_index"])
     recs = (lights.point64 if fp64 else lights.point.astype(np.float64)).reshape(-1, 3, 4)[:len(points)]
     physical = np.flatnonzero(recs[:, 0, 3] == 0) if len(points) else np.zeros(0, int)
     if physical.size == 0:

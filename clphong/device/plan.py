@@ -11,10 +11,12 @@ instead of exp/log1p. ``print(plan)`` says what was chosen and why.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from ..model.options import check_float_power, check_kernel
-from ..model.scene import MAP_KEYS
+from ..core.errors import SceneError
+from ..model.scene import AOV_NAMES, MAP_KEYS
 from .culling import TILE
 
 #: Light sums longer than this use Neumaier compensation. The error of a naive
@@ -54,6 +56,13 @@ class ShadingPlan:
     n_ambient: int = 0
     maps: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default=())
+    groups: tuple[str, ...] = ()
+    aovs: tuple[str, ...] = ()
+
+    @property
+    def layers(self) -> tuple[str, ...]:
+        """The names of the output's layers after the beauty, in plane order."""
+        return self.groups + self.aovs
 
     @property
     def entry_file(self) -> str:
@@ -82,7 +91,8 @@ class ShadingPlan:
 def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LANES,
               compensated: bool | None = None, fp64_directions: bool = False,
               display=None, max_error: float | None = None, has_fp64: bool | None = None,
-              int_pow: bool | str = True) -> ShadingPlan:
+              int_pow: bool | str = True, coverage: bool = False, groups: Sequence[str] = (),
+              aovs: Sequence[str] = (), straight: bool = False) -> ShadingPlan:
     """Choose the kernel variant for ``scene`` and the material ``maps`` present.
 
     Parameters
@@ -117,6 +127,15 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         Culling budget ε in output radiance (``--max-error`` × reference
         white): with point lights, compile the per-tile light lists of
         ``kernels/cull.cl`` (CULLING=1). None: every light shades every pixel.
+    coverage : bool
+        The frame has partly covered pixels: gbuf plane 12 holds α and every
+        output is α-premultiplied (COVERAGE).
+    groups : sequence of str
+        Light-group layers, in the order of the output planes (N_GROUPS).
+    aovs : sequence of {"diffuse", "specular"}
+        Component layers (AOV_DIFFUSE, AOV_SPECULAR).
+    straight : bool
+        The fused display output takes the straight shade (DISPLAY_STRAIGHT).
     display : clphong.device.display.DisplayTransform, optional
         Fuse exposure, tone mapping and display encoding into the final store
         (kernels/tonemap.cl); None: scene-linear output only (DISPLAY_OUT=0).
@@ -223,6 +242,20 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
             + ", into the double sum: nothing rounded to float before the result" if weights
             else ("directions in float: weights in float" if not fp64_directions
                   else "light sum in float: weights rounded to float"))
+    if kernel != "lanes" and (groups or aovs):
+        raise SceneError(f"{scene.source}: the obvious kernel shades the beauty only; light groups "
+                         "and AOV layers need the lane kernel")
+    put("COVERAGE", coverage, "partly covered pixels: outputs α-premultiplied, the beauty over "
+                              "the background" if coverage else "no partly covered pixel")
+    put("N_GROUPS", len(groups), f"light-group layers {', '.join(groups)} from the same pass"
+        if groups else "no light groups")
+    put("AOV_DIFFUSE", "diffuse" in aovs, "diffuse layer (with the ambient term)"
+        if "diffuse" in aovs else "no diffuse layer")
+    put("AOV_SPECULAR", "specular" in aovs, "specular layer" if "specular" in aovs
+        else "no specular layer")
+    put("DISPLAY_STRAIGHT", straight and display is not None,
+        "display output with straight alpha: the un-premultiplied shade" if straight
+        else "display output of the premultiplied beauty over the background")
     if display is None:
         put("DISPLAY_OUT", 0, "no fused display output (scene-linear only, or an OCIO view)")
     else:
@@ -233,4 +266,5 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     if not n_point and not n_dir:
         notes.append("no direct lights: only the ambient term is shaded")
     return ShadingPlan(defines=d, reasons=tuple(r), kernel=kernel, n_point=n_point,
-                       n_directional=n_dir, n_ambient=n_amb, maps=maps, notes=tuple(notes))
+                       n_directional=n_dir, n_ambient=n_amb, maps=maps, notes=tuple(notes),
+                       groups=tuple(groups), aovs=tuple(a for a in AOV_NAMES if a in aovs))

@@ -15,14 +15,16 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.errors import DeviceError, GBufferError
+from ..core.errors import DeviceError, GBufferError, SceneError
 from ..core.geometry import split_hi_lo
 from ..core.memory import ENV_VAR, F32, format_size, memory_budget
 from ..io.nonfinite import apply_nonfinite_policy
+from ..model.scene import AOV_NAMES
 from ..model.options import (
     check_budget,
     check_float_power,
@@ -44,7 +46,7 @@ from .bands import (
 )
 from .culling import TileLists, build_tile_lists
 from .display import DisplayTransform, apply_display_transform, display_kernel_args
-from .frame import check_near_field, LOCAL_SIZE, Frame, material_uniforms, pack_lights, prepare_frame
+from .frame import LOCAL_SIZE, Frame, check_near_field, material_uniforms, pack_lights, prepare_frame
 from .plan import ShadingPlan, make_plan
 from .runtime import float4, get_runtime
 
@@ -80,6 +82,10 @@ class RenderResult:
         NaN/Inf counts per buffer, before the non-finite policy.
     bands : int
         Row bands the frame was shaded in (1: one launch).
+    layers : dict of str to numpy.ndarray
+        (H, W, 3) float32 layers from the same pass, α-premultiplied: one per
+        light group (:attr:`~clphong.model.scene.Scene.light_groups`), then
+        ``"diffuse"`` and ``"specular"`` where asked for; empty otherwise.
     """
 
     image: np.ndarray
@@ -89,6 +95,7 @@ class RenderResult:
     cull: TileLists | None = None
     nonfinite: dict = field(default_factory=dict)
     bands: int = 1
+    layers: dict = field(default_factory=dict)
 
     def __array__(self, dtype=None, copy=None):
         return self.image if dtype is None else self.image.astype(dtype)
@@ -155,8 +162,11 @@ class Renderer:
                  lanes: int | None = None, compensated: bool | None = None,
                  fp64_directions: bool | None = None, nonfinite: str = "background",
                  max_error: float | None = None, reference_white: float = 1.0,
-                 int_pow: bool | str | None = None, path: str | None = None):
+                 int_pow: bool | str | None = None, path: str | None = None,
+                 aovs: Sequence[str] = (), straight_alpha: bool = False):
         self.scene = scene
+        self.groups, self.aovs = check_layers(scene, aovs)
+        self.straight_alpha = bool(straight_alpha)
         if path is not None:
             if compensated is not None or fp64_directions is not None or int_pow is not None:
                 raise ValueError("give either path or fp64_directions/compensated/int_pow")
@@ -230,11 +240,13 @@ class Renderer:
         return plan
 
     def _plan_and_program(self, map_names, *, culling: bool = True,
-                          display: DisplayTransform | None = None):
+                          display: DisplayTransform | None = None, coverage: bool = False):
         plan = make_plan(self.scene, map_names, kernel=self.kernel_kind, lanes=self.lanes,
                          compensated=self.compensated, fp64_directions=self.fp64_directions,
                          display=display, max_error=self.max_error if culling else None,
-                         has_fp64=self.runtime.fast_fp64, int_pow=self.int_pow)
+                         has_fp64=self.runtime.fast_fp64, int_pow=self.int_pow,
+                         coverage=coverage, groups=self.groups, aovs=self.aovs,
+                         straight=self.straight_alpha)
         return plan, self.runtime.program(plan.entry_file, plan.defines)
 
     # ------------------------------------------------------------------ a whole frame
@@ -291,27 +303,34 @@ class Renderer:
                                f"{format_size(F32 * 3 * h * w)} output") from None
         kernel_s = upload_s = 0.0
         last = None
+        layers = {name: np.empty((h, w, 3), np.float32) for name in (*self.groups, *self.aovs)}
         for y0, y1 in bands:
             frame = prepare_frame(band_of(gbuffer, y0, y1), lanes=self.lanes)
             frame.origin = origin
             last = self._launch(frame, None)
             image[y0:y1] = last.image
+            for name, layer in last.layers.items():
+                layers[name][y0:y1] = layer
             kernel_s += last.stats.kernel_seconds
             upload_s += last.stats.upload_seconds
             del frame
         shown = None
         if display is not None:
-            shown = apply_display_transform(image, display, runtime=self.runtime,
+            shown_of = image
+            if self.straight_alpha and gbuffer.coverage is not None:
+                shown_of = straight_of(image, gbuffer.coverage, self.scene.background)
+            shown = apply_display_transform(shown_of, display, runtime=self.runtime,
                                             lanes=self.lanes if self.kernel_kind == "lanes" else None)
         stats = RenderStats(kernel_seconds=kernel_s, upload_seconds=upload_s,
                             total_seconds=time.perf_counter() - t0)
         return RenderResult(image=image, display=shown, plan=last.plan, stats=stats, cull=last.cull,
-                            nonfinite=nonfinite, bands=len(bands))
+                            nonfinite=nonfinite, bands=len(bands), layers=layers)
 
     def _band_rows(self, gbuffer, display: bool) -> int:
         """The rows one launch may shade (the memory model and the device's limits)."""
         h, w = gbuffer.shape
-        m = map_planes(gbuffer)
+        # the coverage plane, and per layer its device and host planes and (H, W, 3) array
+        m = map_planes(gbuffer) + 1 + 5 * (len(self.groups) + len(self.aovs))
         records = light_bytes(self.scene)
         max_alloc, global_mem = self.runtime.limits()
         if max_alloc is not None and records > max_alloc:
@@ -357,7 +376,8 @@ class Renderer:
         import pyopencl as cl
 
         t0 = time.perf_counter()
-        plan, prog = self._plan_and_program(frame.map_names, display=display)
+        plan, prog = self._plan_and_program(frame.map_names, display=display,
+                                            coverage=frame.coverage)
         lights = pack_lights(self.scene, frame.origin)
         check_near_field(self.scene, frame, lights, bool(plan.defines.get("DIRECTIONS_FP64")))
         k_d, S, k = material_uniforms(self.scene, frame.map_names)
@@ -380,7 +400,9 @@ class Renderer:
             amb_lo = split_hi_lo(lights.ambient)[1]
             pl = cl.Buffer(ctx, ro, hostbuf=lights.point64 if fp64 else lights.point)
             dl = cl.Buffer(ctx, ro, hostbuf=lights.directional)
-            out = np.empty((3, frame.stride), np.float32)
+            out = np.empty((3 * (1 + len(plan.layers)), frame.stride), np.float32)
+            gt = cl.Buffer(ctx, ro, hostbuf=lights.group_table)
+            ga = cl.Buffer(ctx, ro, hostbuf=lights.group_ambient)
             ob = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             bg = self.scene.background
             cull_args, cull = [], None
@@ -390,7 +412,7 @@ class Renderer:
                                         maps_buffer=mp)
                 if cull is None:   # lists too long to pay off: brute force
                     plan, prog = self._plan_and_program(frame.map_names, culling=False,
-                                                        display=display)
+                                                        display=display, coverage=frame.coverage)
                 else:
                     cull_args = cull.kernel_args()
             kern = self.runtime.kernel(prog, "shade")
@@ -400,7 +422,7 @@ class Renderer:
                 pl, np.uint32(plan.n_point), dl, np.uint32(plan.n_directional),
                 float4(*origin), float4(*eye), float4(*lights.ambient),
                 np.float32(k_d), float4(*S), np.float32(k), float4(*bg),
-                float4(*eye_lo), float4(*amb_lo, kd_lo), float4(*S_lo, k_lo),
+                float4(*eye_lo), float4(*amb_lo, kd_lo), float4(*S_lo, k_lo), gt, ga,
                 *display_args, *cull_args)
             items = frame.stride // self.lanes
             evt = cl.enqueue_nd_range_kernel(queue, kern, (items,), (LOCAL_SIZE,))
@@ -411,11 +433,41 @@ class Renderer:
             t2 = time.perf_counter()
         kernel_s = (evt.profile.end - evt.profile.start) * 1e-9
         h, w = frame.shape
-        image = np.ascontiguousarray(out[:, : h * w].T).reshape(h, w, 3)
+        image = np.ascontiguousarray(out[:3, : h * w].T).reshape(h, w, 3)
+        layers = {name: np.ascontiguousarray(out[3 + 3 * k:6 + 3 * k, : h * w].T).reshape(h, w, 3)
+                  for k, name in enumerate(plan.layers)}
         shown = None if disp is None else np.ascontiguousarray(disp[:, : h * w].T).reshape(h, w, 3)
         stats = RenderStats(kernel_seconds=kernel_s, upload_seconds=t2 - t1 - kernel_s,
                             total_seconds=time.perf_counter() - t0)
-        return RenderResult(image=image, display=shown, plan=plan, stats=stats, cull=cull)
+        return RenderResult(image=image, display=shown, plan=plan, stats=stats, cull=cull,
+                            layers=layers)
+
+
+def check_layers(scene, aovs) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(light-group layers, component layers) for ``aovs``: names from
+    :data:`~clphong.model.scene.AOV_NAMES` and the scene's light groups. Every
+    group of the scene is a layer unless ``aovs`` names some, then only those."""
+    if isinstance(aovs, str):
+        aovs = [a.strip() for a in aovs.split(",") if a.strip()]
+    valid = (*AOV_NAMES, *scene.light_groups)
+    for a in aovs:
+        if a not in valid:
+            groups = (f"light groups {', '.join(scene.light_groups)}" if scene.light_groups
+                      else "no light groups in the scene")
+            raise SceneError(f"{scene.source}: --aov {a!r} is neither a component "
+                             f"({', '.join(AOV_NAMES)}) nor a light group ({groups})")
+    named = tuple(g for g in scene.light_groups if g in aovs)
+    return (named or scene.light_groups), tuple(a for a in AOV_NAMES if a in aovs)
+
+
+def straight_of(image, coverage, background) -> np.ndarray:
+    """The straight shade S from the beauty α·S + (1 − α)·background (where α > 0;
+    the background elsewhere): the banded path's display input with straight alpha."""
+    a = np.asarray(coverage, np.float32)[..., None]
+    bg = np.asarray(background, np.float32)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (image - (1 - a) * bg) / a
+    return np.where(a > 0, s, bg).astype(np.float32)
 
 
 def render(scene, gbuffer, **kwargs) -> np.ndarray:

@@ -78,6 +78,7 @@ not fit in memory (see :mod:`clphong.device.bands`).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import sys
 import tempfile
@@ -768,8 +769,13 @@ def _detect_main(f: _ExrFile, needed: Sequence[str]) -> _Layout:
 
 def read_gbuffer(path: str | os.PathLike | None = None, *, position: str | os.PathLike | None = None,
                  normal: str | os.PathLike | None = None, albedo: str | os.PathLike | None = None,
-                 channels: Mapping[str, str | Sequence[str]] | None = None) -> GBuffer:
+                 channels: Mapping[str, str | Sequence[str]] | None = None,
+                 premultiplied: bool | None = None) -> GBuffer:
     """Read a G-buffer from one multichannel EXR or from separate files.
+
+    Partly covered pixels are made shadeable by :func:`resolve_coverage`:
+    ``premultiplied`` (default: by convention, True for
+    :data:`PREMULTIPLIED_CONVENTIONS`) divides albedo and maps by coverage there.
 
     Parameters
     ----------
@@ -906,9 +912,83 @@ def read_gbuffer(path: str | os.PathLike | None = None, *, position: str | os.Pa
     finally:
         for f in files.values():
             f.close()
-    return GBuffer(position=arrays["position"], normal=arrays["normal"], albedo=arrays["albedo"],
-                   coverage=coverage, maps={k: maps[k] for k in MAP_KEYS if k in maps},
-                   convention=convention, sources=sources, attributes=attributes)
+    gb = GBuffer(position=arrays["position"], normal=arrays["normal"], albedo=arrays["albedo"],
+                 coverage=coverage, maps={k: maps[k] for k in MAP_KEYS if k in maps},
+                 convention=convention, sources=sources, attributes=attributes)
+    if premultiplied is None:
+        premultiplied = convention in PREMULTIPLIED_CONVENTIONS
+    return resolve_coverage(gb, premultiplied=premultiplied)
+
+
+#: Conventions whose renderers filter every pass over the pixel's samples, so
+#: that a partly covered pixel's albedo and maps are premultiplied by coverage
+#: (background samples add 0): Cycles/EEVEE, Arnold, Mitsuba 3's aov integrator.
+PREMULTIPLIED_CONVENTIONS = ("blender", "arnold", "mitsuba")
+#: How far (in pixels, Chebyshev) :func:`resolve_coverage` looks for a covered
+#: neighbour whose position stands in for an edge pixel's missing one.
+EDGE_SEARCH = 2
+
+
+def resolve_coverage(gb: GBuffer, *, premultiplied: bool) -> GBuffer:
+    """Make a partly covered pixel shadeable: straight albedo, a real position.
+
+    * ``premultiplied``: albedo and the colour and weight maps (``k_d``,
+      ``k_s``, ``specular_color``; not ``shininess``, an exponent) are divided
+      by the coverage where ``0 < coverage < 1``. The normal needs nothing: it
+      is normalised anyway.
+    * A partly covered pixel whose position is exactly (0, 0, 0) holds no
+      surface point: Blender writes Position from the pixel's first sample
+      only, and a background first sample gives 0. It is never shaded there:
+      it takes the position of the nearest covered pixel that has one (its
+      own first sample hit a surface) within :data:`EDGE_SEARCH` pixels (the
+      nearest first, ties in row order, among those whose normal faces the
+      same way, n·n' > 0); with none, the pixel is background (not shaded).
+
+    Both are counted in ``attributes["clphong:coverage"]`` (for ``inspect``).
+    """
+    cov = gb.coverage
+    if cov is None:
+        return gb
+    partial = (cov > 0) & (cov < 1)
+    if not partial.any():
+        return gb
+    albedo, maps, position, normal = gb.albedo, dict(gb.maps), gb.position, gb.normal
+    ys, xs = np.nonzero(partial)
+    counts = {"partial": int(ys.size), "unpremultiplied": 0, "edge_positions": 0, "edge_background": 0}
+    if premultiplied:
+        a = cov[ys, xs][:, None]
+        albedo = albedo.copy()
+        albedo[ys, xs] = albedo[ys, xs] / a
+        for key in ("k_d", "k_s", "specular_color"):
+            if key in maps:
+                m = maps[key].copy()
+                m[ys, xs] = m[ys, xs] / (a if m.ndim == 3 else a[:, 0])
+                maps[key] = m
+        counts["unpremultiplied"] = int(ys.size)
+    hole = ~position[ys, xs].any(axis=1)
+    if hole.any():
+        position, normal = position.copy(), normal.copy()
+        h, w = cov.shape
+        hit = (cov > 0) & position.any(axis=-1)          # the pixel's centre ray hit a surface
+        by, bx = ys[hole], xs[hole]
+        todo = np.ones(by.size, bool)
+        rings = sorted(((dy, dx) for dy in range(-EDGE_SEARCH, EDGE_SEARCH + 1)
+                        for dx in range(-EDGE_SEARCH, EDGE_SEARCH + 1) if dy or dx),
+                       key=lambda o: (max(abs(o[0]), abs(o[1])), o[0] * o[0] + o[1] * o[1]))
+        for dy, dx in rings:
+            ny, nx = by + dy, bx + dx
+            inside = todo & (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w)
+            ny, nx = np.clip(ny, 0, h - 1), np.clip(nx, 0, w - 1)
+            facing = (normal[by, bx].astype(np.float64) * normal[ny, nx]).sum(axis=1) > 0
+            take = inside & hit[ny, nx] & facing
+            position[by[take], bx[take]] = position[ny[take], nx[take]]
+            todo &= ~take
+        normal[by[todo], bx[todo]] = 0.0                     # no stand-in: background
+        counts["edge_positions"] = int((~todo).sum())
+        counts["edge_background"] = int(todo.sum())
+    attributes = {**gb.attributes, "clphong:coverage": counts}
+    return dataclasses.replace(gb, position=position, normal=normal, albedo=albedo, maps=maps,
+                               attributes=attributes)
 
 
 def _check_read_memory(files: Mapping[str, _ExrFile], wanted: Mapping[str, list[str]]) -> None:
@@ -1051,6 +1131,10 @@ def write_gbuffer(path: str | os.PathLike, position: np.ndarray, normal: np.ndar
 
         - generic: ``P.X/Y/Z``, ``N.X/Y/Z``, ``albedo.R/G/B``, ``A``,
           ``k_d``, ``k_s``, ``shininess``, ``specular_color.R/G/B``;
+        Partly covered pixels' albedo and colour/weight maps are written
+        premultiplied by coverage in the conventions that store them so
+        (:data:`PREMULTIPLIED_CONVENTIONS`).
+
         - blender / blender-new: ``<layer>.Position.X/Y/Z``,
           ``<layer>.Normal.X/Y/Z``, ``<layer>.DiffCol.R/G/B`` (blender-new:
           ``<layer>.Diffuse Color.R/G/B``), coverage as
@@ -1100,6 +1184,13 @@ def write_gbuffer(path: str | os.PathLike, position: np.ndarray, normal: np.ndar
     planes["image"] = gb.albedo * (cov[..., None] if cov is not None else np.float32(1))
     for k, v in gb.maps.items():
         planes[k] = v if v.ndim == 3 else v[..., None]
+    read_as = "blender" if convention == "blender-new" else convention
+    if cov is not None and read_as in PREMULTIPLIED_CONVENTIONS:
+        # as those renderers store them (read_gbuffer divides them by coverage again)
+        partial = ((cov > 0) & (cov < 1))[..., None]
+        for k in ("albedo", "k_d", "k_s", "specular_color"):
+            if k in planes:
+                planes[k] = np.where(partial, planes[k] * cov[..., None], planes[k])
     names: list[str] = []
     data: list[np.ndarray] = []
     for key, chans in _channel_layout(convention, layer, cov is not None, gb.maps):

@@ -456,6 +456,14 @@ class Scene:
         (N, 3) each (c0, c1, c2); ``directional_direction``,
         ``directional_radiance`` (M, 3); ``ambient_radiance`` (3,), the sum of
         the ambient lights' radiance (before k_a).
+
+        With light groups (:attr:`light_groups`) the point and directional
+        lights are in group order (stable: file order within a group), as the
+        kernels sum them group by group; ``point_index`` and
+        ``directional_index`` give each one's index in :attr:`lights`;
+        ``point_group_end`` and ``directional_group_end`` (G,) the end of each
+        group's run, and ``ambient_group_radiance`` (G, 3) each group's summed
+        ambient radiance.
         """
         import numpy as np
 
@@ -464,14 +472,47 @@ class Scene:
             a.setflags(write=False)
             return a
 
-        pts, dirs = self.lights_of("point"), self.lights_of("directional")
+        def frozen(a):
+            a = np.asarray(a)
+            a.setflags(write=False)
+            return a
+
+        groups = self.light_groups
+        rank = {g: k for k, g in enumerate(groups)}
+
+        def in_group_order(type_):
+            idx = [i for i, lt in enumerate(self.lights) if lt.type == type_]
+            idx.sort(key=lambda i: rank.get(self.lights[i].group_name, 0))
+            return idx, [self.lights[i] for i in idx]
+
+        pi, pts = in_group_order("point")
+        di, dirs = in_group_order("directional")
         amb = table(self.lights_of("ambient"), "radiance").sum(axis=0)
         amb.setflags(write=False)
+        ends = {}
+        for name, lts in (("point", pts), ("directional", dirs)):
+            gid = np.array([rank.get(lt.group_name, 0) for lt in lts], int)
+            ends[name] = frozen(np.searchsorted(gid, np.arange(len(groups)), side="right"))
+        amb_g = np.zeros((len(groups), 3))
+        for lt in self.lights_of("ambient") if groups else ():
+            amb_g[rank[lt.group_name]] += lt.radiance
         return MappingProxyType({
             "point_position": table(pts, "position"), "point_radiance": table(pts, "radiance"),
             "point_attenuation": table(pts, "attenuation"),
             "directional_direction": table(dirs, "direction"),
-            "directional_radiance": table(dirs, "radiance"), "ambient_radiance": amb})
+            "directional_radiance": table(dirs, "radiance"), "ambient_radiance": amb,
+            "point_index": frozen(np.array(pi, int)), "directional_index": frozen(np.array(di, int)),
+            "point_group_end": ends["point"], "directional_group_end": ends["directional"],
+            "ambient_group_radiance": frozen(amb_g)})
+
+    @cached_property
+    def light_groups(self) -> tuple[str, ...]:
+        """The light-group layers, in first-appearance order: () unless some light
+        has a ``group``; then every light's :attr:`Light.group_name` (``"default"``
+        for a light without one)."""
+        if not any(lt.group is not None for lt in self.lights):
+            return ()
+        return tuple(dict.fromkeys(lt.group_name for lt in self.lights))
 
     def to_dict(self) -> dict:
         """The scene as plain dicts, lists, floats and strings.

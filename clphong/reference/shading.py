@@ -13,6 +13,7 @@ to the reference with exactly this bound; nothing is tuned to pass.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -324,8 +325,18 @@ def ambient_radiance(scene) -> np.ndarray:
     return scene.light_arrays["ambient_radiance"] * scene.material.k_a
 
 
+def shade_straight(scene, gbuffer) -> np.ndarray:
+    """:func:`shade` before coverage: the straight shade S (the background where not shaded)."""
+    return shade(scene, dataclasses.replace(gbuffer, coverage=_binary(gbuffer.coverage)))
+
+
+def _binary(cov):
+    return None if cov is None else np.where(np.asarray(cov) > 0, np.float32(1), np.float32(0))
+
+
 def shade(scene, gbuffer) -> np.ndarray:
-    """E = E_A + Σ_i (E_D + E_S)_i·attenuation_i per pixel, (H, W, 3) float64."""
+    """E = E_A + Σ_i (E_D + E_S)_i·attenuation_i per pixel, (H, W, 3) float64;
+    with partial coverage, α·E + (1 − α)·background (:func:`cover`)."""
     H, W = gbuffer.shape
     out = np.empty((H * W, 3))
     out[:] = np.asarray(scene.background, np.float64)
@@ -334,7 +345,26 @@ def shade(scene, gbuffer) -> np.ndarray:
     for _, L, _, diffuse, specular in _light_terms(scene, px):
         E += np.sum(L * (D * diffuse[..., None] + S * specular[..., None]), axis=0)
     out[fg] = E
-    return finish_sum(out).reshape(H, W, 3)
+    return cover(finish_sum(out), gbuffer, scene.background).reshape(H, W, 3)
+
+
+def partial_coverage(gbuffer):
+    """(H·W,) float64 coverage where some pixel is partly covered (0 < α < 1), else None:
+    only then do the kernels apply it (COVERAGE, clphong/device/plan.py)."""
+    cov = gbuffer.coverage
+    if cov is None:
+        return None
+    a = np.asarray(cov, np.float64).reshape(-1)
+    return a if ((a > 0) & (a < 1)).any() else None
+
+
+def cover(E, gbuffer, background):
+    """The kernels' COVERAGE store: α·S + (1 − α)·background per pixel ((H·W, 3)
+    rows); None's twin is the identity. A layer (light group, AOV) has background 0."""
+    a = partial_coverage(gbuffer)
+    if a is None:
+        return E
+    return a[:, None] * E + (1.0 - a[:, None]) * np.asarray(background, np.float64)
 
 
 
@@ -532,5 +562,12 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     B[unbounded] = np.inf          # float path out of its range (see docs/error-model.md)
     bound[fg] = 2.0 * B
     # Background pixels: the background value rounded to float32.
-    bound[~fg] = U * np.abs(np.asarray(scene.background, np.float64))
+    bg_abs = np.abs(np.asarray(scene.background, np.float64))
+    bound[~fg] = U * bg_abs
+    a = partial_coverage(gbuffer)
+    if a is not None:
+        # COVERAGE: fl(α·S + fl(fl(1 − α)·bg)): α scales S's error; 1 − α, the product
+        # and the fused add round once each (3u of α|S| + |bg|, doubled).
+        ref = np.abs(shade_straight(scene, gbuffer)).reshape(-1, 3)
+        bound = a[:, None] * bound + 6.0 * U * (a[:, None] * ref + bg_abs)
     return bound.reshape(H, W, 3), band.reshape(H, W)

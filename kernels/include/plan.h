@@ -21,6 +21,14 @@
  *                    (clphong/device/culling.py)
  *   CULL_TILE        with CULLING: screen tile edge of the lists, pixels (the culling
  *                    pass's TILE, clphong/device/culling.py, which builds them)
+ *   COVERAGE         gbuf plane 12 is the coverage α: outputs are α-premultiplied,
+ *                    the beauty over the background (α·S + (1 − α)·background)
+ *   N_GROUPS         number of light-group layers (0: none); the host sorts lights by group
+ *   AOV_DIFFUSE, AOV_SPECULAR   the diffuse (with ambient) and specular layers
+ *   DISPLAY_STRAIGHT the fused display output takes the straight (un-premultiplied)
+ *                    shade, for an output with straight alpha
+ *
+ * shade_obvious.cl shades the beauty only: the plan refuses layers for it.
  *
  * shade_obvious.cl reads no culling lists: it sets CULLING = 0 itself. The plan
  * sets BLINN_CONST_H, COMPENSATED_SUM and HAS_ATTENUATION for it too, unused.
@@ -66,6 +74,21 @@
 #endif
 #ifndef CULLING
 #error "CULLING must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef COVERAGE
+#error "COVERAGE must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef N_GROUPS
+#error "N_GROUPS must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef AOV_DIFFUSE
+#error "AOV_DIFFUSE must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef AOV_SPECULAR
+#error "AOV_SPECULAR must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef DISPLAY_STRAIGHT
+#error "DISPLAY_STRAIGHT must be set by the shading plan (clphong/device/plan.py)"
 #endif
 /* CULL_TILE is read only with CULLING (shade.cl's tile of a work-item): only then
    is it required. */
