@@ -13,12 +13,14 @@ import contextlib
 import os
 import sys
 import time
+from importlib import metadata
 from pathlib import Path
 
+from .. import __version__
 from ..color.ocio import WORKING_SPACES, load_config
 from ..core.errors import ClphongError, OutputError
 from ..deliver.outputs import OutputOptions, OutputPaths, check_outputs, render_outputs
-from ..deliver.writers import EXR_COMPRESSIONS, SDR_BITS
+from ..deliver.writers import EXR_COMPRESSIONS, SDR_BITS, check_compression
 from ..device.renderer import Renderer
 from ..device.runtime import get_runtime, list_devices
 from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
@@ -66,11 +68,21 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def _version() -> str:
+    """The installed distribution's version; the package's own where it is not installed."""
+    try:
+        return metadata.version("clphong")
+    except metadata.PackageNotFoundError:
+        return __version__
+
+
 def _build_parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="clphong",
         description="OpenCL image-space Phong relighting of EXR G-buffers.",
     )
+    p.add_argument("--version", action="version", version=f"clphong {_version()}",
+                   help="print clphong's version and exit")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -251,7 +263,8 @@ def _renderer_options(args) -> dict:
     """Relighter/Renderer keyword arguments from the renderer options, validated (one-line errors)."""
     opts = dict(path=None if args.path == "accurate" else args.path,
                 max_error=args.max_error, reference_white=args.reference_white,
-                nonfinite=getattr(args, "nonfinite", "background"))
+                nonfinite=getattr(args, "nonfinite", "background"),
+                aovs=tuple(a.strip() for a in (getattr(args, "aov", None) or "").split(",") if a.strip()))
     check_renderer_options(**opts)
     return opts
 
@@ -532,6 +545,14 @@ def cmd_diff(args) -> int:
     return 0 if result.match else 1
 
 
+def _exr_compression(value: str) -> str:
+    """``--exr-compression``: :func:`check_compression`'s value, or a one-line usage error."""
+    try:
+        return check_compression(value)
+    except OutputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _add_color_options(r, templates: bool = False):
     """Tone mapping, colour management and output options of 'render' and 'relight'."""
     what = "TEMPLATE" if templates else "OUT"
@@ -555,7 +576,11 @@ def _add_color_options(r, templates: bool = False):
     o = r.add_argument_group("outputs (any combination; see 'clphong displays' for names)")
     o.add_argument("--exr-type", choices=PIXEL_TYPES, default="float",
                    help="EXR pixel type (--half is the same as --exr-type half)")
-    o.add_argument("--exr-compression", choices=EXR_COMPRESSIONS, default="zip")
+    o.add_argument("--exr-compression", type=_exr_compression, default="zip", metavar="NAME[:LEVEL]",
+                   help=f"EXR compression: {', '.join(EXR_COMPRESSIONS)} (default zip); lossy: "
+                        "pxr24, b44, b44a, dwaa, dwab. A level after a colon: zip:L or zips:L, L "
+                        "from 1 to 9 (zlib, default 4); dwaa:N or dwab:N, N a whole number >= 1 "
+                        "(default 45; larger is smaller and lossier)")
     o.add_argument("--sdr", action="append", default=[], metavar=f"{what}.png|{what}.tif",
                    help=f"display-referred SDR image{per}; repeatable")
     o.add_argument("--bits", type=int, choices=SDR_BITS, default=8, help="SDR bit depth")
@@ -565,6 +590,13 @@ def _add_color_options(r, templates: bool = False):
                         "repeatable")
     o.add_argument("--hdr-view", help="OCIO view of the HDR output on 'Rec.2100-PQ - Display' "
                                       "(default 'ACES 2.0 - HDR 1000 nits (Rec.2020)')")
+    o.add_argument("--alpha", action="store_true",
+                   help="give the SDR and HDR outputs a straight alpha channel (coverage); the EXR "
+                        "always has A, with RGB premultiplied; JPEG cannot hold one")
+    o.add_argument("--aov", metavar="NAME[,NAME]",
+                   help="extra EXR layers from the same pass: diffuse (with ambient), specular, "
+                        "or light-group names (only those groups; by default every group of a "
+                        "scene whose lights have 'group')")
     o.add_argument("--contact-sheet", metavar=f"{what}.png",
                    help=f"PNG of the frame through every operator and view, labelled{per}")
 
@@ -575,7 +607,8 @@ def _output_options(args):
         pixel_type="half" if args.half else args.exr_type, compression=args.exr_compression,
         bits=args.bits, dither=not args.no_dither, working_space=args.working_space,
         exposure=args.exposure, tonemap=args.tonemap, white=args.white, display=args.display,
-        view=args.view, look=args.look, hdr_view=args.hdr_view, ocio_config=args.ocio_config)
+        view=args.view, look=args.look, hdr_view=args.hdr_view, ocio_config=args.ocio_config,
+        alpha=args.alpha)
 
 
 def _output_paths(args, exr):

@@ -24,6 +24,7 @@ of one frame, by kind). Every file is written atomically
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import functools
 import os
@@ -37,6 +38,7 @@ from ..color import ocio as color
 from ..core.errors import OutputError, OutputWarning
 from ..core.memory import output_bytes, require_memory
 from ..device.display import DisplayTransform
+from ..device.renderer import straight_of
 from ..io.atomic import check_pixel_type, same_file
 from ..model import tonemap
 from ..model.options import check_exposure
@@ -101,6 +103,9 @@ class OutputOptions:
         OCIO view of the HDR output (default :data:`clphong.color.ocio.HDR_VIEW`).
     ocio_config : str, optional
         OCIO config (default ``$OCIO``, else the built-in one).
+    alpha : bool
+        Give the SDR and HDR outputs a straight (un-premultiplied) alpha channel
+        (``--alpha``); the EXR always has ``A``, with RGB premultiplied.
     from_scene : tuple of str
         The colour settings :meth:`for_scene` took from the scene (for messages;
         not compared).
@@ -122,6 +127,7 @@ class OutputOptions:
     look: str | None = None
     hdr_view: str | None = None
     ocio_config: str | None = None
+    alpha: bool = False
     from_scene: tuple = field(default=(), compare=False, repr=False)
     scene_source: str | None = field(default=None, compare=False, repr=False)
 
@@ -348,7 +354,8 @@ def _warn_unused(options: OutputOptions, paths: OutputPaths) -> None:
             "only 'reinhard-extended' and 'hable' use it"), stacklevel=3)
 
 
-def write_output(rgb: np.ndarray, path: str | os.PathLike, options: OutputOptions | None = None) -> None:
+def write_output(rgb: np.ndarray, path: str | os.PathLike, options: OutputOptions | None = None,
+                 *, alpha: np.ndarray | None = None, layers: dict | None = None) -> None:
     """Write a scene-linear (H, W, 3) frame as an EXR tagged with the options' working space.
 
     Parameters
@@ -360,6 +367,10 @@ def write_output(rgb: np.ndarray, path: str | os.PathLike, options: OutputOption
     options : OutputOptions, optional
         Pixel type, compression, extra attributes and working space (default:
         float32, zip, linear Rec.709).
+    alpha : numpy.ndarray, optional
+        (H, W) coverage, written as ``A`` (``rgb`` premultiplied by it).
+    layers : dict, optional
+        Name -> (H, W, 3) layers (light groups, AOVs), written as ``NAME.R/G/B``.
 
     Raises
     ------
@@ -370,7 +381,17 @@ def write_output(rgb: np.ndarray, path: str | os.PathLike, options: OutputOption
     options = (options or OutputOptions()).checked()
     ws = color.working_space(options.working_space or "lin_rec709")
     write_scene_linear(path, rgb, ws, pixel_type=options.pixel_type,
-                       compression=options.compression, attributes=dict(options.attributes))
+                       compression=options.compression, attributes=dict(options.attributes),
+                       alpha=alpha, layers=layers)
+
+
+def coverage_of(gbuffer) -> np.ndarray:
+    """The frame's coverage as written in ``A``: the G-buffer's, 0 on background
+    pixels (not shaded), 1 on every other pixel of a G-buffer without one."""
+    covered = ~gbuffer.background_mask()
+    if gbuffer.coverage is None:
+        return covered.astype(np.float32)
+    return np.where(covered, np.clip(gbuffer.coverage, 0, 1), 0).astype(np.float32)
 
 
 def _check_output_memory(shape, paths: OutputPaths) -> None:
@@ -424,13 +445,22 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
                               matrix=matrix)
     else:
         dt = None
+    if options.alpha and not renderer.straight_alpha:
+        # the fused display output takes the straight shade (DISPLAY_STRAIGHT)
+        renderer = copy.copy(renderer)
+        renderer.straight_alpha = True
     result = renderer.render(gbuffer, display=dt)
     rgb, shown = result.image, result.display
     times["shade"] = time.perf_counter() - t_shade
+    alpha = coverage_of(gbuffer)
+    straight = None
+    if options.alpha:
+        # the display outputs' straight colour: un-premultiplied (the fused path has it)
+        straight = straight_of(rgb, alpha, renderer.scene.background)
     if paths.exr:
         t0 = time.perf_counter()
         for path in paths.exr:
-            write_output(rgb, path, options)
+            write_output(rgb, path, options, alpha=alpha, layers=result.layers)
         times["exr"] = time.perf_counter() - t0
     if paths.sdr:
         t0 = time.perf_counter()
@@ -438,20 +468,23 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
             space, cicp = color.SRGB_DISPLAY_INTEROP, color.SRGB_CICP
         else:
             display, view, looks = cfg.check_display_view(options.display, options.view, options.look)
-            shown = cfg.display_view(rgb, ws, display, view, looks, exposure=options.exposure)
+            shown = cfg.display_view(rgb if straight is None else straight, ws, display, view, looks,
+                                     exposure=options.exposure)
             cs = cfg.display_colorspace(display, view)
             space, cicp = cfg.interop_id(cs), cfg.cicp(cs)
         for path in paths.sdr:
-            write_sdr(path, shown, bits=options.bits, dither=options.dither, colorspace=space, cicp=cicp)
+            write_sdr(path, shown, bits=options.bits, dither=options.dither, colorspace=space, cicp=cicp,
+                      alpha=alpha if options.alpha else None)
         times["sdr"] = time.perf_counter() - t0
     if paths.hdr:
         t0 = time.perf_counter()
         hdr_view = options.hdr_view or color.HDR_VIEW
-        pq = cfg.display_view(rgb, ws, color.HDR_DISPLAY, hdr_view, options.look,
-                              exposure=options.exposure)
+        pq = cfg.display_view(rgb if straight is None else straight, ws, color.HDR_DISPLAY,
+                              hdr_view, options.look, exposure=options.exposure)
         space = cfg.display_colorspace(color.HDR_DISPLAY, hdr_view)
         for path in paths.hdr:
-            write_hdr(path, pq, colorspace=cfg.interop_id(space), cicp=color.PQ_CICP)
+            write_hdr(path, pq, colorspace=cfg.interop_id(space), cicp=color.PQ_CICP,
+                      alpha=alpha if options.alpha else None)
         times["hdr"] = time.perf_counter() - t0
     if paths.contact_sheet:
         t0 = time.perf_counter()

@@ -956,6 +956,8 @@ def resolve_coverage(gb: GBuffer, *, premultiplied: bool) -> GBuffer:
     ys, xs = np.nonzero(partial)
     counts = {"partial": int(ys.size), "unpremultiplied": 0, "edge_positions": 0, "edge_background": 0}
     if premultiplied:
+        np_err = np.errstate(all="ignore")       # non-finite inputs: the nonfinite policy's
+        np_err.__enter__()
         a = cov[ys, xs][:, None]
         albedo = albedo.copy()
         albedo[ys, xs] = albedo[ys, xs] / a
@@ -965,6 +967,7 @@ def resolve_coverage(gb: GBuffer, *, premultiplied: bool) -> GBuffer:
                 m[ys, xs] = m[ys, xs] / (a if m.ndim == 3 else a[:, 0])
                 maps[key] = m
         counts["unpremultiplied"] = int(ys.size)
+        np_err.__exit__(None, None, None)
     hole = ~position[ys, xs].any(axis=1)
     if hole.any():
         position, normal = position.copy(), normal.copy()

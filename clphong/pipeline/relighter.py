@@ -156,6 +156,7 @@ class RelighterSpec:
     reference_white: float = 1.0
     nonfinite: str = "background"
     path: str | None = None
+    aovs: tuple = ()
 
     def __post_init__(self):
         check_renderer_options(fp64_directions=self.fp64_directions, max_error=self.max_error,
@@ -167,11 +168,11 @@ class RelighterSpec:
                          channels=dict(self.channels) or None, output=self.output,
                          fp64_directions=self.fp64_directions, max_error=self.max_error,
                          reference_white=self.reference_white, nonfinite=self.nonfinite,
-                         path=self.path)
+                         path=self.path, aovs=self.aovs)
 
 
 def check_renderer_options(*, fp64_directions=None, max_error=None, reference_white=1.0,
-                           nonfinite="background", path=None) -> None:
+                           nonfinite="background", path=None, aovs=()) -> None:
     """Check the renderer options of a :class:`Relighter` without compiling anything.
 
     Raises
@@ -252,7 +253,7 @@ class Relighter:
                  lanes: int | None = None, channels: Mapping | None = None,
                  output: OutputOptions | None = None, fp64_directions: bool | None = None,
                  max_error: float | None = None, reference_white: float = 1.0,
-                 nonfinite: str = "background", path: str | None = None):
+                 nonfinite: str = "background", path: str | None = None, aovs=()):
         # Renderer options first: a bad value fails before the scene is read or compiled.
         check_renderer_options(fp64_directions=fp64_directions, max_error=max_error,
                                reference_white=reference_white, nonfinite=nonfinite, path=path)
@@ -264,12 +265,12 @@ class Relighter:
         self.renderer = Renderer(scene, device=device, kernel=kernel, lanes=lanes,
                                  fp64_directions=fp64_directions, max_error=max_error,
                                  reference_white=reference_white, nonfinite=nonfinite,
-                                 path=path)
+                                 path=path, aovs=aovs, straight_alpha=self.output.alpha)
         self.spec = RelighterSpec(scene=scene, device=device, kernel=kernel, lanes=lanes,
                                   channels=_hashable_channels(channels), output=self.output,
                                   fp64_directions=fp64_directions, max_error=max_error,
                                   reference_white=reference_white, nonfinite=nonfinite,
-                                  path=path)
+                                  path=path, aovs=tuple(aovs))
 
     @property
     def camera_from_metadata(self) -> bool:

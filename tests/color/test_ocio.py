@@ -266,7 +266,7 @@ def test_writers_reject_wrong_extensions(tmp_path):
     from clphong.deliver.writers import write_hdr, write_sdr
 
     with pytest.raises(OutputError, match=r"\.png or \.tif"):
-        write_sdr(tmp_path / "a.jpg", np.zeros((2, 2, 3)))
+        write_sdr(tmp_path / "a.bmp", np.zeros((2, 2, 3)))
     with pytest.raises(OutputError, match=r"\.png or \.jxl"):
         write_hdr(tmp_path / "a.exr", np.zeros((2, 2, 3)))
     assert not list(tmp_path.iterdir())

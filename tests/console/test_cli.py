@@ -22,7 +22,8 @@ def _read(path):
     inp = oiio.ImageInput.open(str(path))
     assert inp, oiio.geterror()
     spec = inp.spec()
-    px = inp.read_image(oiio.FLOAT)
+    # R, G, B (an EXR's A is the coverage, checked on its own)
+    px = inp.read_image(0, 0, 0, 3, oiio.FLOAT)
     inp.close()
     return spec, px
 
@@ -33,8 +34,14 @@ def test_render_single_file_in_process(tmp_path):
     out = tmp_path / "out.exr"
     assert main(["render", *SPHERES, "-o", str(out)]) == 0
     spec, px = _read(out)
-    assert list(spec.channelnames) == ["R", "G", "B"]
+    assert list(spec.channelnames) == ["R", "G", "B", "A"]        # A: coverage, RGB premultiplied
     assert spec.format == oiio.FLOAT
+    from clphong.io.gbuffer import read_gbuffer
+    inp = oiio.ImageInput.open(str(out))
+    alpha = np.asarray(inp.read_image(0, 0, 3, 4, oiio.FLOAT))[..., 0]
+    inp.close()
+    gb = read_gbuffer(SPHERES[1])
+    assert np.array_equal(alpha, np.where(gb.background_mask(), 0.0, 1.0))
     # OIIO may read the tag back under another alias of the same OCIO space.
     assert oiio.ColorConfig().equivalent(spec.getattribute("oiio:ColorSpace"),
                                          "Linear Rec.709 (sRGB)")

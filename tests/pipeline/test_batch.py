@@ -55,7 +55,8 @@ def _read(path):
 
     inp = oiio.ImageInput.open(str(path))
     assert inp, oiio.geterror()
-    px = inp.read_image(oiio.FLOAT)
+    # R, G, B (an EXR's A is the coverage, checked on its own)
+    px = inp.read_image(0, 0, 0, 3, oiio.FLOAT)
     inp.close()
     return np.asarray(px)
 

@@ -28,7 +28,8 @@ def _read(path):
 
     inp = oiio.ImageInput.open(str(path))
     assert inp, oiio.geterror()
-    px = inp.read_image(oiio.FLOAT)
+    # R, G, B (an EXR's A is the coverage, checked on its own)
+    px = inp.read_image(0, 0, 0, 3, oiio.FLOAT)
     inp.close()
     return np.asarray(px)
 
@@ -200,8 +201,8 @@ def test_relighter_output_errors_are_clear_and_early(tmp_path):
     with pytest.raises(ToneMapError, match="filmic"):
         Relighter(SPHERES[0], output=clphong.OutputOptions(tonemap="filmic"))
     r = Relighter(_aces_spheres(tmp_path))
-    with pytest.raises(OutputError, match=r"x\.jpg: a SDR output must end in \.png"):
-        r.relight(str(SPHERES[1]), out=tmp_path / "x.exr", sdr=tmp_path / "x.jpg")
+    with pytest.raises(OutputError, match=r"x\.bmp: a SDR output must end in \.png"):
+        r.relight(str(SPHERES[1]), out=tmp_path / "x.exr", sdr=tmp_path / "x.bmp")
     with pytest.raises(OutputError, match="overwrite the input"):
         r.relight(str(SPHERES[1]), sdr=SPHERES[1])
     assert not list(tmp_path.glob("x.*"))       # checked before anything was written
