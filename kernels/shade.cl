@@ -195,107 +195,94 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
 #if COVERAGE
     const floatL alpha = vloadL(i, gbuf + 12 * stride);
 #endif
+/* The beauty's term of one light (its radiance × falloff L, weights w): one
+   expression, so that the compiler contracts it with the sum exactly as it did
+   before the layers existed (bit-identical beauty with or without them). */
+#define ADD_BEAUTY(s, c, L, D, S, w) ACCUMULATE(s, c, (L) * MUL_ADD(D, (w).diffuse, (S) * (w).specular))
 #if N_GROUPS
-    /* Light groups: the host sorts the lights by group; group g's directional
-       lights are [dir_end[g-1], dir_end[g]), its point lights those below
-       point_end[g] (group_table = dir_end[0..G-1], point_end[0..G-1]). Each group
-       is summed on its own (from its own ambient term) beside the beauty sum. */
-#if HAS_POINT && CULLING
-    /* the tile's list, walked once across the groups (it is in light order) */
-#endif
-    uint m_next = 0u;
-    for (uint g = 0; g < N_GROUPS; ++g) {
-        const float4 A_g = group_ambient[2 * g], A_lo = group_ambient[2 * g + 1];
-        sumL gr = TO_SUM(FLOAT_TO_W(Cr) * W_HI_LO(A_g.x, A_lo.x));
-        sumL gg = TO_SUM(FLOAT_TO_W(Cg) * W_HI_LO(A_g.y, A_lo.y));
-        sumL gb = TO_SUM(FLOAT_TO_W(Cb) * W_HI_LO(A_g.z, A_lo.z));
-        floatL gcr = (floatL)(0.0f), gcg = (floatL)(0.0f), gcb = (floatL)(0.0f);
-        const uint d_begin = g ? group_table[g - 1] : 0u, d_end = group_table[g];
-        const uint p_end = group_table[N_GROUPS + g];
-#define GROUP_ADD(xr, xg, xb) do { ACCUMULATE(gr, gcr, xr); ACCUMULATE(gg, gcg, xg); \
-                                   ACCUMULATE(gb, gcb, xb); } while (0)
+#define ADD_GROUP(Lr, Lg, Lb, w) do { ADD_BEAUTY(gr, gcr, Lr, Dr_w, Sr_w, w); \
+        ADD_BEAUTY(gg, gcg, Lg, Dg_w, Sg_w, w); ADD_BEAUTY(gb, gcb, Lb, Db_w, Sb_w, w); } while (0)
 #else
-#define GROUP_ADD(xr, xg, xb) do { } while (0)
+#define ADD_GROUP(Lr, Lg, Lb, w) do { } while (0)
 #endif
 #if AOV_DIFFUSE
-#define DIFFUSE_ADD(xr, xg, xb) do { ACCUMULATE(dr, dcr, xr); ACCUMULATE(dg, dcg, xg); \
-                                     ACCUMULATE(db, dcb, xb); } while (0)
+#define ADD_DIFFUSE(Lr, Lg, Lb, w) do { ACCUMULATE(dr, dcr, (Lr) * (Dr_w * (w).diffuse)); \
+        ACCUMULATE(dg, dcg, (Lg) * (Dg_w * (w).diffuse)); \
+        ACCUMULATE(db, dcb, (Lb) * (Db_w * (w).diffuse)); } while (0)
 #else
-#define DIFFUSE_ADD(xr, xg, xb) do { } while (0)
+#define ADD_DIFFUSE(Lr, Lg, Lb, w) do { } while (0)
 #endif
 #if AOV_SPECULAR
-#define SPECULAR_ADD(xr, xg, xb) do { ACCUMULATE(qr, qcr, xr); ACCUMULATE(qg, qcg, xg); \
-                                      ACCUMULATE(qb, qcb, xb); } while (0)
+#define ADD_SPECULAR(Lr, Lg, Lb, w) do { ACCUMULATE(qr, qcr, (Lr) * (Sr_w * (w).specular)); \
+        ACCUMULATE(qg, qcg, (Lg) * (Sg_w * (w).specular)); \
+        ACCUMULATE(qb, qcb, (Lb) * (Sb_w * (w).specular)); } while (0)
 #else
-#define SPECULAR_ADD(xr, xg, xb) do { } while (0)
+#define ADD_SPECULAR(Lr, Lg, Lb, w) do { } while (0)
 #endif
-/* One light's contribution (its radiance × falloff Lr, Lg, Lb and weights w) to
-   the beauty and to every layer the plan asks for. The beauty's product is the
-   fused one whatever the layers (it stays bit-identical without them). */
+/* One light into the beauty and every layer the plan asks for. */
 #define ADD_LIGHT(Lr, Lg, Lb, w) do { \
-        const wL xr_ = (Lr) * MUL_ADD(Dr_w, (w).diffuse, Sr_w * (w).specular); \
-        const wL xg_ = (Lg) * MUL_ADD(Dg_w, (w).diffuse, Sg_w * (w).specular); \
-        const wL xb_ = (Lb) * MUL_ADD(Db_w, (w).diffuse, Sb_w * (w).specular); \
-        ACCUMULATE(sr, cr, xr_); ACCUMULATE(sg, cg, xg_); ACCUMULATE(sb, cb, xb_); \
-        GROUP_ADD(xr_, xg_, xb_); \
-        DIFFUSE_ADD((Lr) * (Dr_w * (w).diffuse), (Lg) * (Dg_w * (w).diffuse), (Lb) * (Db_w * (w).diffuse)); \
-        SPECULAR_ADD((Lr) * (Sr_w * (w).specular), (Lg) * (Sg_w * (w).specular), (Lb) * (Sb_w * (w).specular)); \
+        ADD_BEAUTY(sr, cr, Lr, Dr_w, Sr_w, w); ADD_BEAUTY(sg, cg, Lg, Dg_w, Sg_w, w); \
+        ADD_BEAUTY(sb, cb, Lb, Db_w, Sb_w, w); \
+        ADD_GROUP(Lr, Lg, Lb, w); ADD_DIFFUSE(Lr, Lg, Lb, w); ADD_SPECULAR(Lr, Lg, Lb, w); \
     } while (0)
 
-#if !N_GROUPS
-    const uint d_begin = 0u, d_end = n_directional;
-#endif
-#if HAS_DIRECTIONAL
-    for (uint j = (lit ? d_begin : d_end); j < d_end; ++j) {
-        __global const float4 *rec = directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * j;
-        const float4 L = rec[1], L_lo = rec[5];   /* radiance, as hi + lo */
-        const weights_t w = shade_directional_light(&p, rec[0], rec[3], rec[2], rec[4]);
-        ADD_LIGHT(W_HI_LO(L.x, L_lo.x), W_HI_LO(L.y, L_lo.y), W_HI_LO(L.z, L_lo.z), w);
-    }
-#endif
-#if HAS_POINT
-#if CULLING
+#if HAS_POINT && CULLING
     /* The tile of this work-item's first pixel (as cull.cl bounds it); padding
        work-items past the last tile shade background only. */
     const uint q0 = (uint)(i * LANES);
     const uint tile = (q0 / width / CULL_TILE) * tiles_x + (q0 % width) / CULL_TILE;
     const uint2 range = tile < n_tiles && lit ? tile_ranges[tile] : (uint2)(0, 0);
+    uint m = range.x;      /* the tile's list, in light order, walked once across the groups */
+#endif
+    /* Light groups: the host sorts the lights by group; group g's directional lights
+       are [dir_end[g-1], dir_end[g]), its point lights [point_end[g-1], point_end[g])
+       (group_table = dir_end[0..G-1], point_end[0..G-1]). Each group is summed from
+       its own ambient term beside the beauty. Without groups: one pass over all. */
+    for (uint g = 0; g < (N_GROUPS ? N_GROUPS : 1u); ++g) {
+        const uint d_begin = N_GROUPS && g ? group_table[g - 1] : 0u;
+        const uint d_end = N_GROUPS ? group_table[g] : n_directional;
+        const uint p_begin = N_GROUPS && g ? group_table[N_GROUPS + g - 1] : 0u;
+        const uint p_end = N_GROUPS ? group_table[N_GROUPS + g] : n_point;
 #if N_GROUPS
-    /* this group's part of the tile's list: the entries below p_end */
-    uint m = range.x + m_next;
-    for (; m < range.x + range.y && tile_lights[m] < p_end; ++m) {
+        const float4 A_g = group_ambient[2 * g], A_lo = group_ambient[2 * g + 1];
+        sumL gr = TO_SUM(FLOAT_TO_W(Cr) * W_HI_LO(A_g.x, A_lo.x));
+        sumL gg = TO_SUM(FLOAT_TO_W(Cg) * W_HI_LO(A_g.y, A_lo.y));
+        sumL gb = TO_SUM(FLOAT_TO_W(Cb) * W_HI_LO(A_g.z, A_lo.z));
+        floatL gcr = (floatL)(0.0f), gcg = (floatL)(0.0f), gcb = (floatL)(0.0f);
+#endif
+#if HAS_DIRECTIONAL
+        for (uint j = (lit ? d_begin : d_end); j < d_end; ++j) {
+            __global const float4 *rec = directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * j;
+            const float4 L = rec[1], L_lo = rec[5];   /* radiance, as hi + lo */
+            const weights_t w = shade_directional_light(&p, rec[0], rec[3], rec[2], rec[4]);
+            ADD_LIGHT(W_HI_LO(L.x, L_lo.x), W_HI_LO(L.y, L_lo.y), W_HI_LO(L.z, L_lo.z), w);
+        }
+#endif
+#if HAS_POINT
+#if CULLING
+        /* this group's part of the tile's list: its entries below p_end */
+        for (; m < range.x + range.y && (!N_GROUPS || tile_lights[m] < p_end); ++m) {
+            const uint j = tile_lights[m];
 #else
-    for (uint m = range.x; m < range.x + range.y; ++m) {
+        for (uint j = (lit ? p_begin : p_end); j < p_end; ++j) {
 #endif
-        const uint j = tile_lights[m];
-#elif N_GROUPS
-    for (uint j = (g ? group_table[N_GROUPS + g - 1] : 0u); j < (lit ? p_end : 0u); ++j) {
-#else
-    for (uint j = 0; j < (lit ? n_point : 0u); ++j) {
-#endif
-        __global const pointrec_t *rec = point_lights + POINT_LIGHT_FLOAT4S * j;
-        const pointrec_t X = rec[0];   /* position, c0 */
-        const pointrec_t L = rec[1];   /* radiance, c1 */
-        const pointrec_t Q = rec[2];   /* c2 */
-        wL ar, ag, ab;                 /* radiance × attenuation(d) */
-        const weights_t w = shade_point_light(&p, X.x, X.y, X.z, X.w, L.w, Q.x, L.x, L.y, L.z,
-                                              &ar, &ag, &ab);
-        ADD_LIGHT(ar, ag, ab, w);
-    }
-#if CULLING && N_GROUPS
-    m_next = m - range.x;
-#endif
+            __global const pointrec_t *rec = point_lights + POINT_LIGHT_FLOAT4S * j;
+            const pointrec_t X = rec[0];   /* position, c0 */
+            const pointrec_t L = rec[1];   /* radiance, c1 */
+            const pointrec_t Q = rec[2];   /* c2 */
+            wL ar, ag, ab;                 /* radiance × attenuation(d) */
+            const weights_t w = shade_point_light(&p, X.x, X.y, X.z, X.w, L.w, Q.x, L.x, L.y, L.z,
+                                                  &ar, &ag, &ab);
+            ADD_LIGHT(ar, ag, ab, w);
+        }
 #endif
 #if N_GROUPS
         /* group g: α·E_g (0 on background pixels) */
-        const floatL Gr = SELECT(finish_sum(gr, gcr), (floatL)(0.0f), bg);
-        const floatL Gg = SELECT(finish_sum(gg, gcg), (floatL)(0.0f), bg);
-        const floatL Gb = SELECT(finish_sum(gb, gcb), (floatL)(0.0f), bg);
-        vstoreL(COVER(Gr), i, out + (3 + 3 * g) * stride);
-        vstoreL(COVER(Gg), i, out + (4 + 3 * g) * stride);
-        vstoreL(COVER(Gb), i, out + (5 + 3 * g) * stride);
-    }
+        vstoreL(COVER(SELECT(finish_sum(gr, gcr), (floatL)(0.0f), bg)), i, out + (3 + 3 * g) * stride);
+        vstoreL(COVER(SELECT(finish_sum(gg, gcg), (floatL)(0.0f), bg)), i, out + (4 + 3 * g) * stride);
+        vstoreL(COVER(SELECT(finish_sum(gb, gcb), (floatL)(0.0f), bg)), i, out + (5 + 3 * g) * stride);
 #endif
+    }
 
     /* the straight (un-premultiplied) shade S, the background where not shaded */
     const floatL Er = SELECT(finish_sum(sr, cr), (floatL)(background.x), bg);

@@ -24,7 +24,6 @@ from ..core.errors import DeviceError, GBufferError, SceneError
 from ..core.geometry import split_hi_lo
 from ..core.memory import ENV_VAR, F32, format_size, memory_budget
 from ..io.nonfinite import apply_nonfinite_policy
-from ..model.scene import AOV_NAMES
 from ..model.options import (
     check_budget,
     check_float_power,
@@ -34,6 +33,7 @@ from ..model.options import (
     check_nonfinite,
     path_options,
 )
+from ..model.scene import AOV_NAMES
 from .bands import (
     band_align,
     band_of,
@@ -46,7 +46,14 @@ from .bands import (
 )
 from .culling import TileLists, build_tile_lists
 from .display import DisplayTransform, apply_display_transform, display_kernel_args
-from .frame import LOCAL_SIZE, Frame, check_near_field, material_uniforms, pack_lights, prepare_frame
+from .frame import (
+    LOCAL_SIZE,
+    Frame,
+    check_near_field,
+    material_uniforms,
+    pack_lights,
+    prepare_frame,
+)
 from .plan import ShadingPlan, make_plan
 from .runtime import float4, get_runtime
 
@@ -165,7 +172,7 @@ class Renderer:
                  int_pow: bool | str | None = None, path: str | None = None,
                  aovs: Sequence[str] = (), straight_alpha: bool = False):
         self.scene = scene
-        self.groups, self.aovs = check_layers(scene, aovs)
+        self.groups, self.aovs = check_layers(scene, aovs or scene.aovs)
         self.straight_alpha = bool(straight_alpha)
         if path is not None:
             if compensated is not None or fp64_directions is not None or int_pow is not None:
@@ -245,7 +252,7 @@ class Renderer:
                          compensated=self.compensated, fp64_directions=self.fp64_directions,
                          display=display, max_error=self.max_error if culling else None,
                          has_fp64=self.runtime.fast_fp64, int_pow=self.int_pow,
-                         coverage=coverage, groups=self.groups, aovs=self.aovs,
+                         coverage=coverage, groups=self.scene.light_groups, aovs=self.aovs,
                          straight=self.straight_alpha)
         return plan, self.runtime.program(plan.entry_file, plan.defines)
 
@@ -330,7 +337,7 @@ class Renderer:
         """The rows one launch may shade (the memory model and the device's limits)."""
         h, w = gbuffer.shape
         # the coverage plane, and per layer its device and host planes and (H, W, 3) array
-        m = map_planes(gbuffer) + 1 + 5 * (len(self.groups) + len(self.aovs))
+        m = map_planes(gbuffer) + 1 + 5 * (len(self.scene.light_groups) + len(self.aovs))
         records = light_bytes(self.scene)
         max_alloc, global_mem = self.runtime.limits()
         if max_alloc is not None and records > max_alloc:
@@ -434,8 +441,9 @@ class Renderer:
         kernel_s = (evt.profile.end - evt.profile.start) * 1e-9
         h, w = frame.shape
         image = np.ascontiguousarray(out[:3, : h * w].T).reshape(h, w, 3)
+        # every group is shaded (the beauty is summed group by group); the chosen are kept
         layers = {name: np.ascontiguousarray(out[3 + 3 * k:6 + 3 * k, : h * w].T).reshape(h, w, 3)
-                  for k, name in enumerate(plan.layers)}
+                  for k, name in enumerate(plan.layers) if name in self.groups or name in self.aovs}
         shown = None if disp is None else np.ascontiguousarray(disp[:, : h * w].T).reshape(h, w, 3)
         stats = RenderStats(kernel_seconds=kernel_s, upload_seconds=t2 - t1 - kernel_s,
                             total_seconds=time.perf_counter() - t0)
@@ -446,7 +454,8 @@ class Renderer:
 def check_layers(scene, aovs) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """(light-group layers, component layers) for ``aovs``: names from
     :data:`~clphong.model.scene.AOV_NAMES` and the scene's light groups. Every
-    group of the scene is a layer unless ``aovs`` names some, then only those."""
+    group of the scene is a layer unless ``aovs`` names some, then only those are
+    returned (all are still shaded: the kernel sums the beauty group by group)."""
     if isinstance(aovs, str):
         aovs = [a.strip() for a in aovs.split(",") if a.strip()]
     valid = (*AOV_NAMES, *scene.light_groups)

@@ -120,6 +120,13 @@ def test_aov_names_are_checked():
     with pytest.raises(SceneError, match=r"--aov 'keys' is neither a component \(diffuse, specular\) "
                                          r"nor a light group \(light groups default, key, rim\)"):
         Renderer(scene, aovs=("keys",))
-    assert Renderer(scene, aovs=("key",)).groups == ("key",)
+    # naming a group keeps only its layer; the beauty still has every light
+    rng = np.random.default_rng(1)
+    gb = heightfield(rng, 24, 30)
+    chosen = Renderer(scene, aovs=("rim",)).render(gb)
+    assert tuple(chosen.layers) == ("rim",)
+    every = Renderer(scene).render(gb)
+    assert np.array_equal(chosen.image, every.image)
+    assert np.array_equal(chosen.layers["rim"], every.layers["rim"])
     with pytest.raises(SceneError, match="the obvious kernel shades the beauty only"):
         Renderer(scene, kernel="obvious")
