@@ -99,7 +99,8 @@ NEAR_BLOCK = 256
 
 
 def nearest_within(planes: np.ndarray, shaded: np.ndarray, points: np.ndarray,
-                   radii: np.ndarray, inner: float = 0.0) -> list[tuple[int, float] | None]:
+                   radii: np.ndarray, inner: float = 0.0,
+                   rebase: np.ndarray | None = None) -> list[tuple[int, float] | None]:
     """For each point, the nearest shaded pixel closer than its radius, if any.
 
     Parameters
@@ -109,23 +110,27 @@ def nearest_within(planes: np.ndarray, shaded: np.ndarray, points: np.ndarray,
     shaded : numpy.ndarray
         (n,) bool: the pixels to consider (finite positions only count).
     points : numpy.ndarray
-        (m, 3) float64 points.
+        (m, 3) float64 points (rebased on ``rebase`` when it is given).
     radii : numpy.ndarray
         (m,) float64 search radii (0: nothing is searched).
     inner : float
         Pixels nearer than this are skipped too.
+    rebase : numpy.ndarray, optional
+        (3,) float32 origin: distances are those of the pixels' float32
+        ``P - rebase`` (as the float kernels form it) to the points.
 
     Returns
     -------
     list
         Per point, ``(pixel index, distance)`` of the nearest pixel with
-        ``0 < d < radius`` and ``d >= inner``, distances in float64 from the float32 positions;
-        else None. A pixel at distance exactly 0 is skipped: a light there adds
-        nothing (the kernels' and the reference's d = 0 guard).
+        ``0 < d < radius`` and ``d >= inner``, distances in float64 from the
+        float32 positions; else None. A pixel at distance exactly 0 is skipped:
+        a light there adds nothing (the kernels' and the reference's d = 0 guard).
 
-    Boxes of :data:`NEAR_BLOCK` consecutive pixels are tested first, so the
-    exact distances are computed only in the blocks a radius reaches: radii are
-    tiny (the near field where a falloff overflows), so that is almost never.
+    Boxes of :data:`NEAR_BLOCK` consecutive pixels (all pixels, NaN ignored: a
+    box only needs to contain the shaded ones) are tested first, so the exact
+    distances are computed only in the blocks a radius reaches: radii are tiny
+    (the near field where a falloff overflows), so that is almost never.
     """
     n = planes.shape[1]
     m = len(points)
@@ -133,24 +138,33 @@ def nearest_within(planes: np.ndarray, shaded: np.ndarray, points: np.ndarray,
     todo = [j for j in range(m) if radii[j] > 0]
     if not todo or n == 0:
         return found
-    blocks = -(-n // NEAR_BLOCK)
-    pad = blocks * NEAR_BLOCK - n
-    ok = np.pad(shaded & np.isfinite(planes).all(axis=0), (0, pad)).reshape(blocks, NEAR_BLOCK)
-    lo = np.empty((blocks, 3))
-    hi = np.empty((blocks, 3))
-    for a in range(3):
-        c = np.pad(planes[a], (0, pad)).reshape(blocks, NEAR_BLOCK)
-        lo[:, a] = c.min(axis=1, where=ok, initial=np.inf)
-        hi[:, a] = c.max(axis=1, where=ok, initial=-np.inf)
+    B = NEAR_BLOCK
+    full = n // B
+    parts = [planes[:, :full * B].reshape(3, full, B)] if full else []
+    if n % B:
+        parts.append(planes[:, full * B:].reshape(3, 1, n % B))
+    lo = np.concatenate([np.fmin.reduce(q, axis=2) for q in parts], axis=1).T.astype(np.float64)
+    hi = np.concatenate([np.fmax.reduce(q, axis=2) for q in parts], axis=1).T.astype(np.float64)
+    shift = np.zeros(3) if rebase is None else np.asarray(rebase, np.float64)
+    # The kernel's fl(P − o) is within 2^-24·|P − o| of P − o per axis, so its distance
+    # to L is at least |P − (L + o)| − √3·2^-24·max|P − o|: the boxes' radius widens by that.
+    slack = 0.0
+    if rebase is not None:
+        ext = np.abs(np.concatenate([lo, hi]) - shift)
+        slack = 2.0 ** -23 * float(np.max(ext, where=np.isfinite(ext), initial=0.0))
     for j in todo:
-        p = np.asarray(points[j], np.float64)
-        gap = np.maximum(np.maximum(lo - p, p - hi), 0.0)        # inf for empty blocks
-        near = np.flatnonzero(np.sqrt((gap * gap).sum(axis=1)) < radii[j])
+        p = np.asarray(points[j], np.float64) + shift                 # in the planes' frame
+        gap = np.maximum(np.maximum(lo - p, p - hi), 0.0)             # NaN for an all-NaN block
+        near = np.flatnonzero(np.sqrt((gap * gap).sum(axis=1)) < radii[j] + slack)
         best = None
         for b in near:
-            s = slice(b * NEAR_BLOCK, min((b + 1) * NEAR_BLOCK, n))
-            d = np.sqrt(sum((planes[a, s].astype(np.float64) - p[a]) ** 2 for a in range(3)))
-            d = np.where(ok[b, : s.stop - s.start] & (d > 0) & (d >= inner), d, np.inf)
+            s = slice(b * B, min((b + 1) * B, n))
+            q = planes[:, s]
+            if rebase is not None:
+                q = q - np.asarray(rebase, np.float32)[:, None]       # float32, as the kernel
+            d = np.sqrt(sum((q[a].astype(np.float64) - points[j][a]) ** 2 for a in range(3)))
+            ok = shaded[s] & np.isfinite(q).all(axis=0) & (d > 0) & (d >= inner)
+            d = np.where(ok, d, np.inf)
             k = int(np.argmin(d))
             if d[k] < radii[j] and (best is None or d[k] < best[1]):
                 best = (s.start + k, float(d[k]))

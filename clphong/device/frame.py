@@ -66,8 +66,7 @@ def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:
     block = lanes * LOCAL_SIZE
     stride = max(block, math.ceil(n / block) * block)
     background = gbuffer.background_mask().reshape(-1)
-    cov = gbuffer.coverage
-    partial = cov is not None and bool(((cov > 0) & (cov < 1)).any())
+    partial = gbuffer.partly_covered()
     gbuf = np.empty((GBUF_PLANES + partial, stride), np.float32)
     gbuf[:, n:] = 0.0                                       # padding: background
     P, C = gbuffer.position.reshape(-1, 3), gbuffer.albedo.reshape(-1, 3)
@@ -79,7 +78,7 @@ def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:
         # The float64 remainder of the unit normal, for DIRECTIONS_FP64 (shade.cl).
         gbuf[9 + a, :n] = n64 - gbuf[3 + a, :n]
     if partial:
-        gbuf[COVERAGE_PLANE, :n] = np.clip(cov.reshape(-1), 0.0, 1.0)
+        gbuf[COVERAGE_PLANE, :n] = np.clip(gbuffer.coverage.reshape(-1), 0.0, 1.0)
     names = []
     planes = []
     for name, channels in MATERIAL_MAPS.items():             # the kernels' order
@@ -246,11 +245,9 @@ def check_near_field(scene, frame: Frame, lights: LightArrays, fp64: bool) -> No
     if not radius.any():
         return
     n = frame.pixels
-    planes = frame.gbuf[:3, :n]
-    if not fp64:
-        planes = planes - frame.origin[:, None]     # as the float kernel rebases (float32)
-    hits = nearest_within(planes, ~frame.background[:n], r[:, 0, :3], radius,
-                          inner=0.0 if fp64 else FLOAT_PATH_INNER)
+    hits = nearest_within(frame.gbuf[:3, :n], ~frame.background[:n], r[:, 0, :3], radius,
+                          inner=0.0 if fp64 else FLOAT_PATH_INNER,
+                          rebase=None if fp64 else frame.origin)   # the float kernel's P − origin
     for k, hit in zip(physical, hits):
         if hit is None:
             continue
@@ -260,7 +257,7 @@ def check_near_field(scene, frame: Frame, lights: LightArrays, fp64: bool) -> No
         y, x = divmod(pixel, frame.shape[1])
         i = points[k]
         raise SceneError(
-            f"{scene.source}: light[{i}]: pixel ({x}, {y}) is {d:.3g} units from this point "
+            f"{scene.source}: light[{i}]: the frame's pixel x={x}, y={y} is {d:.3g} units from this point "
             f"light, where its radiance x 1/(c1*d + c2*d^2) = {value:.3g} is beyond the float32 "
             f"range the kernels compute in ({FLT_MAX:.3g}{'' if fp64 else ', or p(d) below FLT_MIN on the float path'}); "
             "move the light off the surface, or give attenuation c0 > 0")

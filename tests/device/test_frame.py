@@ -12,7 +12,7 @@ from conftest import check_against_reference, heightfield, make_gbuffer, make_sc
 from clphong.core.errors import SceneError
 from clphong.core.floats import FLT_MAX, FLT_MIN
 from clphong.core.geometry import nearest_within
-from clphong.device.frame import FLOAT_PATH_INNER, near_field_radius
+from clphong.device.frame import near_field_radius
 from clphong.device.renderer import Renderer
 from clphong.model.scene import WATTS_TO_RADIANCE, parse_scene
 
@@ -47,20 +47,28 @@ def test_near_field_radius_is_where_the_falloff_overflows():
     assert math.sqrt(4 * FLT_MIN) < r < math.sqrt(4 * FLT_MIN) * (1 + 1e-5)
 
 
-def test_nearest_within_matches_brute_force():
+@pytest.mark.parametrize("rebased", [False, True])
+def test_nearest_within_matches_brute_force(rebased):
+    """Against every distance, with NaN positions in some blocks and, rebased, the
+    float32 P − origin the float kernels form, far from the origin (rounded)."""
     rng = np.random.default_rng(3)
-    planes = rng.uniform(-1, 1, (3, 3000)).astype(np.float32)
-    shaded = rng.uniform(size=3000) > 0.2
-    points = rng.uniform(-1, 1, (20, 3))
+    n = 3000 + 77                                     # a partial last block
+    far = np.float32(1000.0) if rebased else np.float32(0.0)
+    planes = (rng.uniform(-1, 1, (3, n)) + far).astype(np.float32)
+    planes[:, rng.integers(0, n, 40)] = np.nan
+    shaded = rng.uniform(size=n) > 0.2
+    origin = np.array([far + 0.37, far - 0.2, far + 0.1], np.float32) if rebased else None
+    q = planes if origin is None else planes - origin[:, None]
+    points = q[:, rng.integers(0, n, 20)].T.astype(np.float64) + rng.normal(0, 0.05, (20, 3))
     radii = rng.uniform(0, 0.2, 20)
     radii[:3] = 0
-    got = nearest_within(planes, shaded, points, radii)
+    got = nearest_within(planes, shaded, points, radii, rebase=origin)
     for j, p in enumerate(points):
-        d = np.sqrt(((planes.astype(np.float64).T - p) ** 2).sum(axis=1))
-        d[~shaded] = np.inf
+        d = np.sqrt(((q.astype(np.float64).T - p) ** 2).sum(axis=1))
+        d[~shaded | ~np.isfinite(d)] = np.inf
         k = int(np.argmin(d))
         want = (k, d[k]) if 0 < d[k] < radii[j] else None
-        assert got[j] == want
+        assert got[j] == want, j
 
 
 @pytest.mark.parametrize("fp64", [True, False], ids=["fp64", "float"])
@@ -73,7 +81,7 @@ def test_light_that_overflows_at_the_nearest_pixel_is_named(fp64):
     with pytest.raises(SceneError) as info:
         r.render(gb)
     msg = str(info.value)
-    assert msg.startswith("phys.toml: light[1]: pixel (7, 5) is ") and "\n" not in msg
+    assert msg.startswith("phys.toml: light[1]: the frame's pixel x=7, y=5 is ") and "\n" not in msg
     assert "beyond the float32 range" in msg and "c0 > 0" in msg
 
 
