@@ -32,6 +32,19 @@ def pytest_terminal_summary(terminalreporter):
         terminalreporter.write_line(markdown_table(["case", "message", "exit code"], rows))
 
 
+def read_rgb(path, *, spec=False):
+    """An output file's R, G, B as float32 (an EXR's A, the coverage, is checked on its
+    own); with ``spec``, (its ImageSpec, the pixels)."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    assert inp, oiio.geterror()
+    s = inp.spec()
+    px = np.asarray(inp.read_image(0, 0, 0, 3, oiio.FLOAT))
+    inp.close()
+    return (s, px) if spec else px
+
+
 def random_gbuffer(rng, h=24, w=40, *, spread=3.0, background_fraction=0.1, maps=()):
     """Random positions on a slab, random normals facing +z mostly, random albedo."""
     P = rng.uniform(-spread, spread, (h, w, 3))

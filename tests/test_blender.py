@@ -122,3 +122,31 @@ def test_edge_pixels_are_shaded_on_a_surface(scene):
     naive = Renderer(scene).render(raw).image
     rel_naive = np.abs(naive - c50).max(-1)[edge] / c50.max(-1)[edge]
     assert np.median(rel) < np.median(rel_naive)
+
+
+def test_blender_file_without_coverage_warns_in_one_line(tmp_path):
+    """The Combined part (coverage) removed from the 5.0 file: read, with one warning."""
+    from clphong.core.errors import InputWarning
+
+    inp = oiio.ImageInput.open(str(DIR / FILES[0]))
+    specs, pixels, sub = [], [], 0
+    while inp.seek_subimage(sub, 0):
+        s = inp.spec()
+        if s.get_string_attribute("name") != "ViewLayer.Combined":
+            specs.append(s)
+            pixels.append(np.asarray(inp.read_image(sub, 0, 0, s.nchannels, "float")))
+        sub += 1
+    inp.close()
+    path = str(tmp_path / "no-alpha.exr")
+    out = oiio.ImageOutput.create(path)
+    assert out.open(path, specs)
+    for k, px in enumerate(pixels):
+        if k:
+            assert out.open(path, specs[k], "AppendSubimage")
+        assert out.write_image(px)
+    assert out.close()
+    with pytest.warns(InputWarning) as record:
+        gb = read_gbuffer(path)
+    assert gb.coverage is None and len(record) == 1
+    msg = str(record[0].message)
+    assert msg.startswith(f"{path}: no coverage channel") and "\n" not in msg

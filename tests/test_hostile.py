@@ -296,7 +296,7 @@ def test_multipart_exr_duplicate_channel(work, capsys):
     assert o.write_image(np.ascontiguousarray(np.concatenate([gb.position, gb.normal], -1)))
     assert o.open(path, specs[1], "AppendSubimage") and o.write_image(gb.albedo) and o.close()
     fails(render_argv(src, out, gbuffer=path), capsys, src.parent, "parts.exr",
-          "channel 'N.Y' is in part 0 and in part 1 (col)", "unique across parts")
+          "channel 'N.Y' is in part 0 (geo) and in part 1 (col)", "unique across parts")
 
 
 def _huge_display_window(src, size):

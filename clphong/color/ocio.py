@@ -194,6 +194,16 @@ class ColorConfig:
                                  + _suggest(look, valid))
         return display, view, looks
 
+    def check_colorspace(self, name: str, origin: str = "colour space") -> str:
+        """``name`` resolved to a colour space of the config (roles and aliases
+        included); a one-line ColorError naming ``origin`` if it has none."""
+        names = list(self.oiio.getColorSpaceNames())
+        resolved = self.oiio.resolve(name)
+        if name in names or resolved in names:
+            return resolved if resolved in names else name
+        raise ColorError(f"{origin}: {name!r} is not a colour space of the OCIO config "
+                         f"{self.path}{_suggest(name, names)} (see 'clphong displays')")
+
     def display_colorspace(self, display: str, view: str) -> str:
         """The display colour space a (display, view) encodes to (for the file's tag)."""
         return self.oiio.getDisplayViewColorSpaceName(display, view) or display

@@ -13,14 +13,20 @@ import contextlib
 import os
 import sys
 import time
+import warnings
 from importlib import metadata
 from pathlib import Path
 
 from .. import __version__
 from ..color.ocio import WORKING_SPACES, load_config
-from ..core.errors import ClphongError, OutputError
+from ..core.errors import ClphongError, OutputError, OutputWarning
 from ..deliver.outputs import OutputOptions, OutputPaths, check_outputs, render_outputs
-from ..deliver.writers import EXR_COMPRESSIONS, SDR_BITS, check_compression
+from ..deliver.writers import (
+    EXR_BASE_COMPRESSIONS,
+    HTJ2K_COMPRESSIONS,
+    SDR_BITS,
+    check_compression,
+)
 from ..device.renderer import Renderer
 from ..device.runtime import get_runtime, list_devices
 from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
@@ -89,7 +95,8 @@ def _build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser(
         "render", help="shade a G-buffer with a scene and write scene-linear EXR",
         description="Shade a G-buffer (world-space P, N, albedo) with the lights and "
-                    "material of SCENE.toml and write a float32 scene-linear RGB EXR.",
+                    "material of SCENE.toml and write a scene-linear EXR (R, G, B, A = coverage, "
+                    "RGB premultiplied, and the light-group and --aov layers), and display outputs.",
         epilog=RENDER_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     r.add_argument("scene", metavar="SCENE.toml", help="scene file (see README)")
     r.add_argument("gbuffer", metavar="GBUFFER.exr", nargs="?",
@@ -395,6 +402,8 @@ def cmd_render(args) -> int:
         check_output_path(out, exr=out == args.output)   # fail before the work, not after
     t0 = time.perf_counter()
     scene = load_scene(args.scene)
+    if renderer_options["aovs"] and not args.output:
+        warnings.warn(OutputWarning("--aov adds EXR layers, and no EXR is written (-o)"))
     paths = _output_paths(args, args.output)
     options = check_outputs(_output_options(args).for_scene(scene), paths)   # bad names: before any work
     gbuffer = _read_gbuffer(args)
@@ -568,6 +577,10 @@ def _add_color_options(r, templates: bool = False):
                    help="white point of reinhard-extended (default 4) and hable (default 11.2)")
     g.add_argument("--working-space", choices=tuple(WORKING_SPACES),
                    help="colour space of albedo, lights and the EXR (default lin_rec709)")
+    g.add_argument("--albedo-space", metavar="COLORSPACE",
+                   help="OCIO colour space the G-buffer's albedo is in (e.g. 'sRGB Encoded Rec.709 "
+                        "(sRGB)' for a texture-like albedo), converted to the working space before "
+                        "shading (default: the scene's render.albedo_space, else the working space)")
     g.add_argument("--ocio-config", metavar="PATH",
                    help="OCIO config (default: $OCIO, else the built-in ocio://default)")
     g.add_argument("--display", help="OCIO display of the SDR output (as oiiotool --ociodisplay)")
@@ -577,11 +590,13 @@ def _add_color_options(r, templates: bool = False):
     o.add_argument("--exr-type", choices=PIXEL_TYPES, default="float",
                    help="EXR pixel type (--half is the same as --exr-type half)")
     o.add_argument("--exr-compression", type=_exr_compression, default="zip", metavar="NAME[:LEVEL]",
-                   help=f"EXR compression: {', '.join(EXR_COMPRESSIONS)} (default zip); lossy: "
+                   # the names every writer has, without probing this one at start-up
+                   help=f"EXR compression: {', '.join(EXR_BASE_COMPRESSIONS)}, and "
+                        f"{', '.join(HTJ2K_COMPRESSIONS)} where OpenEXR has them (default zip); lossy: "
                         "pxr24, b44, b44a, dwaa, dwab. A level after a colon: zip:L or zips:L, L "
                         "from 1 to 9 (zlib, default 4); dwaa:N or dwab:N, N a whole number >= 1 "
                         "(default 45; larger is smaller and lossier)")
-    o.add_argument("--sdr", action="append", default=[], metavar=f"{what}.png|{what}.tif",
+    o.add_argument("--sdr", action="append", default=[], metavar=f"{what}.png|{what}.tif|{what}.jpg",
                    help=f"display-referred SDR image{per}; repeatable")
     o.add_argument("--bits", type=int, choices=SDR_BITS, default=8, help="SDR bit depth")
     o.add_argument("--no-dither", action="store_true", help="no dither before 8-bit quantisation")
@@ -608,7 +623,7 @@ def _output_options(args):
         bits=args.bits, dither=not args.no_dither, working_space=args.working_space,
         exposure=args.exposure, tonemap=args.tonemap, white=args.white, display=args.display,
         view=args.view, look=args.look, hdr_view=args.hdr_view, ocio_config=args.ocio_config,
-        alpha=args.alpha)
+        alpha=args.alpha, albedo_space=args.albedo_space)
 
 
 def _output_paths(args, exr):

@@ -48,6 +48,7 @@ from .writers import (
     SDR_EXTENSIONS,
     check_bits,
     check_compression,
+    check_sdr,
     jpegxl_available,
     write_hdr,
     write_scene_linear,
@@ -66,11 +67,11 @@ EXTENSIONS = {"exr": (".exr",), "sdr": SDR_EXTENSIONS, "hdr": HDR_EXTENSIONS,
 _WHAT = {"exr": "scene-linear", "sdr": "SDR", "hdr": "HDR", "contact_sheet": "contact-sheet"}
 #: The display colour space (interop ID) a TIFF can be tagged with: OpenImageIO's TIFF
 #: writer records only sRGB (EXIF ColorSpace = 1); TIFF has no cICP.
-TIFF_COLORSPACE = color.SRGB_DISPLAY_INTEROP
 
 #: OutputOptions fields taken from the scene's [render] table when None (field -> ColorSettings key).
 _FROM_SCENE = {"working_space": "working_space", "exposure": "exposure", "tonemap": "tonemap",
-               "white": "white_point", "display": "display", "view": "view", "look": "look"}
+               "white": "white_point", "display": "display", "view": "view", "look": "look",
+               "albedo_space": "albedo_space"}
 
 
 def exr_attributes(working_space: str) -> dict:
@@ -106,6 +107,9 @@ class OutputOptions:
     alpha : bool
         Give the SDR and HDR outputs a straight (un-premultiplied) alpha channel
         (``--alpha``); the EXR always has ``A``, with RGB premultiplied.
+    albedo_space : str, optional
+        OCIO colour space of the G-buffer's albedo (``--albedo-space``, else
+        ``render.albedo_space``): converted to the working space before shading.
     from_scene : tuple of str
         The colour settings :meth:`for_scene` took from the scene (for messages;
         not compared).
@@ -128,6 +132,7 @@ class OutputOptions:
     hdr_view: str | None = None
     ocio_config: str | None = None
     alpha: bool = False
+    albedo_space: str | None = None
     from_scene: tuple = field(default=(), compare=False, repr=False)
     scene_source: str | None = field(default=None, compare=False, repr=False)
 
@@ -276,18 +281,17 @@ def _to_rec709(cfg: color.ColorConfig, ws_name: str):
 
 
 def _needs_config(options: OutputOptions, paths: OutputPaths, ws: color.WorkingSpace) -> bool:
-    return bool(paths.hdr or paths.contact_sheet
+    return bool(paths.hdr or paths.contact_sheet or options.albedo_space
                 or (paths.sdr and (options.ocio_view or ws.name != "lin_rec709")))
 
 
-def _check_tiff(cfg: color.ColorConfig, display: str, view: str, paths) -> None:
-    """A TIFF SDR output (of ``paths``, a sequence) must be sRGB: the only display
-    colour space its file can name."""
+def _check_display_files(cfg: color.ColorConfig, display: str, view: str, paths,
+                         options: OutputOptions) -> None:
+    """The SDR files of ``paths`` can hold what (display, view) encodes
+    (:func:`~clphong.deliver.writers.check_sdr`: TIFF and JPEG name only sRGB)."""
     space = cfg.interop_id(cfg.display_colorspace(display, view))
     for path in paths:
-        if os.path.splitext(path)[1].lower() in (".tif", ".tiff") and space != TIFF_COLORSPACE:
-            raise OutputError(f"{path}: a TIFF cannot be tagged with the colour space {space!r} of "
-                              f"display {display!r} (only sRGB); write a .png, which carries cICP")
+        check_sdr(path, bits=options.bits, alpha=options.alpha, colorspace=space)
 
 
 def check_outputs(options: OutputOptions, paths: OutputPaths, *, warn: bool = True) -> OutputOptions:
@@ -311,6 +315,8 @@ def check_outputs(options: OutputOptions, paths: OutputPaths, *, warn: bool = Tr
     options = options.checked()
     check_extensions(paths)
     check_distinct(paths)
+    for path in paths.sdr:              # bits and alpha a file can hold (its colour space: below)
+        check_sdr(path, bits=options.bits, alpha=options.alpha, colorspace=None)
     if options.ocio_view and options.tonemap != "none" and paths.sdr:
         views = [options.origin(k) for k in ("display", "view", "look") if getattr(options, k)]
         raise color.ColorError(
@@ -326,14 +332,18 @@ def check_outputs(options: OutputOptions, paths: OutputPaths, *, warn: bool = Tr
         cfg = _load_config(options.ocio_config)
         if options.ocio_view:
             display, view, _ = cfg.check_display_view(options.display, options.view, options.look)
-            _check_tiff(cfg, display, view, paths.sdr)
+            _check_display_files(cfg, display, view, paths.sdr, options)
         if paths.hdr or options.hdr_view:
             cfg.check_display_view(color.HDR_DISPLAY, options.hdr_view or color.HDR_VIEW, options.look)
         if paths.contact_sheet or (paths.sdr and not options.ocio_view):
             _to_rec709(cfg, ws.name)
+        if options.albedo_space:
+            cfg.check_colorspace(options.albedo_space, options.origin("albedo_space"))
+            cfg.space_name(ws)
         if paths.contact_sheet:          # encoded for --display (default: the config's own)
             display, view, _ = cfg.check_display_view(options.display, None, options.look)
-            _check_tiff(cfg, display, view, paths.contact_sheet)
+            _check_display_files(cfg, display, view, paths.contact_sheet,
+                                 dataclasses.replace(options, bits=8, alpha=False))
     return options
 
 
@@ -352,6 +362,10 @@ def _warn_unused(options: OutputOptions, paths: OutputPaths) -> None:
         warnings.warn(OutputWarning(
             f"--white {options.white:g} has no effect: {options.tonemap!r} has no white point; "
             "only 'reinhard-extended' and 'hable' use it"), stacklevel=3)
+    if options.alpha and not (paths.sdr or paths.hdr):
+        warnings.warn(OutputWarning(
+            "--alpha applies to the --sdr and --hdr outputs only, and none is written "
+            "(the EXR always has A)"), stacklevel=3)
 
 
 def write_output(rgb: np.ndarray, path: str | os.PathLike, options: OutputOptions | None = None,
@@ -383,6 +397,18 @@ def write_output(rgb: np.ndarray, path: str | os.PathLike, options: OutputOption
     write_scene_linear(path, rgb, ws, pixel_type=options.pixel_type,
                        compression=options.compression, attributes=dict(options.attributes),
                        alpha=alpha, layers=layers)
+
+
+def convert_albedo(gbuffer, cfg: color.ColorConfig, space: str, ws: color.WorkingSpace):
+    """``gbuffer`` with its albedo converted from OCIO colour space ``space`` to the
+    working space ``ws`` (OpenImageIO's colorconvert); background pixels are not shaded,
+    so their albedo does not matter."""
+    src = cfg.check_colorspace(space)
+    dst = cfg.space_name(ws)
+    if cfg.oiio.resolve(src) == cfg.oiio.resolve(dst):
+        return gbuffer
+    return dataclasses.replace(gbuffer, albedo=np.ascontiguousarray(
+        cfg.convert(gbuffer.albedo, src, dst), np.float32))
 
 
 def coverage_of(gbuffer) -> np.ndarray:
@@ -449,6 +475,8 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
         # the fused display output takes the straight shade (DISPLAY_STRAIGHT)
         renderer = copy.copy(renderer)
         renderer.straight_alpha = True
+    if options.albedo_space:
+        gbuffer = convert_albedo(gbuffer, cfg, options.albedo_space, ws)
     result = renderer.render(gbuffer, display=dt)
     rgb, shown = result.image, result.display
     times["shade"] = time.perf_counter() - t_shade

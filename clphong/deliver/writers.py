@@ -4,7 +4,7 @@ Every writer goes through :func:`clphong.io.atomic.atomic_path` (no partial file
 failure) and tags the file with what its pixels are:
 
 * **scene-linear EXR** (:func:`write_scene_linear`): half or float, any
-  compression of :data:`EXR_COMPRESSIONS` (``NAME`` or ``NAME:LEVEL``, see
+  compression of :func:`exr_compressions` (``NAME`` or ``NAME:LEVEL``, see
   :func:`check_compression`), ``chromaticities`` of the working space and
   ``oiio:ColorSpace`` set to its interop ID (``lin_rec709_scene`` or
   ``lin_ap1_scene``); no stale ``colorInteropID``.
@@ -35,9 +35,9 @@ from ..core.errors import OutputError
 from ..io.atomic import write_exr, write_image_atomically
 
 __all__ = ["write_scene_linear", "write_sdr", "write_hdr", "SDR_EXTENSIONS", "HDR_EXTENSIONS",
-           "EXR_COMPRESSIONS", "EXR_BASE_COMPRESSIONS", "HTJ2K_COMPRESSIONS",
+           "EXR_BASE_COMPRESSIONS", "HTJ2K_COMPRESSIONS",
            "EXR_COMPRESSION_LEVELS", "exr_compressions",
-           "check_compression", "SDR_BITS", "check_bits", "jpegxl_available", "JPEG_EXTENSIONS",
+           "check_compression", "check_sdr", "SDR_BITS", "check_bits", "jpegxl_available", "JPEG_EXTENSIONS",
            "JPEG_QUALITY"]
 
 #: Extensions of the JPEG SDR outputs (8-bit, no alpha).
@@ -56,8 +56,6 @@ EXR_BASE_COMPRESSIONS = ("none", "rle", "zips", "zip", "piz", "pxr24", "b44", "b
 #: OpenEXR 3.4's lossless High-Throughput JPEG 2000 compressions (chunks of 256 and
 #: 32 scanlines); offered only where this OpenImageIO writes them (:func:`exr_compressions`).
 HTJ2K_COMPRESSIONS = ("htj2k256", "htj2k32")
-# EXR_COMPRESSIONS, every name this OpenImageIO writes, is exr_compressions(): probed
-# on first use (the module's __getattr__), not when the module is imported.
 #: The largest level OpenImageIO can take: it parses the text after the colon into a C int.
 _LEVEL_MAX = 2**31 - 1
 #: The compressions that take ``NAME:LEVEL``, with the smallest and largest level.
@@ -116,13 +114,6 @@ def exr_compressions() -> tuple[str, ...]:
     return EXR_BASE_COMPRESSIONS + tuple(c for c in HTJ2K_COMPRESSIONS if _exr_writes(c))
 
 
-def __getattr__(name: str):
-    # EXR_COMPRESSIONS is probed on first use (PEP 562), not when the module is imported.
-    if name == "EXR_COMPRESSIONS":
-        return exr_compressions()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 def _level_range(name: str) -> str:
     """The levels ``name`` takes, in words: ``1 to 9``, or ``a whole number ≥ 1``
     where the top is only :data:`_LEVEL_MAX`."""
@@ -145,7 +136,7 @@ def check_compression(compression, where: str | None = None) -> str:
     Parameters
     ----------
     compression : str
-        ``NAME`` (one of :data:`EXR_COMPRESSIONS`, lower case) or ``NAME:LEVEL``
+        ``NAME`` (one of :func:`exr_compressions`, lower case) or ``NAME:LEVEL``
         for a name of :data:`EXR_COMPRESSION_LEVELS`: ``zip:9``, ``dwaa:45``.
     where : str, optional
         The file or option named in the message.
@@ -227,7 +218,7 @@ def write_scene_linear(path, rgb, ws: WorkingSpace, *, pixel_type: str = "float"
     """
     path = os.fspath(path)
     _ext(path, (".exr",), "scene-linear")
-    check_compression(compression, path)
+    compression = check_compression(compression, path)
     tags = {"chromaticities": ws.chromaticities, "oiio:ColorSpace": ws.interop_id,
             "Software": software}
     tags.update(attributes or {})
@@ -284,6 +275,33 @@ def _with_alpha(path: str, rgb: np.ndarray, alpha, attrs: dict) -> np.ndarray:
     return np.concatenate([rgb, a[:, :, None]], axis=2)
 
 
+def check_sdr(path: str, *, bits: int, alpha: bool, colorspace: str | None) -> str:
+    """What an SDR output at ``path`` can hold, checked before any work; its extension.
+
+    A bad extension or bit depth; a JPEG at 16 bits, with alpha, or tagged with a
+    colour space other than sRGB (``colorspace``; None: not known yet), and a TIFF
+    other than sRGB (the only display colour space its file can name).
+
+    Raises
+    ------
+    OutputError
+        One line naming ``path``.
+    """
+    ext = _ext(path, SDR_EXTENSIONS, "SDR")
+    check_bits(bits, path)
+    if ext in JPEG_EXTENSIONS:
+        if bits != 8:
+            raise OutputError(f"{path}: JPEG holds 8 bits per channel; use --bits 8 or a PNG/TIFF")
+        if alpha:
+            raise OutputError(f"{path}: JPEG cannot hold an alpha channel (--alpha); use PNG or TIFF")
+    if ext != ".png" and colorspace not in (None, SRGB_DISPLAY_INTEROP):
+        # A JPEG without the sRGB tag reads back as sRGB anyway: it would be mislabelled.
+        kind = "JPEG" if ext in JPEG_EXTENSIONS else "TIFF"
+        raise OutputError(f"{path}: a {kind} cannot be tagged with the colour space {colorspace!r} "
+                          "(only sRGB); write a .png, which carries cICP")
+    return ext
+
+
 def write_sdr(path, display_rgb, *, bits: int = 8, dither: bool = True,
               colorspace: str = SRGB_DISPLAY_INTEROP, cicp: tuple | None = None,
               alpha=None) -> None:
@@ -325,17 +343,8 @@ def write_sdr(path, display_rgb, *, bits: int = 8, dither: bool = True,
     chroma subsampling, dithered like an 8-bit PNG.
     """
     path = os.fspath(path)
-    ext = _ext(path, SDR_EXTENSIONS, "SDR")
-    check_bits(bits, path)
+    ext = check_sdr(path, bits=bits, alpha=alpha is not None, colorspace=colorspace)
     jpeg = ext in JPEG_EXTENSIONS
-    if jpeg and bits != 8:
-        raise OutputError(f"{path}: JPEG holds 8 bits per channel; use --bits 8 or a PNG/TIFF")
-    if jpeg and alpha is not None:
-        raise OutputError(f"{path}: JPEG cannot hold an alpha channel (--alpha); use PNG or TIFF")
-    if jpeg and colorspace != SRGB_DISPLAY_INTEROP:
-        # A JPEG without the sRGB tag reads back as sRGB anyway: it would be mislabelled.
-        raise OutputError(f"{path}: a JPEG cannot be tagged with the colour space {colorspace!r} "
-                          "(only sRGB); write a .png, which carries cICP")
     oiio = _oiio()
     data = _check(path, display_rgb)
     attrs = {"oiio:ColorSpace": colorspace, "Software": "clphong"}

@@ -14,8 +14,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from ..model.options import check_float_power, check_kernel
 from ..core.errors import SceneError
+from ..model.options import check_float_power, check_kernel
 from ..model.scene import AOV_NAMES, MAP_KEYS
 from .culling import TILE
 

@@ -82,13 +82,14 @@ import dataclasses
 import os
 import sys
 import tempfile
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import OpenImageIO as oiio
 
-from ..core.errors import GBufferError
+from ..core.errors import GBufferError, InputWarning
 from ..core.files import image_signature
 from ..core.memory import require_memory
 from ..model.scene import MAP_KEYS, MATERIAL_MAPS
@@ -185,6 +186,12 @@ class GBuffer:
     def shape(self) -> tuple[int, int]:
         """(H, W): the image size in pixels."""
         return (int(self.position.shape[0]), int(self.position.shape[1]))
+
+    def partly_covered(self) -> bool:
+        """Whether some pixel has ``0 < coverage < 1``: then every output is
+        premultiplied by coverage (the kernels' COVERAGE, and its reference twin)."""
+        cov = self.coverage
+        return cov is not None and bool(((cov > 0) & (cov < 1)).any())
 
     def background_mask(self) -> np.ndarray:
         """Pixels that are background and must not be shaded.
@@ -577,6 +584,11 @@ def _gathered_names(part_name: str, names: Sequence[str], multipart: bool) -> li
     return [n if "." in n or n.startswith(part_name + ".") else f"{part_name}.{n}" for n in names]
 
 
+def _part_name(index: int, name: str) -> str:
+    """"part N" or "part N (NAME)" for messages."""
+    return f"part {index} ({_show(name)})" if name else f"part {index}"
+
+
 class _ExrFile:
     """One opened EXR file, single- or multi-part: validated specs, the channel
     names of every part gathered by their full names, pixel reads."""
@@ -623,10 +635,10 @@ class _ExrFile:
                 for n in full:
                     if n in owner:
                         raise GBufferError(
-                            f"{p}: channel {_show(n)!r} is in part {owner[n]} and in part {i}"
-                            f"{f' ({_show(name)})' if name else ''}: a channel name must be unique "
-                            "across parts; pick one with --channels or split the file "
-                            "(oiiotool --subimage)")
+                            f"{p}: channel {_show(n)!r} is in {_part_name(owner[n], self.parts[owner[n]].name)} "
+                            f"and in {_part_name(i, name)}: a channel name must be unique across "
+                            "parts; split the file (oiiotool --subimage N) and pass the parts with "
+                            "--position, --normal and --albedo")
                     owner[n] = i
                 self.parts.append(_Part(i, spec, name, full))
         except BaseException:
@@ -917,6 +929,11 @@ def read_gbuffer(path: str | os.PathLike | None = None, *, position: str | os.Pa
                  convention=convention, sources=sources, attributes=attributes)
     if premultiplied is None:
         premultiplied = convention in PREMULTIPLIED_CONVENTIONS
+    if coverage is None and convention == "blender":
+        warnings.warn(f"{order[0]}: no coverage channel (<ViewLayer>.Combined.A or .Alpha), so "
+                      "partly covered edge pixels cannot be told from covered ones: they are "
+                      "shaded as stored and written with A = 1; keep the Combined pass, or name "
+                      "the coverage with --channels coverage=CHANNEL", InputWarning, stacklevel=2)
     return resolve_coverage(gb, premultiplied=premultiplied)
 
 
@@ -956,18 +973,16 @@ def resolve_coverage(gb: GBuffer, *, premultiplied: bool) -> GBuffer:
     ys, xs = np.nonzero(partial)
     counts = {"partial": int(ys.size), "unpremultiplied": 0, "edge_positions": 0, "edge_background": 0}
     if premultiplied:
-        np_err = np.errstate(all="ignore")       # non-finite inputs: the nonfinite policy's
-        np_err.__enter__()
         a = cov[ys, xs][:, None]
         albedo = albedo.copy()
-        albedo[ys, xs] = albedo[ys, xs] / a
-        for key in ("k_d", "k_s", "specular_color"):
-            if key in maps:
-                m = maps[key].copy()
-                m[ys, xs] = m[ys, xs] / (a if m.ndim == 3 else a[:, 0])
-                maps[key] = m
+        with np.errstate(all="ignore"):          # non-finite inputs: the nonfinite policy's
+            albedo[ys, xs] = albedo[ys, xs] / a
+            for key in ("k_d", "k_s", "specular_color"):
+                if key in maps:
+                    m = maps[key].copy()
+                    m[ys, xs] = m[ys, xs] / (a if m.ndim == 3 else a[:, 0])
+                    maps[key] = m
         counts["unpremultiplied"] = int(ys.size)
-        np_err.__exit__(None, None, None)
     hole = ~position[ys, xs].any(axis=1)
     if hole.any():
         position, normal = position.copy(), normal.copy()

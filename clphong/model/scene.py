@@ -157,7 +157,7 @@ _CAMERA_ALL_ORDERED = ("type", "position", "direction", "up")
 _MATERIAL_KEYS = ("model", "k_a", "k_d", "k_s", "h", "specular_color")
 _MATERIAL_REQUIRED = ("model", "k_a", "k_d", "k_s", "h")
 _RENDER_KEYS = ("background", "working_space", "exposure", "tonemap", "white_point",
-                "display", "view", "look")
+                "display", "view", "look", "albedo_space", "aovs")
 #: Valid ``render.working_space`` values (clphong.color.ocio.WORKING_SPACES).
 WORKING_SPACE_NAMES: tuple[str, ...] = ("lin_rec709", "acescg")
 _LIGHT_KEYS = {
@@ -358,6 +358,9 @@ class ColorSettings:
         White point of ``reinhard-extended`` / ``hable`` (operator default if None).
     display, view, look : str or None
         OCIO display, view and look(s); any of them selects the OCIO path.
+    albedo_space : str or None
+        OCIO colour space the G-buffer's albedo is in, converted to the working
+        space before shading (None: it is in the working space).
     """
 
     working_space: str = "lin_rec709"
@@ -367,12 +370,13 @@ class ColorSettings:
     display: str | None = None
     view: str | None = None
     look: str | None = None
+    albedo_space: str | None = None
 
     def to_dict(self) -> dict:
         """The keys of ``[render]`` that are set (None has no TOML form)."""
         d: dict[str, Any] = {"working_space": self.working_space, "exposure": self.exposure,
                              "tonemap": self.tonemap}
-        for k in ("white_point", "display", "view", "look"):
+        for k in ("white_point", "display", "view", "look", "albedo_space"):
             if getattr(self, k) is not None:
                 d[k] = getattr(self, k)
         return d
@@ -394,6 +398,9 @@ class Scene:
         Where the scene came from (a file path), used in messages.
     warnings : tuple of str
         Non-fatal findings, each a single line naming ``source``.
+    aovs : tuple of str
+        ``render.aovs``: extra output layers (``diffuse``, ``specular``, light-group
+        names), as ``--aov`` (which replaces them).
     """
 
     camera: Camera
@@ -403,6 +410,7 @@ class Scene:
     source: str = "<scene>"
     warnings: tuple[str, ...] = ()
     color: "ColorSettings" = None  # type: ignore[assignment]  # set in __post_init__
+    aovs: tuple[str, ...] = ()
 
     def __post_init__(self):
         if self.color is None:
@@ -528,7 +536,8 @@ class Scene:
         return {
             "camera": self.camera.to_dict(),
             "material": self.material.to_dict(),
-            "render": {"background": list(self.background), **self.color.to_dict()},
+            "render": {"background": list(self.background), **self.color.to_dict(),
+                       **({"aovs": list(self.aovs)} if self.aovs else {})},
             "light": [lt.to_dict() for lt in self.lights],
         }
 
@@ -920,8 +929,23 @@ class _Parser:
             color = self.color_settings(data["render"])
         lights = self.lights(data.get("light", []))
         self.check_scene(material, lights)
+        aovs = self.aovs(data["render"]["aovs"], lights) if "aovs" in data.get("render", {}) else ()
         return Scene(camera=camera, material=material, lights=lights, background=background,
-                     source=self.source, warnings=tuple(self.warnings), color=color)
+                     source=self.source, warnings=tuple(self.warnings), color=color, aovs=aovs)
+
+    def aovs(self, v: Any, lights: tuple[Light, ...]) -> tuple[str, ...]:
+        """``render.aovs``: AOV_NAMES and the lights' group names, each once."""
+        if not isinstance(v, (list, tuple)) or not all(type(x) is str for x in v):
+            self.fail("render.aovs", f"expected an array of layer names, e.g. "
+                                     f"[\"diffuse\", \"specular\"], got {_describe(v)}")
+        groups = dict.fromkeys(lt.group_name for lt in lights) if any(
+            lt.group is not None for lt in lights) else {}
+        for k, name in enumerate(v):
+            if name not in AOV_NAMES and name not in groups:
+                have = f"light groups {', '.join(groups)}" if groups else "no light groups"
+                self.fail(f"render.aovs[{k}]", f"{_short(repr(name))} is neither a component "
+                                               f"({', '.join(AOV_NAMES)}) nor a light group ({have})")
+        return tuple(dict.fromkeys(v))
 
     def camera(self, v: Any) -> Camera:
         t = self.table(v, "camera")
@@ -1006,11 +1030,12 @@ class _Parser:
                 self.warn("render.white_point", f"{op_name!r} has no white point; only "
                                                 "'reinhard-extended' and 'hable' use it")
         names = {}
-        for key in ("display", "view", "look"):
+        for key, what in (("display", "display"), ("view", "view"), ("look", "look"),
+                          ("albedo_space", "colour space")):
             if key in t:
                 v = t[key]
                 if not isinstance(v, str) or not v.strip():
-                    self.fail(f"render.{key}", f"expected a non-empty string (an OCIO {key} "
+                    self.fail(f"render.{key}", f"expected a non-empty string (an OCIO {what} "
                                                f"name), got {_describe(v)}")
                 names[key] = v
         return ColorSettings(working_space=ws, exposure=exposure, tonemap=op_name,

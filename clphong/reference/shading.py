@@ -351,11 +351,9 @@ def shade(scene, gbuffer) -> np.ndarray:
 def partial_coverage(gbuffer):
     """(H·W,) float64 coverage where some pixel is partly covered (0 < α < 1), else None:
     only then do the kernels apply it (COVERAGE, clphong/device/plan.py)."""
-    cov = gbuffer.coverage
-    if cov is None:
+    if not gbuffer.partly_covered():
         return None
-    a = np.asarray(cov, np.float64).reshape(-1)
-    return a if ((a > 0) & (a < 1)).any() else None
+    return np.asarray(gbuffer.coverage, np.float64).reshape(-1)
 
 
 def cover(E, gbuffer, background):

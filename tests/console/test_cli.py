@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import GBUFFERS, patch_everywhere
+from conftest import GBUFFERS, patch_everywhere, read_rgb
 
 from clphong.console.cli import main
 
@@ -17,15 +17,7 @@ SPHERES = [str(GBUFFERS / "spheres.toml"), str(GBUFFERS / "spheres.exr")]
 
 
 def _read(path):
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    assert inp, oiio.geterror()
-    spec = inp.spec()
-    # R, G, B (an EXR's A is the coverage, checked on its own)
-    px = inp.read_image(0, 0, 0, 3, oiio.FLOAT)
-    inp.close()
-    return spec, px
+    return read_rgb(path, spec=True)
 
 
 def test_render_single_file_in_process(tmp_path):
@@ -473,3 +465,14 @@ def test_colour_options_no_output_uses_are_warned_about(extra, warned, tmp_path,
         assert "warning" not in err, err
     else:
         assert warned in err and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--sdr", "w.png", "--aov", "diffuse"], "--aov adds EXR layers, and no EXR is written (-o)"),
+    (["-o", "w.exr", "--alpha"], "--alpha applies to the --sdr and --hdr outputs only"),
+])
+def test_an_option_no_output_uses_warns_in_one_line(args, needle, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", *SPHERES, *args]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith(f"clphong: warning: {needle}"), err

@@ -38,7 +38,6 @@ from conftest import GBUFFERS, REPO
 from clphong.color import ocio as color
 from clphong.console.cli import main
 from clphong.core.errors import OutputError
-from clphong.deliver import writers
 from clphong.deliver.writers import (
     EXR_BASE_COMPRESSIONS,
     HTJ2K_COMPRESSIONS,
@@ -95,7 +94,7 @@ def _exr(tmp_path, x, compression, pixel_type="float", name=None):
 
 def test_exr_compressions_are_the_ten_of_openexr_3_and_the_htj2k_ones_this_build_writes(tmp_path):
     names = exr_compressions()
-    assert writers.EXR_COMPRESSIONS == names and names[:10] == EXR_BASE_COMPRESSIONS
+    assert names[:10] == EXR_BASE_COMPRESSIONS
     assert set(names[10:]) <= set(HTJ2K_COMPRESSIONS)
     # Independently of the probe: OpenImageIO writes zip, silently, for a name it lacks,
     # so an HTJ2K name is listed exactly when a file written with it says so.

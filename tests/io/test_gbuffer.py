@@ -7,7 +7,7 @@ import OpenImageIO as oiio
 import pytest
 from conftest import GBUFFERS
 
-from clphong.core.errors import GBufferError
+from clphong.core.errors import GBufferError, InputWarning
 from clphong.io.atomic import write_exr
 from clphong.io.gbuffer import (
     CHANNEL_KEYS,
@@ -120,7 +120,8 @@ def test_blender_old_and_new_names_detected(tmp_path):
         _raw(tmp_path / name, {**_vec("ViewLayer.Combined", np.ones((H, W, 3)), "RGB"),
                                **_vec("ViewLayer.Position", P), **_vec("ViewLayer.Normal", N),
                                **_vec(f"ViewLayer.{pas}", A, "RGB")})
-        gb = read_gbuffer(tmp_path / name)
+        with pytest.warns(InputWarning, match="no coverage channel"):   # Combined has no .A here
+            gb = read_gbuffer(tmp_path / name)
         assert gb.convention == "blender"
         _assert_same(gb, P, N, A)
         assert gb.sources["albedo"] == (f"{tmp_path / name}: ViewLayer.{pas}.R,ViewLayer.{pas}.G,"
@@ -146,7 +147,8 @@ def test_blender_view_layer_with_dots_and_no_view_layer(tmp_path):
     _assert_same(gb, P, N, A, cov, maps)
     assert "view layer 'Layer.v2'" in gb.sources["normal"]
     write_gbuffer(tmp_path / "bare.exr", P, N, A, convention="blender-new", layer="")
-    gb = read_gbuffer(tmp_path / "bare.exr")
+    with pytest.warns(InputWarning, match="no coverage channel"):
+        gb = read_gbuffer(tmp_path / "bare.exr")
     assert gb.convention == "blender" and gb.sources["albedo"].endswith("Diffuse Color.B")
     _assert_same(gb, P, N, A)
 
@@ -595,7 +597,7 @@ def test_error_multipart_duplicate_channel(tmp_path):
     path = _multipart(tmp_path / "dup.exr", [("geo", {**_vec("P", P), **_vec("N", N)}),
                                              ("col", {**_vec("albedo", A, "RGB"), "P.Y": A[..., 0]})])
     msg = _one_line_error(read_gbuffer, path)
-    assert msg.startswith(f"{path}: channel 'P.Y' is in part 0 and in part 1 (col): "
+    assert msg.startswith(f"{path}: channel 'P.Y' is in part 0 (geo) and in part 1 (col): "
                           "a channel name must be unique across parts")
 
 

@@ -307,6 +307,12 @@ ERROR_CASES = [
      "light[0].group", ["is not a light-group name", "NAME.R"]),
     ("group-aov-name", lambda d: set_at(d, ("light", 0, "group"), "specular"),
      "light[0].group", ["name of an AOV layer"]),
+    ("aovs-unknown", lambda d: d.setdefault("render", {}).update(aovs=["diffuse", "keys"]),
+     "render.aovs[1]", ["'keys' is neither a component (diffuse, specular) nor a light group"]),
+    ("aovs-not-list", lambda d: d.setdefault("render", {}).update(aovs="diffuse"),
+     "render.aovs", ["expected an array of layer names"]),
+    ("albedo-space-empty", lambda d: d.setdefault("render", {}).update(albedo_space=" "),
+     "render.albedo_space", ["expected a non-empty string (an OCIO colour space name)"]),
     ("attenuation-c0-negative", lambda d: set_at(d, ("light", 0, "attenuation"), [-1, 0, 1]),
      "light[0].attenuation", ["negative at d = 0"]),
     ("attenuation-linear-negative", lambda d: set_at(d, ("light", 0, "attenuation"), [1, -0.4, 0]),
@@ -1073,3 +1079,13 @@ def test_light_arrays_are_cached_read_only_and_not_pickled():
     copy = pickle.loads(pickle.dumps(scene))
     assert copy == scene and "light_arrays" not in copy.__dict__
     assert np.array_equal(copy.light_arrays["point_attenuation"], a["point_attenuation"])
+
+
+def test_render_aovs_and_albedo_space_round_trip():
+    data = base()
+    data["light"][0]["group"] = "key"
+    data.setdefault("render", {}).update(aovs=["specular", "key", "specular"],
+                                         albedo_space="sRGB Encoded Rec.709 (sRGB)")
+    sc = parse_quietly(data)
+    assert sc.aovs == ("specular", "key") and sc.color.albedo_space == "sRGB Encoded Rec.709 (sRGB)"
+    assert parse_quietly(sc.to_dict()) == sc

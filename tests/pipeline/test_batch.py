@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import patch_everywhere, random_gbuffer
+from conftest import patch_everywhere, random_gbuffer, read_rgb
 
 from clphong.console.cli import main
 from clphong.pipeline.batch import (
@@ -48,17 +48,6 @@ intensity = 20.0
 [[light]]
 type = "ambient"
 """
-
-
-def _read(path):
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    assert inp, oiio.geterror()
-    # R, G, B (an EXR's A is the coverage, checked on its own)
-    px = inp.read_image(0, 0, 0, 3, oiio.FLOAT)
-    inp.close()
-    return np.asarray(px)
 
 
 @pytest.fixture(scope="module")
@@ -101,7 +90,7 @@ def _args(root, out, *extra):
 def _check_outputs(out, expected, frames=range(1, 25)):
     for f in frames:
         for rig in ("key", "fill"):
-            px = _read(out / rig / f"shot.{f:04d}.exr")
+            px = read_rgb(out / rig / f"shot.{f:04d}.exr")
             assert np.array_equal(px, expected[(f, rig)]), (f, rig)
 
 
@@ -177,7 +166,7 @@ def test_folder_frames_are_numbered_by_their_own_names(shot, tmp_path, capsys):
     assert main(args) == 0
     assert sorted(p.name for p in out.iterdir()) == ["key.0010.exr", "key.0011.exr", "key.0012.exr"]
     for f in (10, 11, 12):
-        assert np.array_equal(_read(out / f"key.{f:04d}.exr"), expected[(f - 9, "key")]), f
+        assert np.array_equal(read_rgb(out / f"key.{f:04d}.exr"), expected[(f - 9, "key")]), f
 
 
 def test_colliding_outputs_are_refused(shot):
@@ -291,7 +280,7 @@ def test_resume_after_killed_run(shot, tmp_path, sig, jobs, capsys):
     # Every output that exists under its final name is complete and correct.
     for p in written:
         f = int(p.name.split(".")[1])
-        assert np.array_equal(_read(p), expected[(f, p.parent.name)]), p
+        assert np.array_equal(read_rgb(p), expected[(f, p.parent.name)]), p
     if sig == signal.SIGKILL:
         assert rc == -signal.SIGKILL
     else:
@@ -388,7 +377,7 @@ def test_a_worker_that_dies_mid_frame_is_replaced_and_the_frame_retried(shot, tm
     assert result.interrupted is None and not result.failed
     assert sorted(o.frame for o in result.written) == list(range(1, 9))      # every frame delivered
     for f in range(1, 9):
-        assert np.array_equal(_read(out / "key" / f"shot.{f:04d}.exr"), expected[(f, "key")]), f
+        assert np.array_equal(read_rgb(out / "key" / f"shot.{f:04d}.exr"), expected[(f, "key")]), f
     _no_temporaries(out)          # the dying worker's temporary file (SIGKILL: left) is removed
     src = str(root / "seq" / "shot.0003.exr")
     assert result.retried == [(3, src, f"worker process died ({how})")]
@@ -404,7 +393,7 @@ def test_a_frame_that_kills_every_worker_fails_after_one_retry(shot, tmp_path):
     assert result.interrupted is None
     assert sorted(o.frame for o in result.written) == [1, 2, 4, 5, 6]
     for f in (1, 2, 4, 5, 6):
-        assert np.array_equal(_read(out / "key" / f"shot.{f:04d}.exr"), expected[(f, "key")]), f
+        assert np.array_equal(read_rgb(out / "key" / f"shot.{f:04d}.exr"), expected[(f, "key")]), f
     assert not (out / "key" / "shot.0003.exr").exists()
     _no_temporaries(out)
     src = str(root / "seq" / "shot.0003.exr")
@@ -606,7 +595,7 @@ def test_command_line_overrides_each_rigs_render_table(shot, aces_rig, tmp_path,
     assert (out / "key.0003.png").read_bytes() == ref
     _render_png(aces_rig, root, tmp_path / "ref.tif", *opts)
     # (TIFF headers carry the time of writing: compare pixels and the other tags.)
-    assert np.array_equal(_read(out / "key.0003.tif"), _read(tmp_path / "ref.tif"))
+    assert np.array_equal(read_rgb(out / "key.0003.tif"), read_rgb(tmp_path / "ref.tif"))
     ta, tb = (_attrs(p)[0] for p in (out / "key.0003.tif", tmp_path / "ref.tif"))
     assert ta.pop("DateTime", None) and tb.pop("DateTime", None) and ta == tb
     assert _attrs(out / "key.0003.png")[1] == "uint16"
@@ -811,8 +800,8 @@ def test_relight_path_float_equals_render_path_float(shot, tmp_path, path, jobs,
             single = tmp_path / f"render.{rig}.{f}.exr"
             assert main(["render", str(root / f"{rig}.toml"), str(root / "seq" / f"shot.{f:04d}.exr"),
                          "-o", str(single), "--path", path]) == 0
-            batch = _read(out / rig / f"shot.{f:04d}.exr")
-            assert np.array_equal(batch, _read(single)), (f, rig)      # bit-identical
+            batch = read_rgb(out / rig / f"shot.{f:04d}.exr")
+            assert np.array_equal(batch, read_rgb(single)), (f, rig)      # bit-identical
             differs |= not np.array_equal(batch, expected[(f, rig)])   # expected: accurate path
     assert differs, f"--path {path} gave the accurate path's images: the option did not reach the kernel"
     [specs] = seen
@@ -876,7 +865,7 @@ def test_relight_max_error_equals_render_max_error(culled_shot, tmp_path, capsys
         single = tmp_path / f"render.{f}.exr"
         assert main(["render", str(root / "many.toml"), str(root / "seq" / f"wave.{f:04d}.exr"),
                      "-o", str(single), *cull]) == 0
-        assert np.array_equal(_read(out / f"many.{f:04d}.exr"), _read(single)), f
+        assert np.array_equal(read_rgb(out / f"many.{f:04d}.exr"), read_rgb(single)), f
     [specs] = seen
     spec = specs["many"]
     assert (spec.max_error, spec.reference_white) == (1e-3, 2.0)
@@ -890,7 +879,7 @@ def test_relight_max_error_equals_render_max_error(culled_shot, tmp_path, capsys
     assert result.cull.kept_fraction < 0.8, result.cull
     brute = clphong.Relighter(str(root / "many.toml")).relight(str(root / "seq" / "wave.0001.exr"))
     assert not np.array_equal(rgb, brute)
-    assert np.array_equal(rgb, _read(out / "many.0001.exr"))
+    assert np.array_equal(rgb, read_rgb(out / "many.0001.exr"))
 
 
 def test_nonfinite_error_fails_only_the_nan_frame(shot, tmp_path, capsys):

@@ -7,7 +7,8 @@ import sys
 
 import numpy as np
 import pytest
-from test_batch import _check_outputs, _no_temporaries, _read, shot  # noqa: F401 - fixture
+from conftest import read_rgb
+from test_batch import _check_outputs, _no_temporaries, shot  # noqa: F401 - fixture
 
 from clphong.console.cli import main
 
@@ -126,4 +127,4 @@ def test_dask_workers_get_the_renderer_options(shot, tmp_path, capsys):  # noqa:
     seen = [r for rs in state.values() for r in rs]
     assert seen and set(seen) == {(False, 0, 0.0, "error")}, state
     for f in range(1, 7):        # the pixels (the EXR header holds a time stamp)
-        assert np.array_equal(*(_read(d / f"key.{f:04d}.exr") for d in (out, local))), f
+        assert np.array_equal(*(read_rgb(d / f"key.{f:04d}.exr") for d in (out, local))), f

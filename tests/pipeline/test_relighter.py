@@ -12,6 +12,7 @@ from conftest import (
     patch_everywhere,
     random_gbuffer,
     random_lights,
+    read_rgb,
 )
 
 import clphong
@@ -21,17 +22,6 @@ from clphong.io.gbuffer import write_gbuffer
 from clphong.pipeline.relighter import Relighter, write_output
 
 SPHERES = (GBUFFERS / "spheres.toml", GBUFFERS / "spheres.exr")
-
-
-def _read(path):
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    assert inp, oiio.geterror()
-    # R, G, B (an EXR's A is the coverage, checked on its own)
-    px = inp.read_image(0, 0, 0, 3, oiio.FLOAT)
-    inp.close()
-    return np.asarray(px)
 
 
 def test_path_in_array_out_equals_render():
@@ -75,7 +65,7 @@ def test_writes_file_atomically(tmp_path):
     r = Relighter(SPHERES[0])
     out = tmp_path / "lit.exr"
     rgb = r.relight(str(SPHERES[1]), out=out)
-    assert np.array_equal(_read(out), rgb)
+    assert np.array_equal(read_rgb(out), rgb)
     assert [p.name for p in tmp_path.iterdir()] == ["lit.exr"]
     with pytest.raises(OutputError, match="overwrite the input"):
         r.relight(str(out), out=out)
@@ -171,7 +161,7 @@ def test_relighter_writes_every_kind_like_render(tmp_path):
     a, _ = _header(out / "a.exr")
     assert a["oiio:ColorSpace"] == "lin_ap1_scene"
     assert np.allclose(a["chromaticities"], clphong.color.ocio.AP1_CHROMATICITIES, atol=1e-6)
-    assert np.array_equal(_read(out / "a.exr"), rgb)
+    assert np.array_equal(read_rgb(out / "a.exr"), rgb)
     assert tuple(_header(out / "a_pq.png")[0]["CICP"]) == (9, 16, 0, 1)
     # The same bytes as 'clphong render' of the same scene and frame.
     cli = tmp_path / "cli"
@@ -181,7 +171,7 @@ def test_relighter_writes_every_kind_like_render(tmp_path):
     for name in ("a.png", "a_pq.png"):
         assert (out / name).read_bytes() == (cli / name).read_bytes(), name
     # (TIFF headers carry the time of writing: compare pixels and the other tags.)
-    assert np.array_equal(_read(out / "a.tif"), _read(cli / "a.tif"))
+    assert np.array_equal(read_rgb(out / "a.tif"), read_rgb(cli / "a.tif"))
     ta, tb = (_header(p)[0] for p in (out / "a.tif", cli / "a.tif"))
     assert ta.pop("DateTime", None) and tb.pop("DateTime", None) and ta == tb
     # OutputOptions override the scene's [render] keys (None keeps the scene's).
