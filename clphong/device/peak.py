@@ -1,4 +1,10 @@
-"""The device's FP32 peak, from ``kernels/peak.cl``: independent FMA chains per lane."""
+"""The device's FP32 peak, from ``kernels/peak.cl``: independent FMA chains per lane.
+
+The probe runs at a few (lanes, chains) shapes and keeps the best: enough
+independent chains to hide the FMA latency, few enough to stay in registers
+(see the kernel's comment). ``clphong bench`` checks the figure against a
+numba FMA loop where numba is installed (:mod:`clphong.tools.numba_peer`).
+"""
 
 from __future__ import annotations
 
@@ -7,25 +13,43 @@ import statistics
 
 import numpy as np
 
-__all__ = ["measure_peak_gflops"]
+__all__ = ["measure_peak_gflops", "peak_shapes"]
 
 
-def measure_peak_gflops(runtime, repeats: int = 5) -> float:
-    """Median FP32 GFLOP/s of kernels/peak.cl on the device."""
+def peak_shapes(lanes: int) -> tuple[tuple[int, int], ...]:
+    """(LANES, CHAINS) shapes to try on a device whose lane kernel uses ``lanes``."""
+    shapes = [(lanes, 8), (lanes, 12)]
+    if lanes > 8:
+        shapes += [(8, 8), (8, 12)]
+    return tuple(shapes)
+
+
+def measure_peak_gflops(runtime, repeats: int = 5, detail: dict | None = None) -> float:
+    """Median FP32 GFLOP/s of kernels/peak.cl on the device, the best shape's.
+
+    ``detail``, a dict, receives each shape's figure ("LxC": GFLOP/s) and the best one.
+    """
     import pyopencl as cl
 
-    lanes = max(runtime.lanes, 1)
-    prog = runtime.program("peak.cl", {"LANES": lanes})
     items = 64 * 64 * max(os.cpu_count() or 1, 1)
-    iterations = 2048
-    out = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, items * lanes * 4)
-    times = []
-    with runtime.lock:
-        kern = runtime.kernel(prog, "fma_peak")
-        kern.set_args(out, np.uint32(iterations), np.float32(0.999), np.float32(1e-3))
-        for _ in range(repeats + 1):
-            evt = cl.enqueue_nd_range_kernel(runtime.queue, kern, (items,), (64,))
-            evt.wait()
-            times.append((evt.profile.end - evt.profile.start) * 1e-9)
-    flops = 2.0 * lanes * 8 * iterations * items
-    return flops / statistics.median(times[1:]) / 1e9
+    iterations = 1024
+    best = 0.0
+    for lanes, chains in peak_shapes(max(runtime.lanes, 1)):
+        prog = runtime.program("peak.cl", {"LANES": lanes, "CHAINS": chains})
+        out = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, items * lanes * 4)
+        times = []
+        with runtime.lock:
+            kern = runtime.kernel(prog, "fma_peak")
+            kern.set_args(out, np.uint32(iterations), np.float32(0.999), np.float32(1e-3))
+            for _ in range(repeats + 1):
+                evt = cl.enqueue_nd_range_kernel(runtime.queue, kern, (items,), (64,))
+                evt.wait()
+                times.append((evt.profile.end - evt.profile.start) * 1e-9)
+        gflops = 2.0 * lanes * chains * iterations * items / statistics.median(times[1:]) / 1e9
+        if detail is not None:
+            detail[f"{lanes}x{chains}"] = gflops
+        if gflops > best:
+            best = gflops
+            if detail is not None:
+                detail["best"] = {"lanes": lanes, "chains": chains}
+    return best

@@ -54,6 +54,23 @@ AVX512_TARGETS = (
 WIDE_AVX2_TARGETS = ("znver3",)
 
 
+#: The last component of a target triple before PoCL's CPU name (the OS or
+#: environment): "pthread-x86_64-unknown-linux-gnu-icelake-client".
+_TRIPLE_ENDS = ("gnu", "gnueabihf", "gnueabi", "musl", "android", "elf", "msvc", "darwin",
+                "linux", "macosx", "windows")
+
+
+def cpu_of_hstr(hstr: str) -> str:
+    """The LLVM CPU name in PoCL's HSTR, ``DEVICE-TRIPLE-CPU``: what follows the
+    triple, which may itself hold dashes ("icelake-client", "skylake-avx512");
+    the last dash-separated word if no triple ending is found."""
+    parts = hstr.strip().split("-")
+    ends = [i for i, p in enumerate(parts) if p in _TRIPLE_ENDS]
+    if ends and ends[-1] + 1 < len(parts):
+        return "-".join(parts[ends[-1] + 1:])
+    return parts[-1]
+
+
 def kernel_dir() -> Path:
     """The folder holding the ``.cl`` sources.
 
@@ -184,7 +201,7 @@ class Runtime:
         version = self.device.version
         if "HSTR:" not in version:
             return ""
-        return version.split("HSTR:")[1].strip().split("-")[-1]
+        return cpu_of_hstr(version.split("HSTR:")[1].split()[0])
 
     @property
     def has_fp64(self) -> bool:

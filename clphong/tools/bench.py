@@ -84,6 +84,7 @@ from ..io.atomic import atomic_path
 from ..io.gbuffer import GBuffer
 from ..model.scene import Camera, Light, Material, Scene
 from ..reference import shading as reference
+from . import numba_peer
 
 #: Flops per pixel-light evaluation of a point light with attenuation, by part,
 #: counted on kernels/lights.cl + brdf.cl (shade_obvious.cl for the naive
@@ -337,7 +338,8 @@ class BenchConfig:
     warmup: int = 1
     crop_pairs: float = 1.5e8     # brute force: crop to about this many pixel-light pairs
     error_pairs: float = 3e7      # reference: sample about this many pixel-light pairs
-    numpy_pairs: float = 2e7      # numpy: crop to about this many pixel-light pairs
+    numpy_pairs: float = 6.7e7    # numpy: about this many pixel-light pairs (at least 1/8 of the frame)
+    numba: bool = True            # the numba peer, where numba is installed
     small_lights: tuple = (65536,)
     device: str | None = None
     log: object = None
@@ -345,7 +347,7 @@ class BenchConfig:
     @classmethod
     def quick(cls, **kw):
         base = dict(sizes=((480, 270),), lights=(1, 16, 256, 4096), budgets=(0.0, 1e-3),
-                    repeats=3, crop_pairs=3e7, error_pairs=5e6, numpy_pairs=5e6,
+                    repeats=3, crop_pairs=3e7, error_pairs=5e6, numpy_pairs=4e6,
                     small_lights=(4096,))
         base.update(kw)
         return cls(**base)
@@ -356,24 +358,64 @@ def _crop_rows(width: int, height: int, n: int, pairs: float, least: int = 4) ->
     return max(min(least, height), min(height, rows))
 
 
+def numpy_crop(width: int, height: int, n: int, pairs: float) -> tuple[int, int]:
+    """The numpy baseline's (rows, lights): at least 1/8 of the frame's rows (per-call
+    overhead then costs little: on 10 rows it dominated, 5× slower per pair), and
+    about ``pairs`` pixel-light pairs, using the first lights only where all of
+    them would exceed that (numpy's cost per pair does not depend on N: it loops
+    over the lights)."""
+    rows = max(-(-height // 8), min(height, int(pairs // max(width * n, 1))))
+    lights = max(1, min(n, int(pairs // max(width * rows, 1))))
+    return rows, lights
+
+
+def _first_lights(scene, n: int):
+    """``scene`` with its ambient lights and its first ``n`` point lights only."""
+    import dataclasses
+
+    amb = scene.lights_of("ambient")
+    return dataclasses.replace(scene, lights=tuple(amb) + tuple(scene.lights_of("point")[:n]))
+
+
 def run_bench(cfg: BenchConfig) -> dict:
     """Run the benchmark; return the report (a JSON-serialisable dict)."""
     log = cfg.log or (lambda msg: None)
     rt = get_runtime(cfg.device)
-    peak = measure_peak_gflops(rt)
-    log(f"device: {rt.name}; FP32 peak {peak:.1f} GFLOP/s (kernels/peak.cl)")
+    shapes: dict = {}
+    peak = measure_peak_gflops(rt, detail=shapes)
+    use_numba = cfg.numba and numba_peer.available()
+    numba_fma = numba_peer.fma_peak_gflops() if use_numba else None
+    best = shapes.get("best", {})
+    log(f"device: {rt.name}; FP32 peak {peak:.1f} GFLOP/s (kernels/peak.cl, best of "
+        f"{len(shapes) - 1} shapes: {best.get('lanes')} lanes x {best.get('chains')} chains)"
+        + (f"; numba FMA loop {numba_fma:.1f} GFLOP/s ({numba_peer.fma_vector_bits()}-bit vectors)"
+           if numba_fma else ""))
+    if not use_numba and cfg.numba:
+        log("numba peer: skipped (numba is not installed: pip install 'clphong[bench]')")
     report = {
         "clphong_bench": 1,
         "machine": {"device": rt.name, "llvm_target": rt.llvm_target, "lanes": rt.lanes,
                     "host": platform.processor() or platform.machine(),
-                    "cpu_count": os.cpu_count(), "fp32_peak_gflops": peak},
+                    "cpu_count": os.cpu_count(), "fp32_peak_gflops": peak,
+                    "fp32_peak": {
+                        "gflops": peak,
+                        "method": "kernels/peak.cl: independent FMA chains a = a*b + c on "
+                                  "float lanes, 64x64 work-items a core, 1024 steps, median of "
+                                  "5 launches by profiling events; best of the (lanes x chains) "
+                                  "shapes",
+                        "shapes_gflops": {k: v for k, v in shapes.items() if k != "best"},
+                        "numba_fma_gflops": numba_fma,
+                        "numba_fma_method": None if numba_fma is None else numba_peer.FMA_METHOD,
+                    }},
         "settings": {"sizes": [list(s) for s in cfg.sizes], "lights": list(cfg.lights),
                      "paths": list(cfg.paths), "budgets": list(cfg.budgets),
                      "repeats": cfg.repeats, "warmup": cfg.warmup, "crop_pairs": cfg.crop_pairs,
                      "error_pairs": cfg.error_pairs, "numpy_pairs": cfg.numpy_pairs,
+                     "numba": use_numba,
                      "small_lights": list(cfg.small_lights), "seed": SEED,
                      "reference_white": 1.0},
         "numpy": [],
+        "numba": [],
         "runs": [],
     }
     for (W, H) in cfg.sizes:
@@ -408,27 +450,56 @@ def run_bench(cfg: BenchConfig) -> dict:
                 frame = prepare_frame(gb, lanes=max(r.lanes, 1))
                 slots.append({"path": path, "budget": budget, "rows": rows, "gb": gb, "r": r,
                               "frame": frame, "times": [], "cull": []})
-            crop = None
+            crop = peer = None
             if kind == "wide":      # numpy float32, on a crop (wide scene only: same shading)
-                np_rows = _crop_rows(W, H, n, cfg.numpy_pairs)
+                np_rows, np_lights = numpy_crop(W, H, n, cfg.numpy_pairs)
                 crop, np_times = bench_gbuffer(W, H, np_rows), []
+                np_scene = bench_scene(kind, n) if np_lights == n else _first_lights(scene, np_lights)
+                if use_numba:       # the numba peer on the accurate path's crop: identical inputs
+                    peer_rows = _crop_rows(W, H, n, cfg.crop_pairs)
+                    peer_gb = full if peer_rows == H else bench_gbuffer(W, H, peer_rows)
+                    peer, peer_times = numba_peer.NumbaPeer(scene, peer_gb), []
             for round_ in range(cfg.warmup + cfg.repeats):
                 for slot in slots:
                     t, c, slot["result"] = time_frame(slot["r"], slot["gb"], slot["frame"])
                     if round_ >= cfg.warmup:
                         slot["times"].append(t)
                         slot["cull"].append(c)
+                if peer is not None:
+                    t0 = time.perf_counter()
+                    peer.shade_flat()
+                    if round_ >= cfg.warmup:
+                        peer_times.append(time.perf_counter() - t0)
                 if crop is not None and round_ >= cfg.warmup and round_ - cfg.warmup < 3:
                     t0 = time.perf_counter()
-                    numpy_shade(scene, crop)
+                    numpy_shade(np_scene, crop)
                     np_times.append(time.perf_counter() - t0)
-            np_rate = None
+            np_rate = numba_rate = None
             if crop is not None:
                 t = statistics.median(np_times)
-                np_rate = shaded_pixels(crop) * n / t
+                np_rate = shaded_pixels(crop) * np_lights / t
                 report["numpy"].append({"scene": kind, "lights": n, "crop_rows": np_rows,
-                                        "seconds": t, "ple_per_s": np_rate})
-                log(f"numpy float32  {kind:5s} N={n:<6d} {np_rate / 1e6:8.2f} MPLE/s ({W}x{np_rows})")
+                                        "timed_lights": np_lights, "seconds": t,
+                                        "ple_per_s": np_rate})
+                log(f"numpy float32  {kind:5s} N={n:<6d} {np_rate / 1e6:8.2f} MPLE/s "
+                    f"({W}x{np_rows}, {np_lights} lights)")
+            if peer is not None:
+                t = statistics.median(peer_times)
+                numba_rate = shaded_pixels(peer_gb) * n / t
+                key = peer_rows
+                if key not in oracle_cache:
+                    frame = prepare_frame(peer_gb, lanes=1)
+                    m = max(500, int(cfg.error_pairs // max(n, 1)))
+                    oracle_cache[key] = make_oracle(scene, peer_gb, frame, m)
+                err = oracle_cache[key].errors(peer.shade())
+                report["numba"].append({
+                    "scene": kind, "size": [W, H], "lights": n, "crop_rows": peer_rows,
+                    "extrapolated": peer_rows != H, "times_ms": [x * 1e3 for x in peer_times],
+                    "ms_per_frame": t * 1e3 * shaded_full / shaded_pixels(peer_gb),
+                    "ple_per_s": numba_rate, "gple_per_s": numba_rate / 1e9,
+                    "numpy_ratio": numba_rate / np_rate, "error": err})
+                log(f"numba peer     {kind:5s} N={n:<6d} {numba_rate / 1e9:7.3f} GPLE/s "
+                    f"({W}x{peer_rows})  max rel {err['max_rel']:.2e} mean {err['mean_rel']:.2e}")
             for slot in slots:
                 path, budget, rows, gb, r, frame = (slot[k] for k in ("path", "budget", "rows", "gb", "r", "frame"))
                 brute = budget is None
@@ -453,6 +524,7 @@ def run_bench(cfg: BenchConfig) -> dict:
                     "cull_ms": cull_s * 1e3 * shaded_full / shaded,
                     "ple_per_s": rate, "gple_per_s": rate / 1e9,
                     "numpy_ratio": rate / np_rate if np_rate else None,
+                    "numba_ratio": rate / numba_rate if numba_rate and brute else None,
                     # culled runs evaluate fewer pairs than S·N: no peak fraction
                     "flops_per_ple": flops,
                     "peak_fraction": rate * flops / (peak * 1e9) if brute else None,
@@ -465,6 +537,7 @@ def run_bench(cfg: BenchConfig) -> dict:
                     f"{entry['ms_per_frame']:10.1f} ms/frame"
                     + (f" ({W}x{rows} crop)" if rows != H else "")
                     + (f" ×{entry['numpy_ratio']:.0f} numpy" if np_rate else "")
+                    + (f" ×{entry['numba_ratio']:.2f} numba" if entry["numba_ratio"] else "")
                     + f"  max rel {err['max_rel']:.2e} mean {err['mean_rel']:.2e}"
                     f" abs {err['max_abs']:.2e} band {err['band_pixels']}"
                     + (f" kept {entry['kept_fraction']:.4f}" if entry["kept_fraction"] is not None else ""))
