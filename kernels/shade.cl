@@ -23,14 +23,14 @@
  *
  * Defines: all of the shading plan's (clphong/device/plan.py), each required by
  * the header that reads it: LANES (lanes.h), the number formats (clphong.h), the
- * scene's switches and CULL_TILE with CULLING (plan.h), DISPLAY_OUT and with it
- * the display's (tonemap.h).
+ * scene's switches and CULL_TILE with CULLING (plan.h). The display output is
+ * not here: kernels/tonemap_apply.cl runs on the stored planes, so a change of
+ * tone-map operator, view or output never rebuilds this kernel.
  */
 #include "clphong.h"
 #include "plan.h"
 #include "brdf.h"
 #include "lights.h"
-#include "tonemap.h"    /* display_store: exposure, tone mapping, encoding (DISPLAY_OUT) */
 #include "shade_args.h"
 
 /* Add x to the running sum s (POCL-NOTES "Light sums"). SUM_FP64: s is double,
@@ -308,16 +308,5 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
     vstoreL(COVER(SELECT(finish_sum(qr, qcr), (floatL)(0.0f), bg)), i, out + (OUT_SPECULAR + 0) * stride);
     vstoreL(COVER(SELECT(finish_sum(qg, qcg), (floatL)(0.0f), bg)), i, out + (OUT_SPECULAR + 1) * stride);
     vstoreL(COVER(SELECT(finish_sum(qb, qcb), (floatL)(0.0f), bg)), i, out + (OUT_SPECULAR + 2) * stride);
-#endif
-#if DISPLAY_OUT
-    /* Tone mapping fused into the store: no round trip through the host. With
-       DISPLAY_STRAIGHT (a display output with straight alpha) the un-premultiplied S. */
-#if DISPLAY_STRAIGHT
-    display_store(Er, Eg, Eb, i, display, stride, exposure, tonemap_params,
-                  display_m0, display_m1, display_m2);
-#else
-    display_store(Or, Og, Ob, i, display, stride, exposure, tonemap_params,
-                  display_m0, display_m1, display_m2);
-#endif
 #endif
 }

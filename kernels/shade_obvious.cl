@@ -8,8 +8,8 @@
  * naive. It is all float and ignores the hi + lo remainders eye_lo, material_lo
  * and S_lo.
  *
- * Defines: the shading plan's (clphong/device/plan.py) scene switches (plan.h)
- * and display (tonemap.h). The plan sets no LANES, CULLING or number format for
+ * Defines: the shading plan's (clphong/device/plan.py) scene switches (plan.h);
+ * the display output is kernels/tonemap_apply.cl's, as for shade.cl. The plan sets no LANES, CULLING or number format for
  * this kernel ("obvious" plans): it fixes them here, one float pixel per
  * work-item, and refuses a build that sets them.
  */
@@ -27,7 +27,6 @@
 #define WEIGHTS_FP64 0
 #include "clphong.h"
 #include "plan.h"
-#include "tonemap.h"    /* display_store (DISPLAY_OUT) */
 #include "shade_args.h"
 
 __kernel void shade(SHADE_ARGS)   /* include/shade_args.h, as shade.cl */
@@ -38,10 +37,6 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h, as shade.cl */
     const float3 C_d = (float3)(gbuf[6 * stride + i], gbuf[7 * stride + i], gbuf[8 * stride + i]);
     if (n.x == 0.0f && n.y == 0.0f && n.z == 0.0f) {   /* background, zeroed on the host */
         out[i] = background.x; out[stride + i] = background.y; out[2 * stride + i] = background.z;
-#if DISPLAY_OUT
-        display_store(background.x, background.y, background.z, i, display, stride, exposure,
-                      tonemap_params, display_m0, display_m1, display_m2);
-#endif
         return;
     }
     uint plane = 0;
@@ -127,13 +122,4 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h, as shade.cl */
     const float3 O = E;
 #endif
     out[i] = O.x; out[stride + i] = O.y; out[2 * stride + i] = O.z;
-#if DISPLAY_OUT
-#if DISPLAY_STRAIGHT
-    display_store(E.x, E.y, E.z, i, display, stride, exposure, tonemap_params,
-                  display_m0, display_m1, display_m2);
-#else
-    display_store(O.x, O.y, O.z, i, display, stride, exposure, tonemap_params,
-                  display_m0, display_m1, display_m2);
-#endif
-#endif
 }

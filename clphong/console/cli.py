@@ -416,14 +416,21 @@ def cmd_render(args) -> int:
     # The one output step of render, relight and the API: EXR / SDR / HDR / contact sheet.
     result, times = render_outputs(renderer, gbuffer, relighter.output, paths)
     t_end = time.perf_counter()
-    t_shade = times.pop("shade")            # the launch (and the fused SDR tone mapping)
+    t_shade = times.pop("shade")            # the launch (and the SDR tone mapping on the device)
     t_write = sum(times.values())           # per output kind: tone mapping, encoding, writing
     if args.stats:
         st = result.stats
         h, w = gbuffer.shape
-        # The plan that ran (fused display output, culling fallback), not a fresh one.
+        # The plan that ran (culling fallback), not a fresh one; then the display program's.
         plan = result.plan
         print(plan, file=sys.stderr)
+        dt = result.display_transform
+        if dt is not None:
+            print("display: kernels/tonemap_apply.cl on the shaded planes (rebuilt alone when "
+                  "the operator or output changes)", file=sys.stderr)
+            why = dt.reasons()
+            for name, value in dt.defines().items():
+                print(f"  -D{name}={value}  {why.get(name, '')}", file=sys.stderr)
         print(f"device: {renderer.runtime.name}", file=sys.stderr)
         kinds = ", ".join(f"{k} {v:.3f} s" for k, v in times.items())
         print(f"{w}x{h}: read {t_read - t0:.3f} s, setup {t_end - t_read - t_shade - t_write:.3f} s, "

@@ -3,10 +3,13 @@
 :class:`DisplayTransform` describes what ``kernels/tonemap.cl`` does to a
 scene-linear pixel: multiply by 2^EV, convert the working space to Rec.709,
 apply a tone-mapping operator (:mod:`clphong.reference.tonemap`), and encode for an sRGB
-display (or leave display-linear). The shading kernel fuses it into its final
-store when a :class:`~clphong.device.renderer.Renderer` is given one (no round trip
-through the host); :func:`apply_display_transform` runs the same code on
-planes already shaded (the contact sheet, the operator tests).
+display (or leave display-linear). A :class:`~clphong.device.renderer.Renderer`
+given one runs it on the shading kernel's output buffer, on the device, right
+after the shading (:func:`enqueue_display`: no round trip through the host); it
+is a program of its own, so a change of operator, exposure or output never
+rebuilds the shading kernel. :func:`apply_display_transform` runs the same code
+on planes already shaded (the banded path, the contact sheet, the operator
+tests).
 
 >>> dt = DisplayTransform("agx", exposure=1.0)          # doctest: +SKIP
 >>> srgb = apply_display_transform(rgb, dt)              # (H, W, 3) float32 in [0, 1]
@@ -26,12 +29,12 @@ from ..reference import tonemap as tonemap_reference
 from .frame import LOCAL_SIZE
 from .runtime import float4, get_runtime
 
-__all__ = ["DisplayTransform", "apply_display_transform", "display_kernel_args"]
+__all__ = ["DisplayTransform", "apply_display_transform", "display_program", "enqueue_display"]
 
 
 @dataclass(frozen=True)
 class DisplayTransform:
-    """Exposure, operator and encoding of the fused display output.
+    """Exposure, operator and encoding of the display output (kernels/tonemap_apply.cl).
 
     Parameters
     ----------
@@ -71,7 +74,7 @@ class DisplayTransform:
         return tonemap.operator(self.operator).id
 
     def defines(self) -> dict[str, int]:
-        """The ``-D`` defines of kernels/tonemap.cl for this transform."""
+        """The ``-D`` defines of kernels/tonemap_apply.cl (include/tonemap.h) for this transform."""
         return {"DISPLAY_OUT": 1, "TONEMAP": self.id,
                 "DISPLAY_MATRIX": int(self.matrix is not None),
                 "DISPLAY_ENCODING": ENCODINGS[self.encoding]}
@@ -79,8 +82,8 @@ class DisplayTransform:
     def reasons(self) -> dict[str, str]:
         op = tonemap.operator(self.operator)
         return {
-            "DISPLAY_OUT": "a display output is written without an OCIO view: tone mapping is "
-                           "fused into the shading kernel's store",
+            "DISPLAY_OUT": "a display output is written without an OCIO view: tone mapping by "
+                           "kernels/tonemap_apply.cl on the shaded planes",
             "TONEMAP": f"operator {op.name!r} ({op.source}), exposure {self.exposure:+g} EV",
             "DISPLAY_MATRIX": ("working space -> Rec.709 matrix before the operator"
                                if self.matrix is not None else "working space is Rec.709"),
@@ -107,31 +110,46 @@ class DisplayTransform:
                                    matrix=self.matrix, encoding=ENCODINGS[self.encoding])
 
 
-def display_kernel_args(transform: DisplayTransform | None, context, stride: int):
-    """The arguments shade.cl and shade_obvious.cl take after ``eye_lo``.
+def display_program(runtime, transform: DisplayTransform, lanes: int, straight: bool = False):
+    """kernels/tonemap_apply.cl built for ``transform`` (small: a change of operator,
+    exposure or encoding rebuilds only this, never a shading kernel)."""
+    defines = dict(transform.defines())
+    defines["LANES"] = lanes
+    defines["DISPLAY_STRAIGHT"] = int(straight)
+    return runtime.program("tonemap_apply.cl", defines)
 
-    Returns
-    -------
-    (numpy.ndarray or None, list)
-        The host array the display planes are copied into (None without a
-        transform), and [display buffer, exposure, tonemap_params, m0, m1, m2].
-        Without a transform the kernel never touches the display buffer
-        (DISPLAY_OUT=0), so a 4-byte one stands in.
+
+def enqueue_display(runtime, transform: DisplayTransform, src, stride: int, lanes: int, *,
+                    wait_for=None, alpha=None, background=(0.0, 0.0, 0.0)):
+    """Enqueue kernels/tonemap_apply.cl on the device planes ``src`` (R G B,
+    ``stride`` floats a plane, a multiple of ``lanes`` × LOCAL_SIZE).
+
+    ``alpha``: a buffer whose first ``stride`` floats are the coverage, for an
+    output with straight alpha (DISPLAY_STRAIGHT): the display then takes the
+    un-premultiplied shade. Returns (the display buffer, the event). Call with
+    ``runtime.lock`` held.
     """
     import pyopencl as cl
 
-    if transform is None:
-        buf = cl.Buffer(context, cl.mem_flags.WRITE_ONLY, 4)
-        z = float4()
-        return None, [buf, np.float32(1.0), z, z, z, z]
-    host = np.empty((3, stride), np.float32)
-    buf = cl.Buffer(context, cl.mem_flags.WRITE_ONLY, host.nbytes)
-    return host, [buf, *transform.kernel_args()]
+    prog = display_program(runtime, transform, lanes, straight=alpha is not None)
+    dst = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, 3 * stride * 4)
+    if alpha is None:
+        alpha = cl.Buffer(runtime.context, cl.mem_flags.READ_ONLY, 4)   # unused stand-in
+    kern = runtime.kernel(prog, "tonemap_planes")
+    kern.set_args(src, dst, np.uint32(stride), *transform.kernel_args(), alpha,
+                  float4(*background))
+    evt = cl.enqueue_nd_range_kernel(runtime.queue, kern, (stride // lanes,), (LOCAL_SIZE,),
+                                     wait_for=wait_for)
+    return dst, evt
 
 
 def apply_display_transform(rgb, transform: DisplayTransform, *, device: str | None = None,
-                            lanes: int | None = None, runtime=None) -> np.ndarray:
+                            lanes: int | None = None, runtime=None, coverage=None,
+                            background=(0.0, 0.0, 0.0)) -> np.ndarray:
     """Run ``kernels/tonemap_apply.cl`` on an (H, W, 3) scene-linear image.
+
+    ``coverage`` (H, W): the image is the beauty α·S + (1 − α)·``background``
+    and the display takes the straight shade S (an output with straight alpha).
 
     Returns
     -------
@@ -151,17 +169,17 @@ def apply_display_transform(rgb, transform: DisplayTransform, *, device: str | N
     stride = max(block, math.ceil(n / block) * block)
     planes = np.zeros((3, stride), np.float32)
     planes[:, :n] = rgb.reshape(-1, 3).T
-    defines = dict(transform.defines())
-    defines["LANES"] = lanes
-    prog = rt.program("tonemap_apply.cl", defines)
     mf = cl.mem_flags
     src = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=planes)
+    alpha = None
+    if coverage is not None:
+        a = np.ones(stride, np.float32)
+        a[:n] = np.asarray(coverage, np.float32).reshape(-1)
+        alpha = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)
     out = np.empty_like(planes)
-    dst = cl.Buffer(rt.context, mf.WRITE_ONLY, out.nbytes)
     with rt.lock:
-        kern = rt.kernel(prog, "tonemap_planes")
-        kern.set_args(src, dst, np.uint32(stride), *transform.kernel_args())
-        evt = cl.enqueue_nd_range_kernel(rt.queue, kern, (stride // lanes,), (LOCAL_SIZE,))
-    cl.enqueue_copy(rt.queue, out, dst, wait_for=[evt])
-    rt.queue.finish()
+        dst, evt = enqueue_display(rt, transform, src, stride, lanes, alpha=alpha,
+                                   background=background)
+        cl.enqueue_copy(rt.queue, out, dst, wait_for=[evt])
+        rt.queue.finish()
     return np.ascontiguousarray(out[:, :n].T).reshape(h, w, 3)

@@ -90,9 +90,9 @@ class ShadingPlan:
 
 def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LANES,
               compensated: bool | None = None, fp64_directions: bool = False,
-              display=None, max_error: float | None = None, has_fp64: bool | None = None,
+              max_error: float | None = None, has_fp64: bool | None = None,
               int_pow: bool | str = True, coverage: bool = False, groups: Sequence[str] = (),
-              aovs: Sequence[str] = (), straight: bool = False) -> ShadingPlan:
+              aovs: Sequence[str] = ()) -> ShadingPlan:
     """Choose the kernel variant for ``scene`` and the material ``maps`` present.
 
     Parameters
@@ -134,11 +134,10 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         Light-group layers, in the order of the output planes (N_GROUPS).
     aovs : sequence of {"diffuse", "specular"}
         Component layers (AOV_DIFFUSE, AOV_SPECULAR).
-    straight : bool
-        The fused display output takes the straight shade (DISPLAY_STRAIGHT).
-    display : clphong.device.display.DisplayTransform, optional
-        Fuse exposure, tone mapping and display encoding into the final store
-        (kernels/tonemap.cl); None: scene-linear output only (DISPLAY_OUT=0).
+
+    The display output is not part of the plan: kernels/tonemap_apply.cl runs
+    on the stored planes (clphong.device.display), so the shading kernel never
+    depends on the tone-map operator, the view or the outputs.
     """
     check_kernel(kernel)
     m = scene.material
@@ -253,15 +252,6 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         if "diffuse" in aovs else "no diffuse layer")
     put("AOV_SPECULAR", "specular" in aovs, "specular layer" if "specular" in aovs
         else "no specular layer")
-    put("DISPLAY_STRAIGHT", straight and display is not None,
-        "display output with straight alpha: the un-premultiplied shade" if straight
-        else "display output of the premultiplied beauty over the background")
-    if display is None:
-        put("DISPLAY_OUT", 0, "no fused display output (scene-linear only, or an OCIO view)")
-    else:
-        why = display.reasons()
-        for name, value in display.defines().items():
-            put(name, value, why[name])
     notes = []
     if not n_point and not n_dir:
         notes.append("no direct lights: only the ambient term is shaded")

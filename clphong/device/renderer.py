@@ -45,8 +45,9 @@ from .bands import (
     render_bytes_per_pixel,
 )
 from .culling import TileLists, build_tile_lists
-from .display import DisplayTransform, apply_display_transform, display_kernel_args
+from .display import DisplayTransform, apply_display_transform, enqueue_display
 from .frame import (
+    COVERAGE_PLANE,
     LOCAL_SIZE,
     Frame,
     check_near_field,
@@ -78,10 +79,10 @@ class RenderResult:
         (H, W, 3) float32 scene-linear RGB.
     display : numpy.ndarray or None
         (H, W, 3) float32 display output of the ``display`` transform asked for
-        (fused into the shading launch, or applied after the bands); None if none.
+        (kernels/tonemap_apply.cl on the shaded planes, on the device); None if none.
     plan : ShadingPlan
-        The variant that ran (with the fused display output, or the brute-force
-        fallback of culling, as it actually ran).
+        The variant that ran (the brute-force fallback of culling, as it actually
+        ran). The display output is not part of it: ``display_transform``.
     stats : RenderStats
     cull : TileLists or None
         The culling lists of the (last) launch; None without culling.
@@ -103,6 +104,7 @@ class RenderResult:
     nonfinite: dict = field(default_factory=dict)
     bands: int = 1
     layers: dict = field(default_factory=dict)
+    display_transform: DisplayTransform | None = None
 
     def __array__(self, dtype=None, copy=None):
         return self.image if dtype is None else self.image.astype(dtype)
@@ -238,22 +240,18 @@ class Renderer:
             return "float" if not self.fp64_directions else None
         return None
 
-    def plan_for(self, map_names, *, culling: bool = True,
-                 display: DisplayTransform | None = None) -> ShadingPlan:
+    def plan_for(self, map_names, *, culling: bool = True) -> ShadingPlan:
         """The plan for frames with these material maps (its program built and cached);
-        ``culling=False``: the same variant without culling (the brute-force fallback);
-        ``display``: with that display transform fused into the store."""
-        plan, _ = self._plan_and_program(map_names, culling=culling, display=display)
+        ``culling=False``: the same variant without culling (the brute-force fallback)."""
+        plan, _ = self._plan_and_program(map_names, culling=culling)
         return plan
 
-    def _plan_and_program(self, map_names, *, culling: bool = True,
-                          display: DisplayTransform | None = None, coverage: bool = False):
+    def _plan_and_program(self, map_names, *, culling: bool = True, coverage: bool = False):
         plan = make_plan(self.scene, map_names, kernel=self.kernel_kind, lanes=self.lanes,
                          compensated=self.compensated, fp64_directions=self.fp64_directions,
-                         display=display, max_error=self.max_error if culling else None,
+                         max_error=self.max_error if culling else None,
                          has_fp64=self.runtime.fast_fp64, int_pow=self.int_pow,
-                         coverage=coverage, groups=self.scene.light_groups, aovs=self.aovs,
-                         straight=self.straight_alpha)
+                         coverage=coverage, groups=self.scene.light_groups, aovs=self.aovs)
         return plan, self.runtime.program(plan.entry_file, plan.defines)
 
     # ------------------------------------------------------------------ a whole frame
@@ -294,7 +292,8 @@ class Renderer:
             rows = self._band_rows(gbuffer, display is not None)
         if rows >= h:
             one = self._launch(prepare_frame(gbuffer, lanes=self.lanes), display)
-            return dataclasses.replace(one, nonfinite=nonfinite, stats=dataclasses.replace(
+            return dataclasses.replace(one, nonfinite=nonfinite, display_transform=display,
+                                       stats=dataclasses.replace(
                 one.stats, total_seconds=time.perf_counter() - t0))
         # Band edges on the culling super-tile grid keep each tile's light list,
         # and so the result, the same as in one launch (clphong.device.bands).
@@ -323,15 +322,16 @@ class Renderer:
             del frame
         shown = None
         if display is not None:
-            shown_of = image
-            if self.straight_alpha and gbuffer.coverage is not None:
-                shown_of = straight_of(image, gbuffer.coverage, self.scene.background)
-            shown = apply_display_transform(shown_of, display, runtime=self.runtime,
-                                            lanes=self.lanes if self.kernel_kind == "lanes" else None)
+            straight = self.straight_alpha and gbuffer.coverage is not None
+            shown = apply_display_transform(image, display, runtime=self.runtime,
+                                            lanes=self.lanes if self.kernel_kind == "lanes" else None,
+                                            coverage=gbuffer.coverage if straight else None,
+                                            background=self.scene.background)
         stats = RenderStats(kernel_seconds=kernel_s, upload_seconds=upload_s,
                             total_seconds=time.perf_counter() - t0)
         return RenderResult(image=image, display=shown, plan=last.plan, stats=stats, cull=last.cull,
-                            nonfinite=nonfinite, bands=len(bands), layers=layers)
+                            nonfinite=nonfinite, bands=len(bands), layers=layers,
+                            display_transform=display)
 
     def _band_rows(self, gbuffer, display: bool) -> int:
         """The rows one launch may shade (the memory model and the device's limits)."""
@@ -383,8 +383,7 @@ class Renderer:
         import pyopencl as cl
 
         t0 = time.perf_counter()
-        plan, prog = self._plan_and_program(frame.map_names, display=display,
-                                            coverage=frame.coverage)
+        plan, prog = self._plan_and_program(frame.map_names, coverage=frame.coverage)
         lights = pack_lights(self.scene, frame.origin)
         check_near_field(self.scene, frame, lights, bool(plan.defines.get("DIRECTIONS_FP64")))
         k_d, S, k = material_uniforms(self.scene, frame.map_names)
@@ -419,23 +418,31 @@ class Renderer:
                                         maps_buffer=mp)
                 if cull is None:   # lists too long to pay off: brute force
                     plan, prog = self._plan_and_program(frame.map_names, culling=False,
-                                                        display=display, coverage=frame.coverage)
+                                                        coverage=frame.coverage)
                 else:
                     cull_args = cull.kernel_args()
             kern = self.runtime.kernel(prog, "shade")
-            disp, display_args = display_kernel_args(display, ctx, frame.stride)
             kern.set_args(
                 g, mp, ob, np.uint32(frame.stride),
                 pl, np.uint32(plan.n_point), dl, np.uint32(plan.n_directional),
                 float4(*origin), float4(*eye), float4(*lights.ambient),
                 np.float32(k_d), float4(*S), np.float32(k), float4(*bg),
                 float4(*eye_lo), float4(*amb_lo, kd_lo), float4(*S_lo, k_lo), gt, ga,
-                *display_args, *cull_args)
+                *cull_args)
             items = frame.stride // self.lanes
             evt = cl.enqueue_nd_range_kernel(queue, kern, (items,), (LOCAL_SIZE,))
             cl.enqueue_copy(queue, out, ob, wait_for=[evt])
-            if disp is not None:
-                cl.enqueue_copy(queue, disp, display_args[0], wait_for=[evt])
+            disp = None
+            if display is not None:
+                # the display program on the beauty planes, on the device; with straight
+                # alpha it reads the coverage plane (gbuf plane COVERAGE_PLANE)
+                alpha = None
+                if self.straight_alpha and frame.coverage:
+                    alpha = g.get_sub_region(COVERAGE_PLANE * frame.stride * 4, frame.stride * 4)
+                dbuf, devt = enqueue_display(self.runtime, display, ob, frame.stride, self.lanes,
+                                             wait_for=[evt], alpha=alpha, background=bg)
+                disp = np.empty((3, frame.stride), np.float32)
+                cl.enqueue_copy(queue, disp, dbuf, wait_for=[devt])
             queue.finish()
             t2 = time.perf_counter()
         kernel_s = (evt.profile.end - evt.profile.start) * 1e-9
@@ -448,7 +455,7 @@ class Renderer:
         stats = RenderStats(kernel_seconds=kernel_s, upload_seconds=t2 - t1 - kernel_s,
                             total_seconds=time.perf_counter() - t0)
         return RenderResult(image=image, display=shown, plan=plan, stats=stats, cull=cull,
-                            layers=layers)
+                            layers=layers, display_transform=display)
 
 
 def check_layers(scene, aovs) -> tuple[tuple[str, ...], tuple[str, ...]]:

@@ -25,8 +25,6 @@
  *                    the beauty over the background (α·S + (1 − α)·background)
  *   N_GROUPS         number of light-group layers (0: none); the host sorts lights by group
  *   AOV_DIFFUSE, AOV_SPECULAR   the diffuse (with ambient) and specular layers
- *   DISPLAY_STRAIGHT the fused display output takes the straight (un-premultiplied)
- *                    shade, for an output with straight alpha
  *
  * shade_obvious.cl shades the beauty only: the plan refuses layers for it.
  *
@@ -86,9 +84,6 @@
 #endif
 #ifndef AOV_SPECULAR
 #error "AOV_SPECULAR must be set by the shading plan (clphong/device/plan.py)"
-#endif
-#ifndef DISPLAY_STRAIGHT
-#error "DISPLAY_STRAIGHT must be set by the shading plan (clphong/device/plan.py)"
 #endif
 /* CULL_TILE is read only with CULLING (shade.cl's tile of a work-item): only then
    is it required. */

@@ -43,12 +43,7 @@
     const float4 material_lo,  /* ambient − float(ambient) (xyz), k_d − float(k_d) (w) */ \
     const float4 S_lo,         /* S_uniform − float(S_uniform) (xyz), k − float(k) (w); both with WEIGHTS_FP64 */ \
     __global const uint *restrict group_table,     /* with N_GROUPS: dir_end[G], point_end[G] */ \
-    __global const float4 *restrict group_ambient, /* with N_GROUPS: k_a·A_g as hi, lo per group */ \
-    __global float *restrict display,  /* display R G B, with DISPLAY_OUT (tonemap.h) */ \
-    const float exposure,              /* 2^EV, with DISPLAY_OUT */ \
-    const float4 tonemap_params,       /* operator parameters, with DISPLAY_OUT */ \
-    const float4 display_m0, const float4 display_m1, \
-    const float4 display_m2            /* working space -> Rec.709, with DISPLAY_MATRIX */ \
+    __global const float4 *restrict group_ambient  /* with N_GROUPS: k_a·A_g as hi, lo per group */ \
     SHADE_CULL_ARGS
 
 #endif /* CLPHONG_SHADE_ARGS_H */

@@ -236,10 +236,10 @@ def test_round_trip_through_the_inverse(op, device):
     assert np.allclose(tonemap.reference(tonemap.inverse(ref[ok], op), op), ref[ok], atol=1e-12)
 
 
-# ------------------------------------------------------------------ fused in the shading kernel
+# ------------------------------------------------------------------ on the shading output, on the device
 
 @pytest.mark.parametrize("kernel", ["lanes", "obvious"])
-def test_fused_display_output_equals_the_twin_of_the_shaded_frame(kernel, device):
+def test_display_output_equals_the_twin_of_the_shaded_frame(kernel, device):
     from conftest import make_scene, random_gbuffer, random_lights
 
     from clphong.device.renderer import Renderer
@@ -252,21 +252,47 @@ def test_fused_display_output_equals_the_twin_of_the_shaded_frame(kernel, device
     dt = DisplayTransform("agx", exposure=1.5)
     result = r.render(gb, display=dt)
     rgb, shown = result.image, result.display
-    assert result.bands == 1 and result.plan.defines["DISPLAY_OUT"] == 1   # from the shading launch
+    assert result.bands == 1
+    assert "DISPLAY_OUT" not in result.plan.defines          # the shading plan has no display
     assert np.array_equal(rgb, plain)                         # scene-linear output unchanged
     assert np.all(np.abs(shown - dt.reference(rgb)) <= dt.error_bound(rgb))
-    plan = r.plan_for(())
-    assert plan.defines["DISPLAY_OUT"] == 0
 
 
-def test_plan_names_the_fused_operator():
-    from conftest import make_scene
+@pytest.mark.parametrize("kernel", ["lanes", "obvious"])
+def test_display_changes_never_rebuild_the_shading_kernel(kernel, device):
+    """Operator, exposure, encoding and straight alpha are the display program's
+    (kernels/tonemap_apply.cl); the shading program is built once for them all."""
+    from conftest import make_scene, random_gbuffer, random_lights
 
-    from clphong.device.plan import make_plan
+    from clphong.device.renderer import Renderer
+    from clphong.device.runtime import get_runtime
 
-    plan = make_plan(make_scene(), display=DisplayTransform("hable", exposure=-1))
-    assert plan.defines["DISPLAY_OUT"] == 1 and plan.defines["TONEMAP"] == 3
-    assert "hable" in str(plan) and "-1 EV" in str(plan)
+    rng = np.random.default_rng(5)
+    scene = make_scene(random_lights(rng, 3, 1))
+    gb = random_gbuffer(rng, 8, 16)
+    r = Renderer(scene, kernel=kernel, device=device)
+    rt = get_runtime(device)
+
+    def shading_programs():
+        return {k for k in rt._programs if k[0] != "tonemap_apply.cl"}
+
+    r.render(gb)
+    before = shading_programs()
+    first = None
+    for dt in (DisplayTransform("agx", exposure=1.5), DisplayTransform("hable", exposure=-1),
+               DisplayTransform("none", encoding="linear"), DisplayTransform("reinhard")):
+        result = r.render(gb, display=dt)
+        assert np.all(np.abs(result.display - dt.reference(result.image))
+                      <= dt.error_bound(result.image))
+        first = result.image if first is None else first
+        assert np.array_equal(result.image, first)
+    assert shading_programs() == before
+
+
+def test_display_defines_name_the_operator():
+    dt = DisplayTransform("hable", exposure=-1)
+    assert dt.defines()["DISPLAY_OUT"] == 1 and dt.defines()["TONEMAP"] == 3
+    assert "hable" in dt.reasons()["TONEMAP"] and "-1 EV" in dt.reasons()["TONEMAP"]
 
 
 # ------------------------------------------------------------------ registry
