@@ -143,7 +143,7 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
 #if SPEC_INT_POW
     /* a whole number (clphong/device/plan.py); with SPEC_COS Blinn raises (n·h)²
        to K/2 (K even) */
-    p.K = SPEC_COS && MODEL_BLINN ? (uint)k_uniform / 2u : (uint)k_uniform;
+    p.K = SPEC_COS && MODEL_BLINN ? (uint)SPEC_K / 2u : (uint)SPEC_K;   /* a constant: unrolled */
 #elif MAP_H
     p.k = FLOAT_TO_W(MODEL_BLINN ? 4.0f * k_map : k_map);   /* the map holds h; Blinn uses 4h */
 #else

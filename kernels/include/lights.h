@@ -112,7 +112,7 @@ inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
        beyond float (clphong/model/scene.py), so d² < 3·(2·FLT_MAX)² */
     const dirL d = d2 * inv_d;
 #else
-    const dirL d = SELECT_DIR(d2 * inv_d, d2, isinf(d2));
+    const dirL d = SELECT_DIR(d2 * inv_d, d2, d2 > FLT_MAX);   /* isinf(d2): d2 ≥ 0 (isinf is out of line) */
 #endif
     /* d = 0: no contribution, also where c0 = 0 makes the falloff infinite. */
     const dirL att = SELECT_DIR(attenuation(c0, c1, c2, d), (dirL)(0.0f), d2 <= (dirL)(0.0f));

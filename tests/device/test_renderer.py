@@ -416,8 +416,8 @@ def test_background_pixels_take_the_background_value(device):
 
 # ------------------------------------------------------------------------ device helpers
 
-def _rsqrt_dir_on_device(x, ctype, options, device=None):
-    """kernels/clphong.h's rsqrt_dir of each element of x (one per work-item, LANES = 1)."""
+def _rsqrt_dir_on_device(x, ctype, options, device=None, fn="rsqrt_dir"):
+    """kernels/clphong.h's rsqrt_dir (or ``fn``) of each element of x (one per work-item, LANES = 1)."""
     import pyopencl as cl
 
     from clphong.device.runtime import get_runtime, kernel_dir
@@ -425,7 +425,7 @@ def _rsqrt_dir_on_device(x, ctype, options, device=None):
     rt = get_runtime(device)
     src = ('#include "clphong.h"\n'
            f"__kernel void k(__global const {ctype} *x, __global {ctype} *y)"
-           "{ size_t i = get_global_id(0); y[i] = rsqrt_dir(x[i]); }")
+           "{ size_t i = get_global_id(0); y[i] = " + fn + "(x[i]); }")
     # clphong.h's number formats are #error when unset (kernels/include/plan.h): all float
     # but what the caller asks for
     formats = [f"-D{k}=0" for k in ("DIRECTIONS_FP64", "SUM_FP64", "SPEC_INT_POW", "SPEC_COS",
@@ -467,7 +467,7 @@ def test_inline_float_rsqrt_is_within_two_ulp(device):
     every float x ≥ 2·FLT_MIN (x·4 moves the guess and each Newton step by exactly ½;
     checked on samples from 1e-37 up; below 2·FLT_MIN, x/2 flushes to 0, see
     clphong.h); rsqrt(0) = +∞ as the builtin's (its domain is finite x: squared
-    distances, which can overflow, keep the builtin, RSQRT_DIST).
+    distances, which can overflow, add guards, RSQRT_DIST).
     Two Newton steps instead of three would give 4.6e-6 (77 ulp) and fail."""
     binade = np.arange(0x3F800000, 0x40800000, dtype=np.uint32).view(np.float32)
     spread = np.geomspace(1e-37, 3e38, 100_001).astype(np.float32)
@@ -477,6 +477,25 @@ def test_inline_float_rsqrt_is_within_two_ulp(device):
     ref = 1.0 / np.sqrt(x[1:].astype(np.float64))
     ulp = 2.0 ** (np.floor(np.log2(ref)) - 23)
     err = np.abs(y[1:].astype(np.float64) - ref) / ulp
+    assert float(err.max()) <= 2.0, float(err.max())
+
+
+def test_inline_float_rsqrt_of_a_distance_keeps_the_builtins_guards(device):
+    """RSQRT_DIST in float (rsqrt_dist, inline instead of PoCL's out-of-line
+    builtin): within 2 ulp of 1/√x for every normal float (the binade [1, 4), the
+    bottom binade [FLT_MIN, 4·FLT_MIN) that rsqrt_dir alone gets 3.4x wrong, and a
+    spread up to FLT_MAX), 0 for +∞ as rsqrt(+∞), +∞ for 0 as rsqrt(0)."""
+    tiny = np.finfo(np.float32).tiny
+    binade = np.arange(0x3F800000, 0x40800000, 7, dtype=np.uint32).view(np.float32)
+    bottom = np.arange(0x00800000, 0x01800000, 3, dtype=np.uint32).view(np.float32)
+    spread = np.geomspace(tiny, np.finfo(np.float32).max, 100_001).astype(np.float32)
+    x = np.concatenate([np.float32([0.0, np.inf]), binade, bottom, spread])
+    y = _rsqrt_dir_on_device(x, "float", ["-DDIRECTIONS_FP64=0", "-cl-denorms-are-zero"], device,
+                             fn="rsqrt_dist")
+    assert y[0] == np.inf and y[1] == 0.0
+    ref = 1.0 / np.sqrt(x[2:].astype(np.float64))
+    ulp = 2.0 ** (np.floor(np.log2(ref)) - 23)
+    err = np.abs(y[2:].astype(np.float64) - ref) / ulp
     assert float(err.max()) <= 2.0, float(err.max())
 
 
