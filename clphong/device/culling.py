@@ -43,6 +43,14 @@ COARSE_SHARE = 0.25
 MAX_LIST_ENTRIES = 1 << 26
 #: Work-items per work-group of the culling kernels.
 CULL_LOCAL = 8
+#: Above this mean kept fraction the frame is shaded brute force with the lists
+#: unused: walking a tile's list costs about 1.08x brute force per pair (its
+#: indices are loaded, not counted), and the culling kernels about 4 % of a
+#: brute-force 1080p frame at 256 lights, so lists that keep more than ~88 % lose.
+#: At 0.85 culling costs at most ~1.05x brute force where it cannot drop
+#: (256 lights, c2 = 20, 98.9 % kept: 1.13x before this fallback), and keeps its
+#: gain where it can.
+BRUTE_ABOVE = 0.85
 
 
 def super_tiles(lanes: int) -> int:
@@ -118,6 +126,12 @@ class TileLists:
     n_point: int
     seconds: float            # device time of the three culling kernels
     active_tiles: int = 0     # tiles with at least one shaded pixel
+    brute: bool = False       # the lists kept too much to pay off: shaded brute force
+
+    @property
+    def pays(self) -> bool:
+        """Whether shading through the lists beats brute force (:data:`BRUTE_ABOVE`)."""
+        return self.kept_fraction <= BRUTE_ABOVE
 
     @property
     def kept_fraction(self) -> float:

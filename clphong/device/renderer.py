@@ -416,7 +416,11 @@ class Renderer:
                 cull = build_tile_lists(self.runtime, plan, frame, lights.point, plan.n_point,
                                         budget=self.max_error, k_d=k_d, S=S, gbuf_buffer=g,
                                         maps_buffer=mp)
-                if cull is None:   # lists too long to pay off: brute force
+                if cull is None or not cull.pays:
+                    # lists too long, or keeping nearly every light: brute force (the
+                    # lists' cost stays in cull.seconds, their kept share in the result)
+                    if cull is not None:
+                        cull = dataclasses.replace(cull, brute=True)
                     plan, prog = self._plan_and_program(frame.map_names, culling=False,
                                                         coverage=frame.coverage)
                 else:

@@ -19,10 +19,22 @@ import pytest
 from conftest import heightfield, make_gbuffer, make_scene, point_lights
 
 from clphong.core.floats import U
+from clphong.device import culling
 from clphong.device.culling import read_tile_lists, tile_of_pixels
 from clphong.device.renderer import Renderer, prepare_frame
 from clphong.model.options import CullingError
 from clphong.reference import shading as reference
+
+
+#: The real threshold, before the fixture below lifts it.
+BRUTE_ABOVE = culling.BRUTE_ABOVE
+
+
+@pytest.fixture(autouse=True)
+def _shade_through_the_lists(monkeypatch):
+    """These tests hold the culled kernel itself to its budget: its lists are used
+    whatever they keep (the brute-force fallback has tests of its own below)."""
+    monkeypatch.setattr(culling, "BRUTE_ABOVE", 1.0)
 
 
 def dropped_sum(scene, gbuffer, renderer, cull):
@@ -89,6 +101,7 @@ def test_zero_budget_is_bit_identical_to_brute_force(seed, device):
     r = Renderer(scene, max_error=0.0, device=device)
     assert r.plan_for(()).defines["CULLING"] == 1     # the culling kernels did run
     result = r.render(gb)
+    assert result.plan.defines["CULLING"] == 1 and not result.cull.brute   # shaded through the lists
     culled = result.image
     assert np.array_equal(culled, brute)
     # only the black light (bound exactly 0) goes; every other light stays in every
@@ -375,3 +388,27 @@ def test_super_tile_bounds_merged_from_tiles_equal_direct_bounds(maps, device):
     rt.queue.finish()
     assert np.isfinite(a[: super_x * super_y]).all()     # at least the lo.x plane of real tiles
     assert np.array_equal(a.view(np.uint32), b.view(np.uint32))
+
+
+# ------------------------------------------------------------- when culling cannot drop
+
+def test_lists_that_keep_nearly_every_light_fall_back_to_brute_force(monkeypatch, device):
+    """Lights that reach everywhere (c2 small against the budget): the lists keep
+    more than BRUTE_ABOVE of them, so the frame is shaded brute force, bit-identical
+    to a run without a budget, and the result says so (the lists' time and kept
+    share stay in result.cull). A small-reach scene still shades through its lists."""
+    monkeypatch.setattr(culling, "BRUTE_ABOVE", BRUTE_ABOVE)
+    rng = np.random.default_rng(11)
+    gb = heightfield(rng, 40, 64)
+    wide = make_scene(point_lights(rng, 24, att=(1.0, 0.1, 0.05)), model="blinn-phong", h=20.0)
+    r = Renderer(wide, max_error=1e-3, device=device)
+    result = r.render(gb)
+    assert result.cull is not None and result.cull.kept_fraction > BRUTE_ABOVE
+    assert result.cull.brute and result.plan.defines["CULLING"] == 0
+    assert result.cull.seconds > 0
+    assert np.array_equal(result.image, Renderer(wide, device=device).render(gb).image)
+
+    small = make_scene(point_lights(rng, 24, att=(1.0, 0.0, 1e6)), model="blinn-phong", h=20.0)
+    result = Renderer(small, max_error=1e-3, device=device).render(gb)
+    assert result.cull.kept_fraction <= BRUTE_ABOVE
+    assert not result.cull.brute and result.plan.defines["CULLING"] == 1
