@@ -11,20 +11,34 @@ Device choice, in order:
 Programs are built once per (device, kernel sources, options) and cached in the
 process. Across processes PoCL's own kernel cache (``$XDG_CACHE_HOME/pocl`` or
 ``$POCL_CACHE_DIR``) makes a rebuild of the same source and options cost tens of
-milliseconds; PyOpenCL skips its own binary cache for PoCL.
+milliseconds; PyOpenCL skips its own binary cache for PoCL. On PoCL clphong also
+keeps each program's PoCL binary in that folder (``clphong/*.poclbin``) and
+builds from it, so that a run whose programs are cached writes no file there
+(:meth:`Runtime.program`).
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import threading
 import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 from ..core.errors import DeviceError
+
+# PoCL's CPU drivers install a SIGFPE handler (integer division by zero in a
+# kernel then gives an undefined value instead of killing the process), and to
+# order it after LLVM's handlers PoCL 3.0 creates an empty ``tempfile_XXXXXX`` in
+# its kernel cache at every device initialisation, never removed
+# (lib/CL/devices/signal_handlers.c). clphong's kernels divide only by sizes the
+# host checks, so the handler is switched off: a cached run writes nothing. Read
+# by PoCL when the devices are first listed, so set here, before any is.
+os.environ.setdefault("POCL_SIGFPE_HANDLER", "0")
 
 _INSTALL_HINT = (
     "install PoCL with 'pip install \"pyopencl[pocl]\"', or choose another device "
@@ -115,6 +129,69 @@ def _sources_digest(folder: Path) -> str:
     return digest
 
 
+def pocl_cache_dir() -> Path:
+    """PoCL's kernel cache folder, chosen as PoCL 3.0 does (lib/CL/pocl_cache.c):
+    ``$POCL_CACHE_DIR``, else ``$XDG_CACHE_HOME/pocl/kcache``, else
+    ``~/.cache/pocl/kcache`` (``…/pocl/uncached`` with ``POCL_KERNEL_CACHE=0``)."""
+    if os.environ.get("POCL_CACHE_DIR"):
+        return Path(os.environ["POCL_CACHE_DIR"])
+    sub = "pocl/kcache" if _pocl_kernel_cache_on() else "pocl/uncached"
+    if os.environ.get("XDG_CACHE_HOME"):
+        return Path(os.environ["XDG_CACHE_HOME"]) / sub
+    if os.environ.get("HOME") is not None:
+        return Path(os.environ["HOME"]) / ".cache" / sub
+    return Path("/tmp") / sub
+
+
+def _pocl_kernel_cache_on() -> bool:
+    """PoCL's ``POCL_KERNEL_CACHE`` (on unless set to something not starting with 1)."""
+    return os.environ.get("POCL_KERNEL_CACHE", "1").startswith("1")
+
+
+#: The largest file PoCL writes while compiling a program from source, with a
+#: margin: the preprocessed source (``tempfile_*.preproc.cl``, with every macro of
+#: Clang's opencl-c.h), 1.1 MB for shade.cl under PoCL 3.0 / LLVM 14. Under a
+#: smaller ``ulimit -f`` LLVM aborts the process ("IO failure on output stream").
+_SOURCE_BUILD_BYTES = 2 << 20
+
+#: clphong's binaries in PoCL's cache folder: ``clphong/NAME-KEY.poclbin``, a
+#: header line, the SHA-256 of the rest, then the program as PoCL serialises it
+#: (CL_PROGRAM_BINARIES: program.bc and the kernels' machine code).
+_STORE_DIR = "clphong"
+_STORE_MAGIC = b"clphong-poclbin 1\n"
+
+
+def _file_size_limit() -> int | None:
+    """The soft RLIMIT_FSIZE (``ulimit -f``) in bytes; None where unlimited or unknown."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return None
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    return None if soft == resource.RLIM_INFINITY or soft < 0 else int(soft)
+
+
+#: Called with one line (no newline) when a program build is still running after
+#: :data:`COMPILE_NOTICE_AFTER_S`: a real compile, not a hit in a cache. None (the
+#: library's default) is silent; the CLI sets :func:`notice_on_tty`.
+compile_notice: Callable[[str], None] | None = None
+#: A build from clphong's or PoCL's disk cache takes 0.01–0.05 s, a compile 0.3–30 s.
+COMPILE_NOTICE_AFTER_S = 0.2
+
+
+def notice_on_tty(message: str, stream=None) -> None:
+    """Write ``message`` as one line to ``stream`` (default ``sys.stderr``) if it is a
+    terminal; nothing otherwise (pipelines and tests capture stderr)."""
+    stream = sys.stderr if stream is None else stream
+    try:
+        if not stream.isatty():
+            return
+        stream.write(message + "\n")
+        stream.flush()
+    except (AttributeError, ValueError, OSError):
+        pass
+
+
 def _cl():
     try:
         import pyopencl as cl
@@ -190,6 +267,9 @@ class Runtime:
     lock: threading.RLock = field(default_factory=threading.RLock)
     builds: int = 0            # programs actually built in this process
     build_seconds: float = 0.0
+    #: Of :attr:`builds`, those compiled from source: not found in clphong's
+    #: binaries in PoCL's cache folder (:meth:`program`).
+    compiled: int = 0
 
     @property
     def name(self) -> str:
@@ -271,11 +351,22 @@ class Runtime:
                 return prog
             src = (folder / entry_file).read_text()
             t0 = time.perf_counter()
+            store = self._binary_path(entry_file, opts, key[2])
+            prog = self._load_binary(store, opts) if store is not None else None
+            if prog is not None:
+                self.build_seconds += time.perf_counter() - t0
+                self.builds += 1
+                self._programs[key] = prog
+                return prog
+            self._check_room_to_compile(entry_file)
+            notice = _start_notice(entry_file)
             try:
                 with warnings.catch_warnings():
                     # PoCL reports harmless AVX ABI notes for float16 lanes on AVX2 CPUs.
                     warnings.simplefilter("ignore", cl.CompilerWarning)
                     prog = cl.Program(self.context, src).build(options=opts)
+                if store is not None:
+                    self._save_binary(prog, store)
             except cl.Error as exc:
                 log = str(exc).strip().splitlines()
                 first = next((ln for ln in log if "error" in ln.lower()), log[-1] if log else "")
@@ -285,10 +376,120 @@ class Runtime:
                     "another device, e.g. PoCL's CPU device (install it with "
                     "'pip install \"pyopencl[pocl]\"')"
                 ) from exc
+            finally:
+                if notice is not None:
+                    notice.cancel()
             self.build_seconds += time.perf_counter() - t0
             self.builds += 1
+            self.compiled += 1
             self._programs[key] = prog
             return prog
+
+    # PoCL 3.0 writes on every build from source, cached or not: the source to
+    # ``tempfile_*.cl`` and its preprocessed text (1.1 MB, every macro of
+    # opencl-c.h) to ``tempfile_*.preproc.cl`` in its cache folder, because its
+    # cache key is a hash of the preprocessed text (pocl_llvm_build.cc,
+    # pocl_llvm_build_program), and LLVM aborts when that write fails (``ulimit
+    # -f``). A program created from PoCL's own binary (CL_PROGRAM_BINARIES: the
+    # build hash, program.bc and kernel code) skips the preprocessor and reuses
+    # the same cache entry, whose files exist, so nothing is written. clphong
+    # keeps those binaries next to PoCL's entries, keyed by what the program was
+    # built from, and compiles from source only when its binary is missing.
+
+    @property
+    def is_pocl(self) -> bool:
+        """Whether the device is PoCL's (whose kernel cache clphong's binaries join)."""
+        name = str(getattr(self.device.platform, "name", "")).lower()
+        return "portable computing language" in name or "pocl" in name
+
+    def _binary_path(self, entry_file: str, opts: list[str], digest: str) -> Path | None:
+        """Where clphong keeps this program's PoCL binary; None off PoCL or with
+        PoCL's kernel cache switched off (``POCL_KERNEL_CACHE=0``)."""
+        if not self.is_pocl or not _pocl_kernel_cache_on():
+            return None
+        dev, plat = self.device, self.device.platform
+        h = hashlib.sha256()
+        # What PoCL's own key covers (source, options, device) and the PoCL
+        # build (driver version); plus the two knobs PoCL 3.0 reads at build time.
+        for part in (entry_file, *opts, digest, plat.name, plat.version, dev.name, dev.version,
+                     dev.driver_version, os.environ.get("POCL_EXTRA_BUILD_FLAGS", ""),
+                     os.environ.get("POCL_WORK_GROUP_METHOD", "")):
+            h.update(str(part).encode() + b"\0")
+        name = f"{Path(entry_file).stem}-{h.hexdigest()[:40]}.poclbin"
+        return pocl_cache_dir() / _STORE_DIR / name
+
+    def _load_binary(self, path: Path, opts: list[str]):
+        """The program built from the binary at ``path``, or None (missing, damaged,
+        or refused by PoCL, e.g. after a PoCL upgrade: then it is compiled again)."""
+        cl = _cl()
+        try:
+            data = path.read_bytes()
+        except OSError:
+            return None
+        n = len(_STORE_MAGIC)
+        blob = data[n + 32:]
+        if data[:n] != _STORE_MAGIC or not blob or hashlib.sha256(blob).digest() != data[n:n + 32]:
+            return None     # never hand PoCL a truncated binary: it does not check one
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", cl.CompilerWarning)
+                return cl.Program(self.context, [self.device], [blob]).build(options=opts)
+        except cl.Error:
+            return None
+
+    def _save_binary(self, prog, path: Path) -> None:
+        """Keep ``prog``'s PoCL binary at ``path`` (atomically); a folder that cannot
+        be written only costs the next process a compile."""
+        cl = _cl()
+        try:
+            blob = bytes(prog.binaries[0])
+        except cl.Error:
+            return
+        if not blob:
+            return
+        tmp = path.with_name(f".{path.name}.{os.getpid()}-{threading.get_ident()}.tmp")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp.write_bytes(_STORE_MAGIC + hashlib.sha256(blob).digest() + blob)
+            os.replace(tmp, path)
+        except OSError:
+            pass
+        finally:
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+
+    def _check_room_to_compile(self, entry_file: str) -> None:
+        """A one-line error, instead of LLVM's abort (SIGABRT, "IO failure on output
+        stream"), where ``ulimit -f`` is too small for PoCL's files of a compile."""
+        limit = _file_size_limit()
+        if limit is None or limit >= _SOURCE_BUILD_BYTES or not self.is_pocl:
+            return
+        raise DeviceError(
+            f"kernels/{entry_file} must be compiled for this scene, and PoCL writes files of "
+            f"about 1.1 MB into its kernel cache ({pocl_cache_dir()}) to do so, over the file-size "
+            f"limit of {limit // 1024} KiB (ulimit -f); run once with a higher limit "
+            f"('ulimit -f unlimited', or at least {_SOURCE_BUILD_BYTES >> 20} MiB) to fill the "
+            "cache: later runs of the same scene write nothing there"
+        )
+
+
+def _start_notice(entry_file: str):
+    """Call :data:`compile_notice` if the build started now is still running after
+    :data:`COMPILE_NOTICE_AFTER_S`; the timer to cancel when it ends (or None)."""
+    hook = compile_notice
+    if hook is None:
+        return None
+    what = "" if entry_file == "peak.cl" else " for this scene"
+    message = f"clphong: compiling {entry_file}{what} (first run; cached afterwards)\u2026"
+    if COMPILE_NOTICE_AFTER_S <= 0:
+        hook(message)
+        return None
+    timer = threading.Timer(COMPILE_NOTICE_AFTER_S, hook, (message,))
+    timer.daemon = True
+    timer.start()
+    return timer
 
 
 _RUNTIMES: dict[str | None, Runtime] = {}
