@@ -148,6 +148,17 @@ PATHS = {
 }
 
 
+#: The bench's optional modules (the ``bench`` extra): the Pareto plot's and the peer's.
+OPTIONAL_MODULES = ("matplotlib", "numba")
+
+
+def missing_bench_modules() -> tuple[str, ...]:
+    """Which of :data:`OPTIONAL_MODULES` are not installed (found without importing them)."""
+    import importlib.util
+
+    return tuple(m for m in OPTIONAL_MODULES if importlib.util.find_spec(m) is None)
+
+
 def check_paths(paths) -> tuple:
     """``paths`` as a tuple if each is one of :data:`PATHS`; a bad one is a ValueError listing them."""
     bad = [p for p in paths if p not in PATHS]

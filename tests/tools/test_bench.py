@@ -227,3 +227,44 @@ def test_bench_cli_errors_are_one_line(tmp_path, capsys):
     with pytest.raises(SystemExit) as info:
         bench_cli.main(["render", "--lights", "0"])
     assert info.value.code == 2
+
+
+def _without_matplotlib(monkeypatch):
+    """As if matplotlib were not installed (the bench extra left out)."""
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a, **k: None if name == "matplotlib" else real(name, *a, **k))
+
+
+def test_cli_bench_asked_for_plot_without_matplotlib_is_one_line_before_any_work(
+        tmp_path, capsys, monkeypatch):
+    from clphong.console.cli import main
+
+    def no_run(cfg):
+        raise AssertionError("the benchmark ran before its optional dependencies were checked")
+
+    patch_everywhere(monkeypatch, bench, "run_bench", no_run)
+    _without_matplotlib(monkeypatch)
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "--quick", "--json", str(tmp_path / "b.json"), "--plot", str(tmp_path / "b.png")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "matplotlib" in err and "clphong[bench]" in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_bench_default_plot_is_skipped_with_a_note_without_matplotlib(
+        tmp_path, capsys, monkeypatch):
+    from clphong.console.cli import main
+
+    _without_matplotlib(monkeypatch)
+    monkeypatch.chdir(tmp_path)
+    rc = main(["bench", "--sizes", "32x24", "--lights", "4", "--small-lights", "16",
+               "--paths", "accurate", "--budgets", "1e-3", "--repeats", "1", "--warmup", "0"])
+    assert rc == 0
+    captured = capsys.readouterr()
+    assert "no Pareto plot (matplotlib is not installed" in captured.err
+    assert "Pareto plot:" not in captured.out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bench.json"]
