@@ -158,28 +158,71 @@ typedef floatL dirL;
  *    x only (Blinn's |l + v|² ≤ 4, once per light); RSQRT_DIST, for squared
  *    distances (to a light, once per light, and to the eye, once per pixel)
  *    that overflow float beyond ≈ 1.8e19, adds the guards (rsqrt_dist). */
-#if DIRECTIONS_FP64
-inline dirL rsqrt_dir(dirL x)
-{
-    dirL y = AS_DOUBLE_L((longL)(0x5FE6EB50C7B537A9L) - (AS_LONG_L(x) >> 1));
-    const dirL h = 0.5 * x;
-    y = y * (1.5 - h * y * y);
-    y = y * (1.5 - h * y * y);
-    y = y * (1.5 - h * y * y);
-    y = y * (1.5 - h * y * y);
-    return x == 0.0 ? (dirL)(INFINITY) : y;   /* as rsqrt(0) = +inf */
-}
+/* The first guess: the hardware's 14-bit estimate where the target has one
+ * (AVX-512 vrsqrt14pd/ps, relative error ≤ 2⁻¹⁴, through clang's target
+ * builtins: there is no OpenCL C builtin for it, and PoCL's native_rsqrt is the
+ * full-precision one), so two Newton steps reach double (2⁻¹⁴ → 5.6e-9 → 5e-17)
+ * and one reaches float (5.6e-9 ≪ 2⁻²⁴); AVX's 12-bit vrsqrtps (≤ 1.5·2⁻¹²)
+ * takes two in float. Elsewhere the exponent-halving guesses above, with four
+ * steps in double and three in float. Each step costs ~12 cycles of latency
+ * on the lights loop's critical path. */
+#ifndef RSQRT_GUESS_KIND   /* 0: portable, 1: AVX vrsqrtps, 2: AVX-512 vrsqrt14; a test may set it */
+#if defined(__AVX512F__) && (LANES == 16 || (LANES == 8 && DIRECTIONS_FP64))
+#define RSQRT_GUESS_KIND 2
+#elif defined(__AVX__) && !DIRECTIONS_FP64 && (LANES == 16 || LANES == 8)
+#define RSQRT_GUESS_KIND 1
 #else
+#define RSQRT_GUESS_KIND 0
+#endif
+#endif
+#if RSQRT_GUESS_KIND == 2 && DIRECTIONS_FP64 && LANES == 16
+#define RSQRT_GUESS(x) ((dirL)(__builtin_ia32_rsqrt14pd512_mask((x).lo, (double8)(0.0), (uchar)0xFF), \
+                               __builtin_ia32_rsqrt14pd512_mask((x).hi, (double8)(0.0), (uchar)0xFF)))
+#define RSQRT_STEPS 2
+#elif RSQRT_GUESS_KIND == 2 && DIRECTIONS_FP64 && LANES == 8
+#define RSQRT_GUESS(x) __builtin_ia32_rsqrt14pd512_mask((x), (double8)(0.0), (uchar)0xFF)
+#define RSQRT_STEPS 2
+#elif RSQRT_GUESS_KIND == 2 && !DIRECTIONS_FP64 && LANES == 16
+#define RSQRT_GUESS(x) __builtin_ia32_rsqrt14ps512_mask((x), (float16)(0.0f), (ushort)0xFFFF)
+#define RSQRT_STEPS 1
+#elif RSQRT_GUESS_KIND == 1 && !DIRECTIONS_FP64 && LANES == 16
+#define RSQRT_GUESS(x) ((dirL)(__builtin_ia32_rsqrtps256((x).lo), __builtin_ia32_rsqrtps256((x).hi)))
+#define RSQRT_STEPS 2
+#elif RSQRT_GUESS_KIND == 1 && !DIRECTIONS_FP64 && LANES == 8
+#define RSQRT_GUESS(x) __builtin_ia32_rsqrtps256(x)
+#define RSQRT_STEPS 2
+#elif RSQRT_GUESS_KIND == 0 && DIRECTIONS_FP64
+#define RSQRT_GUESS(x) AS_DOUBLE_L((longL)(0x5FE6EB50C7B537A9L) - (AS_LONG_L(x) >> 1))
+#define RSQRT_STEPS 4
+#elif RSQRT_GUESS_KIND == 0
+#define RSQRT_GUESS(x) AS_FLOAT_L((intL)(0x5F375A86) - (AS_INT_L(x) >> 1))
+#define RSQRT_STEPS 3
+#else
+#error "RSQRT_GUESS_KIND does not fit this LANES and number format"
+#endif
+
+#if DIRECTIONS_FP64
+#define NEWTON_RSQRT(y, h) ((y) * (1.5 - (h) * (y) * (y)))
+#else
+#define NEWTON_RSQRT(y, h) ((y) * (1.5f - (h) * (y) * (y)))
+#endif
+
 inline dirL rsqrt_dir(dirL x)
 {
-    dirL y = AS_FLOAT_L((intL)(0x5F375A86) - (AS_INT_L(x) >> 1));
+    dirL y = RSQRT_GUESS(x);
     const dirL h = 0.5f * x;
-    y = y * (1.5f - h * y * y);
-    y = y * (1.5f - h * y * y);
-    y = y * (1.5f - h * y * y);
-    return x == 0.0f ? (dirL)(INFINITY) : y;  /* as rsqrt(0) = +inf */
-}
+    y = NEWTON_RSQRT(y, h);
+#if RSQRT_STEPS > 1
+    y = NEWTON_RSQRT(y, h);
 #endif
+#if RSQRT_STEPS > 2
+    y = NEWTON_RSQRT(y, h);
+#endif
+#if RSQRT_STEPS > 3
+    y = NEWTON_RSQRT(y, h);
+#endif
+    return x == 0.0f ? (dirL)(INFINITY) : y;   /* as rsqrt(0) = +inf */
+}
 #define RSQRT_DIR(x) rsqrt_dir(x)
 #if DIRECTIONS_FP64
 #define RSQRT_DIST(x) rsqrt_dir(x)

@@ -416,33 +416,60 @@ def test_background_pixels_take_the_background_value(device):
 
 # ------------------------------------------------------------------------ device helpers
 
-def _rsqrt_dir_on_device(x, ctype, options, device=None, fn="rsqrt_dir"):
-    """kernels/clphong.h's rsqrt_dir (or ``fn``) of each element of x (one per work-item, LANES = 1)."""
+def _rsqrt_dir_on_device(x, ctype, options, device=None, fn="rsqrt_dir", lanes=1):
+    """kernels/clphong.h's rsqrt_dir (or ``fn``) of each element of x, ``lanes`` elements
+    a work-item as the shading kernel has them (LANES = 16 takes the hardware first
+    guess where the target has one, clphong.h's RSQRT_GUESS; LANES = 1 the
+    portable one)."""
     import pyopencl as cl
 
     from clphong.device.runtime import get_runtime, kernel_dir
 
     rt = get_runtime(device)
+    n = len(x)
+    x = np.concatenate([x, np.ones(-n % lanes, x.dtype)])
     src = ('#include "clphong.h"\n'
+           "#if LANES == 1\n#define LD(i, p) ((p)[i])\n#define ST(v, i, p) ((p)[i] = (v))\n"
+           "#else\n#define LD(i, p) vload" + str(lanes) + "(i, p)\n"
+           "#define ST(v, i, p) vstore" + str(lanes) + "(v, i, p)\n#endif\n"
            f"__kernel void k(__global const {ctype} *x, __global {ctype} *y)"
-           "{ size_t i = get_global_id(0); y[i] = " + fn + "(x[i]); }")
+           "{ size_t i = get_global_id(0); ST(" + fn + "(LD(i, x)), i, y); }")
     # clphong.h's number formats are #error when unset (kernels/include/plan.h): all float
     # but what the caller asks for
     formats = [f"-D{k}=0" for k in ("DIRECTIONS_FP64", "SUM_FP64", "SPEC_INT_POW", "SPEC_COS",
                                     "POW_FP32", "WEIGHTS_FP64")
                if not any(o.startswith(f"-D{k}=") for o in options)]
     prog = cl.Program(rt.context, src).build(
-        options=["-DLANES=1", *formats, *options, f"-I{kernel_dir() / 'include'}", "-w"])
+        options=[f"-DLANES={lanes}", *formats, *options, f"-I{kernel_dir() / 'include'}", "-w"])
     mf = cl.mem_flags
     xb = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
     yb = cl.Buffer(rt.context, mf.WRITE_ONLY, x.nbytes)
-    prog.k(rt.queue, x.shape, None, xb, yb)
+    prog.k(rt.queue, (len(x) // lanes,), None, xb, yb)
     y = np.empty_like(x)
     cl.enqueue_copy(rt.queue, y, yb)
-    return y
+    return y[:n]
 
 
-def test_inline_double_rsqrt_is_within_three_ulp(device):
+def _guess_option(guess):
+    """-DRSQRT_GUESS_KIND: 0 the portable first guess, 1 AVX's 12-bit vrsqrtps (the
+    AVX2 machines' path, tested on any AVX CPU); None: the target's own choice."""
+    if guess == 1:
+        from clphong.device.runtime import get_runtime
+
+        if "x86" not in get_runtime().device.version or "avx" not in _cpu_flags():
+            pytest.skip("not an x86 CPU device with AVX")
+    return [] if guess is None else [f"-DRSQRT_GUESS_KIND={guess}"]
+
+
+def _cpu_flags() -> str:
+    try:
+        return open("/proc/cpuinfo").read()
+    except OSError:
+        return ""
+
+
+@pytest.mark.parametrize("lanes", [1, 8, 16])
+def test_inline_double_rsqrt_is_within_three_ulp(device, lanes):
     """kernels/clphong.h's rsqrt_dir (fp64 directions) against 1/√x in long double:
     ≤ 3·2⁻⁵³ relative over 1e-90 .. 1e90 (its comment states 2.44·2⁻⁵³ measured in
     numpy; the error model needs only 2⁻⁴⁷). Three Newton steps instead of four
@@ -453,7 +480,7 @@ def test_inline_double_rsqrt_is_within_three_ulp(device):
         pytest.skip("device without cl_khr_fp64")
     x = np.concatenate([[0.0], np.geomspace(1e-90, 1e90, 200_001),
                         np.random.default_rng(3).uniform(0.5, 4.0, 100_000)])
-    y = _rsqrt_dir_on_device(x, "double", ["-DDIRECTIONS_FP64=1"], device)
+    y = _rsqrt_dir_on_device(x, "double", ["-DDIRECTIONS_FP64=1"], device, lanes=lanes)
     assert y[0] == np.inf                       # as rsqrt(0); callers select their own value
     x, y = x[1:], y[1:]
     ref = 1.0 / np.sqrt(x.astype(np.longdouble))
@@ -461,7 +488,8 @@ def test_inline_double_rsqrt_is_within_three_ulp(device):
     assert float(rel.max()) <= 3 * 2.0 ** -53, float(rel.max())
 
 
-def test_inline_float_rsqrt_is_within_two_ulp(device):
+@pytest.mark.parametrize("lanes, guess", [(1, 0), (8, None), (16, None), (16, 1)])
+def test_inline_float_rsqrt_is_within_two_ulp(device, lanes, guess):
     """The float rsqrt_dir (fp32 directions) stays within the builtin's 2 ulp that
     the error model assumes: exhaustively over the 2²⁴ floats of [1, 4), which covers
     every float x ≥ 2·FLT_MIN (x·4 moves the guess and each Newton step by exactly ½;
@@ -472,7 +500,8 @@ def test_inline_float_rsqrt_is_within_two_ulp(device):
     binade = np.arange(0x3F800000, 0x40800000, dtype=np.uint32).view(np.float32)
     spread = np.geomspace(1e-37, 3e38, 100_001).astype(np.float32)
     x = np.concatenate([np.float32([0.0]), binade, spread])
-    y = _rsqrt_dir_on_device(x, "float", ["-DDIRECTIONS_FP64=0", "-cl-denorms-are-zero"], device)
+    y = _rsqrt_dir_on_device(x, "float", ["-DDIRECTIONS_FP64=0", "-cl-denorms-are-zero",
+                                          *_guess_option(guess)], device, lanes=lanes)
     assert y[0] == np.inf
     ref = 1.0 / np.sqrt(x[1:].astype(np.float64))
     ulp = 2.0 ** (np.floor(np.log2(ref)) - 23)
@@ -480,7 +509,8 @@ def test_inline_float_rsqrt_is_within_two_ulp(device):
     assert float(err.max()) <= 2.0, float(err.max())
 
 
-def test_inline_float_rsqrt_of_a_distance_keeps_the_builtins_guards(device):
+@pytest.mark.parametrize("lanes, guess", [(1, 0), (8, None), (16, None), (16, 1)])
+def test_inline_float_rsqrt_of_a_distance_keeps_the_builtins_guards(device, lanes, guess):
     """RSQRT_DIST in float (rsqrt_dist, inline instead of PoCL's out-of-line
     builtin): within 2 ulp of 1/√x for every normal float (the binade [1, 4), the
     bottom binade [FLT_MIN, 4·FLT_MIN) that rsqrt_dir alone gets 3.4x wrong, and a
@@ -490,8 +520,8 @@ def test_inline_float_rsqrt_of_a_distance_keeps_the_builtins_guards(device):
     bottom = np.arange(0x00800000, 0x01800000, 3, dtype=np.uint32).view(np.float32)
     spread = np.geomspace(tiny, np.finfo(np.float32).max, 100_001).astype(np.float32)
     x = np.concatenate([np.float32([0.0, np.inf]), binade, bottom, spread])
-    y = _rsqrt_dir_on_device(x, "float", ["-DDIRECTIONS_FP64=0", "-cl-denorms-are-zero"], device,
-                             fn="rsqrt_dist")
+    y = _rsqrt_dir_on_device(x, "float", ["-DDIRECTIONS_FP64=0", "-cl-denorms-are-zero",
+                                          *_guess_option(guess)], device, fn="rsqrt_dist", lanes=lanes)
     assert y[0] == np.inf and y[1] == 0.0
     ref = 1.0 / np.sqrt(x[2:].astype(np.float64))
     ulp = 2.0 ** (np.floor(np.log2(ref)) - 23)
