@@ -573,6 +573,13 @@ def summarise(report: dict) -> dict:
         out["accurate_256_numpy_ratio"] = acc256["numpy_ratio"]
         out["target_1gple_met"] = acc256["gple_per_s"] >= 1.0
         out["target_60x_numpy_met"] = (acc256["numpy_ratio"] or 0) >= 60
+    # issue 14: the kernels against the numba peer, side by side (1080p wide scene)
+    for n in (256, 4096):
+        for path, need in (("accurate", 1.0), ("fast", 1.3)):
+            r = find(scene="wide", lights=n, path=path, max_error=None)
+            if r and r.get("numba_ratio"):
+                out[f"{path}_{n}_numba_ratio"] = r["numba_ratio"]
+                out[f"target_{path}_{n}_numba_met"] = r["numba_ratio"] >= need
     small = [r for r in runs if r["scene"] == "small" and r["max_error"] == 1e-3]
     if small and acc256:
         s = max(small, key=lambda r: r["lights"])
@@ -602,6 +609,12 @@ def summary_lines(summary: dict) -> list[str]:
     else:
         lines.append("issue-4 targets: not measured (the run has no 256-light wide-scene "
                      "accurate brute-force case)")
+    for n in (256, 4096):
+        for path, need in (("accurate", 1.0), ("fast", 1.3)):
+            key = f"{path}_{n}_numba_ratio"
+            if key in summary:
+                lines.append(f"issue-14 targets: {path} at {n} lights >= {need:g}x the numba peer: "
+                             f"{met(summary[f'target_{path}_{n}_numba_met'])} ({summary[key]:.3g}x)")
     if "cull_vs_256_brute_time_ratio" in summary:
         lines.append(f"issue-4 targets: culling at eps=1e-3, small scene N={summary['cull_small_lights']}, "
                      f"within 3x the time of 256 lights brute force: {met(summary['target_3x_met'])} "
@@ -670,7 +683,15 @@ def plot_pareto(report: dict, path) -> None:
 def table(report: dict) -> str:
     """The report as a plain-text table."""
     lines = [f"{'scene':6s} {'N':>6s} {'path':16s} {'GPLE/s':>8s} {'ms/frame':>10s} {'×numpy':>7s} "
-             f"{'peak':>6s} {'max rel':>9s} {'mean rel':>9s} {'max abs':>9s} {'band':>5s} {'kept':>7s}"]
+             f"{'×numba':>7s} {'peak':>6s} {'max rel':>9s} {'mean rel':>9s} {'max abs':>9s} "
+             f"{'band':>5s} {'kept':>7s}"]
+    for r in report.get("numba", []):
+        e = r["error"]
+        lines.append(
+            f"{r['scene']:6s} {r['lights']:6d} {'numba peer':16s} {r['gple_per_s']:8.3f} "
+            f"{r['ms_per_frame']:10.1f}{'*' if r['extrapolated'] else ' '}"
+            f"{r['numpy_ratio']:7.1f} {1.0:7.2f} {'':6s} {e['max_rel']:9.2e} {e['mean_rel']:9.2e} "
+            f"{e['max_abs']:9.2e} {e['band_pixels']:5d}")
     for r in report["runs"]:
         label = r["path"] if r["max_error"] is None else f"cull ε={r['max_error']:g}"
         e = r["error"]
@@ -678,6 +699,7 @@ def table(report: dict) -> str:
             f"{r['scene']:6s} {r['lights']:6d} {label:16s} {r['gple_per_s']:8.3f} "
             f"{r['ms_per_frame']:10.1f}{'*' if r['extrapolated'] else ' '}"
             + (f"{r['numpy_ratio']:7.1f} " if r["numpy_ratio"] else f"{'n/a':>7s} ")
+            + (f"{r['numba_ratio']:7.2f} " if r.get("numba_ratio") else f"{'n/a':>7s} ")
             + (f"{r['peak_fraction']:6.1%} " if r["peak_fraction"] is not None else f"{'':6s} ")
             + f"{e['max_rel']:9.2e} {e['mean_rel']:9.2e} {e['max_abs']:9.2e} {e['band_pixels']:5d} "
             + (f"{r['kept_fraction']:7.4f}" if r["kept_fraction"] is not None else f"{'':7s}"))
