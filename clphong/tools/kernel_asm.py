@@ -1,0 +1,159 @@
+"""What bounds the shading kernel: its lights loop as PoCL compiled it.
+
+``python -m clphong.tools.kernel_asm [--path accurate] [--cpu icelake-server] [--mca]``
+
+Builds the bench scene's shading kernel (:mod:`clphong.tools.bench`, 4 point
+lights: the same variant as any light count) in a fresh PoCL cache, disassembles
+PoCL's own ``shade.so`` with ``objdump``, and finds the lights loop (the
+smallest backward-jumping block of ``_pocl_kernel_shade`` with at least 30
+vector multiplies). It prints the instructions one light costs a work-item
+(LANES pixels), the stack references among them (spills), the calls (PoCL 3.0
+calls some builtins out of line, which spills every vector register), and the
+divisions and square roots. With ``--mca`` (``llvm-mca``, Debian's ``llvm``
+package, the LLVM PoCL uses), the simulated cycles per light for ``--cpu`` and
+its bottleneck analysis: resource pressure per port against register
+dependencies (the critical path). Not a test; a tool for kernel work
+(docs/bench.md, "What bounds the kernel").
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+
+from ..core.errors import ClphongError
+
+#: What a lights loop must hold to be taken for it (the work-item loop holds more).
+MIN_MULTIPLIES = 30
+
+
+def parse_objdump(text: str, function: str = "_pocl_kernel_shade") -> list[tuple[int, str]]:
+    """(address, instruction) of ``function`` in ``objdump -d --no-show-raw-insn`` output."""
+    lines = text.splitlines()
+    try:
+        start = next(i for i, ln in enumerate(lines) if ln.endswith(f"<{function}>:"))
+    except StopIteration:
+        raise ClphongError(f"no function {function} in the disassembly") from None
+    out = []
+    for ln in lines[start + 1:]:
+        if ln.endswith(">:"):
+            break
+        m = re.match(r"\s*([0-9a-f]+):\s+(.*)$", ln)
+        if m:
+            out.append((int(m.group(1), 16), m.group(2).split("#")[0].strip()))
+    return out
+
+
+def lights_loop(instructions: list[tuple[int, str]]) -> list[str]:
+    """The lights loop's instructions: the smallest block ending in a backward jump
+    that holds at least :data:`MIN_MULTIPLIES` vector multiplies or FMAs."""
+    loops = []
+    for addr, text in instructions:
+        m = re.match(r"j\w+\s+([0-9a-f]+)", text)
+        if m and int(m.group(1), 16) < addr:
+            target = int(m.group(1), 16)
+            loops.append([t for a, t in instructions if target <= a <= addr])
+    found = [blk for blk in loops
+             if sum(1 for t in blk if re.match(r"v(fn?m(add|sub)\w*|mul)p[sd]", t)) >= MIN_MULTIPLIES]
+    if not found:
+        raise ClphongError("no lights loop found in the disassembly")
+    return min(found, key=len)
+
+
+def summary(loop: list[str]) -> dict:
+    """Counts of one lights-loop iteration."""
+    return {
+        "instructions": sum(1 for t in loop if not t.startswith(("nop", "data16", "cs "))),
+        "stack_references": sum(1 for t in loop if "(%rsp)" in t),
+        "calls": sum(1 for t in loop if t.startswith("call")),
+        "divisions": sum(1 for t in loop if re.match(r"vdivp[sd]", t)),
+        "square_roots": sum(1 for t in loop if re.match(r"vsqrtp[sd]", t)),
+        "rsqrt_estimates": sum(1 for t in loop if re.match(r"vrsqrt(14)?p[sd]", t)),
+        "conversions": sum(1 for t in loop if re.match(r"vcvt", t)),
+    }
+
+
+def mca_input(loop: list[str]) -> str:
+    """The loop as straight-line code for llvm-mca (no jumps, calls or symbols)."""
+    keep = [re.sub(r"\s*<[^>]*>", "", t) for t in loop
+            if not t.startswith(("j", "call", "nop", "data16", "cs "))]
+    return "\n".join(keep) + "\n"
+
+
+def run_mca(loop: list[str], cpu: str, iterations: int = 300) -> tuple[float, str]:
+    """(cycles per iteration, llvm-mca's report) for ``cpu``."""
+    exe = shutil.which("llvm-mca")
+    if exe is None:
+        raise ClphongError("llvm-mca not found: install LLVM's tools (Debian: apt-get install llvm)")
+    res = subprocess.run([exe, f"-mcpu={cpu}", f"-iterations={iterations}", "-bottleneck-analysis"],
+                         input=mca_input(loop), capture_output=True, text=True)
+    if res.returncode != 0:
+        raise ClphongError(f"llvm-mca failed: {res.stderr.strip().splitlines()[0] if res.stderr else res.returncode}")
+    total = re.search(r"Total Cycles:\s+([0-9]+)", res.stdout)
+    return int(total.group(1)) / iterations, res.stdout
+
+
+def build_and_disassemble(path: str = "accurate", lanes: int | None = None) -> str:
+    """Build the bench kernel for ``path`` in a temporary PoCL cache; its objdump text."""
+    objdump = shutil.which("objdump")
+    if objdump is None:
+        raise ClphongError("objdump not found: install binutils")
+    folder = tempfile.mkdtemp(prefix="clphong-asm-")
+    old = os.environ.get("POCL_CACHE_DIR")
+    try:
+        # PoCL reads POCL_CACHE_DIR when it starts: this must be a fresh process
+        code = ("import sys; from clphong.tools import bench; "
+                "from clphong.device.renderer import Renderer, prepare_frame; "
+                f"o = dict(bench.PATHS[{path!r}]); "
+                + (f"o['lanes'] = {int(lanes)}; " if lanes else "")
+                + "r = Renderer(bench.bench_scene('wide', 4), **o); "
+                "r.shade(prepare_frame(bench.bench_gbuffer(128, 16), lanes=r.lanes))")
+        env = dict(os.environ, POCL_CACHE_DIR=folder)
+        res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+        if res.returncode != 0:
+            raise ClphongError(f"building the kernel failed: {res.stderr.strip().splitlines()[-1]}")
+        libs = glob.glob(os.path.join(folder, "**", "shade.so"), recursive=True)
+        if not libs:
+            raise ClphongError(f"PoCL left no shade.so in {folder} (not a PoCL CPU device?)")
+        return subprocess.run([objdump, "-d", "--no-show-raw-insn", libs[0]],
+                              capture_output=True, text=True, check=True).stdout
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+        if old is not None:
+            os.environ["POCL_CACHE_DIR"] = old
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m clphong.tools.kernel_asm", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--path", default="accurate", help="a bench path (clphong.tools.bench.PATHS)")
+    ap.add_argument("--lanes", type=int, default=None, help="pixels per work-item (default: the device's)")
+    ap.add_argument("--cpu", default="icelake-server", help="llvm-mca's CPU model (e.g. znver3)")
+    ap.add_argument("--mca", action="store_true", help="simulate the loop with llvm-mca")
+    ap.add_argument("--show", action="store_true", help="print the loop's instructions")
+    args = ap.parse_args(argv)
+    try:
+        loop = lights_loop(parse_objdump(build_and_disassemble(args.path, args.lanes)))
+        s = summary(loop)
+        print(f"{args.path}: one light per work-item: " + ", ".join(f"{k.replace('_', ' ')} {v}"
+                                                                   for k, v in s.items()))
+        if args.show:
+            print("\n".join(loop))
+        if args.mca:
+            cycles, report = run_mca(loop, args.cpu)
+            print(f"llvm-mca -mcpu={args.cpu}: {cycles:.1f} cycles a light")
+            head = report[report.find("Cycles with backend pressure"):]
+            print(head[:head.find("Critical sequence")].rstrip())
+    except ClphongError as exc:
+        print(f"kernel_asm: error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

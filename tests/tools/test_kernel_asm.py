@@ -1,0 +1,55 @@
+"""clphong.tools.kernel_asm: the lights loop is found in PoCL's disassembly."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from clphong.core.errors import ClphongError
+from clphong.tools import kernel_asm
+
+BODY = "\n".join(f"  {0x1100 + 4 * i:x}:\tvfmadd231ps %zmm1,%zmm2,%zmm3" for i in range(32))
+OBJDUMP = f"""
+0000000000001000 <_Z7_cl_allDv16_i>:
+    1000:\tret
+0000000000001080 <_pocl_kernel_shade>:
+    1080:\tvmulps %zmm0,%zmm0,%zmm0
+{BODY}
+    1180:\tvmovaps 0x40(%rsp),%zmm4
+    1188:\tcall   1000 <_Z7_cl_allDv16_i>
+    1190:\tvdivps %zmm2,%zmm1,%zmm1
+    1198:\tjne    1100 <_pocl_kernel_shade+0x80>
+    11a0:\tjmp    1080 <_pocl_kernel_shade>
+0000000000002000 <_pocl_kernel_shade_workgroup>:
+    2000:\tret
+"""
+
+
+def test_the_smallest_loop_with_enough_multiplies_is_the_lights_loop():
+    loop = kernel_asm.lights_loop(kernel_asm.parse_objdump(OBJDUMP))
+    s = kernel_asm.summary(loop)
+    # 1100 .. 1198: the 32 FMAs, the spill, the call, the division, the jump
+    assert s["instructions"] == 36 and s["stack_references"] == 1
+    assert s["calls"] == 1 and s["divisions"] == 1
+    text = kernel_asm.mca_input(loop)
+    assert "call" not in text and "jne" not in text and "<" not in text
+
+
+def test_no_loop_is_an_error():
+    with pytest.raises(ClphongError, match="no lights loop"):
+        kernel_asm.lights_loop(kernel_asm.parse_objdump(OBJDUMP.replace("vfmadd231ps", "vaddps")))
+    with pytest.raises(ClphongError, match="no function"):
+        kernel_asm.parse_objdump("nothing here")
+
+
+@pytest.mark.skipif(shutil.which("objdump") is None, reason="needs objdump")
+def test_real_kernel_has_a_lights_loop_without_calls():
+    """PoCL 3.0 calls some builtins out of line (rsqrt, isinf, copysign), spilling
+    every vector register around the call once per light: the lights loop has none."""
+    try:
+        text = kernel_asm.build_and_disassemble("fast")
+    except ClphongError as exc:          # not PoCL's CPU device
+        pytest.skip(str(exc))
+    s = kernel_asm.summary(kernel_asm.lights_loop(kernel_asm.parse_objdump(text)))
+    assert s["calls"] == 0 and s["instructions"] > 30
