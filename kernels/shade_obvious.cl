@@ -31,7 +31,7 @@
 
 __kernel void shade(SHADE_ARGS)   /* include/shade_args.h, as shade.cl */
 {
-    const size_t i = get_global_id(0);
+    const size_t i = get_global_id(0) + item0;   /* as shade.cl */
     const float3 P = (float3)(gbuf[i], gbuf[stride + i], gbuf[2 * stride + i]) - origin.xyz;
     const float3 n = (float3)(gbuf[3 * stride + i], gbuf[4 * stride + i], gbuf[5 * stride + i]);
     const float3 C_d = (float3)(gbuf[6 * stride + i], gbuf[7 * stride + i], gbuf[8 * stride + i]);

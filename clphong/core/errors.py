@@ -43,3 +43,25 @@ class InputWarning(ClphongWarning):
 
 class OutputWarning(ClphongWarning):
     """Output values were changed to fit the file format (e.g. the half range)."""
+
+
+#: Longest message line the CLI prints; longer ones are cut, and say so.
+MAX_LINE = 2000
+
+
+def clean_line(text: str, limit: int = MAX_LINE) -> str:
+    """``text`` as one safe line for a terminal: whitespace runs (newlines, tabs)
+    become one space, every other control character (C0, DEL, C1: what lets a
+    file's channel name or a library's message move the cursor or erase the
+    line) is escaped as ``\\xNN`` / ``\\uNNNN``, and a line longer than
+    ``limit`` is cut with ``… (N more characters)``."""
+    out = []
+    for word in str(text).split():
+        out.append("".join(ch if ch.isprintable() else
+                           (f"\\x{ord(ch):02x}" if ord(ch) < 0x100 else f"\\u{ord(ch):04x}")
+                           for ch in word))
+    line = " ".join(out)
+    if len(line) > limit:
+        cut = len(line) - limit
+        line = f"{line[:limit]}… ({cut} more characters)"
+    return line

@@ -427,14 +427,22 @@ class Renderer:
                     cull_args = cull.kernel_args()
             kern = self.runtime.kernel(prog, "shade")
             kern.set_args(
-                g, mp, ob, np.uint32(frame.stride),
+                g, mp, ob, np.uint32(frame.stride), np.uint32(0),
                 pl, np.uint32(plan.n_point), dl, np.uint32(plan.n_directional),
                 float4(*origin), float4(*eye), float4(*lights.ambient),
                 np.float32(k_d), float4(*S), np.float32(k), float4(*bg),
                 float4(*eye_lo), float4(*amb_lo, kd_lo), float4(*S_lo, k_lo), gt, ga,
                 *cull_args)
             items = frame.stride // self.lanes
-            evt = cl.enqueue_nd_range_kernel(queue, kern, (items,), (LOCAL_SIZE,))
+            lights_per_item = max(plan.n_point + plan.n_directional, 1) * self.lanes
+            events = []
+            for start, count in launch_pieces(items, lights_per_item, self.kernel_kind):
+                # one piece at a time: a signal (SIGTERM, Ctrl-C) is handled between
+                # pieces, at most PIECE_SECONDS late, and nothing is left queued
+                kern.set_arg(ITEM0_ARG, np.uint32(start))
+                events.append(cl.enqueue_nd_range_kernel(queue, kern, (count,), (LOCAL_SIZE,)))
+                events[-1].wait()
+            evt = events[-1]
             cl.enqueue_copy(queue, out, ob, wait_for=[evt])
             disp = None
             if display is not None:
@@ -449,7 +457,7 @@ class Renderer:
                 cl.enqueue_copy(queue, disp, dbuf, wait_for=[devt])
             queue.finish()
             t2 = time.perf_counter()
-        kernel_s = (evt.profile.end - evt.profile.start) * 1e-9
+        kernel_s = sum((e.profile.end - e.profile.start) * 1e-9 for e in events)
         h, w = frame.shape
         image = np.ascontiguousarray(out[:3, : h * w].T).reshape(h, w, 3)
         # every group is shaded (the beauty is summed group by group); the chosen are kept
@@ -460,6 +468,30 @@ class Renderer:
                             total_seconds=time.perf_counter() - t0)
         return RenderResult(image=image, display=shown, plan=plan, stats=stats, cull=cull,
                             layers=layers, display_transform=display)
+
+
+#: A launch is split into pieces of about this long (at a pessimistic rate), so
+#: that a signal takes effect soon even in a long frame (SIGTERM within 1 s).
+PIECE_SECONDS = 0.25
+#: Pixel-light pairs a second the pieces are sized for: below the lane kernel's
+#: rate on 2 loaded cores (0.15-0.8 GPLE/s measured), the obvious kernel's own;
+#: a 1080p frame at 256 lights is 6 pieces of about 0.1 s (the pieces cost
+#: nothing measurable: work-item ids continue through ``item0``, not a global
+#: offset, which PoCL 3.0 runs through a slower, unspecialised function).
+PIECE_RATE = {"lanes": 2e8, "obvious": 3e6}
+
+
+#: Index of shade.cl's ``item0`` argument (include/shade_args.h).
+ITEM0_ARG = 4
+
+
+def launch_pieces(items: int, pairs_per_item: int, kernel: str = "lanes") -> list[tuple[int, int]]:
+    """(first work-item, count) of each piece of a launch of ``items`` work-items
+    (a multiple of LOCAL_SIZE), each of about PIECE_SECONDS at PIECE_RATE, in
+    whole work-groups; one piece when the launch is short."""
+    per = PIECE_RATE.get(kernel, PIECE_RATE["lanes"]) * PIECE_SECONDS / max(pairs_per_item, 1)
+    size = max(LOCAL_SIZE, int(per) // LOCAL_SIZE * LOCAL_SIZE)
+    return [(s, min(size, items - s)) for s in range(0, items, size)]
 
 
 def check_layers(scene, aovs) -> tuple[tuple[str, ...], tuple[str, ...]]:

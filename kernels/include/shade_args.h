@@ -30,6 +30,7 @@
     __global const float *restrict maps, \
     __global float *restrict out, \
     const uint stride, \
+    const uint item0,        /* the launch's first work-item (a launch in pieces: renderer.py) */ \
     __global const pointrec_t *restrict point_lights, const uint n_point, \
     __global const float4 *restrict directional_lights, const uint n_directional, \
     const float4 origin,     /* subtracted from P and (on the host) from lights; 0 with DIRECTIONS_FP64 */ \

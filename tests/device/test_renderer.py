@@ -545,3 +545,37 @@ def test_pixel_at_the_eye_is_seen_head_on(kernel, fp64, device):
     assert np.array_equal(v[0], [0.0, 0.0, 1.0])
     # n, the eye and the point are exact in float32: every path has v = n there.
     assert np.allclose(rgb[0, 0], ref[0, 0], rtol=1e-5)
+
+
+def test_launch_pieces_cover_the_launch_in_whole_work_groups():
+    from clphong.device.frame import LOCAL_SIZE
+    from clphong.device.renderer import PIECE_RATE, PIECE_SECONDS, launch_pieces
+
+    items = 64 * LOCAL_SIZE + 0
+    assert launch_pieces(items, 1) == [(0, items)]                 # short: one piece
+    per = int(PIECE_RATE["lanes"] * PIECE_SECONDS / (4096 * 16)) // LOCAL_SIZE * LOCAL_SIZE
+    pieces = launch_pieces(130_048, 4096 * 16)
+    assert len(pieces) > 1 and all(c == per for _, c in pieces[:-1])
+    assert [s for s, _ in pieces] == list(range(0, 130_048, per))
+    assert sum(c for _, c in pieces) == 130_048
+    assert all(s % LOCAL_SIZE == 0 for s, _ in pieces)
+
+
+@pytest.mark.parametrize("opts", [dict(), dict(path="fast"), dict(kernel="obvious"),
+                                  dict(max_error=1e-3)])
+def test_a_launch_in_pieces_is_bit_identical(opts, monkeypatch, device):
+    """A long frame is launched in pieces (a signal is then handled between them):
+    work-item ids continue through item0, so the image is the same to the bit."""
+    import clphong.device.renderer as R
+    from conftest import heightfield, point_lights
+
+    rng = np.random.default_rng(21)
+    gb = heightfield(rng, 70, 90)
+    scene = make_scene(point_lights(rng, 12, att=(1.0, 0.0, 300.0)), model="blinn-phong", h=16.0)
+    r = Renderer(scene, device=device, **opts)
+    whole = r.render(gb)
+    monkeypatch.setattr(R, "PIECE_SECONDS", 1e-6)      # one work-group a piece
+    pieces = r.render(gb)
+    assert np.array_equal(whole.image, pieces.image)
+    if "max_error" in opts:
+        assert pieces.plan.defines["CULLING"] == 1
