@@ -673,18 +673,22 @@ def test_disk_full_while_writing_any_output_keeps_the_previous_one(work, capsys,
 
 
 @pytest.mark.parametrize("how,code,text", [
-    ("sigterm", 143, "clphong: terminated (SIGTERM)"),
+    ("SIGTERM", 143, "clphong: terminated (SIGTERM)"),
+    ("SIGHUP", 129, "clphong: terminated (SIGHUP)"),
+    ("SIGQUIT", 131, "clphong: terminated (SIGQUIT)"),
     ("ctrl-c", 130, "clphong: interrupted"),
 ])
 def test_stopped_while_writing_leaves_nothing(work, capsys, monkeypatch, how, code, text):
+    """Every catchable terminating signal removes the temporary output and exits
+    128 + N with one line (SIGHUP and SIGQUIT left .NAME.tmp-XXXX.exr behind)."""
     from clphong.io import atomic as output
 
     class Stopped(_FileSizeLimitedOutput):
         limit = 2 ** 40
 
         def write_image(self, data):
-            if how == "sigterm":
-                os.kill(os.getpid(), signal.SIGTERM)      # handled by the CLI as an interrupt
+            if how.startswith("SIG"):
+                os.kill(os.getpid(), getattr(signal, how))   # handled by the CLI as an interrupt
             else:
                 raise KeyboardInterrupt
             return True
@@ -693,7 +697,44 @@ def test_stopped_while_writing_leaves_nothing(work, capsys, monkeypatch, how, co
     monkeypatch.setattr(output.oiio, "ImageOutput", Stopped)
     line = fails(render_argv(src, out), capsys, src.parent, code=code)
     assert line.startswith(text)
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL       # restored after the command
+    for name in ("SIGTERM", "SIGHUP", "SIGQUIT"):                   # restored after the command
+        assert signal.getsignal(getattr(signal, name)) is signal.SIG_DFL
+
+
+def test_sigterm_stops_a_long_frame_within_a_second(tmp_path):
+    """A frame whose shading takes many seconds (1024x768, 4096 lights) is shaded in
+    pieces (clphong.device.renderer.launch_pieces): SIGTERM, sent while the kernel
+    runs, ends the command within 1 s (it waited for the whole launch: 8.5 s), exit
+    143, one line, no output and no temporary left."""
+    import subprocess
+    import sys
+    import time
+
+    from clphong.tools.bench import bench_gbuffer, bench_scene
+    from clphong.tools.commands import scene_toml
+
+    gb = bench_gbuffer(1024, 768)
+    write_gbuffer(tmp_path / "g.exr", gb.position, gb.normal, gb.albedo, coverage=gb.coverage)
+    (tmp_path / "s.toml").write_text(scene_toml(bench_scene("wide", 4096)))
+    out = tmp_path / "o.exr"
+    cmd = [sys.executable, "-m", "clphong.console.cli", "render", str(tmp_path / "s.toml"),
+           str(tmp_path / "g.exr"), "-o", str(out), "--stats"]
+    # warm the kernel cache first (a cold build would be timed otherwise)
+    subprocess.run([sys.executable, "-c", "from clphong.tools.bench import bench_scene, bench_gbuffer;"
+                    "from clphong.device.renderer import Renderer;"
+                    "Renderer(bench_scene('wide', 4096)).render(bench_gbuffer(64, 16))"], check=True)
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    time.sleep(4.0)          # start-up, reading, the first pieces
+    assert proc.poll() is None, "the frame finished before the signal: make it longer"
+    t0 = time.perf_counter()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=30)
+    waited = time.perf_counter() - t0
+    assert proc.returncode == 143, err
+    assert waited < 1.0, f"SIGTERM took {waited:.2f} s"
+    lines = err.strip().splitlines()
+    assert lines[-1].startswith("clphong: terminated (SIGTERM)"), err
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if ".tmp-" in p.name]
 
 
 # =========================================================================== no usable device

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from .. import __version__
 from ..color.ocio import WORKING_SPACES, load_config
-from ..core.errors import ClphongError, OutputError, OutputWarning
+from ..core.errors import ClphongError, OutputError, OutputWarning, clean_line
 from ..deliver.outputs import OutputOptions, OutputPaths, check_outputs, render_outputs
 from ..deliver.writers import (
     EXR_BASE_COMPRESSIONS,
@@ -27,6 +27,8 @@ from ..deliver.writers import (
     SDR_BITS,
     check_compression,
 )
+from ..device import runtime as _runtime
+from ..device.culling import BRUTE_ABOVE
 from ..device.renderer import Renderer
 from ..device.runtime import get_runtime, list_devices
 from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
@@ -35,7 +37,13 @@ from ..io.inspection import METRICS, DiffError, diff_images, format_report, insp
 from ..model.options import KERNELS, LANES, NONFINITE_POLICIES, PATHS
 from ..model.scene import MAP_KEYS, load_scene
 from ..model.tonemap import OPERATORS
-from ..pipeline.batch import Rig, parse_frame_range, plan_batch, run_batch
+from ..pipeline.batch import (
+    Rig,
+    parse_frame_range,
+    plan_batch,
+    run_batch,
+    stale_temporaries,
+)
 from ..pipeline.relighter import (
     Relighter,
     RelighterSpec,
@@ -46,11 +54,13 @@ from ..tools.bench import PATHS as BENCH_PATHS
 from ..tools.bench import (
     BenchConfig,
     check_paths,
+    missing_bench_modules,
     run_bench,
     save_report,
     summary_lines,
     table,
 )
+from ..tools.commands import run_commands_bench
 from ..tools.samples import write_samples
 
 RENDER_EXAMPLES = """\
@@ -283,9 +293,12 @@ def _add_bench_parser(sub):
                     "(1920x1080, N = 1 ... 65536 point lights, a wide-reach and a small-reach "
                     "scene; see clphong/bench.py), against the float64 reference and a numpy "
                     "float32 implementation measured in the same run.")
-    b.add_argument("--json", default="bench.json", metavar="REPORT.json", help="JSON report (default bench.json)")
-    b.add_argument("--plot", default="bench.png", metavar="PARETO.png",
-                   help="Pareto plot of throughput against error (default bench.png; '' for none)")
+    b.add_argument("--json", default=None, metavar="REPORT.json",
+                   help="JSON report (default bench.json; with --commands, commands.json)")
+    b.add_argument("--plot", default=None, metavar="PARETO.png",
+                   help="Pareto plot of throughput against error (matplotlib: pip install "
+                        "'clphong[bench]'; default bench.png where matplotlib is installed, "
+                        "else none, with a note; '' for none)")
     b.add_argument("--quick", action="store_true",
                    help="480x270, N up to 4096, budgets 0 and 1e-3, 3 repeats: about a minute")
     b.add_argument("--sizes", metavar="WxH[,WxH]", help="frame sizes (default 1920x1080)")
@@ -302,6 +315,12 @@ def _add_bench_parser(sub):
     b.add_argument("--numpy-pairs", type=float, metavar="P",
                    help="numpy float32 timed on about P pixel-light pairs (default 2e7)")
     b.add_argument("--device", metavar="DEV", help="OpenCL device (see 'clphong devices')")
+    b.add_argument("--commands", action="store_true",
+                   help="instead, time whole commands at 1 point light: 'clphong render' EXR to EXR "
+                        "against oiiotool on the same files (plus the kernel), and each display "
+                        "output against OpenImageIO's own conversion and write; medians of "
+                        "--repeats runs (default 5) at the first of --sizes, taken in turns "
+                        "(clphong.tools.commands)")
 
 
 def _csv(text, conv, what):
@@ -320,6 +339,10 @@ def _size(text):
 
 
 def cmd_bench(args) -> int:
+    if args.commands:
+        return _bench_commands(args)
+    if args.json is None:
+        args.json = "bench.json"
     kw = {}
     if args.sizes:
         kw["sizes"] = _csv(args.sizes, _size, "--sizes")
@@ -354,6 +377,18 @@ def cmd_bench(args) -> int:
     # The report's names are checked before the run (a minute or more), not after it.
 
     json_path, plot_path = args.json or None, args.plot or None
+    # Optional dependencies before any work (a run takes minutes): an asked-for plot
+    # needs matplotlib (one line, exit 2); the default plot is skipped with a note.
+    missing = missing_bench_modules()
+    if "matplotlib" in missing:
+        if args.plot:
+            raise _Usage(f"--plot {args.plot}: needs matplotlib, which is not installed: "
+                         "pip install 'clphong[bench]', or --plot '' for no plot")
+        if args.plot is None:
+            print("clphong bench: no Pareto plot (matplotlib is not installed: "
+                  "pip install 'clphong[bench]')", file=sys.stderr)
+    elif args.plot is None:
+        plot_path = "bench.png"
     for out in (json_path, plot_path):
         if out:
             check_output_path(out)
@@ -370,6 +405,17 @@ def cmd_bench(args) -> int:
         print(f"report: {json_path}")
     if plot_path:
         print(f"Pareto plot: {plot_path}")
+    return 0
+
+
+def _bench_commands(args) -> int:
+    """``bench --commands``: clphong.tools.commands' whole-command timings."""
+    size = _csv(args.sizes, _size, "--sizes")[0] if args.sizes else (1920, 1080)
+    if args.repeats is not None and args.repeats < 1:
+        raise _Usage(f"--repeats: {args.repeats} is too small")
+    run_commands_bench(size=size, runs=args.repeats or 5,
+                       json_path="commands.json" if args.json is None else (args.json or None),
+                       log=lambda msg: print(msg, file=sys.stderr, flush=True))
     return 0
 
 
@@ -406,6 +452,7 @@ def cmd_render(args) -> int:
         warnings.warn(OutputWarning("--aov adds EXR layers, and no EXR is written (-o)"))
     paths = _output_paths(args, args.output)
     options = check_outputs(_output_options(args).for_scene(scene), paths)   # bad names: before any work
+    _remove_stale_temporaries(paths.files)
     gbuffer = _read_gbuffer(args)
     t_read = time.perf_counter()
     # The same constructor path as 'relight' and the API (--path, --max-error, --nonfinite).
@@ -440,7 +487,27 @@ def cmd_render(args) -> int:
         if cull is not None:
             print(f"culling: {cull.seconds * 1e3:.1f} ms, tiles keep {cull.kept_fraction:.2%} of "
                   f"{cull.n_point} point lights on average", file=sys.stderr)
+            if cull.brute:
+                print("culling: the lists keep nearly every light (more than "
+                      f"{BRUTE_ABOVE:.0%}): shaded brute force", file=sys.stderr)
     return 0
+
+
+def _remove_stale_temporaries(files) -> None:
+    """Remove what a killed earlier run left for these outputs (``.NAME.tmp-XXXXXXXX.EXT``,
+    only that pattern for these names, as ``relight`` does), with one warning line."""
+    removed = []
+    for path in files:
+        for tmp in stale_temporaries(path):
+            try:
+                os.remove(tmp)
+                removed.append(tmp)
+            except OSError:
+                pass
+    if removed:
+        warnings.warn(OutputWarning(
+            f"removed {len(removed)} temporary file(s) an interrupted earlier run left: "
+            + ", ".join(os.path.basename(p) for p in removed[:3]) + (" ..." if len(removed) > 3 else "")))
 
 
 def cmd_plan(args) -> int:
@@ -707,24 +774,32 @@ def _main(argv: list[str] | None) -> int:
     args, extras = parser.parse_known_args(argv)
     if extras:
         _unrecognized(parser, args, extras)
+    # One line on a terminal when a kernel really compiles (1-30 s); none when piped.
+    _runtime.compile_notice = _runtime.notice_on_tty
     import warnings
 
     def _one_line_warning(message, category, filename, lineno, file=None, line=None):
-        # clphong's own warnings (policies applied, suspicious scenes) as one line each.
-        text = " ".join(str(message).split())
-        print(f"clphong: warning: {text}", file=sys.stderr if file is None else file)
+        # clphong's own warnings (policies applied, suspicious scenes) as one line each,
+        # control bytes from a file or a library escaped, an endless one cut
+        print(f"clphong: warning: {clean_line(message)}", file=sys.stderr if file is None else file)
 
     try:
-        with warnings.catch_warnings():
+        import numpy as np
+
+        # numpy's floating-point warnings ("invalid value encountered in cast" from a
+        # signalling NaN in a file) are never a user's line: clphong counts and
+        # reports non-finite values itself (clphong.io.nonfinite)
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.showwarning = _one_line_warning
             with _sigterm_as_interrupt():
                 return COMMANDS[args.command](args)
     except _Usage as exc:
         # exits 2, with the subcommand's usage line
-        getattr(parser, "_clphong_commands", {}).get(args.command, parser).error(str(exc))
+        getattr(parser, "_clphong_commands", {}).get(args.command, parser).error(clean_line(exc))
     except ClphongError as exc:
-        msg = " ".join(str(exc).split("\n")).strip()
-        print(f"clphong: error: {msg}", file=sys.stderr)
+        # one line: what OpenImageIO, OpenEXR or a scene file put in the message is
+        # escaped (terminal control bytes) and cut to MAX_LINE characters
+        print(f"clphong: error: {clean_line(exc)}", file=sys.stderr)
         return exc.exit_code
     except MemoryError:
         # A step whose size clphong could not foresee (clphong.device.bands plans the
@@ -733,9 +808,9 @@ def _main(argv: list[str] | None) -> int:
               "CLPHONG_MAX_MEMORY lower so that large frames are shaded in smaller bands",
               file=sys.stderr)
         return 1
-    except _Terminated:
-        print("clphong: terminated (SIGTERM); no partial output was left", file=sys.stderr)
-        return 128 + 15
+    except _Terminated as exc:
+        print(f"clphong: terminated ({exc.name}); no partial output was left", file=sys.stderr)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         print("clphong: interrupted", file=sys.stderr)
         return 130
@@ -743,15 +818,28 @@ def _main(argv: list[str] | None) -> int:
 
 
 class _Terminated(KeyboardInterrupt):
-    """SIGTERM, raised like Ctrl-C so that every cleanup (temporary outputs) runs."""
+    """A terminating signal (SIGTERM, SIGHUP, SIGQUIT), raised like Ctrl-C so that
+    every cleanup (temporary outputs) runs; the CLI exits 128 + its number."""
+
+    def __init__(self, signum: int = 15, name: str = "SIGTERM"):
+        super().__init__(name)
+        self.signum, self.name = signum, name
+
+
+#: The catchable terminating signals turned into :class:`_Terminated` (SIGINT is
+#: Python's KeyboardInterrupt already; SIGPIPE is ignored by Python, so a closed
+#: output pipe is a BrokenPipeError, exit 141).
+TERMINATING_SIGNALS = ("SIGTERM", "SIGHUP", "SIGQUIT")
 
 
 @contextlib.contextmanager
 def _sigterm_as_interrupt():
-    """Turn SIGTERM into :class:`_Terminated` while a command runs (main thread only).
+    """Turn SIGTERM, SIGHUP and SIGQUIT into :class:`_Terminated` while a command
+    runs (main thread only).
 
-    Python's default SIGTERM action ends the process at once, which would leave
-    a half-written temporary output (``.NAME.tmp-XXXX.exr``) behind.
+    Their default actions end the process at once (SIGQUIT with a core dump),
+    which would leave a half-written temporary output (``.NAME.tmp-XXXX.exr``)
+    behind.
     """
     import signal
     import threading
@@ -761,17 +849,24 @@ def _sigterm_as_interrupt():
         return
 
     def _raise(signum, frame):
-        raise _Terminated()
+        raise _Terminated(signum, signal.Signals(signum).name)
 
+    previous = {}
     try:
-        previous = signal.signal(signal.SIGTERM, _raise)
+        for name in TERMINATING_SIGNALS:
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                previous[sig] = signal.signal(sig, _raise)
     except (ValueError, OSError):          # no signals here (e.g. an embedded interpreter)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
         yield
         return
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["image_signature", "image_kind"]
+__all__ = ["image_signature", "image_kind", "not_regular", "open_regular"]
 
 #: Magic numbers of the image files a scene argument (or an EXR input) is most
 #: often confused with.
@@ -38,3 +38,49 @@ def image_kind(source: str, raw: bytes) -> str | None:
         except UnicodeDecodeError:
             return kind
     return None
+
+
+def _kind_of_mode(mode: int) -> str:
+    import stat
+
+    for test, kind in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return "not a regular file"
+
+
+def not_regular(path) -> str | None:
+    """What ``path`` is when it exists and is not a regular file ("a FIFO (named
+    pipe)", "a character device", "a directory", ...), following links; None for a
+    regular file or a path that does not exist (the open then says so)."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return None
+    return None if stat.S_ISREG(mode) else _kind_of_mode(mode)
+
+
+def open_regular(path, error, what: str):
+    """Open ``path`` for reading in binary only if it is a regular file: opened
+    without blocking (a FIFO would wait for a writer forever), then checked on
+    the open descriptor. Anything else raises ``error`` (an exception class) with
+    one line ``"<path>: cannot read <what>: it is a FIFO (named pipe); give a
+    regular file"``; other failures are the OSError of the open."""
+    import stat
+
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise error(f"{os.fsdecode(path)}: cannot read {what}: it is {_kind_of_mode(mode)}; "
+                        "give a regular file")
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise

@@ -414,10 +414,12 @@ def convert_albedo(gbuffer, cfg: color.ColorConfig, space: str, ws: color.Workin
 def coverage_of(gbuffer) -> np.ndarray:
     """The frame's coverage as written in ``A``: the G-buffer's, 0 on background
     pixels (not shaded), 1 on every other pixel of a G-buffer without one."""
-    covered = ~gbuffer.background_mask()
+    background = gbuffer.background_mask()
     if gbuffer.coverage is None:
-        return covered.astype(np.float32)
-    return np.where(covered, np.clip(gbuffer.coverage, 0, 1), 0).astype(np.float32)
+        return np.logical_not(background).astype(np.float32)
+    alpha = np.asarray(np.clip(gbuffer.coverage, 0, 1), np.float32)     # a new array
+    np.copyto(alpha, 0, where=background)
+    return alpha
 
 
 def _check_output_memory(shape, paths: OutputPaths) -> None:

@@ -157,7 +157,8 @@ def check_compression(compression, where: str | None = None) -> str:
     """
     subject = f"{where}: EXR compression" if where else "EXR compression"
     name, colon, level = compression.partition(":") if isinstance(compression, str) else ("", "", "")
-    if name not in exr_compressions():
+    # the base names need no probe (a probe writes a small EXR: not at argparse time)
+    if name not in EXR_BASE_COMPRESSIONS and name not in exr_compressions():
         raise OutputError(f"{subject} must be {_compression_syntax()}, not {compression!r}")
     if not colon:
         return name
@@ -254,8 +255,10 @@ def _check(path: str, rgb) -> np.ndarray:
     a = np.asarray(rgb, np.float32)
     if a.ndim != 3 or a.shape[2] != 3 or 0 in a.shape:
         raise OutputError(f"{path}: expected a non-empty (H, W, 3) image, got shape {a.shape}")
-    # Display code values: clip to the encodable range (a view can overshoot by an ulp).
-    return np.clip(np.nan_to_num(a, nan=0.0), 0.0, 1.0)
+    # Display code values: clip to the encodable range (a view can overshoot by an ulp);
+    # NaN is 0, -Inf 0, +Inf 1. fmax/fmin (NaN-ignoring) in one new array: no temporary.
+    out = np.fmax(a, np.float32(0.0))
+    return np.fmin(out, np.float32(1.0), out=out)
 
 
 def _with_alpha(path: str, rgb: np.ndarray, alpha, attrs: dict) -> np.ndarray:

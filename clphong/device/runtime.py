@@ -129,6 +129,32 @@ def _sources_digest(folder: Path) -> str:
     return digest
 
 
+#: Free space below which PoCL's cache folder is taken for full (a compile writes ~1.1 MB).
+CACHE_MIN_FREE = 4 << 20
+
+
+def cache_problem(folder: Path) -> str | None:
+    """Why PoCL could not write in ``folder`` (its kernel cache): "is not writable",
+    "is full (N free)", "is not a folder"; None when it looks usable. The folder
+    need not exist yet: its nearest existing parent is checked."""
+    import shutil
+
+    p = Path(folder)
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    if p.exists() and not p.is_dir():
+        return f"is not a folder ({p} is a file)"
+    if not os.access(p, os.W_OK | os.X_OK):
+        return "is not writable"
+    try:
+        free = shutil.disk_usage(p).free
+    except OSError:
+        return None
+    if free < CACHE_MIN_FREE:
+        return f"is full ({free // 1024} KiB free)"
+    return None
+
+
 def pocl_cache_dir() -> Path:
     """PoCL's kernel cache folder, chosen as PoCL 3.0 does (lib/CL/pocl_cache.c):
     ``$POCL_CACHE_DIR``, else ``$XDG_CACHE_HOME/pocl/kcache``, else
@@ -370,6 +396,15 @@ class Runtime:
             except cl.Error as exc:
                 log = str(exc).strip().splitlines()
                 first = next((ln for ln in log if "error" in ln.lower()), log[-1] if log else "")
+                problem = cache_problem(pocl_cache_dir()) if self.is_pocl else None
+                if problem:
+                    # PoCL writes its compiles there: a full or read-only folder fails the
+                    # build, and it is not the device or the install that is at fault
+                    raise DeviceError(
+                        f"kernels/{entry_file} failed to build: PoCL's kernel cache folder "
+                        f"{pocl_cache_dir()} {problem}; free space there or make it writable, or "
+                        "set POCL_CACHE_DIR to a writable folder with room (about 2 MiB a "
+                        "kernel variant)") from exc
                 raise DeviceError(
                     f"kernels/{entry_file} failed to build on {self.name}: "
                     f"{first.strip() or type(exc).__name__}; set PYOPENCL_CTX or --device to use "

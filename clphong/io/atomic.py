@@ -194,21 +194,174 @@ def _png_problem(name: str) -> str | None:
                 return "data after the IEND chunk" if f.read(1) else None
 
 
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+#: Scanlines per chunk of each OpenEXR compression (its code in the header): none, rle,
+#: zips, zip, piz, pxr24, b44, b44a, dwaa, dwab. Other codes (e.g. OpenEXR 3.4's HTJ2K)
+#: are checked by decoding the file (:func:`_read_back`).
+_EXR_LINES_PER_CHUNK = (1, 1, 1, 16, 32, 16, 32, 32, 32, 256)
+#: The version-field flags of a tiled, deep or multi-part file (those are decoded instead).
+_EXR_TILED, _EXR_DEEP, _EXR_MULTIPART = 0x200, 0x800, 0x1000
+
+
+class _Cut(Exception):
+    """The file ends inside what is being read."""
+
+
+def _exr_layout_problem(name: str) -> str | None:
+    """Walk the structure of the single-part scanline OpenEXR file ``name``: its header,
+    its offset table, and every chunk's header and length, each inside the file, none
+    overlapping another, the last ending where the file ends (what a disk that fills
+    leaves: a file cut short, or an offset table never written). What is wrong, None
+    if nothing is, or ``"?"`` for a file of another kind (tiled, deep, multi-part, an
+    unknown compression), which :func:`check_image_written` decodes instead.
+
+    Reads the header and 8 bytes per chunk, not the pixels: 1080p float RGBA with zip
+    in about 1 ms instead of 70-140 ms to decode it.
+    """
+    import struct
+
+    size = os.path.getsize(name)
+    with open(name, "rb") as f:
+        def read(n: int) -> bytes:
+            b = f.read(n)
+            if len(b) < n:
+                raise _Cut()
+            return b
+
+        def cstring() -> bytes:
+            out = bytearray()
+            while True:
+                c = read(1)
+                if c == b"\0":
+                    return bytes(out)
+                out += c
+                if len(out) > 255:
+                    raise ValueError("an attribute name longer than 255 bytes")
+
+        try:
+            if read(4) != _EXR_MAGIC:
+                return "no OpenEXR magic number"
+            version = struct.unpack("<i", read(4))[0]
+            if version & (_EXR_TILED | _EXR_DEEP | _EXR_MULTIPART):
+                return "?"
+            window = compression = chunks = None
+            while True:
+                attr = cstring()
+                if not attr:
+                    break
+                cstring()                                     # the type name
+                n = struct.unpack("<i", read(4))[0]
+                if n < 0:
+                    return f"attribute {attr!r} has a negative size"
+                value = read(n)
+                if attr == b"dataWindow" and n == 16:
+                    window = struct.unpack("<4i", value)
+                elif attr == b"compression" and n == 1:
+                    compression = value[0]
+                elif attr == b"chunkCount" and n == 4:
+                    chunks = struct.unpack("<i", value)[0]
+            if window is None or compression is None:
+                return "the header lacks dataWindow or compression"
+            if compression >= len(_EXR_LINES_PER_CHUNK):
+                return "?"
+            lines = _EXR_LINES_PER_CHUNK[compression]
+            y0, y1 = window[1], window[3]
+            expected = (y1 - y0 + lines) // lines
+            if chunks is not None and chunks != expected:
+                return f"chunkCount {chunks}, but the data window holds {expected} chunks"
+            if expected < 1 or f.tell() + 8 * expected > size:
+                return "the file ends inside its offset table"
+            offsets = struct.unpack(f"<{expected}Q", read(8 * expected))
+            start = f.tell()
+            ends = []
+            for k, at in sorted(zip(range(expected), offsets), key=lambda item: item[1]):
+                if at < start:
+                    return f"chunk {k}'s offset {at} is not past the offset table (never written?)"
+                if at + 8 > size:
+                    return f"chunk {k} lies beyond the end of the file"
+                f.seek(at)
+                y, n = struct.unpack("<ii", read(8))
+                if y != y0 + k * lines:
+                    return f"chunk {k} starts at line {y}, not {y0 + k * lines}"
+                if n < 0 or at + 8 + n > size:
+                    return f"chunk {k} (line {y}) is cut short"
+                if ends and at < ends[-1]:
+                    return f"chunk {k} overlaps the one before it"
+                ends.append(at + 8 + n)
+            if (ends[-1] if ends else start) != size:
+                return "data after the last chunk"
+            return None
+        except _Cut:
+            return "the file ends inside its header or offset table"
+        except (ValueError, struct.error) as exc:
+            return f"a malformed header ({exc})"
+
+
+_JXL_CONTAINER = b"\x00\x00\x00\x0cJXL \r\n\x87\n"
+
+
+def _jxl_layout_problem(name: str) -> str | None:
+    """Walk the boxes of the JPEG XL container ``name`` (ISO/IEC 18181-2): each box
+    whole, the last ending where the file ends, and the codestream whole (a ``jxlc``
+    box, or ``jxlp`` parts up to the one flagged last). What is wrong, None, or ``"?"``
+    for a bare codestream or a box that runs to the end of the file, with no length to
+    check (:func:`check_image_written` decodes those instead)."""
+    import struct
+
+    size = os.path.getsize(name)
+    with open(name, "rb") as f:
+        if f.read(12) != _JXL_CONTAINER:
+            return "?"
+        at, codestream = 12, False
+        while at < size:
+            f.seek(at)
+            head = f.read(16)
+            if len(head) < 8:
+                return "the file ends inside a box header"
+            n, kind = struct.unpack(">I4s", head[:8])
+            header = 8
+            if n == 0:
+                return "?"
+            if n == 1:
+                if len(head) < 16:
+                    return "the file ends inside a box header"
+                n, header = struct.unpack(">Q", head[8:])[0], 16
+            if n < header or at + n > size:
+                return f"box {kind.decode('latin-1')!r} is cut short"
+            if kind == b"jxlc":
+                codestream = True
+            elif kind == b"jxlp":                   # a part; bit 31 of its index: the last
+                if n < header + 4:
+                    return "a jxlp box without its index"
+                f.seek(at + header)
+                codestream = bool(f.read(1)[0] & 0x80)
+            at += n
+        return None if codestream else "the codestream is cut short (no last part)"
+
+
 def check_image_written(name: str, display: str | None = None) -> None:
     """Check that the image file ``name`` just written is whole.
 
     A PNG must be a whole chain of chunks up to IEND (OpenImageIO's PNG writer
-    reports no error when the disk fills while it closes the file); any other
-    image is read back completely (its EXR and JPEG XL writers can miss such an
-    error too).
+    reports no error when the disk fills while it closes the file); a scanline
+    EXR a whole header, offset table and chain of chunks up to the end of the file
+    (:func:`_exr_layout_problem`; its writer can miss such an error too), and a JPEG XL
+    container a whole chain of boxes holding the whole codestream
+    (:func:`_jxl_layout_problem`); any other image (a tiled EXR, a TIFF) is read back
+    completely.
 
     Raises
     ------
     OutputError
         One line naming ``display`` (default ``name``): the write failed.
     """
-    if os.path.splitext(name)[1].lower() == ".png":
+    ext = os.path.splitext(name)[1].lower()
+    if ext == ".png":
         problem = _png_problem(name)
+    elif ext == ".exr" and (problem := _exr_layout_problem(name)) != "?":
+        pass
+    elif ext == ".jxl" and (problem := _jxl_layout_problem(name)) != "?":
+        pass
     else:
         problem = _read_back(name)
     if problem is not None:

@@ -109,6 +109,9 @@ SCALAR_KEYS = ("coverage",) + tuple(k for k, c in MATERIAL_MAPS.items() if c == 
 OPTIONAL = ("coverage", *MAP_KEYS)
 #: Every valid key of ``channels=``, in a stable order.
 CHANNEL_KEYS = REQUIRED + OPTIONAL
+#: Rows per band of a G-buffer read (:meth:`_ExrFile.read_stacked`), rounded to whole
+#: chunks of the file: 64 rows of 1920 pixels and 10 float channels are 4.9 MB.
+BAND_ROWS = 64
 #: Conventions :func:`write_gbuffer` can write.
 WRITE_CONVENTIONS = ("generic", "blender", "blender-new", "arnold", "mitsuba")
 
@@ -208,7 +211,12 @@ class GBuffer:
         x, y, z = n[..., 0], n[..., 1], n[..., 2]
         # |N|² = 0 in float64 exactly where every component is 0 (the square of
         # the smallest float32 or half denormal, about 2e-90, is a normal float64).
-        mask = (x == 0) & (y == 0) & (z == 0)
+        if n.dtype == np.float32:
+            # ±0 is the float32 whose bits are 0 but for the sign: the same test, 1.5x faster
+            u = n.view(np.uint32)
+            mask = ((u[..., 0] | u[..., 1] | u[..., 2]) & np.uint32(0x7FFFFFFF)) == 0
+        else:
+            mask = (x == 0) & (y == 0) & (z == 0)
 
         if not all_finite(n):                              # the common case, cheaply
             mask |= ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(z))
@@ -659,6 +667,8 @@ class _ExrFile:
         self._where = {n: (part, k) for part in self.parts for k, n in enumerate(part.full_names)}
         self.attributes = attributes
         self._data: dict[str, np.ndarray] = {}
+        # channel -> (the run read, its index there), for channels read in the display window
+        self._run_of: dict[str, tuple[np.ndarray, int]] = {}
 
     @property
     def multipart(self) -> bool:
@@ -717,14 +727,75 @@ class _ExrFile:
             lo, hi = run[0], run[-1] + 1
             pix = self.inp.read_image(part.index, 0, lo, hi, oiio.TypeDesc("float"))
             if pix is None:
-                msg = (_oiio_message(self.inp.geterror) or _oiio_message(oiio.geterror)
-                       or "unknown error")
-                where = f" of part {part.index}" if self.multipart else ""
-                raise GBufferError(f"{self.path}: reading channels "
-                                   f"{','.join(map(_show, part.full_names[lo:hi]))}{where} failed: {msg}")
+                self._read_failed(part, lo, hi)
             pix = np.asarray(pix, dtype=np.float32).reshape(s.height, s.width, hi - lo)
             for i in run:
-                self._data[part.full_names[i]] = self._fit(pix[:, :, i - lo], s)
+                view = pix[:, :, i - lo]
+                plane = self._data[part.full_names[i]] = self._fit(view, s)
+                if plane is view:                    # in the display window: stack slices pix
+                    self._run_of[part.full_names[i]] = (pix, i - lo)
+
+    def read_stacked(self, groups: Mapping[str, Sequence[str]]) -> dict[str, np.ndarray]:
+        """:meth:`stack` of each group of channels (key -> names), read from the file.
+
+        Where each group is a run of side-by-side channels of one scanline part that
+        fills the display window (every G-buffer clphong or a renderer writes), the
+        file is read a band of rows at a time straight into the groups' arrays, so
+        no interleaved copy of the whole frame is made (1080p, 10 channels: an 83 MB
+        buffer and its page faults; the copies work on a band in cache). Otherwise
+        :meth:`load` then :meth:`stack`. The same values either way.
+        """
+        names = [n for chans in groups.values() for n in chans]
+        runs = self.runs(names)
+        if not self._bandable(groups, runs):
+            self.load(names)
+            return {k: self.stack(chans) for k, chans in groups.items()}
+        fw, fh = self.size
+        out = {k: np.empty((fh, fw, len(chans)), np.float32) for k, chans in groups.items()}
+        for part, run in runs:
+            s = part.spec
+            lo, hi = run[0], run[-1] + 1
+            targets = [(out[k], self._where[chans[0]][1] - lo, len(chans))
+                       for k, chans in groups.items()
+                       if self._where[chans[0]][0] is part and lo <= self._where[chans[0]][1] < hi]
+            chunk = max(1, s.get_int_attribute("oiio:RowsPerChunk", 16))
+            rows = chunk * max(1, BAND_ROWS // chunk)          # whole chunks: each decoded once
+            for y in range(0, fh, rows):
+                y1 = min(fh, y + rows)
+                pix = self.inp.read_scanlines(part.index, 0, s.y + y, s.y + y1, s.z, lo, hi,
+                                              oiio.TypeDesc("float"))
+                if pix is None:
+                    self._read_failed(part, lo, hi)
+                pix = np.asarray(pix, dtype=np.float32).reshape(y1 - y, fw, hi - lo)
+                for arr, j, k in targets:
+                    arr[y:y1] = pix[:, :, j:j + k]
+        return out
+
+    def _bandable(self, groups: Mapping[str, Sequence[str]], runs) -> bool:
+        """Whether :meth:`read_stacked` can read ``groups`` in bands: each group side-by-side
+        channels, in order, of one part, and every part read a scanline image filling the
+        display window."""
+        if not runs or any(n in self._data for chans in groups.values() for n in chans):
+            return False
+        fw, fh = self.size
+        for part, _ in runs:
+            s = part.spec
+            if s.tile_width or s.deep or (s.x, s.y, s.width, s.height) != (s.full_x, s.full_y, fw, fh):
+                return False
+        for chans in groups.values():
+            if not chans:
+                return False
+            part, first = self._where[chans[0]]
+            if any(self._where[n] != (part, first + k) for k, n in enumerate(chans)):
+                return False
+        return True
+
+    def _read_failed(self, part: _Part, lo: int, hi: int):
+        msg = (_oiio_message(self.inp.geterror) or _oiio_message(oiio.geterror)
+               or "unknown error")
+        where = f" of part {part.index}" if self.multipart else ""
+        raise GBufferError(f"{self.path}: reading channels "
+                           f"{','.join(map(_show, part.full_names[lo:hi]))}{where} failed: {msg}")
 
     def _fit(self, plane: np.ndarray, s) -> np.ndarray:
         """Place a data-window plane of a part with spec ``s`` in the display window (zeros outside)."""
@@ -740,7 +811,17 @@ class _ExrFile:
         return out
 
     def stack(self, names: Sequence[str]) -> np.ndarray:
-        """(H, W, len(names)) float32 array of loaded channels, C-contiguous."""
+        """(H, W, len(names)) float32 array of loaded channels, C-contiguous, a new array.
+
+        Channels that lie side by side, in order, in one run read are copied as one
+        slice of it (3.5x faster than stacking their planes: 1080p, 4 buffers, 190 -> 55 ms).
+        """
+        pix, j = self._run_of.get(names[0], (None, 0))
+        if pix is not None and all(self._run_of.get(n, (None, -1))[0] is pix
+                                   and self._run_of[n][1] == j + k for k, n in enumerate(names)):
+            out = np.empty((*pix.shape[:2], len(names)), np.float32)
+            out[...] = pix[:, :, j:j + len(names)]
+            return out
         return np.ascontiguousarray(np.stack([self._data[n] for n in names], axis=-1), dtype=np.float32)
 
     def part_of(self, names: Sequence[str]) -> str:
@@ -902,15 +983,19 @@ def read_gbuffer(path: str | os.PathLike | None = None, *, position: str | os.Pa
         for f, chans, _ in (*resolved.values(), *optional.values()):
             wanted.setdefault(f.path, []).extend(chans)
         _check_read_memory(files, wanted)
-        for p, names in wanted.items():
-            files[p].load(names)
+        groups: dict[str, dict[str, list[str]]] = {}
+        for k, (f, chans, _) in (*resolved.items(), *optional.items()):
+            groups.setdefault(f.path, {})[k] = chans
+        stacked: dict[str, np.ndarray] = {}
+        for p, group in groups.items():
+            stacked.update(files[p].read_stacked(group))
 
-        arrays = {k: f.stack(chans) for k, (f, chans, _) in resolved.items()}
+        arrays = {k: stacked[k] for k in resolved}
         _background_outside_data_windows(arrays, {k: (f, chans) for k, (f, chans, _) in resolved.items()})
         coverage = None
         maps: dict[str, np.ndarray] = {}
-        for key, (f, chans, _) in optional.items():
-            arr = f.stack(chans)
+        for key in optional:
+            arr = stacked[key]
             if key == "coverage":
                 coverage = np.ascontiguousarray(arr[..., 0])
             elif key == "specular_color":

@@ -101,7 +101,7 @@ from types import MappingProxyType
 from typing import Any, NoReturn
 
 from ..core.errors import SceneError, ToneMapError
-from ..core.files import image_kind
+from ..core.files import image_kind, open_regular
 from ..core.floats import FLT_MAX, FLT_MIN, U
 from ..core.memory import format_size, require_memory
 from .options import check_exposure
@@ -1238,7 +1238,8 @@ def load_scene(path: str | os.PathLike) -> Scene:
     source = _one_line(os.fspath(path) if not isinstance(path, bytes)
                        else os.fsdecode(path))
     try:
-        with open(path, "rb") as f:
+        # only a regular file: a FIFO would block forever, /dev/zero read until out of memory
+        with open_regular(path, SceneError, "scene file") as f:
             _check_scene_memory(source, os.fstat(f.fileno()).st_size)
             raw = f.read()
     except FileNotFoundError:

@@ -17,6 +17,16 @@ times the commands around them, each run as a subprocess on files:
     whole command, with ``--jobs N`` and with ``--scheduler`` on a local Dask
     cluster of ``--dask`` single-threaded workers (``pip install ".[dask]"``).
 
+``python -m clphong.tools.commands whole [--runs 5] [--json R.json]`` (``clphong bench --commands``)
+    Issue 14's yardsticks, at 1 point light: the wall time of ``clphong render
+    G.exr -o OUT.exr`` against ``oiiotool G.exr --ch R=albedo.R,… --compression
+    zip -o OUT.exr`` (the same channels out, the same compression) plus the
+    kernel time (target ≤ :data:`COMMAND_TARGET` ×), with the render's
+    ``--stats`` stages; and per display output (``--sdr`` PNG, ``--hdr`` PQ PNG,
+    ``--hdr`` JPEG XL where OpenImageIO writes it) what it adds to that command
+    against OpenImageIO's own colour conversion and write of the same frame
+    (target ≤ :data:`DISPLAY_TARGET` ×). Markdown tables, and JSON with every time.
+
 The frames are ``clphong.tools.bench``'s G-buffer and ``wide`` scene (point lights
 0.5–3 units above a gently curved surface, Blinn-Phong h = 32), written as EXR
 and TOML into a temporary folder that is removed at the end unless ``--keep``
@@ -37,7 +47,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from ..color import ocio as color
 from ..core.errors import ClphongError, OutputError
+from ..deliver.writers import jpegxl_available
+from ..io.atomic import atomic_path, check_output_path
 from ..io.gbuffer import write_gbuffer
 from ..model.options import KERNELS
 from .bench import bench_gbuffer, bench_scene
@@ -173,6 +186,269 @@ def batch_table(rows: list[dict]) -> str:
                             f"{r['frames_per_s']:.2f}"] for r in rows])
 
 
+# --------------------------------------------------------------------------- whole command vs OpenImageIO
+
+#: Issue 14's targets: ``clphong render`` (1 light, EXR to EXR) within this factor of
+#: ``oiiotool`` on the same files plus the kernel; each display output within
+#: :data:`DISPLAY_TARGET` of OpenImageIO's own colour conversion and write.
+COMMAND_TARGET = 1.3
+DISPLAY_TARGET = 1.2
+#: The render's EXR: its default compression, and the channels it writes, taken by
+#: oiiotool from the bench G-buffer (the albedo as R, G, B; its coverage as A).
+COMPRESSION = "zip"
+OIIOTOOL_CHANNELS = "R=albedo.R,G=albedo.G,B=albedo.B,A=A"
+
+#: OpenImageIO's own display output of a frame, timed in a fresh process (so its
+#: OCIO config is loaded as in a clphong run); the EXR is read before the clock
+#: starts, as clphong's frame is in memory when its display output begins.
+_OIIO_DISPLAY = r"""
+import json, sys, time
+import OpenImageIO as oiio
+a = json.loads(sys.argv[1])
+src = oiio.ImageBuf(a["frame"])
+src.read(force=True)
+rgb = oiio.ImageBufAlgo.channels(src, (0, 1, 2))
+t0 = time.perf_counter()
+if a["view"]:
+    out = oiio.ImageBufAlgo.ociodisplay(rgb, a["display"], a["view"], fromspace=a["src"],
+                                        unpremult=False, colorconfig=a["config"])
+else:
+    out = oiio.ImageBufAlgo.colorconvert(rgb, a["src"], a["dst"], unpremult=False,
+                                         colorconfig=a["config"])
+spec = out.specmod()
+spec.attribute("CICP", oiio.TypeDesc("int[4]"), tuple(a["cicp"]))
+if a["dither"]:
+    spec.attribute("oiio:dither", 1)
+ok = out.write(a["out"], oiio.UINT8 if a["bits"] == 8 else oiio.UINT16)
+seconds = time.perf_counter() - t0
+print(json.dumps({"seconds": seconds, "ok": bool(ok), "error": out.geterror()}))
+"""
+
+
+def oiiotool_command() -> str:
+    """This Python's ``oiiotool`` (beside it, as the OpenImageIO wheel installs it), else PATH's."""
+    exe = Path(sys.executable).with_name("oiiotool")
+    found = str(exe) if exe.exists() else shutil.which("oiiotool")
+    if found is None:
+        raise ClphongError("oiiotool not found beside this Python or on PATH (pip install OpenImageIO)")
+    return found
+
+
+_FIELD = re.compile(r"([a-z_]+) ([0-9.]+) s\b")
+
+
+def parse_stats(err: str) -> dict[str, float]:
+    """The seconds of ``clphong render --stats``'s timing line by name: read, setup,
+    shade, kernel, write, each output kind written (exr, sdr, hdr, …) and total."""
+    for line in reversed(err.splitlines()):
+        fields = {k: float(v) for k, v in _FIELD.findall(line)}
+        if "total" in fields and "kernel" in fields:
+            return fields
+    raise ClphongError(f"render --stats printed no timing line: {err[-200:]!r}")
+
+
+def display_cases(folder: Path) -> list[dict]:
+    """The display outputs timed: (name, clphong option and file, OpenImageIO's equivalent)."""
+    cfg = color.load_config()
+    src = cfg.space_name(color.WORKING_SPACES["lin_rec709"])
+    hdr = dict(view=color.HDR_VIEW, display=color.HDR_DISPLAY, src=src, dst=None,
+               cicp=list(color.PQ_CICP), bits=16, dither=False, config=cfg.path)
+    cases = [
+        # The scene's tone mapping ("none"): the sRGB encoding of the working space, as
+        # OpenImageIO's colorconvert to sRGB Encoded Rec.709; 8 bits, dithered, with cICP.
+        dict(name="SDR PNG 8-bit (--sdr, fused sRGB encoding)", option="--sdr", file="sdr.png",
+             view=None, display=None, src=src, dst=cfg.oiio.resolve("srgb_rec709_scene"),
+             cicp=list(color.SRGB_CICP), bits=8, dither=True, config=cfg.path),
+        dict(name=f"PQ PNG 16-bit (--hdr, {color.HDR_VIEW})", option="--hdr", file="pq.png", **hdr),
+    ]
+    if jpegxl_available():
+        cases.append(dict(name=f"PQ JPEG XL (--hdr, {color.HDR_VIEW})", option="--hdr",
+                          file="pq.jxl", **hdr))
+    for c in cases:
+        c["path"] = str(folder / c["file"])
+        c["oiio_path"] = str(folder / f"oiio-{c['file']}")
+    return cases
+
+
+def _oiio_display_seconds(case: dict, frame: Path, env=None) -> float:
+    import json
+
+    args = {k: case[k] for k in ("view", "display", "src", "dst", "cicp", "bits", "dither", "config")}
+    args.update(frame=str(frame), out=case["oiio_path"])
+    _, _, out = _run_out([sys.executable, "-c", _OIIO_DISPLAY, json.dumps(args)], env)
+    got = json.loads(out.strip().splitlines()[-1])
+    if not got["ok"]:
+        raise ClphongError(f"OpenImageIO's {case['file']} failed: {got['error'] or 'no message'}")
+    return float(got["seconds"])
+
+
+def _run_out(cmd: list[str], env=None) -> tuple[float, str, str]:
+    """:func:`_run`, with stdout too: (wall seconds, stderr, stdout)."""
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    if p.returncode != 0:
+        last = (p.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise ClphongError(f"{' '.join(cmd[:3])[:80]} … failed (exit {p.returncode}): {last}")
+    return wall, p.stderr, p.stdout
+
+
+def python_env(folder: Path) -> dict:
+    """The environment of the timed Python processes: modules compiled once and cached
+    (in ``folder``, not beside the sources), as an installed package has them, even
+    where PYTHONDONTWRITEBYTECODE is set (a source checkout without ``__pycache__``
+    would compile clphong's ~50 modules in every run, 0.1-0.15 s)."""
+    env = dict(os.environ)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    env["PYTHONPYCACHEPREFIX"] = str(folder / "pycache")
+    return env
+
+
+def _median(values) -> float:
+    return statistics.median(values) if values else math.nan
+
+
+def _timed(cmd: list[str], env=None) -> tuple[float, float, str]:
+    """:func:`_run`, with the CPU time the command took too (user + system, its threads
+    together): (wall seconds, CPU seconds, stderr). CPU time suffers less than wall time
+    from other tenants' load on a shared machine."""
+    import resource
+
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    wall, err = _run(cmd, env)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu, err
+
+
+def bench_commands(folder: Path, runs: int, size=SIZE, displays: bool = True,
+                   log=None) -> dict:
+    """Whole ``clphong render`` against ``oiiotool``, and each display output against
+    OpenImageIO's own; every case once per round, ``runs`` rounds (after one untimed
+    round), medians. See :func:`commands_tables` for what the figures are."""
+    gbuf, scenes = write_inputs(folder, [1], size=size)
+    tool = oiiotool_command()
+    exr = folder / "render.exr"
+    render = clphong_command() + ["render", str(scenes[1]), str(gbuf), "-o", str(exr),
+                                  "--exr-compression", COMPRESSION, "--stats"]
+    env = python_env(folder)
+    commands = {"clphong": (render, env)}
+    commands["oiiotool"] = ([tool, str(gbuf), "--ch", OIIOTOOL_CHANNELS, "-d", "float",
+                             "--compression", COMPRESSION, "-o", str(folder / "oiiotool.exr")], None)
+    # the same command on clphong's own output: its pixels, so its compression work
+    commands["oiiotool_rewrite"] = ([tool, str(exr), "-d", "float", "--compression", COMPRESSION,
+                                     "-o", str(folder / "rewritten.exr")], None)
+    cases = display_cases(folder) if displays else []
+    times = {k: {"wall": [], "cpu": []} for k in commands}
+    stats = []
+    shown = {c["file"]: {"wall": [], "stats": [], "added": [], "oiio": []} for c in cases}
+    for r in range(runs + 1):                       # round 0: untimed (PoCL cache, page cache)
+        if log:
+            log(f"round {r} of {runs}" + (" (untimed)" if r == 0 else ""))
+        for name, (cmd, cmd_env) in commands.items():
+            wall, cpu, err = _timed(cmd, cmd_env)
+            if name == "clphong":
+                base = parse_stats(err)
+            if r:
+                times[name]["wall"].append(wall)
+                times[name]["cpu"].append(cpu)
+                if name == "clphong":
+                    stats.append(base)
+        for c in cases:
+            wall, err = _run(render + [c["option"], c["path"]], env)
+            with_display = parse_stats(err)
+            oiio_s = _oiio_display_seconds(c, exr, env)
+            if r:
+                s = shown[c["file"]]
+                s["wall"].append(wall)
+                s["stats"].append(with_display)
+                # what the output adds to the same command, in-process (paired by round)
+                s["added"].append(with_display["total"] - base["total"])
+                s["oiio"].append(oiio_s)
+    med = {(k, m): _median(v) for k, t in times.items() for m, v in t.items()}
+    stage = {k: _median([s.get(k, math.nan) for s in stats])
+             for k in ("read", "setup", "shade", "kernel", "write", "total")}
+    command = dict(
+        **{f"{k}_{m}_s": med.get((k, m), math.nan)
+           for k in ("clphong", "oiiotool", "oiiotool_rewrite")
+           for m in ("wall", "cpu")},
+        **{f"{k}_s": v for k, v in stage.items()},
+        ratio=med["clphong", "wall"] / (med["oiiotool", "wall"] + stage["kernel"]),
+        cpu_ratio=med["clphong", "cpu"] / (med["oiiotool", "cpu"] + stage["kernel"]),
+        target=COMMAND_TARGET,
+        **{f"{k}_command": " ".join(cmd) for k, (cmd, _) in commands.items()},
+        times=times, stats=stats)
+    rows = []
+    for c in cases:
+        s = shown[c["file"]]
+        kind = "hdr" if c["option"] == "--hdr" else "sdr"
+        added, oiio_s = _median(s["added"]), _median(s["oiio"])
+        rows.append(dict(output=c["name"], file=c["file"], added_s=added,
+                         write_s=_median([x.get(kind, math.nan) for x in s["stats"]]),
+                         shade_extra_s=_median([x["shade"] for x in s["stats"]]) - stage["shade"],
+                         oiio_s=oiio_s, ratio=added / oiio_s if oiio_s > 0 else math.nan,
+                         target=DISPLAY_TARGET, wall_s=_median(s["wall"]),
+                         times={k: v for k, v in s.items() if k != "stats"}))
+    return dict(size=list(size), runs=runs, command=command, displays=rows)
+
+
+def commands_tables(report: dict) -> str:
+    """:func:`bench_commands`'s report as two Markdown tables."""
+    w, h = report["size"]
+    c = report["command"]
+    def ms(s):
+        return f"{1e3 * s:.0f}" if math.isfinite(s) else "n/a"
+
+    per = c["oiiotool_wall_s"] + c["kernel_s"], c["oiiotool_cpu_s"] + c["kernel_s"]
+
+    def row(name, key, stages=False, target=""):
+        wall, cpu = c[f"{key}_wall_s"], c[f"{key}_cpu_s"]
+        cells = ([ms(c["read_s"]), ms(c["setup_s"]), ms(c["shade_s"]), f"{1e3 * c['kernel_s']:.1f}",
+                  ms(c["write_s"])] if stages else [""] * 5)
+        return [name, ms(wall), ms(cpu), *cells, f"{wall / per[0]:.2f}", f"{cpu / per[1]:.2f}", target]
+
+    rows = [row("clphong render --stats", "clphong", True, f"≤ {c['target']}"),
+            row(f"oiiotool G.exr --ch {OIIOTOOL_CHANNELS} -o OUT.exr", "oiiotool"),
+            row("oiiotool OUT.exr -o COPY.exr (clphong's pixels)", "oiiotool_rewrite")]
+    lines = [(f"Whole command at {w}x{h}, 1 point light, EXR to EXR ({COMPRESSION}, float, "
+              f"R,G,B,A); median of {report['runs']} runs taken in turns; wall and CPU (user + "
+              "system) time of each command, clphong's stages from its --stats; × = ÷ (oiiotool "
+              "+ kernel); clphong's Python bytecode cached, as installed"),
+             "",
+             markdown_table(["command", "wall ms", "CPU ms", "read", "setup", "shade", "kernel",
+                             "write", "× wall", "× CPU", "target"], rows)]
+    if report["displays"]:
+        lines += ["", ("Display outputs: what each adds to that command (in-process total, "
+                       "paired by round) against OpenImageIO's colour conversion and write of the "
+                       "same frame (ImageBufAlgo.colorconvert/ociodisplay + ImageBuf.write, in a "
+                       "fresh process, the EXR read before the clock)"), "",
+                  markdown_table(
+                      ["output", "clphong adds ms", "of which writing (--stats)", "shading extra",
+                       "OpenImageIO ms", "×", "target"],
+                      [[r["output"], ms(r["added_s"]), ms(r["write_s"]), ms(r["shade_extra_s"]),
+                        ms(r["oiio_s"]), f"{r['ratio']:.2f}", f"≤ {r['target']}"]
+                       for r in report["displays"]])]
+    return "\n".join(lines)
+
+
+def run_commands_bench(*, size=SIZE, runs: int = 5, json_path=None, folder=None, keep: bool = False,
+                       displays: bool = True, log=None) -> dict:
+    """:func:`bench_commands` in ``folder`` (else a temporary one), the tables printed
+    and the report written to ``json_path`` (atomically) when given."""
+    import json
+
+    if json_path:
+        check_output_path(json_path)                 # before minutes of timing, not after
+    report = in_folder(folder, keep, lambda f: bench_commands(f, runs, size, displays, log))
+    if json_path:
+        with atomic_path(json_path) as tmp:
+            Path(tmp).write_text(json.dumps(report, indent=1))
+    print(commands_tables(report))
+    if json_path:
+        print(f"report: {json_path}")
+    return report
+
+
 def in_folder(folder_arg, keep: bool, fn):
     """Call ``fn(folder)``: ``folder_arg`` (an existing folder, kept) or a temporary
     one, removed at the end unless ``keep``."""
@@ -223,7 +499,12 @@ def main(argv=None) -> int:
     b.add_argument("--jobs", type=_ints, default=[1, 2], help="--jobs values (default 1,2)")
     b.add_argument("--dask", type=int, default=2,
                    help="local Dask workers for a --scheduler run (0: none; default 2)")
-    for q in (r, b):
+    w = sub.add_parser("whole", help="clphong render against oiiotool, and each display output "
+                                     "against OpenImageIO's own (as clphong bench --commands)")
+    w.add_argument("--runs", type=int, default=5, help="timed rounds (median; default 5)")
+    w.add_argument("--json", default=None, metavar="REPORT.json", help="also write the report as JSON")
+    w.add_argument("--no-displays", action="store_true", help="only the EXR-to-EXR command")
+    for q in (r, b, w):
         q.add_argument("--size", type=_size, default=SIZE, help="WxH (default 1920x1080)")
         q.add_argument("--folder", default=None, help="existing folder for the files (kept)")
         q.add_argument("--keep", action="store_true", help="keep the temporary folder")
@@ -238,6 +519,12 @@ def main(argv=None) -> int:
             print(f"clphong render at {args.size[0]}x{args.size[1]}, median of {args.runs} runs; "
                   f"× = ratio to {kernels[0]}")
             print(render_table(rows))
+        elif args.what == "whole":
+            if args.runs < 1:
+                p.error("--runs must be >= 1")
+            run_commands_bench(size=args.size, runs=args.runs, json_path=args.json,
+                               folder=args.folder, keep=args.keep, displays=not args.no_displays,
+                               log=lambda msg: print(msg, file=sys.stderr, flush=True))
         else:
             if args.frames < 2 or args.lights < 1 or args.dask < 0:
                 p.error("--frames must be >= 2, --lights >= 1, --dask >= 0")

@@ -25,7 +25,6 @@ from clphong.device.renderer import Renderer, prepare_frame
 from clphong.model.options import CullingError
 from clphong.reference import shading as reference
 
-
 #: The real threshold, before the fixture below lifts it.
 BRUTE_ABOVE = culling.BRUTE_ABOVE
 

@@ -179,3 +179,38 @@ def test_the_notice_comes_from_a_compile_not_from_a_cache(monkeypatch, tmp_path)
     assert rt.compiled == compiled + 1
     assert len(said) == 1
     assert len(list((tmp_path / "clphong").glob("peak-*.poclbin"))) == 1
+
+
+def test_a_full_or_unwritable_cache_folder_is_named_with_the_remedy(monkeypatch, tmp_path):
+    """A build that fails where PoCL's cache folder is full or read-only says so, with
+    the folder and POCL_CACHE_DIR, not "failed to build ... install PoCL"."""
+    import shutil
+    from collections import namedtuple
+
+    import pyopencl as cl
+
+    from clphong.core.errors import DeviceError
+    from clphong.device import runtime
+
+    rt = runtime.get_runtime()
+    if not rt.is_pocl:
+        pytest.skip("PoCL's cache only")
+    monkeypatch.setenv("POCL_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(rt, "_programs", {})
+
+    def fail(self, *a, **k):
+        raise cl.RuntimeError("clBuildProgram failed: BUILD_PROGRAM_FAILURE")
+
+    monkeypatch.setattr(cl.Program, "build", fail)
+    monkeypatch.setattr(runtime.Runtime, "_load_binary", lambda *a, **k: None)
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(1 << 30, (1 << 30) - 1024, 1024))
+    with pytest.raises(DeviceError) as info:
+        rt.program("peak.cl", {"LANES": 8, "CHAINS": 8, "UNIQUE": 12345})
+    msg = str(info.value)
+    assert str(tmp_path / "cache") in msg and "is full (1 KiB free)" in msg
+    assert "POCL_CACHE_DIR" in msg and "install" not in msg
+    assert runtime.cache_problem(tmp_path) is None or "full" in runtime.cache_problem(tmp_path)
+    (tmp_path / "file").write_text("x")
+    monkeypatch.undo()
+    assert "is not a folder" in runtime.cache_problem(tmp_path / "file" / "kcache")

@@ -566,8 +566,9 @@ def test_launch_pieces_cover_the_launch_in_whole_work_groups():
 def test_a_launch_in_pieces_is_bit_identical(opts, monkeypatch, device):
     """A long frame is launched in pieces (a signal is then handled between them):
     work-item ids continue through item0, so the image is the same to the bit."""
-    import clphong.device.renderer as R
     from conftest import heightfield, point_lights
+
+    import clphong.device.renderer as R
 
     rng = np.random.default_rng(21)
     gb = heightfield(rng, 70, 90)
