@@ -978,3 +978,89 @@ def test_subprocess_huge_frame_under_an_address_space_limit(work):
     assert r.stderr.count("\n") == 1 and "huge.exr" in r.stderr
     assert "address-space rlimit" in r.stderr
     assert _files(src.parent) == before
+
+
+# =========================================================================== round 2 (issue 15)
+
+
+@pytest.mark.parametrize("which", ["scene", "gbuffer"])
+@pytest.mark.parametrize("kind", ["fifo", "char-device", "directory"])
+def test_inputs_that_are_not_regular_files_are_one_line(work, capsys, which, kind):
+    """A FIFO blocked forever, /dev/zero as the scene read until memory ran out."""
+    src, out = work
+    if kind == "fifo":
+        path = src / "pipe"
+        os.mkfifo(path)
+        needle = "a FIFO (named pipe)"
+    elif kind == "char-device":
+        path, needle = Path("/dev/zero"), "a character device"
+    else:
+        path = src / "folder"
+        path.mkdir()
+        needle = "a directory"
+    argv = render_argv(src, out, **{which: path})
+    line = fails(argv, capsys, src.parent, str(path))
+    assert needle in line and ("give a regular file" in line or kind == "directory")
+
+
+def test_inspect_of_a_fifo_is_one_line(work, capsys):
+    src, _ = work
+    os.mkfifo(src / "pipe")
+    assert cli(["inspect", src / "pipe"]) != 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "a FIFO (named pipe)" in err
+
+
+def test_control_bytes_in_a_channel_name_do_not_reach_the_terminal(work, capsys):
+    """A channel named ESC[2K ESC[1G erased the 'clphong: error: FILE' prefix on a
+    real terminal: every line clphong prints is escaped."""
+    src, out = work
+    bad = src / "ctl.exr"
+    planes = {"\x1b[2K\x1b[1G.R": np.zeros((H, W), np.float32)}
+    _raw_exr(bad, planes)
+    line = fails(render_argv(src, out, gbuffer=bad), capsys, src.parent)
+    assert "\x1b" not in line and all(ch.isprintable() for ch in line)
+
+
+def test_an_endless_unknown_key_is_cut(work, capsys):
+    src, out = work
+    _scene(src, SCENE + "\n" + "k" * 100_000 + " = 1\n")
+    line = fails(render_argv(src, out, scene=src / "bad.toml"), capsys, src.parent, "bad.toml")
+    assert len(line) < 2200 and "more characters)" in line
+
+
+def test_a_bad_display_from_the_scene_names_the_file_and_key(work, capsys):
+    src, out = work
+    _scene(src, SCENE + '\n[render]\ndisplay = "nope"\n')
+    fails(render_argv(src, out, scene=src / "bad.toml", output=out / "o.png")[:-2] + ["--sdr", out / "o.png"],
+          capsys, src.parent, "the scene key render.display in", "bad.toml", "display 'nope'")
+
+
+def test_render_removes_its_own_stale_temporaries(work, capsys):
+    """What a killed earlier run left for this output (.NAME.tmp-XXXXXXXX.EXT), only
+    that pattern and that name, is removed with one warning line."""
+    src, out = work
+    stale = out / ".beauty.tmp-0123abcd.exr"
+    stale.write_bytes(b"half a file")
+    other = out / ".other.tmp-0123abcd.exr"
+    other.write_bytes(b"not ours")
+    unlike = out / ".beauty.tmp-xyz.exr"
+    unlike.write_bytes(b"not the pattern")
+    assert cli(render_argv(src, out)) == 0
+    err = capsys.readouterr().err
+    assert not stale.exists() and other.exists() and unlike.exists()
+    assert err.count("\n") == 1 and "removed 1 temporary file" in err
+
+
+def test_a_signalling_nan_in_a_normal_gives_no_numpy_line(work, capsys):
+    """numpy's 'invalid value encountered in cast' was a stray second line."""
+    src, out = work
+    gb = random_gbuffer(np.random.default_rng(3), H, W)
+    n = gb.normal.copy()
+    n.view(np.uint32)[0, 0, 0] = 0x7FA00000          # a signalling NaN
+    bad = src / "snan.exr"
+    write_gbuffer(bad, gb.position, n, gb.albedo, coverage=gb.coverage)
+    rc = cli(render_argv(src, out, gbuffer=bad, extra=["--nonfinite", "background"]))
+    err = capsys.readouterr().err
+    assert rc == 0 and "encountered" not in err, err
+    assert err.count("\n") <= 1

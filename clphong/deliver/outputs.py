@@ -294,6 +294,19 @@ def _check_display_files(cfg: color.ColorConfig, display: str, view: str, paths,
         check_sdr(path, bits=options.bits, alpha=options.alpha, colorspace=space)
 
 
+def _display_view(cfg, options, display, view, look):
+    """``cfg.check_display_view``, its error naming the scene file and key where the
+    bad name came from the scene (``render.display = "nope"``), not only the name."""
+    try:
+        return cfg.check_display_view(display, view, look)
+    except color.ColorError as exc:
+        msg = str(exc)
+        for name in ("display", "view", "look"):
+            if msg.startswith(f"{name} ") and name in options.from_scene:
+                raise color.ColorError(f"{options.origin(name)}: {msg}") from None
+        raise
+
+
 def check_outputs(options: OutputOptions, paths: OutputPaths, *, warn: bool = True) -> OutputOptions:
     """Check everything about ``paths`` that can be checked before shading; return the options.
 
@@ -331,17 +344,17 @@ def check_outputs(options: OutputOptions, paths: OutputPaths, *, warn: bool = Tr
             or options.hdr_view):
         cfg = _load_config(options.ocio_config)
         if options.ocio_view:
-            display, view, _ = cfg.check_display_view(options.display, options.view, options.look)
+            display, view, _ = _display_view(cfg, options, options.display, options.view, options.look)
             _check_display_files(cfg, display, view, paths.sdr, options)
         if paths.hdr or options.hdr_view:
-            cfg.check_display_view(color.HDR_DISPLAY, options.hdr_view or color.HDR_VIEW, options.look)
+            _display_view(cfg, options, color.HDR_DISPLAY, options.hdr_view or color.HDR_VIEW, options.look)
         if paths.contact_sheet or (paths.sdr and not options.ocio_view):
             _to_rec709(cfg, ws.name)
         if options.albedo_space:
             cfg.check_colorspace(options.albedo_space, options.origin("albedo_space"))
             cfg.space_name(ws)
         if paths.contact_sheet:          # encoded for --display (default: the config's own)
-            display, view, _ = cfg.check_display_view(options.display, None, options.look)
+            display, view, _ = _display_view(cfg, options, options.display, None, options.look)
             _check_display_files(cfg, display, view, paths.contact_sheet,
                                  dataclasses.replace(options, bits=8, alpha=False))
     return options

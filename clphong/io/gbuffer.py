@@ -90,7 +90,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from ..core.errors import GBufferError, InputWarning
-from ..core.files import image_signature
+from ..core.files import image_signature, not_regular
 from ..core.memory import require_memory
 from ..model.scene import MAP_KEYS, MATERIAL_MAPS
 from .atomic import _one_line, check_pixel_type, write_exr
@@ -551,6 +551,9 @@ def open_image(path: str, *, what: str = "an EXR file", verb: str = "read as EXR
         raise GBufferError(f"{path}: file not found")
     if os.path.isdir(path):
         raise GBufferError(f"{path}: is a directory, not {what}")
+    kind = not_regular(path)
+    if kind is not None:        # a FIFO would block the open forever, a device read forever
+        raise GBufferError(f"{path}: cannot {verb}: it is {kind}, not {what}; give a regular file")
     exr = what == "an EXR file"
     fmt = _signature_format(path) if exr else None
     if fmt is not None:
