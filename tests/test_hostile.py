@@ -1064,3 +1064,43 @@ def test_a_signalling_nan_in_a_normal_gives_no_numpy_line(work, capsys):
     err = capsys.readouterr().err
     assert rc == 0 and "encountered" not in err, err
     assert err.count("\n") <= 1
+
+
+def _with_maps(src, maps, albedo=None, name="maps.exr"):
+    gb = random_gbuffer(np.random.default_rng(5), H, W)
+    write_gbuffer(src / name, gb.position, gb.normal, gb.albedo if albedo is None else albedo,
+                  coverage=gb.coverage, maps=maps)
+    return src / name
+
+
+@pytest.mark.parametrize("case,maps,label", [
+    ("shininess-1e6-one-pixel", {"h": np.where(np.arange(H * W).reshape(H, W) == 7, -1e6, 20.0)}, "h: 1 pixel"),
+    ("shininess-1e6-everywhere", {"h": np.full((H, W), -1e6)}, "h:"),
+    ("shininess-minus-2", {"h": np.full((H, W), -2.0)}, "h:"),
+    ("k_s-minus-1", {"k_s": np.full((H, W), -1.0)}, "k_s:"),
+    ("k_d-minus-1", {"k_d": np.full((H, W), -1.0)}, "k_d:"),
+    ("specular-colour-minus-1", {"specular_color": np.full((H, W, 3), -1.0)}, "specular_color.R:"),
+    ("albedo-minus-1", None, "albedo.G:"),
+])
+def test_negative_maps_and_albedo_are_clamped_with_counts_or_refused(work, capsys, case, maps, label):
+    """A shininess of -1e6 gave NaN pixels, exit 0, even with --nonfinite error; a k_s of
+    -1 negative radiance; -2 highlights of 4e14. Now: clamped to 0 with one warning
+    giving the counts per buffer and channel (the output finite, and >= 0 where the
+    lights are), or refused under --nonfinite error with those counts."""
+    src, out = work
+    albedo = None
+    if maps is None:
+        albedo = random_gbuffer(np.random.default_rng(5), H, W).albedo.copy()
+        albedo[..., 1] = -1.0
+        maps = {}
+    path = _with_maps(src, {k: np.asarray(v, np.float32) for k, v in maps.items()}, albedo)
+    assert cli(render_argv(src, out, gbuffer=path)) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "negative G-buffer values clamped to 0" in err and label in err, err
+    import OpenImageIO as oiio
+
+    pix = oiio.ImageBuf(str(out / "beauty.exr")).get_pixels(oiio.FLOAT)
+    assert np.all(np.isfinite(pix)) and pix[..., :3].min() >= 0.0
+    (out / "beauty.exr").unlink()
+    fails(render_argv(src, out, gbuffer=path, extra=["--nonfinite", "error"]), capsys, src.parent,
+          "negative G-buffer values", label)

@@ -87,3 +87,40 @@ def test_fp32_directions_path_holds_its_bound(case):
     scene, gb = case
     rgb, ref, bound, band = check_against_reference(scene, gb, fp64_directions=False)
     assert np.all(np.isfinite(rgb))
+
+
+@st.composite
+def hostile_maps(draw):
+    """Material maps and albedo anywhere in the finite float32 range, negative included."""
+    values = st.floats(width=32, **finite) | st.sampled_from(
+        [-1e6, -2.0, -1.0, -1e-30, 0.0, 1e-30, 1.0, 1e4, 65536.0, 1e30, 3.4e38])
+
+    def plane(shape):
+        return np.array(draw(st.lists(values, min_size=int(np.prod(shape)),
+                                      max_size=int(np.prod(shape)))), np.float32).reshape(shape)
+
+    names = draw(st.sets(st.sampled_from(["k_d", "k_s", "h", "specular_color"])))
+    return names, plane, draw(st.booleans())
+
+
+@SETTINGS
+@given(scenes_and_gbuffers(), hostile_maps())
+def test_no_finite_input_yields_a_non_finite_output(case, maps):
+    """Issue 15: whatever finite values the maps and the albedo hold (a shininess of
+    -1e6 gave NaN, a k_s of 3e38 could overflow), the rendered image is finite:
+    negative values are clamped (with a warning), sums saturate at FLT_MAX."""
+    import warnings
+
+    from clphong.device.renderer import Renderer
+    from clphong.io.gbuffer import GBuffer
+
+    scene, gb = case
+    names, plane, bad_albedo = maps
+    h, w = gb.shape
+    m = {n: plane((h, w, 3) if n == "specular_color" else (h, w)) for n in names}
+    albedo = plane((h, w, 3)) if bad_albedo else gb.albedo
+    gb = GBuffer(position=gb.position, normal=gb.normal, albedo=albedo, coverage=gb.coverage, maps=m)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        image = Renderer(scene).render(gb).image
+    assert np.all(np.isfinite(image))

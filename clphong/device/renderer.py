@@ -23,7 +23,7 @@ import numpy as np
 from ..core.errors import DeviceError, GBufferError, SceneError
 from ..core.geometry import split_hi_lo
 from ..core.memory import ENV_VAR, F32, format_size, memory_budget
-from ..io.nonfinite import apply_nonfinite_policy
+from ..io.nonfinite import apply_nonfinite_policy, apply_range_policy
 from ..model.options import (
     check_budget,
     check_float_power,
@@ -287,6 +287,8 @@ class Renderer:
         t0 = time.perf_counter()
         # NaN/Inf inputs: counted per buffer, then the policy (clphong.io.nonfinite).
         gbuffer, nonfinite = apply_nonfinite_policy(gbuffer, self.nonfinite)
+        # negative albedo or maps: refused under "error", else clamped to 0 with a warning
+        gbuffer, _ = apply_range_policy(gbuffer, "error" if self.nonfinite == "error" else "clamp")
         h, w = gbuffer.shape
         if rows is None:
             rows = self._band_rows(gbuffer, display is not None)

@@ -146,3 +146,67 @@ def apply_nonfinite_policy(gbuffer, policy: str = "background"):
     warnings.warn(f"non-finite G-buffer values left unshaded as background: {what}", InputWarning,
                   stacklevel=3)
     return dataclasses.replace(gbuffer, coverage=coverage), counts
+
+
+# --------------------------------------------------------------------------- out of range
+
+#: The buffers whose values must be >= 0, as the scene's own values are
+#: (material.k_d, k_s, h and specular_color; an albedo is a reflectance).
+NONNEGATIVE = ("albedo", "k_d", "k_s", "h", "specular_color")
+_CHANNELS = "RGB"
+
+
+def out_of_range_counts(gbuffer) -> dict[str, int]:
+    """Negative values of the shaded pixels, per buffer and channel: ``{"albedo.G": 3,
+    "h": 1, ...}`` (only those with some). NaN is not counted here (the
+    non-finite policy's), nor are background pixels (never read)."""
+    fg = ~gbuffer.background_mask()
+    out = {}
+    for name in NONNEGATIVE:
+        a = gbuffer.albedo if name == "albedo" else gbuffer.maps.get(name)
+        if a is None:
+            continue
+        a = np.asarray(a)
+        planes = [(name, a)] if a.ndim == 2 else [(f"{name}.{_CHANNELS[c]}", a[..., c])
+                                                 for c in range(a.shape[-1])]
+        for label, p in planes:
+            if p.min(initial=0.0) < 0:                   # the common case costs one pass
+                n = int(np.count_nonzero((p < 0) & fg))
+                if n:
+                    out[label] = n
+    return out
+
+
+def apply_range_policy(gbuffer, policy: str = "clamp"):
+    """Negative albedo or material-map values (a k_s map of −1 gave negative
+    radiance, a shininess of −1e6 NaN pixels, with exit 0).
+
+    ``"clamp"``: set to 0, with an :class:`~clphong.core.errors.InputWarning`
+    giving the counts per buffer and channel; ``"error"``: a
+    :class:`~clphong.core.errors.GBufferError` with those counts. Returns the
+    G-buffer (a copy of the buffers concerned when clamped) and the counts.
+    The renderer applies ``"error"`` under ``--nonfinite error`` and clamps
+    otherwise (``"pass"`` passes non-finite values only: a finite value never
+    becomes a NaN or an Inf in an output).
+    """
+    if policy not in ("clamp", "error"):
+        raise ValueError(f"out-of-range policy must be 'clamp' or 'error', not {policy!r}")
+    counts = out_of_range_counts(gbuffer)
+    if not counts:
+        return gbuffer, counts
+    src = getattr(gbuffer, "sources", None) or {}
+    what = "; ".join(f"{src.get(k.split('.')[0], k.split('.')[0])} {k}: {n} pixel(s)"
+                     for k, n in counts.items())
+    if policy == "error":
+        raise GBufferError(f"negative G-buffer values (they must be >= 0, as the scene's): {what}; "
+                           "fix the input, or drop --nonfinite error to clamp them to 0")
+    albedo = gbuffer.albedo
+    maps = dict(gbuffer.maps)
+    if any(k.startswith("albedo") for k in counts):
+        albedo = np.maximum(albedo, 0, dtype=np.float32)
+    for name in maps:
+        if name in NONNEGATIVE and any(k.split(".")[0] == name for k in counts):
+            maps[name] = np.maximum(maps[name], 0, dtype=np.float32)
+    warnings.warn(f"negative G-buffer values clamped to 0 (they must be >= 0, as the scene's): "
+                  f"{what}", InputWarning, stacklevel=3)
+    return dataclasses.replace(gbuffer, albedo=albedo, maps=maps), counts
