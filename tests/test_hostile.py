@@ -1104,3 +1104,31 @@ def test_negative_maps_and_albedo_are_clamped_with_counts_or_refused(work, capsy
     (out / "beauty.exr").unlink()
     fails(render_argv(src, out, gbuffer=path, extra=["--nonfinite", "error"]), capsys, src.parent,
           "negative G-buffer values", label)
+
+
+def _gbuffer_planes(h=H, w=W):
+    gb = random_gbuffer(np.random.default_rng(8), h, w)
+    return {**_vec("P", gb.position), **_vec("N", gb.normal), **_vec("albedo", gb.albedo, "RGB")}
+
+
+@pytest.mark.parametrize("case,window,display,needles", [
+    # one flipped byte in 'displayWindow': OpenEXR falls back to 64x64 at (0, 0); a
+    # 64x64 black frame with exit 0 before
+    ("damaged-display-window", (0, 0), (64, 64), ["(0,0)-(79,39)", "(0,0)-(63,63)",
+                                                   "OpenEXR's default", "displayWindow"]),
+    ("data-outside-display", (100, 100), (40, 30), ["(100,100)-(179,139)", "no pixel in the display window"]),
+])
+def test_display_windows_that_cannot_be_right_are_refused(work, capsys, case, window, display, needles):
+    src, out = work
+    bad = _raw_exr(src / "win.exr", _gbuffer_planes(40, 80), window=window, display=display)
+    fails(render_argv(src, out, gbuffer=bad), capsys, src.parent, "win.exr", *needles)
+
+
+def test_a_display_window_smaller_than_the_data_window_warns_with_both(work, capsys):
+    """An edited display window smaller than the data window cropped silently."""
+    src, out = work
+    bad = _raw_exr(src / "crop.exr", _gbuffer_planes(40, 80), display=(60, 30))
+    assert cli(render_argv(src, out, gbuffer=bad)) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "(0,0)-(79,39)" in err and "(0,0)-(59,29)" in err, err
+    assert f"{80 * 40 - 60 * 30} pixel(s) of data outside it are not shaded" in err

@@ -572,6 +572,42 @@ def open_image(path: str, *, what: str = "an EXR file", verb: str = "read as EXR
     return inp
 
 
+def _window(x, y, w, h) -> str:
+    return f"({x},{y})-({x + w - 1},{y + h - 1})"
+
+
+def _check_windows(path, s, part=None) -> None:
+    """The data window against the display window of one part: never a silent crop
+    or a black frame. OpenEXR falls back to a 64x64 display window at (0, 0) when the
+    displayWindow attribute is missing or damaged (one flipped byte in its name):
+    data outside that is an error; data outside any other display window (overscan,
+    or an edited header) is a warning with both windows, and data with no pixel
+    inside it an error."""
+    fw = int(s.full_width) or int(s.width)
+    fh = int(s.full_height) or int(s.height)
+    fx, fy = int(s.full_x), int(s.full_y)
+    x0, y0, x1, y1 = int(s.x), int(s.y), int(s.x) + int(s.width), int(s.y) + int(s.height)
+    if fx <= x0 and fy <= y0 and x1 <= fx + fw and y1 <= fy + fh:
+        return
+    where = f"{path}" + (f" part {part}" if part is not None else "")
+    data = _window(x0, y0, x1 - x0, y1 - y0)
+    display = _window(fx, fy, fw, fh)
+    if (fx, fy, fw, fh) == (0, 0, 64, 64):
+        raise GBufferError(f"{where}: the data window {data} lies outside the display window "
+                           f"{display}, which is OpenEXR's default when the header's displayWindow "
+                           "is missing or damaged; repair the header (e.g. oiiotool IN.exr "
+                           "--fullpixels -o OUT.exr)")
+    inside_w = min(x1, fx + fw) - max(x0, fx)
+    inside_h = min(y1, fy + fh) - max(y0, fy)
+    if inside_w <= 0 or inside_h <= 0:
+        raise GBufferError(f"{where}: the data window {data} has no pixel in the display window "
+                           f"{display}; the header looks edited or damaged")
+    outside = (x1 - x0) * (y1 - y0) - inside_w * inside_h
+    warnings.warn(InputWarning(f"{where}: the data window {data} extends beyond the display "
+                               f"window {display}: {outside} pixel(s) of data outside it are not "
+                               "shaded"), stacklevel=4)
+
+
 @dataclass
 class _Part:
     """One part (OpenImageIO subimage) of an EXR file."""
@@ -665,6 +701,12 @@ class _ExrFile:
                 raise GBufferError(f"{p}: part {part.index} has a {size[0]}x{size[1]} display window "
                                    f"but part 0 has {self.size[0]}x{self.size[1]}: the parts must share "
                                    "one display window")
+        try:
+            for part in self.parts:
+                _check_windows(p, part.spec, part.index if len(self.parts) > 1 else None)
+        except BaseException:
+            inp.close()
+            raise
         self.spec = first
         self.channels = _Channels([n for part in self.parts for n in part.full_names])
         self._where = {n: (part, k) for part in self.parts for k, n in enumerate(part.full_names)}
