@@ -1132,3 +1132,16 @@ def test_a_display_window_smaller_than_the_data_window_warns_with_both(work, cap
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "(0,0)-(79,39)" in err and "(0,0)-(59,29)" in err, err
     assert f"{80 * 40 - 60 * 30} pixel(s) of data outside it are not shaded" in err
+
+
+def test_an_output_that_is_a_symlink_is_replaced_and_its_target_kept(work, capsys):
+    """Chosen and documented (README, Errors and limits): -o naming a symbolic link
+    replaces the link with the new file, atomically; the link's target is untouched."""
+    src, out = work
+    target = out / "target.exr"
+    target.write_bytes(b"the target")
+    link = out / "beauty.exr"
+    link.symlink_to(target)
+    assert cli(render_argv(src, out)) == 0
+    assert not link.is_symlink() and link.stat().st_size > 100
+    assert target.read_bytes() == b"the target"
