@@ -1145,3 +1145,23 @@ def test_an_output_that_is_a_symlink_is_replaced_and_its_target_kept(work, capsy
     assert cli(render_argv(src, out)) == 0
     assert not link.is_symlink() and link.stat().st_size > 100
     assert target.read_bytes() == b"the target"
+
+
+def test_a_uint_channel_among_floats_is_refused(work, capsys):
+    """A pixel-type byte flipped FLOAT -> UINT decoded to garbage (NaN, ±3.4e38,
+    41,201 negative pixels) with exit 0."""
+    src, out = work
+    planes = _gbuffer_planes()
+    names = list(planes)
+    data = np.ascontiguousarray(np.stack([np.asarray(planes[n], np.float32) for n in names], -1))
+    spec = oiio.ImageSpec(W, H, len(names), oiio.TypeDesc("float"))
+    spec.channelnames = tuple(names)
+    spec.channelformats = tuple(oiio.TypeDesc("uint") if n == "P.Z" else oiio.TypeDesc("float")
+                                for n in names)
+    bad = src / "uint.exr"
+    o = oiio.ImageOutput.create(str(bad))
+    assert o.open(str(bad), spec)
+    assert o.write_image(data)
+    assert o.close()
+    fails(render_argv(src, out, gbuffer=bad), capsys, src.parent, "uint.exr", "channel P.Z is stored as uint",
+          "(the others as float)")

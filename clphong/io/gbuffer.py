@@ -780,6 +780,22 @@ class _ExrFile:
                 if plane is view:                    # in the display window: stack slices pix
                     self._run_of[part.full_names[i]] = (pix, i - lo)
 
+    def _check_pixel_types(self, names) -> None:
+        """A G-buffer channel is half or float: a uint one (a flipped pixel-type byte,
+        FLOAT -> UINT, decoded as garbage: ±3.4e38 and negatives, exit 0) is an error."""
+        for n in names:
+            part, k = self._where[n]
+            s = part.spec
+            fmt = s.channelformats[k] if len(s.channelformats) else s.format
+            if str(fmt).startswith("uint"):
+                others = sorted({str(f) for f in (s.channelformats if len(s.channelformats)
+                                                  else [s.format])} - {str(fmt)})
+                raise GBufferError(
+                    f"{self.path}: channel {_show(n)} is stored as {fmt}"
+                    + (f" (the others as {', '.join(others)})" if others else "")
+                    + ": a G-buffer channel must be half or float; the header looks damaged "
+                    "or the channel is an ID (map it with --channels)")
+
     def read_stacked(self, groups: Mapping[str, Sequence[str]]) -> dict[str, np.ndarray]:
         """:meth:`stack` of each group of channels (key -> names), read from the file.
 
@@ -791,6 +807,7 @@ class _ExrFile:
         :meth:`load` then :meth:`stack`. The same values either way.
         """
         names = [n for chans in groups.values() for n in chans]
+        self._check_pixel_types(names)
         runs = self.runs(names)
         if not self._bandable(groups, runs):
             self.load(names)
