@@ -462,3 +462,93 @@ def test_regression_truncated_file_with_a_newline_in_a_channel_name(tmp_path):
         read_gbuffer(path)
     msg = str(exc.value)
     assert msg.startswith(f"{path}: reading channels ") and "'N.Z\\nnote'" in msg and "\n" not in msg
+
+
+# --------------------------------------------------------------------------- issue 15: targeted edits
+
+
+def _chlist_type_offsets(data: bytes) -> list[int]:
+    """Byte offsets of each channel's pixel-type int32 in the header's chlist."""
+    at = data.find(b"channels\x00chlist\x00")
+    if at < 0:
+        return []
+    i = at + len(b"channels\x00chlist\x00") + 4          # after the attribute's size
+    out = []
+    while data[i] != 0:
+        i = data.index(b"\x00", i) + 1                   # the channel's name
+        out.append(i)
+        i += 16                                          # type, pLinear+reserved, xs, ys
+    return out
+
+
+@_settings(0.3)
+@given(st.sampled_from(sorted(SEEDS)), st.data())
+def test_fuzz_reader_window_and_pixel_type_edits(seed, data):
+    """One flipped byte in 'displayWindow' (OpenEXR then falls back to a 64x64 window)
+    or a channel's pixel type changed (FLOAT -> UINT or HALF): a G-buffer that reads
+    shades to finite values; otherwise one line naming the file."""
+    raw = bytearray(SEEDS[seed])
+    if data.draw(st.booleans(), label="window"):
+        at = raw.find(b"displayWindow")
+        if at >= 0:
+            k = data.draw(st.integers(0, len("displayWindow") - 1), label="byte")
+            raw[at + k] ^= data.draw(st.integers(1, 255), label="xor")
+    else:
+        offsets = _chlist_type_offsets(bytes(raw))
+        if offsets:
+            off = data.draw(st.sampled_from(offsets), label="channel")
+            raw[off:off + 4] = struct.pack("<i", data.draw(st.sampled_from([0, 1, 2, 3, -1]), label="type"))
+    _check_read(bytes(raw), "edit.exr")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            gb = read_gbuffer(_DIR / "edit.exr")
+    except ClphongError:
+        return
+    _check_finite_render(gb)
+
+
+def _check_finite_render(gb) -> None:
+    from conftest import make_scene, random_lights
+
+    from clphong.device.renderer import Renderer
+
+    scene = make_scene(random_lights(np.random.default_rng(1), 2, 1), model="blinn-phong", h=8.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            image = Renderer(scene).render(gb).image
+        except ClphongError as exc:
+            assert "\n" not in str(exc)
+            return
+    assert np.all(np.isfinite(image))
+
+
+@_settings(0.2)
+@given(st.lists(st.sampled_from([-1e6, -2.0, -1.0, -1e-38, 0.0, 1e-38, 0.5, 1e4, 6e4, 1e38, 3.4e38]),
+                min_size=12, max_size=12),
+       st.sampled_from(["k_d", "k_s", "h", "specular_color", "albedo"]),
+       st.sampled_from(["float", "half"]))
+def test_fuzz_maps_with_negative_and_huge_values(values, which, pixel_type):
+    """Maps and albedo anywhere in range, written and read back as EXR (half clamps
+    beyond 65504 with a warning): they read, and shade to finite values."""
+    rng = np.random.default_rng(0)
+    h, w = 3, 4
+    P, N, A = (rng.normal(size=(h, w, 3)).astype(np.float32) for _ in range(3))
+    plane = np.array(values, np.float32).reshape(h, w)
+    maps = {}
+    if which == "albedo":
+        A = np.repeat(plane[..., None], 3, axis=-1)
+    elif which == "specular_color":
+        maps[which] = np.repeat(plane[..., None], 3, axis=-1)
+    else:
+        maps[which] = plane
+    path = _DIR / "maps.exr"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        write_gbuffer(path, P, N, A, maps=maps, pixel_type=pixel_type)
+    _check_read(path.read_bytes(), "maps.exr")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        gb = read_gbuffer(_DIR / "maps.exr")
+    _check_finite_render(gb)
