@@ -41,8 +41,8 @@ from ..pipeline.batch import (
     Rig,
     parse_frame_range,
     plan_batch,
+    remove_stale_temporaries,
     run_batch,
-    stale_temporaries,
 )
 from ..pipeline.relighter import (
     Relighter,
@@ -496,14 +496,7 @@ def cmd_render(args) -> int:
 def _remove_stale_temporaries(files) -> None:
     """Remove what a killed earlier run left for these outputs (``.NAME.tmp-XXXXXXXX.EXT``,
     only that pattern for these names, as ``relight`` does), with one warning line."""
-    removed = []
-    for path in files:
-        for tmp in stale_temporaries(path):
-            try:
-                os.remove(tmp)
-                removed.append(tmp)
-            except OSError:
-                pass
+    removed = remove_stale_temporaries(files)
     if removed:
         warnings.warn(OutputWarning(
             f"removed {len(removed)} temporary file(s) an interrupted earlier run left: "

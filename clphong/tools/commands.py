@@ -256,7 +256,7 @@ def display_cases(folder: Path) -> list[dict]:
     cases = [
         # The scene's tone mapping ("none"): the sRGB encoding of the working space, as
         # OpenImageIO's colorconvert to sRGB Encoded Rec.709; 8 bits, dithered, with cICP.
-        dict(name="SDR PNG 8-bit (--sdr, fused sRGB encoding)", option="--sdr", file="sdr.png",
+        dict(name="SDR PNG 8-bit (--sdr, sRGB encoding by the display kernel)", option="--sdr", file="sdr.png",
              view=None, display=None, src=src, dst=cfg.oiio.resolve("srgb_rec709_scene"),
              cicp=list(color.SRGB_CICP), bits=8, dither=True, config=cfg.path),
         dict(name=f"PQ PNG 16-bit (--hdr, {color.HDR_VIEW})", option="--hdr", file="pq.png", **hdr),
