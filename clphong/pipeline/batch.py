@@ -37,8 +37,10 @@ others (temporary files left by a killed run are removed first).
 
 Execution
 ---------
-``jobs=1`` relights in this process, reading the next frame in a thread while
-the current one shades (OpenImageIO and the OpenCL queue release the GIL).
+``jobs=1`` relights in this process with its stages overlapped: the next frame
+is read in a thread while the current one shades and the previous one is
+written (at most one frame read ahead and one being written; frames are written
+and reported in order; OpenImageIO and the OpenCL queue release the GIL).
 ``jobs=N`` runs N worker processes; a worker that dies (killed, crashed) has
 the temporary files of its frame removed and that frame retried once on
 another worker, then reported failed. ``scheduler=ADDRESS`` sends each frame as
@@ -56,6 +58,7 @@ import os
 import queue
 import re
 import signal
+import statistics
 import string
 import sys
 import threading
@@ -84,7 +87,7 @@ from .relighter import cached_relighter
 
 __all__ = ["BatchError", "Rig", "Job", "Outcome", "BatchPlan", "BatchResult", "Interrupted",
            "parse_frame_range", "expand_sequence", "format_output", "plan_batch", "run_batch",
-           "relight_job", "stale_temporaries", "failed_outcomes"]
+           "relight_job", "stale_temporaries", "remove_stale_temporaries", "failed_outcomes"]
 
 
 # --------------------------------------------------------------------------- frames and names
@@ -398,6 +401,19 @@ def stale_temporaries(path: str) -> list[str]:
     return [p for p in glob.glob(pattern, include_hidden=True) if rx.match(os.path.basename(p))]
 
 
+def remove_stale_temporaries(files) -> list[str]:
+    """Remove :func:`stale_temporaries` of each of ``files``; the ones removed."""
+    removed = []
+    for path in files:
+        for tmp in stale_temporaries(path):
+            try:
+                os.remove(tmp)
+                removed.append(tmp)
+            except OSError:
+                pass
+    return removed
+
+
 # --------------------------------------------------------------------------- running
 
 
@@ -419,6 +435,17 @@ class BatchResult:
     def failed(self) -> list[Outcome]:
         return [o for o in self.outcomes if not o.ok]
 
+    def stage_seconds(self) -> dict[str, float]:
+        """Median seconds per output written of each stage the outcomes timed: ``"read"``
+        (the frame's G-buffer), ``"shade"`` and ``"write"`` (every file of the output).
+        Overlapped (one process), the slowest of them bounds the rate; {} when none was timed."""
+        out = {}
+        for stage in STAGES:
+            times = [o.stages[stage] for o in self.written if stage in o.stages]
+            if times:
+                out[stage] = statistics.median(times)
+        return out
+
     def summary(self) -> list[str]:
         """Lines for stderr: totals, retries, then one line per failed frame with the reasons.
 
@@ -429,6 +456,9 @@ class BatchResult:
         rate = n_ok / self.seconds if self.seconds > 0 else 0.0
         head = (f"{n_ok} written, {self.skipped} skipped (exist), {n_bad} failed "
                 f"in {self.seconds:.1f} s ({rate:.2f} outputs/s)")
+        stages = self.stage_seconds()
+        if stages:
+            head += "; median s/output: " + ", ".join(f"{k} {v:.2f}" for k, v in stages.items())
         if self.stale_removed:
             head += f"; removed {self.stale_removed} temporary file(s) of an interrupted run"
         lines = [head]
@@ -458,6 +488,9 @@ class BatchResult:
         return lines + listed
 
 
+#: The stages whose median time per output the batch summary gives (:meth:`BatchResult.stage_seconds`).
+STAGES = ("read", "shade", "write")
+
 #: Failure lines of a batch summary listed in full; the rest are counted ("... and N more").
 MAX_FAILURES_LISTED = 20
 
@@ -484,45 +517,160 @@ class _Signals:
         return False
 
 
-def _run_inline(jobs: Sequence[Job], specs: dict, on_outcomes: Callable) -> None:
-    """One process: a reader thread prefetches the next G-buffer while this thread shades and writes.
+#: Frames shaded or written at once in one process: one shading while the one before it is written.
+_IN_FLIGHT = 2
+#: Seconds a stopping one-process batch waits for the frames in flight (at most a frame being
+#: read, one being shaded and one being written) before it removes their temporary files.
+_STOP_WAIT = 30.0
 
-    Writes happen in this (the main) thread, so an interrupt raised here
-    unwinds through :func:`clphong.io.atomic.atomic_path`, which removes the
-    temporary file.
+
+class _Stopped(BaseException):
+    """The batch is stopping (an interrupt, an error): a frame not yet writing is abandoned."""
+
+
+def _run_inline(jobs: Sequence[Job], specs: dict, on_outcomes: Callable, *,
+                overlap: bool = True) -> None:
+    """One process: reading, shading and writing of consecutive frames overlap.
+
+    A reader thread reads frame i+1 while frame i shades and frame i-1 is
+    written. Each frame is shaded, then written, by a thread of its own, at most
+    :data:`_IN_FLIGHT` (2) at a time, and a frame starts writing only once every
+    frame before it is written (:func:`~clphong.pipeline.relighter.deliver_staged`'s
+    seam): frames are written one at a time, in order, and reported in order,
+    from this (the main) thread. So at most one frame is read ahead, one shaded
+    and one written; OpenImageIO and the OpenCL queue release the GIL. A frame's
+    EXR is written in a thread beside its display files (SDR/HDR/contact sheet):
+    with ``--sdr`` the single-threaded PNG encoder is otherwise the slowest stage.
+
+    An interrupt (SIGINT/SIGTERM turned into :class:`Interrupted` in this thread)
+    or any other exception here stops the batch: no further frame is read or
+    shaded, a frame still shading is abandoned before its first file, and the
+    frame being written is given up to :data:`_STOP_WAIT` seconds to finish (each
+    file appears whole, or not at all); the temporary files of the frames in
+    flight are then removed.
+
+    With ``overlap=False`` each frame is read, shaded and written in turn, in
+    this thread (where an interrupt unwinds through
+    :func:`clphong.io.atomic.atomic_path`, which removes the temporary file).
     """
     relighters = {rig: cached_relighter(spec) for rig, spec in specs.items()}
     channels = dict(next(iter(specs.values())).channels) or None
-    ahead: queue.Queue = queue.Queue(maxsize=2)
+    if not overlap:
+        for job in jobs:
+            t0 = time.perf_counter()
+            gbuffer = load_job(job, channels)
+            on_outcomes(shade_job(job, gbuffer, relighters, read_seconds=time.perf_counter() - t0))
+            del gbuffer
+        return
+
     stop = threading.Event()
+    slot = threading.Semaphore(1)          # frames read and not yet taken: at most one
+    ahead: queue.SimpleQueue = queue.SimpleQueue()
 
     def reader():
         for job in jobs:
+            while not slot.acquire(timeout=0.1):
+                if stop.is_set():
+                    return
             if stop.is_set():
                 return
-            item = (job, load_job(job, channels))
-            while not stop.is_set():
-                try:
-                    ahead.put(item, timeout=0.1)
-                    break
-                except queue.Full:
-                    continue
+            t0 = time.perf_counter()
+            gbuffer = load_job(job, channels)
+            ahead.put((job, gbuffer, time.perf_counter() - t0))
+            del gbuffer
 
+    def take():
+        while True:
+            try:
+                return ahead.get(timeout=0.1)
+            except queue.Empty:
+                if not t.is_alive() and ahead.empty():
+                    raise RuntimeError("the frame reader thread stopped unexpectedly") from None
+
+    class Frame:
+        """One frame in flight: shaded, then written once the frame before it is done."""
+
+        def __init__(self, job, gbuffer, read_seconds, previous):
+            self.job, self.previous = job, previous
+            self.done = threading.Event()        # written (or failed), and so is every frame before
+            self.outcomes, self.error = None, None
+            self.thread = threading.Thread(target=self.run, args=(gbuffer, read_seconds),
+                                           name=f"clphong-frame-{job.frame}", daemon=True)
+
+        def wait_previous(self, abandon: bool):
+            prev = self.previous
+            while prev is not None and not prev.done.wait(0.1):
+                if stop.is_set():
+                    break
+            if abandon and stop.is_set():
+                raise _Stopped
+            self.previous = None                 # no chain of finished frames kept alive
+
+        def run(self, gbuffer, read_seconds):
+            try:
+                self.outcomes = shade_job(self.job, gbuffer, relighters, read_seconds=read_seconds,
+                                          before_write=lambda: self.wait_previous(abandon=True),
+                                          parallel=True)
+            except _Stopped:
+                pass
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
+                self.error = exc
+            finally:
+                del gbuffer
+                try:
+                    self.wait_previous(abandon=False)
+                finally:
+                    self.done.set()
+
+    def report(frame):
+        while not frame.done.wait(0.1):          # a timeout, so that signals are handled here
+            pass
+        frame.thread.join()
+        if frame.error is not None:
+            raise frame.error
+        on_outcomes(frame.outcomes)
+
+    inflight: collections.deque = collections.deque()
+    previous = None
     t = threading.Thread(target=reader, name="clphong-reader", daemon=True)
     t.start()
     try:
         for _ in jobs:
-            while True:
-                try:
-                    job, gbuffer = ahead.get(timeout=0.1)
-                    break
-                except queue.Empty:
-                    if not t.is_alive() and ahead.empty():
-                        raise RuntimeError("the frame reader thread stopped unexpectedly")
-            on_outcomes(shade_job(job, gbuffer, relighters))
+            while len(inflight) >= _IN_FLIGHT:
+                report(inflight[0])
+                inflight.popleft()
+            job, gbuffer, read_seconds = take()
+            slot.release()                       # the reader starts on the next frame
+            previous = Frame(job, gbuffer, read_seconds, previous)
+            del gbuffer
+            inflight.append(previous)
+            previous.thread.start()
+        while inflight:
+            report(inflight[0])
+            inflight.popleft()
     finally:
         stop.set()
-        t.join(timeout=5)
+        _stop_threads([t, *(f.thread for f in inflight)], [f.job for f in inflight])
+
+
+def _stop_threads(threads, jobs: Sequence[Job], wait: float | None = None) -> None:
+    """Wait (up to ``wait`` seconds, default :data:`_STOP_WAIT`) for the threads of a stopping
+    batch, then remove the temporary files of ``jobs``. A second interrupt ends the wait
+    early (the files are still removed) and is re-raised."""
+    deadline = time.monotonic() + (_STOP_WAIT if wait is None else wait)
+    again = None
+    try:
+        for th in threads:
+            while th.is_alive() and time.monotonic() < deadline:
+                try:
+                    th.join(min(0.1, max(0.0, deadline - time.monotonic())))
+                except KeyboardInterrupt as exc:
+                    again, deadline = exc, 0.0
+    finally:
+        for job in jobs:
+            _remove_temporaries(job)
+    if again is not None:
+        raise again
 
 
 def worker_environment(n: int) -> dict[str, str]:
@@ -733,19 +881,12 @@ def _run_pool(jobs: Sequence[Job], specs: dict, n: int, on_outcomes: Callable,
 
 def _remove_temporaries(job: Job) -> int:
     """Remove the temporary files a killed run left for the outputs of ``job``; return how many."""
-    removed = 0
-    for path in (p for _, paths in job.outputs for p in paths.files):
-        for tmp in stale_temporaries(path):
-            try:
-                os.remove(tmp)
-                removed += 1
-            except OSError:
-                pass
-    return removed
+    return len(remove_stale_temporaries(p for _, paths in job.outputs for p in paths.files))
 
 
 def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | None = None,
-              progress: bool = False, on_outcome: Callable[[Outcome], None] | None = None) -> BatchResult:
+              progress: bool = False, on_outcome: Callable[[Outcome], None] | None = None,
+              overlap: bool = True) -> BatchResult:
     """Run a plan; never raises for a bad frame.
 
     Parameters
@@ -754,12 +895,16 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
     specs : dict of str to clphong.pipeline.relighter.RelighterSpec
         One per rig name.
     jobs : int
-        Local worker processes (1: in this process, with read-ahead).
+        Local worker processes (1: in this process, reading, shading and writing
+        consecutive frames at once).
     scheduler : str, optional
         Address of a Dask distributed scheduler (``tcp://host:8786``), or a
         ``distributed.Client``; frames then run as tasks on its workers.
     progress : bool
         Show a tqdm progress bar on stderr: outputs (frames × rigs) done, outputs/s and ETA.
+    overlap : bool
+        With ``jobs=1``: overlap the stages of consecutive frames (default); False:
+        read, shade and write each frame in turn (for comparison).
 
     Returns
     -------
@@ -795,7 +940,7 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
             elif scheduler is not None:
                 run_on_dask(plan.jobs, specs, scheduler, collect)
             elif jobs <= 1:
-                _run_inline(plan.jobs, specs, collect)
+                _run_inline(plan.jobs, specs, collect, overlap=overlap)
             else:
                 _run_pool(plan.jobs, specs, jobs, collect,
                           on_retry=lambda job, why: retried.append((job.frame, job.source, why)))

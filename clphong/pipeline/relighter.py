@@ -348,3 +348,117 @@ class Relighter:
 
     __call__ = relight
 
+
+
+# --------------------------------------------------------------------------- staged delivery (batches)
+
+
+class _StagedRenderer(Renderer):
+    """A view of a :class:`~clphong.device.renderer.Renderer` (a shallow copy, as
+    :meth:`Relighter.renderer_for` makes) with seams for :func:`deliver_staged`:
+    :meth:`render` calls ``_stage_after(result)`` once the frame is shaded, before it
+    returns (in :func:`render_outputs`: after the shading, before the first file is
+    written); with ``_stage_replay`` set it shades nothing and returns that result.
+    Not constructed: made by :func:`_staged_view`. A copy of it (``render_outputs``
+    copies the renderer for straight alpha) keeps both."""
+
+    def render(self, gbuffer, **kwargs):
+        if self._stage_replay is not None:
+            return self._stage_replay
+        result = super().render(gbuffer, **kwargs)
+        if self._stage_after is not None:
+            self._stage_after(result)
+        return result
+
+
+def _staged_view(renderer, *, after=None, replay=None):
+    view = object.__new__(_StagedRenderer)
+    view.__dict__.update(renderer.__dict__)
+    view._stage_after, view._stage_replay = after, replay
+    return view
+
+
+def deliver_staged(relighter, gbuffer: GBuffer, paths: OutputPaths, *, source: str | None = None,
+                   world_to_camera=None, before_write=None,
+                   parallel: bool = False) -> tuple[np.ndarray, dict[str, float]]:
+    """:meth:`Relighter.deliver` with a seam between shading and writing, and the time of each.
+
+    The same files, byte for byte: it is :func:`render_outputs` on the same
+    renderer, with ``before_write()`` called in this thread once the frame is
+    shaded and before its first file is written (a batch waits there for the
+    previous frame's writes, so that frames are written one at a time and in
+    order). An exception from ``before_write`` abandons the frame: nothing of it
+    is written.
+
+    With ``parallel`` and an EXR besides display outputs (SDR, HDR, contact
+    sheet), the EXR is written in a thread of its own while this one writes the
+    others, from the one shading (``render_outputs`` of the EXR alone, on the same
+    result): each file as :func:`render_outputs` of all of them would write it. A
+    failure of one does not stop the other; the EXR's error is raised first.
+
+    Returns
+    -------
+    (numpy.ndarray, dict)
+        The scene-linear image, and seconds: ``"shade"`` (from the call to the end of
+        the shading: option checks, albedo conversion, non-finite policy, kernel),
+        ``"wait"`` (in ``before_write``) and ``"write"`` (every file, from the end of
+        ``before_write`` to the end).
+
+    Notes
+    -----
+    A relighter that is not a :class:`Relighter` on a plain
+    :class:`~clphong.device.renderer.Renderer` (a test double, a subclass) has no
+    seam: ``before_write()`` is then called first and ``relighter.deliver`` does
+    the rest, one after the other (all of it timed as ``"shade"``).
+    """
+    import threading
+    import time
+
+    marks: dict[str, float] = {}
+    t0 = time.perf_counter()
+    renderer = None
+    if isinstance(relighter, Relighter):
+        renderer = relighter.renderer_for(gbuffer, world_to_camera=world_to_camera, source=source)
+    if renderer is None or type(renderer) is not Renderer:
+        if before_write is not None:
+            before_write()
+        t1 = time.perf_counter()
+        image = relighter.deliver(gbuffer, paths, source=source)
+        return image, {"shade": time.perf_counter() - t1, "wait": t1 - t0, "write": 0.0}
+
+    exr_alone = None
+    if parallel and paths.exr and len(paths.exr) < len(paths):
+        exr_alone = paths.only(paths.exr)
+        paths = paths.only(p for p in paths.files if p not in set(paths.exr))
+    side: dict = {}
+
+    def write_exr(result):
+        try:
+            render_outputs(_staged_view(renderer, replay=result), gbuffer, relighter.output, exr_alone)
+        except BaseException as exc:  # noqa: BLE001 - raised in the calling thread
+            side["error"] = exc
+
+    def after(result):
+        marks["shaded"] = time.perf_counter()
+        if before_write is not None:
+            before_write()
+        marks["writing"] = time.perf_counter()
+        if exr_alone is not None:
+            side["thread"] = threading.Thread(target=write_exr, args=(result,), daemon=True,
+                                              name=f"{threading.current_thread().name}-exr")
+            side["thread"].start()
+
+    try:
+        result, _ = render_outputs(_staged_view(renderer, after=after), gbuffer, relighter.output, paths)
+    except BaseException as exc:
+        if "thread" not in side:
+            raise
+        side["thread"].join()
+        raise side.get("error", exc) from None
+    if "thread" in side:
+        side["thread"].join()
+        if "error" in side:
+            raise side["error"]
+    t1 = time.perf_counter()
+    return result.image, {"shade": marks["shaded"] - t0, "wait": marks["writing"] - marks["shaded"],
+                          "write": t1 - marks["writing"]}
