@@ -23,18 +23,35 @@ import numpy as np
 TILE = 256
 
 
-def available() -> bool:
+def import_numba():
+    """``import numba``, where colour-science may have put a stand-in for a missing
+    SciPy into ``sys.modules`` (a MagicMock, which numba takes for SciPy and
+    fails on): the stand-in is set aside while numba imports. None without numba."""
+    import sys
+    import types
+
+    stand_in = sys.modules.get("scipy")
+    fake = stand_in is not None and not isinstance(stand_in, types.ModuleType)
+    if fake:
+        del sys.modules["scipy"]
     try:
-        import numba  # noqa: F401
+        import numba
     except ImportError:
-        return False
-    return True
+        return None
+    finally:
+        if fake:
+            sys.modules["scipy"] = stand_in
+    return numba
+
+
+def available() -> bool:
+    return import_numba() is not None
 
 
 @functools.lru_cache(maxsize=None)
 def _kernel(k: int, blinn: bool):
     """The compiled tile loop for the whole exponent ``k`` (a constant of the closure)."""
-    import numba
+    numba = import_numba()
 
     K = int(k)
     c_min = np.float32(np.finfo(np.float32).tiny ** (1.0 / K)) if K else np.float32(0.0)
@@ -171,7 +188,7 @@ FMA_METHOD = (f"numba @njit(parallel=True, fastmath=True): per thread {FMA_WIDTH
 
 @functools.lru_cache(maxsize=None)
 def _fma_loop():
-    import numba
+    numba = import_numba()
 
     W = FMA_WIDTH
 
@@ -196,8 +213,7 @@ def fma_peak_gflops(iterations: int = 2_000_000, repeats: int = 5) -> float:
     import os
     import time
 
-    import numba
-
+    numba = import_numba()
     loop = _fma_loop()
     threads = numba.get_num_threads() or os.cpu_count() or 1
     loop(10, threads, np.float32(0.999), np.float32(1e-3))

@@ -23,10 +23,10 @@ from conftest import random_gbuffer, read_rgb
 
 import clphong
 import clphong.deliver.outputs as outputs_mod
-import clphong.pipeline.batch as batch
 from clphong.console.cli import main
 from clphong.device.renderer import Renderer
 from clphong.io.atomic import atomic_path
+from clphong.pipeline import batch
 from clphong.pipeline.batch import Rig, plan_batch, run_batch
 from clphong.pipeline.relighter import RelighterSpec
 

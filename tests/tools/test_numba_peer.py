@@ -7,11 +7,13 @@ import numpy as np
 import pytest
 
 from clphong.reference import shading as reference
-from clphong.tools import bench
+from clphong.tools import (
+    bench,
+    numba_peer,  # noqa: E402
+)
 
-numba = pytest.importorskip("numba")
-
-from clphong.tools import numba_peer  # noqa: E402
+if not numba_peer.available():
+    pytest.skip("numba is not installed (the bench extra)", allow_module_level=True)
 
 U = 2.0 ** -24
 
