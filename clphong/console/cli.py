@@ -188,7 +188,8 @@ def _add_relight_parser(sub):
     r.add_argument("--frames", metavar="RANGE", help="frames to relight, e.g. 1-240x2 or 1-10,20 "
                                                      "(default: every frame on disk)")
     r.add_argument("-j", "--jobs", type=int, default=1, metavar="N",
-                   help="local worker processes (default 1: one process, reading ahead)")
+                   help="local worker processes (default 1: one process, reading, shading and "
+                        "writing of consecutive frames overlapped)")
     r.add_argument("--skip-existing", "--resume", dest="skip_existing", action="store_true",
                    help="skip outputs that exist (complete: writes are atomic); finishes an interrupted run")
     r.add_argument("--dry-run", action="store_true", help="list what would be written, and stop")
