@@ -195,8 +195,11 @@ def apply_range_policy(gbuffer, policy: str = "clamp"):
     if not counts:
         return gbuffer, counts
     src = getattr(gbuffer, "sources", None) or {}
-    what = "; ".join(f"{src.get(k.split('.')[0], k.split('.')[0])} {k}: {n} pixel(s)"
-                     for k, n in counts.items())
+    by_buffer: dict[str, list[str]] = {}
+    for k, n in counts.items():
+        buf, _, ch = k.partition(".")
+        by_buffer.setdefault(buf, []).append(f"{ch} {n}" if ch else str(n))
+    what = "; ".join(f"{src.get(b, b)}: {', '.join(parts)} pixel(s)" for b, parts in by_buffer.items())
     if policy == "error":
         raise GBufferError(f"negative G-buffer values (they must be >= 0, as the scene's): {what}; "
                            "fix the input, or drop --nonfinite error to clamp them to 0")
