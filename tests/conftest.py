@@ -203,3 +203,23 @@ def pytest_generate_tests(metafunc):
     else:
         metafunc.parametrize("device", [pytest.param(None, marks=pytest.mark.skip(
             reason="no OpenCL device found"))], ids=["no-device"])
+
+
+#: A rig scene file for the batch tests: one point light at x = {x}, and ambient.
+RIG_SCENE = """\
+[camera]
+type = "perspective"
+position = [0.0, 2.0, 6.0]
+[material]
+model = "phong"
+k_a = 0.1
+k_d = 0.7
+k_s = 0.2
+h = 32.0
+[[light]]
+type = "point"
+position = [{x}, 5.0, 4.0]
+intensity = 20.0
+[[light]]
+type = "ambient"
+"""

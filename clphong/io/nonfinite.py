@@ -160,7 +160,7 @@ def out_of_range_counts(gbuffer) -> dict[str, int]:
     """Negative values of the shaded pixels, per buffer and channel: ``{"albedo.G": 3,
     "h": 1, ...}`` (only those with some). NaN is not counted here (the
     non-finite policy's), nor are background pixels (never read)."""
-    fg = ~gbuffer.background_mask()
+    fg = None                                           # the shaded pixels, only if needed
     out = {}
     for name in NONNEGATIVE:
         a = gbuffer.albedo if name == "albedo" else gbuffer.maps.get(name)
@@ -171,6 +171,8 @@ def out_of_range_counts(gbuffer) -> dict[str, int]:
                                                  for c in range(a.shape[-1])]
         for label, p in planes:
             if p.min(initial=0.0) < 0:                   # the common case costs one pass
+                if fg is None:
+                    fg = ~gbuffer.background_mask()
                 n = int(np.count_nonzero((p < 0) & fg))
                 if n:
                     out[label] = n

@@ -223,6 +223,16 @@ def bench_scene(kind: str, n_lights: int):
 
 # ------------------------------------------------------------------------------- numpy
 
+def _dot3(ax, ay, az, bx, by, bz, out, tmp):
+    """out = a·b over SoA planes, in place (``tmp``: a scratch plane)."""
+    np.multiply(ax, bx, out=out)
+    np.multiply(ay, by, out=tmp)
+    out += tmp
+    np.multiply(az, bz, out=tmp)
+    out += tmp
+    return out
+
+
 def numpy_shade(scene, gbuffer) -> np.ndarray:
     """The same shading in plain numpy float32, as its best numpy user writes it:
     SoA planes (one contiguous float32 array per coordinate), every operation in
@@ -263,35 +273,19 @@ def numpy_shade(scene, gbuffer) -> np.ndarray:
         np.subtract(Lx, px, out=dx)
         np.subtract(Ly, py, out=dy)
         np.subtract(Lz, pz, out=dz)
-        np.multiply(dx, dx, out=d2)
-        np.multiply(dy, dy, out=t)
-        d2 += t
-        np.multiply(dz, dz, out=t)
-        d2 += t
+        _dot3(dx, dy, dz, dx, dy, dz, d2, t)
         np.sqrt(d2, out=t)                                   # d
         np.divide(f(1), t, out=inv)
         dx *= inv                                            # l
         dy *= inv
         dz *= inv
-        np.multiply(nx, dx, out=NoL)
-        np.multiply(ny, dy, out=wd)
-        NoL += wd
-        np.multiply(nz, dz, out=wd)
-        NoL += wd
+        _dot3(nx, ny, nz, dx, dy, dz, NoL, wd)
         np.add(dx, vx, out=hx)                               # l + v
         np.add(dy, vy, out=hy)
         np.add(dz, vz, out=hz)
-        np.multiply(hx, hx, out=c)
-        np.multiply(hy, hy, out=wd)
-        c += wd
-        np.multiply(hz, hz, out=wd)
-        c += wd
+        _dot3(hx, hy, hz, hx, hy, hz, c, wd)
         np.sqrt(c, out=c)
-        np.multiply(nx, hx, out=s)
-        np.multiply(ny, hy, out=wd)
-        s += wd
-        np.multiply(nz, hz, out=wd)
-        s += wd
+        _dot3(nx, ny, nz, hx, hy, hz, s, wd)
         np.divide(s, c, out=c)                               # n·h
         np.maximum(c, f(0), out=c)
         if whole:                                            # c^K by binary powering

@@ -95,13 +95,8 @@ def clphong_command() -> list[str]:
 
 def _run(cmd: list[str], env=None) -> tuple[float, str]:
     """Run ``cmd``; (wall seconds, stderr). A failure is an error with its last line."""
-    t0 = time.perf_counter()
-    p = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    wall = time.perf_counter() - t0
-    if p.returncode != 0:
-        last = (p.stderr.strip().splitlines() or ["(no message)"])[-1]
-        raise ClphongError(f"{' '.join(cmd[1:3])} … failed (exit {p.returncode}): {last}")
-    return wall, p.stderr
+    wall, err, _ = _run_out(cmd, env)
+    return wall, err
 
 
 _STATS = re.compile(r"\(kernel ([0-9.]+) s\).*total ([0-9.]+) s")

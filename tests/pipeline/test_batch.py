@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import patch_everywhere, random_gbuffer, read_rgb
+from conftest import RIG_SCENE, patch_everywhere, random_gbuffer, read_rgb
 
 from clphong.console.cli import main
 from clphong.pipeline.batch import (
@@ -31,23 +31,7 @@ from clphong.pipeline.relighter import RelighterSpec
 
 H, W = 24, 32
 
-SCENE = """\
-[camera]
-type = "perspective"
-position = [0.0, 2.0, 6.0]
-[material]
-model = "phong"
-k_a = 0.1
-k_d = 0.7
-k_s = 0.2
-h = 32.0
-[[light]]
-type = "point"
-position = [{x}, 5.0, 4.0]
-intensity = 20.0
-[[light]]
-type = "ambient"
-"""
+SCENE = RIG_SCENE
 
 
 @pytest.fixture(scope="module")
