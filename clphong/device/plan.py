@@ -142,7 +142,12 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     check_kernel(kernel)
     m = scene.material
     maps = tuple(n for n in MAP_KEYS if n in set(maps))
-    n_point = len(scene.lights_of("point"))
+    if scene.lights_of("environment"):
+        raise SceneError(f"{scene.source}: an environment light reaches the kernels only as the "
+                         "directional lights it is resolved into (clphong.io.envmap); resolve "
+                         "the scene's environment lights before planning")
+    n_point = len(scene.light_arrays["point_position"])      # point and spot lights
+    n_spot = int(scene.light_arrays["point_is_spot"].sum())
     n_dir = len(scene.lights_of("directional"))
     n_amb = len(scene.lights_of("ambient"))
     blinn = m.model == "blinn-phong"

@@ -147,14 +147,18 @@ CAMERA_UP_AXES: tuple[str, ...] = ("y", "z")
 #: Valid ``material.model`` values.
 MATERIAL_MODELS: tuple[str, ...] = ("phong", "blinn-phong")
 #: Valid ``light.type`` values.
-LIGHT_TYPES: tuple[str, ...] = ("point", "directional", "ambient")
+LIGHT_TYPES: tuple[str, ...] = ("point", "spot", "directional", "ambient", "environment")
+#: Light types the kernels shade as point lights (a spot is a point light with a cone).
+POINT_TYPES: tuple[str, ...] = ("point", "spot")
+#: ``material.fresnel`` values: none (the constant k_s·C_s) or Schlick's W(α).
+FRESNEL_MODELS: tuple[str, ...] = ("none", "schlick")
 
 _TOP_KEYS = ("camera", "material", "render", "light")
 _CAMERA_KEYS = {"perspective": ("type", "position"), "orthographic": ("type", "direction"),
                 "metadata": ("type", "up")}
 _CAMERA_ALL = frozenset(k for ks in _CAMERA_KEYS.values() for k in ks)
 _CAMERA_ALL_ORDERED = ("type", "position", "direction", "up")
-_MATERIAL_KEYS = ("model", "k_a", "k_d", "k_s", "h", "specular_color")
+_MATERIAL_KEYS = ("model", "k_a", "k_d", "k_s", "h", "specular_color", "fresnel", "f0")
 _MATERIAL_REQUIRED = ("model", "k_a", "k_d", "k_s", "h")
 _RENDER_KEYS = ("background", "working_space", "exposure", "tonemap", "white_point",
                 "display", "view", "look", "albedo_space", "aovs")
@@ -162,14 +166,22 @@ _RENDER_KEYS = ("background", "working_space", "exposure", "tonemap", "white_poi
 WORKING_SPACE_NAMES: tuple[str, ...] = ("lin_rec709", "acescg")
 _LIGHT_KEYS = {
     "point": ("type", "color", "intensity", "power", "position", "attenuation", "group"),
+    "spot": ("type", "color", "intensity", "power", "position", "direction", "inner_angle",
+             "outer_angle", "attenuation", "group"),
     "directional": ("type", "color", "intensity", "direction", "group"),
     "ambient": ("type", "color", "intensity", "group"),
+    "environment": ("type", "file", "intensity", "rotation", "group"),
 }
 _LIGHT_SETS = {t: frozenset(ks) for t, ks in _LIGHT_KEYS.items()}
 _LIGHT_ALL_ORDERED = ("type", "color", "intensity", "power", "position", "direction",
-                      "attenuation", "group")
+                      "inner_angle", "outer_angle", "attenuation", "file", "rotation", "group")
 _LIGHT_ALL = frozenset(_LIGHT_ALL_ORDERED)
-_LIGHT_REQUIRED = {"point": ("position",), "directional": ("direction",), "ambient": ()}
+_LIGHT_REQUIRED = {"point": ("position",), "spot": ("position", "direction"),
+                   "directional": ("direction",), "ambient": (), "environment": ("file",)}
+#: A spot's cone half-angles (degrees) when not given: glTF KHR_lights_punctual's
+#: defaults (inner 0, outer π/4).
+SPOT_INNER_DEFAULT = 0.0
+SPOT_OUTER_DEFAULT = 45.0
 
 _WHITE: Vec3 = (1.0, 1.0, 1.0)
 _NO_FALLOFF: Vec3 = (1.0, 0.0, 0.0)
@@ -252,6 +264,14 @@ class Material:
     specular_color : tuple of 3 float
         Colour of the highlights, components >= 0; white by default, so each
         highlight takes its light's colour.
+    fresnel : str
+        ``"none"`` (the constant ``k_s·C_s``) or ``"schlick"``: Phong's weight
+        W(α) in place of ``C_s`` (the seed's note 2), Schlick's
+        ``W = f0 + (1 − f0)(1 − cos α)^5`` per channel, scaled by ``k_s``; α is
+        the angle between v and the half vector h (Blinn-Phong) or the normal n
+        (Phong).
+    f0 : tuple of 3 float or None
+        W at normal incidence (``"schlick"`` only), each in [0, 1].
     """
 
     model: str
@@ -260,6 +280,8 @@ class Material:
     k_s: float
     h: float
     specular_color: Vec3 = _WHITE
+    fresnel: str = "none"
+    f0: Vec3 | None = None
 
     @property
     def exponent(self) -> float:
@@ -268,8 +290,13 @@ class Material:
 
     def to_dict(self) -> dict:
         """The ``[material]`` table as a dict that :func:`parse_scene` accepts."""
-        return {"model": self.model, "k_a": self.k_a, "k_d": self.k_d, "k_s": self.k_s,
-                "h": self.h, "specular_color": list(self.specular_color)}
+        d = {"model": self.model, "k_a": self.k_a, "k_d": self.k_d, "k_s": self.k_s,
+             "h": self.h}
+        if self.fresnel == "schlick":
+            d.update(fresnel=self.fresnel, f0=list(self.f0))
+        else:
+            d["specular_color"] = list(self.specular_color)
+        return d
 
 
 @dataclass(frozen=True)
@@ -279,16 +306,28 @@ class Light:
     Attributes
     ----------
     type : str
-        ``"point"``, ``"directional"`` or ``"ambient"``.
+        One of :data:`LIGHT_TYPES`: ``"point"``, ``"spot"``, ``"directional"``,
+        ``"ambient"`` or ``"environment"``.
     color : tuple of 3 float
         Linear RGB in the working colour space, components >= 0.
     intensity : float
         Scale of ``color``, >= 0.
     position : tuple of 3 float or None
-        Position of a point light; None otherwise.
+        Position of a point or spot light; None otherwise.
     direction : tuple of 3 float or None
-        Unit direction a directional light travels (``l = -direction``);
-        None otherwise. Normalised in float64 when parsed.
+        Unit direction a directional light travels (``l = -direction``), or
+        the axis a spot light points along; None otherwise. Normalised in
+        float64 when parsed.
+    inner_angle, outer_angle : float or None
+        A spot's cone half-angles in degrees from its axis, ``0 <= inner <
+        outer <= 90``: full intensity inside ``inner``, none outside ``outer``,
+        and glTF KHR_lights_punctual's ``t²`` between (:meth:`spot_scale_offset`);
+        None for other types.
+    file : str or None
+        An environment light's latitude-longitude map (a relative path in a
+        scene file is resolved against the file's folder); None otherwise.
+    rotation : float
+        An environment light's rotation about the up axis (+y), degrees.
     attenuation : tuple of 3 float
         ``(c0, c1, c2)`` of ``1/(c0 + c1*d + c2*d^2)`` for a point light;
         ``(1, 0, 0)`` (no falloff) by default and for other types. ``c0 = 0``
@@ -310,6 +349,18 @@ class Light:
     attenuation: Vec3 = _NO_FALLOFF
     power: float | None = None
     group: str | None = None
+    inner_angle: float | None = None
+    outer_angle: float | None = None
+    file: str | None = None
+    rotation: float = 0.0
+
+    def spot_scale_offset(self) -> tuple[float, float]:
+        """``(s, o)`` of the cone factor ``t² , t = clamp(cos θ·s + o, 0, 1)``
+        (glTF KHR_lights_punctual: ``s = 1/(cos inner − cos outer)``, ``o = −cos
+        outer·s``), in float64; ``(0, 1)`` (factor 1) for a point light."""
+        if self.type != "spot":
+            return (0.0, 1.0)
+        return spot_scale_offset(self.inner_angle, self.outer_angle)
 
     @property
     def group_name(self) -> str:
@@ -330,10 +381,16 @@ class Light:
             d["power"] = self.power
         else:
             d["intensity"] = self.intensity
-        if self.type == "point":
+        if self.type in POINT_TYPES:
             d["position"] = list(self.position) if self.position is not None else None
             if self.power is None:
                 d["attenuation"] = list(self.attenuation)
+            if self.type == "spot":
+                d.update(direction=list(self.direction), inner_angle=self.inner_angle,
+                         outer_angle=self.outer_angle)
+        elif self.type == "environment":
+            d = {"type": self.type, "file": self.file, "intensity": self.intensity,
+                 "rotation": self.rotation}
         elif self.type == "directional":
             d["direction"] = list(self.direction) if self.direction is not None else None
         if self.group is not None:
@@ -461,7 +518,11 @@ class Scene:
         """The lights as read-only float64 numpy arrays, computed once (a read-only mapping).
 
         Keys: ``point_position``, ``point_radiance``, ``point_attenuation``
-        (N, 3) each (c0, c1, c2); ``directional_direction``,
+        (N, 3) each (c0, c1, c2), over the point and spot lights (a spot is a
+        point light with a cone); ``point_cone`` (N, 5): a spot's unit axis and
+        the ``(s, o)`` of :meth:`Light.spot_scale_offset` (a point light's: 0 axis,
+        ``(0, 1)``, a factor of exactly 1); ``point_is_spot`` (N,) bool;
+        ``directional_direction``,
         ``directional_radiance`` (M, 3); ``ambient_radiance`` (3,), the sum of
         the ambient lights' radiance (before k_a).
 
@@ -488,13 +549,19 @@ class Scene:
         groups = self.light_groups
         rank = {g: k for k, g in enumerate(groups)}
 
-        def in_group_order(type_):
-            idx = [i for i, lt in enumerate(self.lights) if lt.type == type_]
+        def in_group_order(types):
+            idx = [i for i, lt in enumerate(self.lights) if lt.type in types]
             idx.sort(key=lambda i: rank.get(self.lights[i].group_name, 0))
             return idx, [self.lights[i] for i in idx]
 
-        pi, pts = in_group_order("point")
-        di, dirs = in_group_order("directional")
+        pi, pts = in_group_order(POINT_TYPES)
+        di, dirs = in_group_order(("directional",))
+        cone = np.zeros((len(pts), 5))
+        cone[:, 4] = 1.0
+        spot = np.array([lt.type == "spot" for lt in pts], bool)
+        for k in np.flatnonzero(spot):
+            cone[k, :3] = pts[k].direction
+            cone[k, 3:] = pts[k].spot_scale_offset()
         amb = table(self.lights_of("ambient"), "radiance").sum(axis=0)
         amb.setflags(write=False)
         ends = {}
@@ -506,7 +573,8 @@ class Scene:
             amb_g[rank[lt.group_name]] += lt.radiance
         return MappingProxyType({
             "point_position": table(pts, "position"), "point_radiance": table(pts, "radiance"),
-            "point_attenuation": table(pts, "attenuation"),
+            "point_attenuation": table(pts, "attenuation"), "point_cone": frozen(cone),
+            "point_is_spot": frozen(spot),
             "directional_direction": table(dirs, "direction"),
             "directional_radiance": table(dirs, "radiance"), "ambient_radiance": amb,
             "point_index": frozen(np.array(pi, int)), "directional_index": frozen(np.array(di, int)),
@@ -540,6 +608,28 @@ class Scene:
                        **({"aovs": list(self.aovs)} if self.aovs else {})},
             "light": [lt.to_dict() for lt in self.lights],
         }
+
+
+# --------------------------------------------------------------------------
+# spot cones
+# --------------------------------------------------------------------------
+
+#: The largest cone scale s = 1/(cos inner − cos outer) a spot may have: the
+#: kernels form t = cos θ·s + o in float32 (|o| ≤ s), which errs by about 4u·s,
+#: so this keeps the cone factor's rounding error ≤ 2⁻⁴ at the sharpest edge
+#: allowed (cos inner − cos outer ≥ 3.8e-6, e.g. 10° and 10.022°).
+SPOT_MAX_SCALE = 2.0 ** 18
+
+
+def spot_scale_offset(inner: float, outer: float) -> tuple[float, float]:
+    """``(s, o)`` of glTF KHR_lights_punctual's spot factor for half-angles in
+    degrees: ``t = clamp(cos θ·s + o, 0, 1)``, factor ``t²``, with
+    ``s = 1/(cos inner − cos outer)`` and ``o = −cos outer·s`` (float64)."""
+    ci, co = math.cos(math.radians(inner)), math.cos(math.radians(outer))
+    if outer == 90.0:
+        co = 0.0                   # cos(π/2) is 6e-17 in float64: the horizon exactly
+    s = 1.0 / (ci - co)
+    return (s, -co * s)
 
 
 # --------------------------------------------------------------------------
@@ -772,8 +862,9 @@ def _message(source: str, path: str, problem: str) -> str:
 class _Parser:
     """Validates plain data against the scene schema; raises on the first problem."""
 
-    def __init__(self, source: str):
+    def __init__(self, source: str, base_dir: str = ""):
         self.source = source
+        self.base_dir = base_dir      # the scene file's folder: relative file names start there
         self.warnings: list[str] = []
 
     # -- reporting --------------------------------------------------------
@@ -982,9 +1073,30 @@ class _Parser:
         k_s = self.nonneg(t["k_s"], "material.k_s")
         h = self.nonneg(t["h"], "material.h")
         cs = _WHITE
+        fresnel = self.enum(t["fresnel"], "material.fresnel", FRESNEL_MODELS) if "fresnel" in t \
+            else "none"
+        if fresnel == "none":
+            if "f0" in t:
+                self.fail("material.f0", "applies only with fresnel = \"schlick\" (Schlick's "
+                                         "W = f0 + (1 - f0)(1 - cos a)^5)")
+            if "specular_color" in t:
+                cs = self.vec3(t["specular_color"], "material.specular_color", nonneg=True)
+            return Material(model, k_a, k_d, k_s, h, cs)
         if "specular_color" in t:
-            cs = self.vec3(t["specular_color"], "material.specular_color", nonneg=True)
-        return Material(model, k_a, k_d, k_s, h, cs)
+            self.fail("material.specular_color", "does not apply with fresnel = \"schlick\": "
+                                                 "W(a) replaces the constant C_s (f0 gives "
+                                                 "its colour at normal incidence)")
+        if "f0" not in t:
+            self.fail("material.f0", "missing; fresnel = \"schlick\" needs the reflectance "
+                                     "at normal incidence, e.g. f0 = 0.04 (scalar or [r, g, b])")
+        f = t["f0"]
+        f0 = self.vec3(f, "material.f0", nonneg=True) if isinstance(f, (list, tuple)) else \
+            (self.nonneg(f, "material.f0"),) * 3
+        for k, x in enumerate(f0):
+            if x > 1.0:
+                self.fail("material.f0" + (f"[{k}]" if isinstance(f, (list, tuple)) else ""),
+                          f"{x!r} is above 1: f0 is a reflectance at normal incidence, in [0, 1]")
+        return Material(model, k_a, k_d, k_s, h, fresnel=fresnel, f0=f0)
 
     def render(self, v: Any) -> Vec3:
         t = self.table(v, "render")
@@ -1086,9 +1198,11 @@ class _Parser:
             if "intensity" in v:
                 intensity = self.nonneg(v["intensity"], path + ".intensity", f32=False)
             self.fits_f32(max(color) * intensity, path + ".intensity", "color x intensity")
-        if type_ == "point":
+        if type_ == "environment":
+            return self.environment(v, path, intensity, group)
+        if type_ in POINT_TYPES:
             if "position" not in v:
-                self.fail(path + ".position", "missing; a 'point' light needs a position, "
+                self.fail(path + ".position", f"missing; a {type_!r} light needs a position, "
                                               "e.g. position = [3.0, 5.0, 4.0]")
             position = self.vec3(v["position"], path + ".position")
             att = INVERSE_SQUARE if power is not None else _NO_FALLOFF
@@ -1126,6 +1240,9 @@ class _Parser:
                                          "float32 range the kernels compute in (|x| <= "
                                          f"{_g(FLT_MAX)}, less their rounding error); lower the "
                                          "intensity or raise the minimum of p(d)")
+            if type_ == "spot":
+                return Light(type_, color, intensity, position=position, attenuation=att,
+                             power=power, group=group, **self.cone(v, path))
             return Light(type_, color, intensity, position=position, attenuation=att,
                          power=power, group=group)
         if type_ == "directional":
@@ -1136,6 +1253,53 @@ class _Parser:
             return Light(type_, color, intensity,
                          direction=self.unit(v["direction"], path + ".direction"), group=group)
         return Light(type_, color, intensity, group=group)
+
+    def cone(self, v: Mapping, path: str) -> dict:
+        """A spot's axis and half-angles (degrees), 0 <= inner < outer <= 90."""
+        if "direction" not in v:
+            self.fail(path + ".direction", "missing; a 'spot' light needs the axis it points "
+                                           "along, e.g. direction = [0.0, -1.0, 0.0]")
+        axis = self.unit(v["direction"], path + ".direction")
+        angles = {}
+        for key, default in (("inner_angle", SPOT_INNER_DEFAULT),
+                             ("outer_angle", SPOT_OUTER_DEFAULT)):
+            x = self.num(v[key], path + "." + key, f32=False) if key in v else default
+            if not 0.0 <= x <= 90.0:
+                self.fail(path + "." + key, f"{x!r} is out of range: a spot's half-angle from "
+                                            "its axis is in degrees, 0 <= inner < outer <= 90")
+            angles[key] = x
+        inner, outer = angles["inner_angle"], angles["outer_angle"]
+        if inner >= outer:
+            self.fail(path + ".inner_angle", f"{inner!r} is not less than outer_angle = "
+                                             f"{outer!r}; the cone fades from inner to outer, so "
+                                             "0 <= inner < outer <= 90 (degrees)")
+        s, _ = spot_scale_offset(inner, outer)
+        if s > SPOT_MAX_SCALE:
+            self.fail(path + ".outer_angle", f"the edge from inner_angle = {inner!r} to "
+                      f"outer_angle = {outer!r} is too sharp for the kernels' float32 cone "
+                      f"factor (cos inner - cos outer = {_g(1 / s)} < {_g(1 / SPOT_MAX_SCALE)}); "
+                      "widen it")
+        return {"direction": axis, "inner_angle": inner, "outer_angle": outer}
+
+    def environment(self, v: Mapping, path: str, intensity: float, group: str | None) -> Light:
+        """An environment light: its map (read and checked when the scene is
+        rendered, clphong.io.envmap), intensity and rotation about +y."""
+        if "file" not in v:
+            self.fail(path + ".file", "missing; an 'environment' light needs a "
+                                      "latitude-longitude map, e.g. file = \"sky.exr\"")
+        f = v["file"]
+        if type(f) is not str or not f or "\0" in f:
+            self.fail(path + ".file", f"expected a file name (a non-empty string), got "
+                                      f"{_describe(f)}")
+        if self.base_dir and not os.path.isabs(f):
+            f = os.path.join(self.base_dir, f)
+        rotation = 0.0
+        if "rotation" in v:
+            rotation = self.num(v["rotation"], path + ".rotation", f32=False)
+            if not abs(rotation) <= 1e6:
+                self.fail(path + ".rotation", f"{rotation!r} degrees: give the rotation about "
+                                              "the up axis in degrees, |rotation| <= 1e6")
+        return Light("environment", intensity=intensity, file=f, rotation=rotation, group=group)
 
     def group(self, v: Any, path: str) -> str:
         if type(v) is not str:
@@ -1176,8 +1340,8 @@ def _emit(scene: Scene, stacklevel: int) -> None:
         _warnings.warn(w, SceneWarning, stacklevel=stacklevel + 1)
 
 
-def _parse(data: Mapping, source: str) -> Scene:
-    return _Parser(source).scene(data)
+def _parse(data: Mapping, source: str, base_dir: str = "") -> Scene:
+    return _Parser(source, base_dir).scene(data)
 
 
 def parse_scene(data: Mapping, source: str = "<scene>") -> Scene:
@@ -1270,7 +1434,8 @@ def load_scene(path: str | os.PathLike) -> Scene:
                          "for the parser (a scene needs at most 2 levels)") from None
     except MemoryError:
         raise SceneError(f"{source}: out of memory parsing a {len(raw)}-byte scene file") from None
-    scene = _parse(data, source)
+    scene = _parse(data, source, os.path.dirname(os.fspath(path) if not isinstance(path, bytes)
+                                                 else os.fsdecode(path)))
     _emit(scene, stacklevel=2)
     return scene
 

@@ -141,7 +141,7 @@ ERROR_CASES = [
     ("enum-is-number", lambda d: set_at(d, ("camera", "type"), 1),
      "camera.type", ["expected a string", "'perspective', 'orthographic'", "integer 1"]),
     ("light-type-is-array", lambda d: set_at(d, ("light", 1, "type"), ["point"]),
-     "light[1].type", ["expected a string", "'point', 'directional', 'ambient'"]),
+     "light[1].type", ["expected a string", "'point', 'spot', 'directional', 'ambient', 'environment'"]),
     ("camera-not-table", lambda d: set_at(d, ("camera",), "perspective"),
      "camera", ["expected a table"]),
     ("camera-array-of-tables", lambda d: set_at(d, ("camera",), [d["camera"]]),
@@ -197,14 +197,14 @@ ERROR_CASES = [
     ("missing-material-h", lambda d: drop_at(d, ("material", "h")),
      "material.h", ["missing required key"]),
     ("missing-light-type", lambda d: drop_at(d, ("light", 2, "type")),
-     "light[2].type", ["missing required key", "'point', 'directional', 'ambient'"]),
+     "light[2].type", ["missing required key", "'point', 'spot', 'directional', 'ambient', 'environment'"]),
     ("missing-point-position", lambda d: drop_at(d, ("light", 0, "position")),
      "light[0].position", ["missing", "'point' light"]),
     ("missing-directional-direction", lambda d: drop_at(d, ("light", 1, "direction")),
      "light[1].direction", ["missing", "'directional' light"]),
     # keys that do not belong to the type
     ("attenuation-on-directional", lambda d: set_at(d, ("light", 1, "attenuation"), [1, 0, 0]),
-     "light[1].attenuation", ["does not apply to a 'directional' light", "'point' lights"]),
+     "light[1].attenuation", ["does not apply to a 'directional' light", "'point' and 'spot' lights"]),
     ("attenuation-on-ambient", lambda d: set_at(d, ("light", 2, "attenuation"), [1, 0, 0]),
      "light[2].attenuation", ["does not apply to an 'ambient' light"]),
     ("position-on-directional", lambda d: set_at(d, ("light", 1, "position"), [1, 0, 0]),
@@ -224,8 +224,8 @@ ERROR_CASES = [
      "material.model", ["did you mean 'blinn-phong'?"]),
     ("bad-camera-type", lambda d: set_at(d, ("camera", "type"), "fisheye"),
      "camera.type", ["invalid value 'fisheye'", "'perspective', 'orthographic'"]),
-    ("bad-light-type", lambda d: set_at(d, ("light", 0, "type"), "spot"),
-     "light[0].type", ["invalid value 'spot'", "'point', 'directional', 'ambient'"]),
+    ("bad-light-type", lambda d: set_at(d, ("light", 0, "type"), "spotlight"),
+     "light[0].type", ["invalid value 'spotlight'", "'point', 'spot', 'directional', 'ambient', 'environment'"]),
     # NaN / Inf anywhere
     ("nan-k_a", lambda d: set_at(d, ("material", "k_a"), float("nan")),
      "material.k_a", ["must be finite, got nan"]),
@@ -738,8 +738,8 @@ def test_no_lights_allowed(lights):
 
 def test_lights_of_rejects_unknown_type():
     s = parse_quietly(base())
-    with pytest.raises(ValueError, match="'point', 'directional', 'ambient'"):
-        s.lights_of("spot")
+    with pytest.raises(ValueError, match="'point', 'spot', 'directional', 'ambient', 'environment'"):
+        s.lights_of("spotlight")
 
 
 def test_background_vector_and_scalar():
@@ -1054,7 +1054,7 @@ def test_many_lights_parse_and_a_late_error_is_named():
 
 
 def test_light_types_constant():
-    assert LIGHT_TYPES == ("point", "directional", "ambient")
+    assert LIGHT_TYPES == ("point", "spot", "directional", "ambient", "environment")
 
 
 def test_light_arrays_are_cached_read_only_and_not_pickled():
