@@ -108,9 +108,11 @@ enum { T_LOX, T_LOY, T_LOZ, T_HIX, T_HIY, T_HIZ,
        T_NLOX, T_NLOY, T_NLOZ, T_NHIX, T_NHIY, T_NHIZ,
        T_DR, T_DG, T_DB, T_SR, T_SG, T_SB, T_R, T_PLANES };
 
-/* Cull-light records, 4 float4 each (pack_cull_lights, clphong/device/culling.py):
- *   (x, y, z, c0) (c1, c2, vertex, p_vertex_lo) (p_scale, r, g, b) (|L|, 0, 0, 0) */
-#define CULL_LIGHT_FLOAT4S 4
+/* Cull-light records, 5 float4 each (pack_cull_lights, clphong/device/culling.py):
+ *   (x, y, z, c0) (c1, c2, vertex, p_vertex_lo) (p_scale, r, g, b) (|L|, ax, ay, az)
+ *   (s, o, 0, 0): a spot's unit axis a and cone t = clamp(cos θ·s + o, 0, 1) (a point
+ *   light: s = 0, o = 1, no cone) */
+#define CULL_LIGHT_FLOAT4S 5
 
 __kernel void tile_bounds(__global const float *restrict gbuf,
                           __global const float *restrict maps,
@@ -275,7 +277,7 @@ inline floatL interval_product_max(floatL a, floatL b, floatL lo, floatL hi)
 /* b_j: upper bound of light j's contribution to any pixel and channel of the tile
  * (see the header comment). 0 for empty tiles; +inf where no bound holds
  * (p⁻ ≤ 0, a light inside the box with c0 ≤ 0, non-finite data). */
-inline floatL light_bound(const tile_t *t, float4 A, float4 B, float4 C, float4 E)
+inline floatL light_bound(const tile_t *t, float4 A, float4 B, float4 C, float4 E, float4 F)
 {
     /* distance from the light to the box (0 inside it) */
     const floatL dx = MAX_(t->lox - A.x, 0.0f) + MAX_(A.x - t->hix, 0.0f);
@@ -305,7 +307,22 @@ inline floatL light_bound(const tile_t *t, float4 A, float4 B, float4 C, float4 
     const floatL br = C.y * MUL_ADD(t->Dr, w_d, t->Sr * w_s);
     const floatL bg = C.z * MUL_ADD(t->Dg, w_d, t->Sg * w_s);
     const floatL bb = C.w * MUL_ADD(t->Db, w_d, t->Sb * w_s);
-    const floatL b = MAX_(MAX_(br, bg), bb) / p_lo * (1.0f + 32.0f * U_F32);
+    /* A spot's cone: cos θ = a·(P − L)/|P − L| ≤ max over the box of a·(P − L) (each
+       axis at a corner, plus 8u of the terms for the roundings), over d⁻ where that
+       is positive (else ≤ 0), plus the kernel's error of cos θ (margin, as n·l's);
+       t is increasing in cos θ (s > 0), so t(cos⁺)², rounded up by 4u in t and 4u
+       in t², bounds the factor. s = 0 (a point light): no cone, factor 1 exactly. */
+    const floatL ax = MAX_(E.y * (t->lox - A.x), E.y * (t->hix - A.x));
+    const floatL ay = MAX_(E.z * (t->loy - A.y), E.z * (t->hiy - A.y));
+    const floatL az = MAX_(E.w * (t->loz - A.z), E.w * (t->hiz - A.z));
+    const floatL ua = (ax + ay + az) + 8.0f * U_F32 * (ABS_(ax) + ABS_(ay) + ABS_(az));
+    const floatL cos_hi = SEL_(SEL_(ua / d_lo, (floatL)(0.0f), (intL)(ua <= 0.0f)) + margin,
+                               (floatL)(1.0f), (intL)(d_lo <= 0.0f));
+    const floatL x_hi = MUL_ADD(MIN_(cos_hi, (floatL)(1.0f)), (floatL)(F.x), (floatL)(F.y))
+                        + 4.0f * U_F32 * (F.x + ABS1_(F.y));
+    const floatL t_hi = MIN_(MAX_(x_hi, (floatL)(0.0f)), (floatL)(1.0f));
+    const floatL cone = F.x > 0.0f ? t_hi * t_hi * (1.0f + 4.0f * U_F32) : (floatL)(1.0f);
+    const floatL b = MAX_(MAX_(br, bg), bb) * cone / p_lo * (1.0f + 32.0f * U_F32);
     /* no bound where p⁻ ≤ 0 or anything is NaN: keep the light */
     const floatL safe = SEL_((floatL)(INFINITY), b, (intL)((p_lo > 0.0f) & (b >= 0.0f)));
     return SEL_(safe, (floatL)(0.0f), t->empty);
@@ -363,7 +380,7 @@ __kernel void cull_count(__global const float *restrict tiles, const uint n_tile
     for (uint c = range.x; c < range.x + range.y; ++c) {
         const uint j = use_cand ? cand_lights[c] : c;
         const __global float4 *L = lights + CULL_LIGHT_FLOAT4S * j;
-        const floatL b = light_bound(&t, L[0], L[1], L[2], L[3]);
+        const floatL b = light_bound(&t, L[0], L[1], L[2], L[3], L[4]);
         for (int m = 0; m < CULL_LEVELS; ++m) {
             const intL is_below = (intL)(b < tau[m]);
             sum[m] += SEL_((floatL)(0.0f), b, is_below);
@@ -424,7 +441,7 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
     for (uint c = range.x; c < range.x + range.y; ++c) {
         const uint j = use_cand ? cand_lights[c] : c;
         const __global float4 *L = lights + CULL_LIGHT_FLOAT4S * j;
-        const floatL b = light_bound(&t, L[0], L[1], L[2], L[3]);
+        const floatL b = light_bound(&t, L[0], L[1], L[2], L[3], L[4]);
         const intL at_or_above = (intL)(b >= tau);   /* b is never NaN (light_bound) */
         const intL greedy = at_or_above & (intL)(b <= left);
         left = SEL_(left, left - b, greedy);

@@ -133,13 +133,13 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
     const floatL k_map = vloadL(i, maps + (plane++) * stride);
 #endif
 #if MAP_CS
-    const wL Sr_w = ks_w * FLOAT_TO_W(vloadL(i, maps + (plane + 0) * stride)) * W_HI_LO(S_uniform.x, S_lo.x);
-    const wL Sg_w = ks_w * FLOAT_TO_W(vloadL(i, maps + (plane + 1) * stride)) * W_HI_LO(S_uniform.y, S_lo.y);
-    const wL Sb_w = ks_w * FLOAT_TO_W(vloadL(i, maps + (plane + 2) * stride)) * W_HI_LO(S_uniform.z, S_lo.z);
+    const wL Sr_b = ks_w * FLOAT_TO_W(vloadL(i, maps + (plane + 0) * stride)) * W_HI_LO(S_uniform.x, S_lo.x);
+    const wL Sg_b = ks_w * FLOAT_TO_W(vloadL(i, maps + (plane + 1) * stride)) * W_HI_LO(S_uniform.y, S_lo.y);
+    const wL Sb_b = ks_w * FLOAT_TO_W(vloadL(i, maps + (plane + 2) * stride)) * W_HI_LO(S_uniform.z, S_lo.z);
 #else
-    const wL Sr_w = ks_w * W_HI_LO(S_uniform.x, S_lo.x);
-    const wL Sg_w = ks_w * W_HI_LO(S_uniform.y, S_lo.y);
-    const wL Sb_w = ks_w * W_HI_LO(S_uniform.z, S_lo.z);
+    const wL Sr_b = ks_w * W_HI_LO(S_uniform.x, S_lo.x);
+    const wL Sg_b = ks_w * W_HI_LO(S_uniform.y, S_lo.y);
+    const wL Sb_b = ks_w * W_HI_LO(S_uniform.z, S_lo.z);
 #endif
 #if HAS_SPECULAR
 #if SPEC_INT_POW
@@ -175,6 +175,27 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
 #if SPEC_COS
     p.NoV = MUL_ADD(p.nx, p.vx, MUL_ADD(p.ny, p.vy, p.nz * p.vz));
 #endif
+    /* The specular weight: the constant k_s·C_s, or with FRESNEL Phong's W(α) in
+       its place (Schlick: k_s·(f0 + (1 − f0)(1 − cos α)⁵), f0 compiled in as
+       float32 hi + lo bits). Phong: cos α = n·v, one W per pixel. Blinn-Phong:
+       cos α = v·h per light, so S·f0 multiplies the specular weight and
+       S·(1 − f0) its Fresnel part (weights_t.fresnel, lights.h). */
+#if FRESNEL
+    const wL f0r = W_HI_LO(as_float((uint)FRESNEL_F0R), as_float((uint)FRESNEL_F0R_LO));
+    const wL f0g = W_HI_LO(as_float((uint)FRESNEL_F0G), as_float((uint)FRESNEL_F0G_LO));
+    const wL f0b = W_HI_LO(as_float((uint)FRESNEL_F0B), as_float((uint)FRESNEL_F0B_LO));
+#if MODEL_BLINN
+    const wL Sr_w = Sr_b * f0r, Sg_w = Sg_b * f0g, Sb_w = Sb_b * f0b;
+    const wL Sr1_w = Sr_b * (1.0f - f0r), Sg1_w = Sg_b * (1.0f - f0g), Sb1_w = Sb_b * (1.0f - f0b);
+#else
+    const wL F5 = DIR_TO_W(schlick_weight(MUL_ADD(p.nx, p.vx, MUL_ADD(p.ny, p.vy, p.nz * p.vz))));
+    const wL Sr_w = Sr_b * MUL_ADD(1.0f - f0r, F5, f0r);
+    const wL Sg_w = Sg_b * MUL_ADD(1.0f - f0g, F5, f0g);
+    const wL Sb_w = Sb_b * MUL_ADD(1.0f - f0b, F5, f0b);
+#endif
+#else
+    const wL Sr_w = Sr_b, Sg_w = Sg_b, Sb_w = Sb_b;
+#endif
     /* Ambient: E_A = C_d·k_a·Σ ambient radiance. */
     sumL sr = TO_SUM(FLOAT_TO_W(Cr) * W_HI_LO(ambient.x, material_lo.x));
     sumL sg = TO_SUM(FLOAT_TO_W(Cg) * W_HI_LO(ambient.y, material_lo.y));
@@ -200,10 +221,18 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
 /* The beauty's term of one light (its radiance × falloff L, weights w): one
    expression, so that the compiler contracts it with the sum exactly as it did
    before the layers existed (bit-identical beauty with or without them). */
-#define ADD_BEAUTY(s, c, L, D, S, w) ACCUMULATE(s, c, (L) * MUL_ADD(D, (w).diffuse, (S) * (w).specular))
+/* S·w_s, plus with Blinn's per-light Fresnel S1·w_f (S1 the S·(1 − f0) of S)
+   (S1 is not evaluated otherwise, so Sr1_w… need not exist) */
+#if FRESNEL && MODEL_BLINN
+#define SPEC_TERM(S, S1, w) MUL_ADD(S, (w).specular, (S1) * (w).fresnel)
+#else
+#define SPEC_TERM(S, S1, w) ((S) * (w).specular)
+#endif
+#define ADD_BEAUTY(s, c, L, D, S, S1, w) ACCUMULATE(s, c, (L) * MUL_ADD(D, (w).diffuse, SPEC_TERM(S, S1, w)))
 #if N_GROUPS
-#define ADD_GROUP(Lr, Lg, Lb, w) do { ADD_BEAUTY(gr, gcr, Lr, Dr_w, Sr_w, w); \
-        ADD_BEAUTY(gg, gcg, Lg, Dg_w, Sg_w, w); ADD_BEAUTY(gb, gcb, Lb, Db_w, Sb_w, w); } while (0)
+#define ADD_GROUP(Lr, Lg, Lb, w) do { ADD_BEAUTY(gr, gcr, Lr, Dr_w, Sr_w, Sr1_w, w); \
+        ADD_BEAUTY(gg, gcg, Lg, Dg_w, Sg_w, Sg1_w, w); \
+        ADD_BEAUTY(gb, gcb, Lb, Db_w, Sb_w, Sb1_w, w); } while (0)
 #else
 #define ADD_GROUP(Lr, Lg, Lb, w) do { } while (0)
 #endif
@@ -215,16 +244,16 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
 #define ADD_DIFFUSE(Lr, Lg, Lb, w) do { } while (0)
 #endif
 #if AOV_SPECULAR
-#define ADD_SPECULAR(Lr, Lg, Lb, w) do { ACCUMULATE(qr, qcr, (Lr) * (Sr_w * (w).specular)); \
-        ACCUMULATE(qg, qcg, (Lg) * (Sg_w * (w).specular)); \
-        ACCUMULATE(qb, qcb, (Lb) * (Sb_w * (w).specular)); } while (0)
+#define ADD_SPECULAR(Lr, Lg, Lb, w) do { ACCUMULATE(qr, qcr, (Lr) * SPEC_TERM(Sr_w, Sr1_w, w)); \
+        ACCUMULATE(qg, qcg, (Lg) * SPEC_TERM(Sg_w, Sg1_w, w)); \
+        ACCUMULATE(qb, qcb, (Lb) * SPEC_TERM(Sb_w, Sb1_w, w)); } while (0)
 #else
 #define ADD_SPECULAR(Lr, Lg, Lb, w) do { } while (0)
 #endif
 /* One light into the beauty and every layer the plan asks for. */
 #define ADD_LIGHT(Lr, Lg, Lb, w) do { \
-        ADD_BEAUTY(sr, cr, Lr, Dr_w, Sr_w, w); ADD_BEAUTY(sg, cg, Lg, Dg_w, Sg_w, w); \
-        ADD_BEAUTY(sb, cb, Lb, Db_w, Sb_w, w); \
+        ADD_BEAUTY(sr, cr, Lr, Dr_w, Sr_w, Sr1_w, w); ADD_BEAUTY(sg, cg, Lg, Dg_w, Sg_w, Sg1_w, w); \
+        ADD_BEAUTY(sb, cb, Lb, Db_w, Sb_w, Sb1_w, w); \
         ADD_GROUP(Lr, Lg, Lb, w); ADD_DIFFUSE(Lr, Lg, Lb, w); ADD_SPECULAR(Lr, Lg, Lb, w); \
     } while (0)
 
@@ -271,10 +300,16 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
             __global const pointrec_t *rec = point_lights + POINT_LIGHT_FLOAT4S * j;
             const pointrec_t X = rec[0];   /* position, c0 */
             const pointrec_t L = rec[1];   /* radiance, c1 */
-            const pointrec_t Q = rec[2];   /* c2 */
-            wL ar, ag, ab;                 /* radiance × attenuation(d) */
+            const pointrec_t Q = rec[2];   /* c2, a spot's axis */
+            wL ar, ag, ab;                 /* radiance × attenuation(d) (× the cone) */
+#if HAS_SPOT
+            const pointrec_t K = rec[3];   /* the cone's s, o */
+            const weights_t w = shade_point_light(&p, X.x, X.y, X.z, X.w, L.w, Q.x, L.x, L.y, L.z,
+                                                  Q.y, Q.z, Q.w, K.x, K.y, &ar, &ag, &ab);
+#else
             const weights_t w = shade_point_light(&p, X.x, X.y, X.z, X.w, L.w, Q.x, L.x, L.y, L.z,
                                                   &ar, &ag, &ab);
+#endif
             ADD_LIGHT(ar, ag, ab, w);
         }
 #endif

@@ -110,7 +110,15 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h, as shade.cl */
 #endif
         }
 #endif
+#if HAS_SPOT
+        /* glTF's spot factor t², as lights.h's spot_factor */
+        const float4 A = point_lights[POINT_LIGHT_FLOAT4S * j + 2];
+        const float4 K = point_lights[POINT_LIGHT_FLOAT4S * j + 3];
+        const float t = clamp(-dot(l, A.yzw) * K.x + K.y, 0.0f, 1.0f);
+        const float att = t * t / (X.w + L.w * d + c2 * d * d);
+#else
         const float att = 1.0f / (X.w + L.w * d + c2 * d * d);
+#endif
         E += att * L.xyz * (D * fmax(NoL, 0.0f) + S * spec);
     }
 #endif

@@ -73,8 +73,10 @@ def light_bytes(scene) -> int:
     # 240 bytes a point light, 433 a directional light with an orthographic camera:
     # six float4 records and their float64 forms, measured with tracemalloc over
     # 100 000 lights), the device copy (96, in host memory on a CPU), and with
-    # culling a point light's records (64) and their packing (~200): 576 bytes.
-    return 576 * sum(1 for lt in scene.lights if lt.type != "ambient")
+    # culling a point light's records (64) and their packing (~200): 576 bytes;
+    # with the spot cone in every point record (4 float4 instead of 3: +16 float32,
+    # +32 float64 and its temporaries, +32 on the device, +16 culling), scaled to 704.
+    return 704 * sum(1 for lt in scene.lights if lt.type != "ambient")
 
 
 def band_rows(shape: tuple[int, int], *, n_map_planes: int, lanes: int, light_bytes: int = 0,

@@ -29,6 +29,14 @@ import numpy as np
 from ..core.floats import U
 from .runtime import float4
 
+#: float4s per point-light record (POINT_LIGHT_FLOAT4S in kernels/include/clphong.h):
+#: (x, y, z, c0) (r, g, b, c1) (c2, ax, ay, az) (s, o, 0, 0), with a spot's unit
+#: axis a and cone factor t², t = clamp(cos θ·s + o, 0, 1) (a point light: a = 0,
+#: s = 0, o = 1, a factor of exactly 1).
+POINT_RECORD = 4
+#: float4s per cull-light record (CULL_LIGHT_FLOAT4S in kernels/cull.cl).
+CULL_RECORD = 5
+
 #: Screen tile edge in pixels (``CULL_TILE`` in kernels/cull.cl).
 TILE = 16
 #: Super-tile edge in tiles (``CULL_SUPER``) with up to 8 lanes; see :func:`super_tiles`.
@@ -60,7 +68,7 @@ def super_tiles(lanes: int) -> int:
 
 
 def pack_cull_lights(point: np.ndarray, n_point: int) -> np.ndarray:
-    """Cull records, 4 float4 per light, from the float path's point records.
+    """Cull records, 5 float4 per light (CULL_RECORD), from the float path's point records.
 
     The positions, coefficients and radiance are the float32 values the float
     path reads; the fp64 path reads their float64 originals, which differ by
@@ -76,12 +84,14 @@ def pack_cull_lights(point: np.ndarray, n_point: int) -> np.ndarray:
       light is never culled) where ``c0 < 0``, or κ_p is too large; ``c0 = 0``
       with ``c1, c2 ≥ 0`` (1/d²) is bounded like any increasing p;
     * ``|L|``: the distance of the (rebased) light from the frame origin, for
-      the error of n·l.
+      the error of n·l;
+    * a spot's axis and cone ``(s, o)`` as the point record holds them (a point
+      light's ``s = 0``: no cone), for the cone's bound of the factor t².
     """
-    rec = np.zeros((max(n_point, 1), 4, 4), np.float32)
+    rec = np.zeros((max(n_point, 1), CULL_RECORD, 4), np.float32)
     if n_point == 0:
         return rec.reshape(-1, 4)
-    pt = point.reshape(-1, 3, 4)[:n_point]
+    pt = point.reshape(-1, POINT_RECORD, 4)[:n_point]
     pos = pt[:, 0, :3].astype(np.float64)
     c0 = pt[:, 0, 3].astype(np.float64)
     c1 = pt[:, 1, 3].astype(np.float64)
@@ -110,6 +120,8 @@ def pack_cull_lights(point: np.ndarray, n_point: int) -> np.ndarray:
     rec[:, 2, 1:4] = rad
     rec[:, 3, 0] = np.nextafter(np.sqrt((pos * pos).sum(axis=1)).astype(np.float32),
                                 np.float32(np.inf))
+    rec[:, 3, 1:4] = pt[:, 2, 1:4]        # a spot's axis, as the shading kernel reads it
+    rec[:, 4, 0:2] = pt[:, 3, 0:2]        # (s, o), as the shading kernel reads them
     return rec.reshape(-1, 4)
 
 

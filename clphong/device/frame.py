@@ -25,6 +25,7 @@ from ..core.geometry import (
     view_vector,
 )
 from ..model.scene import MATERIAL_MAPS
+from .culling import POINT_RECORD
 
 #: Work-items per work-group. PoCL runs anything from 8 to ~1000 equally well
 #: and 1 badly (POCL-NOTES "Local size").
@@ -104,7 +105,7 @@ def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:
 class LightArrays:
     """The scene's lights packed as the kernels read them (see kernels/clphong.h)."""
 
-    point: np.ndarray        # (n_point*3, 4) float32: the float path's (and cull.py's source)
+    point: np.ndarray        # (n_point*POINT_RECORD, 4) float32: the float path's (and cull.py's source)
     point64: np.ndarray      # the same records in float64, not rebased, for DIRECTIONS_FP64
     directional: np.ndarray  # (n_dir*6, 4) float32
     ambient: np.ndarray      # (3,) float64: k_a·Σ ambient radiance
@@ -148,7 +149,7 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
     o = np.asarray(origin, np.float64)
     arrays = scene.light_arrays
     n_pts = len(arrays["point_position"])
-    rec = np.zeros((max(n_pts, 1), 3, 4))           # (x, y, z, c0) (r, g, b, c1) (c2, 0, 0, 0)
+    rec = np.zeros((max(n_pts, 1), POINT_RECORD, 4))   # culling.POINT_RECORD's layout
     rec[:n_pts, 0, :3] = arrays["point_position"]
     if n_pts:
         att = arrays["point_attenuation"]
@@ -156,6 +157,9 @@ def pack_lights(scene, origin: np.ndarray) -> LightArrays:
         rec[:, 1, :3] = arrays["point_radiance"]
         rec[:, 1, 3] = att[:, 1]
         rec[:, 2, 0] = att[:, 2]
+        cone = arrays["point_cone"]
+        rec[:, 2, 1:4] = cone[:, :3]           # a spot's axis (0 for a point light)
+        rec[:, 3, 0:2] = cone[:, 3:5]          # (s, o): (0, 1) for a point light
     point64 = rec.reshape(-1, 4).copy()
     rec[:n_pts, 0, :3] -= o
     _check_reach(scene, o, rec[:n_pts, 0, :3])
@@ -240,7 +244,8 @@ def check_near_field(scene, frame: Frame, lights: LightArrays, fp64: bool) -> No
         Naming the light, the pixel, its distance and the falloff's value there.
     """
     points = list(scene.light_arrays["point_index"])
-    recs = (lights.point64 if fp64 else lights.point.astype(np.float64)).reshape(-1, 3, 4)[:len(points)]
+    recs = (lights.point64 if fp64 else lights.point.astype(np.float64)).reshape(
+        -1, POINT_RECORD, 4)[:len(points)]
     physical = np.flatnonzero(recs[:, 0, 3] == 0) if len(points) else np.zeros(0, int)
     if physical.size == 0:
         return

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from ..core.errors import SceneError
+from ..core.geometry import split_hi_lo
 from ..model.options import check_float_power, check_kernel
 from ..model.scene import AOV_NAMES, MAP_KEYS
 from .culling import TILE
@@ -168,9 +169,24 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         put("LANES", lanes, "explicit SIMD lanes across pixels (PoCL vectorises no per-pixel light loop by itself)")
     put("MODEL_BLINN", blinn, f"material.model = {m.model!r}")
     put("HAS_POINT", n_point > 0, f"{n_point} point light(s)")
+    put("HAS_SPOT", n_spot > 0, f"{n_spot} of them spot light(s): the falloff times the cone "
+        "factor t² (glTF KHR_lights_punctual)" if n_spot else "no spot light")
     put("HAS_DIRECTIONAL", n_dir > 0, f"{n_dir} directional light(s)")
     put("HAS_SPECULAR", specular,
         "k_s map present" if "k_s" in maps else f"material.k_s = {m.k_s:g}")
+    fresnel = m.fresnel == "schlick" and specular
+    if fresnel and kernel != "lanes":
+        raise SceneError(f"{scene.source}: material.fresnel: the obvious kernel has no Fresnel "
+                         "weight; use the lane kernel (the default)")
+    put("FRESNEL", fresnel,
+        "Schlick's W = f0 + (1 − f0)(1 − cos α)^5 in place of C_s, cos α = "
+        + ("v·h per light" if blinn else "n·v per pixel") if fresnel
+        else "no Fresnel weight: the constant k_s·C_s")
+    if fresnel:
+        hi, lo = split_hi_lo(m.f0)
+        for c, h_, l_ in zip("RGB", hi.view("uint32"), lo.view("uint32")):
+            put(f"FRESNEL_F0{c}", int(h_), f"f0 {c} as float32 bits (hi)")
+            put(f"FRESNEL_F0{c}_LO", int(l_), f"f0 {c}'s float64 remainder as float32 bits")
     put("CAMERA_ORTHO", ortho, f"camera.type = {scene.camera.type!r}"
         + (": v is constant" if ortho else ": v = normalize(eye − P) per pixel"))
     put("BLINN_CONST_H", blinn and ortho and n_dir > 0 and specular,

@@ -134,6 +134,8 @@ class Pixels:
     k: np.ndarray   # (M,) specular exponent: h (Phong) or 4h (Blinn)
     blinn: bool
     specular: bool
+    f0: np.ndarray | None = None   # (3,) Schlick's f0 with material.fresnel, else None
+    S_base: np.ndarray | None = None   # (M, 3) Phong with Fresnel: k_s·C_s before W
 
 
 def shade_direction(px: Pixels, l, NoL):
@@ -148,8 +150,26 @@ def shade_direction(px: Pixels, l, NoL):
     return diffuse, np.where(NoL > 0.0, specular_power(delta, px.k), 0.0)
 
 
-def shade_point_light(px: Pixels, L, c0, c1, c2):
-    """Weights of a point light at L, times attenuation(d); nothing when d = 0."""
+def schlick_weight(cos_a):
+    """(1 − cos α)⁵ for cos α clamped to [0, 1] (brdf.h)."""
+    return (1.0 - np.clip(cos_a, 0.0, 1.0)) ** 5
+
+
+def v_dot_h(l, v):
+    """cos α = v·h = √((1 + l·v)/2) for h = (l + v)/|l + v| (lights.h); 0 at l = −v."""
+    return np.sqrt(np.maximum(0.5 * (1.0 + _dot(l, v)), 0.0))
+
+
+def spot_factor(l, axis, s, o):
+    """A spot's cone factor t², t = clamp(cos θ·s + o, 0, 1), cos θ = −l·axis
+    (lights.h; a point light: axis 0, s = 0, o = 1, the factor 1)."""
+    t = np.clip(-_dot(l, axis) * s + o, 0.0, 1.0)
+    return t * t
+
+
+def shade_point_light(px: Pixels, L, c0, c1, c2, cone=None):
+    """Weights of a point light at L, times attenuation(d) (and, with ``cone`` =
+    (axis, s, o), a spot's :func:`spot_factor`); nothing when d = 0."""
     dv = np.asarray(L, np.float64) - px.p
     d2 = _dot(dv, dv)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -161,6 +181,8 @@ def shade_point_light(px: Pixels, L, c0, c1, c2):
     with np.errstate(divide="ignore"):
         # d = 0: no contribution, also where c0 = 0 makes the falloff infinite.
         att = np.where(d2 <= 0.0, 0.0, attenuation(c0, c1, c2, d))
+    if cone is not None:
+        att = att * spot_factor(l, *cone)
     return diffuse * att, specular * att
 
 
@@ -208,8 +230,25 @@ def _inputs(scene, gbuffer):
         with np.errstate(invalid="ignore", divide="ignore"):
             v = np.where(de > 0, e / de, n)
     specular = m.k_s > 0 or "k_s" in maps
-    px = Pixels(p=P, n=n, v=v, k=k, blinn=blinn, specular=specular)
+    f0 = None
+    if m.fresnel == "schlick" and specular:
+        f0 = np.asarray(m.f0, np.float64)
+        if not blinn:
+            # Phong: cos α = n·v, one W = f0 + (1 − f0)(1 − n·v)⁵ per pixel (shade.cl)
+            S_base = S
+            S = S * (f0 + (1.0 - f0) * schlick_weight(_dot(n, v))[:, None])
+    px = Pixels(p=P, n=n, v=v, k=k, blinn=blinn, specular=specular, f0=f0,
+                S_base=S_base if f0 is not None and not blinn else None)
     return px, C, D, S, fg
+
+
+def specular_rgb(px: Pixels, S, specular, l):
+    """S·w_s per light, pixel and channel, (K, M, 3): with Blinn-Phong's Fresnel the
+    per-light W = f0 + (1 − f0)(1 − v·h)⁵ (Phong's W is in S already, :func:`_inputs`)."""
+    if px.f0 is None or not px.blinn:
+        return S * specular[..., None]
+    W = px.f0 + (1.0 - px.f0) * schlick_weight(v_dot_h(l, px.v))[..., None]
+    return S * W * specular[..., None]
 
 
 #: Pixel-light pairs evaluated at once by the reference (memory ~ 100 bytes each).
@@ -238,12 +277,24 @@ def _light_terms(scene, px: Pixels):
             diffuse, specular = shade_directional_light(px, l)
         yield "directional", L, {"l": l}, diffuse, specular
     pts, pt_L, pt_c = arrays["point_position"], arrays["point_radiance"], arrays["point_attenuation"]
+    cones, spots = arrays["point_cone"], arrays["point_is_spot"]
     for a in range(0, len(pts), K):
         pos = pts[a:a + K, None, :]
         L = pt_L[a:a + K, None, :]
         c = pt_c[a:a + K, :, None]                                                 # (K, 3, 1)
-        diffuse, specular = shade_point_light(px, pos, c[:, 0], c[:, 1], c[:, 2])
-        yield "point", L, {"position": pos, "c": (c[:, 0], c[:, 1], c[:, 2])}, diffuse, specular
+        cone = None
+        if spots[a:a + K].any():
+            q = cones[a:a + K]
+            cone = (q[:, None, :3], q[:, 3:4], q[:, 4:5])              # (K, 1, 3), (K, 1) × 2
+        diffuse, specular = shade_point_light(px, pos, c[:, 0], c[:, 1], c[:, 2], cone)
+        l = None
+        if px.f0 is not None and px.blinn:             # v·h per light (specular_rgb)
+            dv = pos - px.p
+            dd = np.sqrt(_dot(dv, dv))[..., None]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                l = np.where(dd > 0, dv / dd, 0.0)
+        yield "point", L, {"position": pos, "c": (c[:, 0], c[:, 1], c[:, 2]), "cone": cone, "l": l}, \
+            diffuse, specular
 
 
 def Lc_max(L):
@@ -342,8 +393,8 @@ def shade(scene, gbuffer) -> np.ndarray:
     out[:] = np.asarray(scene.background, np.float64)
     px, C, D, S, fg = _inputs(scene, gbuffer)
     E = C * ambient_radiance(scene)
-    for _, L, _, diffuse, specular in _light_terms(scene, px):
-        E += np.sum(L * (D * diffuse[..., None] + S * specular[..., None]), axis=0)
+    for _, L, params, diffuse, specular in _light_terms(scene, px):
+        E += np.sum(L * (D * diffuse[..., None] + specular_rgb(px, S, specular, params["l"])), axis=0)
     out[fg] = E
     return cover(finish_sum(out), gbuffer, scene.background).reshape(H, W, 3)
 
@@ -521,16 +572,40 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
         else:
             with np.errstate(divide="ignore"):
                 att = np.where(d > 0, attenuation(c0, c1, c2, d), 0.0)
+        # A spot's cone factor F = t², t = clamp(x, 0, 1), x = cos θ·s + o, cos θ =
+        # −l·a (spot_factor): cos θ errs by l's error η_l, the axis's rounding to
+        # float (float path) and the dot product's 3 roundings; x by s times that,
+        # the roundings of s and o to float (float path) and the fused add's; the
+        # clamp is 1-Lipschitz; t·t rounds once, and att·F once more (into e_att).
+        # F's error is absolute (t → 0 at the outer edge): ΔF = 2tΔt + Δt² + u·t²,
+        # charged below on the unattenuated weights' upper bounds.
+        cone = params.get("cone") if kind == "point" else None
+        dF = None
+        if cone is not None:
+            axis, sc, off = cone
+            att_raw = att
+            cos_t = -_dot(lvec, axis)
+            t = np.clip(cos_t * sc + off, 0.0, 1.0)
+            e_cos = eta_l + 3.0 * ud + (0.0 if fp64 else U)
+            e_x = sc * e_cos + (ud if fp64 else U) * np.abs(cos_t * sc + off) + \
+                (0.0 if fp64 else U * (np.abs(cos_t) * sc + np.abs(off)))
+            dF = 2.0 * t * e_x + e_x * e_x + (ud if fp64 else U) * t * t
+            att = att_raw * t * t
+            e_att = e_att + (ud if fp64 else U)
         # The product L·(D·w_d + S·w_s): five roundings, in float or (WEIGHTS_FP64)
         # in double; D = C·k_d and S = k_s·C_s: k_d, k_s rounded to float and up to
         # two products (3u), or (WEIGHTS_FP64) in double from hi + lo (3u_d).
         e_prod = 5.0 * U if not w64 else 3.0 * ud + 5.0 * uw
         e_diff = diffuse * e_att + att * diff_abs + diffuse * e_prod
+        if dF is not None:
+            e_diff = e_diff + att_raw * dF * (np.maximum(NoL, 0.0) + eps_NoL)
         # Specular: the error of δ (or of r·v for the naive form) through the power.
         if px.specular:
             spec_abs, spec_upper = _specular_error(px, lvec, NoL, eps_dir, eta_l, eta_v, eta_n, k,
                                                    form, ud, r_out, uw)
             e_spec = specular * (e_att + e_prod) + att * spec_abs
+            if dF is not None:
+                e_spec = e_spec + att_raw * dF * np.where(NoL > -eps_NoL, spec_upper, 0.0)
             # The terminator: within eps_NoL of n·l = 0 the float32 gate n·l > 0
             # may disagree with float64's, switching the whole term.
             near = (np.abs(NoL) <= eps_NoL) & (spec_upper > 0)
@@ -547,6 +622,28 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
         DS = np.abs(D) + np.abs(S)
         floor = FLT_MIN * ((2.0 + DS) * (np.maximum(att, 1.0)[..., None] * Lc) + DS)
         B += np.sum(Lc * (np.abs(D) * e_diff[..., None] + np.abs(S) * e_spec[..., None]) + floor, axis=0)
+        if px.f0 is not None:
+            # Schlick's W ∈ [f0, 1] scales the specular weight (≤ 1: |S|·e_spec still
+            # bounds its error); W's own error on the computed weight w_s + e_spec:
+            # (1 − f0)·ΔF5, ΔF5 = 5(1 − c)⁴Δc + 5 roundings of the power + its rounding
+            # to the weights' type, c = cos α; and 3 roundings of the products with f0.
+            w_hi = specular + e_spec
+            if px.blinn:
+                # c = v·h = √x, x = (1 + l·v)/2: l·v errs by η_l + η_v + 3u_d, x by half
+                # that and a rounding; √ by Δx/(2c), or √Δx near c = 0, and a rounding
+                c = v_dot_h(lvec, px.v)
+                dx = 0.5 * (eta_l + eta_v + 3.0 * ud) + ud
+                with np.errstate(divide="ignore"):
+                    dc = np.minimum(dx / (2.0 * c), np.sqrt(dx)) + ud
+                dF5 = 5.0 * dc + 5.0 * ud + uw
+                S_abs = np.abs(S)
+            else:
+                c = _dot(px.n, px.v)                                    # (M,)
+                dc = eta_n + eta_v + 3.0 * ud
+                dF5 = 5.0 * (1.0 - np.clip(c - dc, 0.0, 1.0)) ** 4 * dc + 5.0 * ud + uw
+                S_abs = np.abs(px.S_base)
+            B += np.sum(Lc * S_abs * ((1.0 - px.f0) * dF5[..., None] + 3.0 * uw) * w_hi[..., None],
+                        axis=0)
         total += np.sum(Lc * (np.abs(D) * diffuse[..., None] + np.abs(S) * specular[..., None]), axis=0)
     # The light sum: in double (SUM_FP64) by ≤ n·2⁻⁵³·Σ|c| before the one final
     # rounding; Neumaier's compensated sum by ≤ 2u|Σ| + O(n·u²)Σ|c|; the naive

@@ -66,7 +66,8 @@ def make_gbuffer(P, N, C, coverage=None, maps=None):
 
 
 def make_scene(lights=(), *, model="phong", k_a=0.1, k_d=0.7, k_s=0.2, h=32.0,
-               specular_color=(1.0, 1.0, 1.0), camera=None, background=(0.0, 0.0, 0.0)):
+               specular_color=(1.0, 1.0, 1.0), camera=None, background=(0.0, 0.0, 0.0),
+               fresnel="none", f0=None):
     """A Scene built directly, bypassing the file validation (so c0 = 0 is possible).
 
     ``lights`` are dicts of :class:`~clphong.model.scene.Light` fields (directions are
@@ -84,8 +85,12 @@ def make_scene(lights=(), *, model="phong", k_a=0.1, k_d=0.7, k_s=0.2, h=32.0,
     elif isinstance(camera, dict):
         camera = Camera(**unit_direction(camera))
     built = [Light(**unit_direction(lt)) if isinstance(lt, dict) else lt for lt in lights]
+    if f0 is not None and not isinstance(f0, (tuple, list)):
+        f0 = (float(f0),) * 3
     return Scene(camera=camera, material=Material(model=model, k_a=k_a, k_d=k_d, k_s=k_s, h=h,
-                                                  specular_color=tuple(specular_color)),
+                                                  specular_color=tuple(specular_color),
+                                                  fresnel=fresnel,
+                                                  f0=None if f0 is None else tuple(f0)),
                  lights=tuple(built), background=tuple(background))
 
 
@@ -484,6 +489,107 @@ def _above_half():
     P, N, C = _strip(8)
     lights = [dict(type="directional", direction=(0.0, 0.0, -1.0), intensity=1e6)]
     return make_scene(lights, k_a=0.0, camera=_ORTHO_DOWN), make_gbuffer(P, N, C)
+
+
+# --------------------------------------------------------------------------- spots
+
+def _spot_over_plane(inner, outer, *, height=1.0, n=96, reach=None, model="phong", **light):
+    """A spot at (0, 0, height) pointing down −z over a 1×n row of the z = 0 plane,
+    the pixels' angles θ from the axis running from 0 to past the outer edge (and
+    exactly through both edges)."""
+    top = math.radians(min(outer * 1.25 + 1.0, 89.9)) if reach is None else reach
+    theta = np.concatenate([np.linspace(0.0, top, n - 2),
+                            [math.radians(inner), math.radians(outer) if outer < 90 else top]])
+    theta.sort()
+    P = np.zeros((1, n, 3))
+    P[0, :, 0] = height * np.tan(theta)
+    N = np.broadcast_to([0.0, 0.0, 1.0], (1, n, 3)).copy()
+    lt = dict(type="spot", position=(0.0, 0.0, height), direction=(0.0, 0.0, -1.0),
+              inner_angle=inner, outer_angle=outer, intensity=2.0, **light)
+    scene = make_scene([lt, dict(type="ambient", intensity=0.01)], model=model,
+                       camera=dict(type="perspective", position=(0.3, 0.2, 2.0)))
+    return scene, make_gbuffer(P, N, np.ones((1, n, 3)))
+
+
+@case("spot-cone-edges", "spots", "across a 20°/35° spot's cone: full inside, t² between, 0 outside")
+def _spot_edges():
+    return _spot_over_plane(20.0, 35.0)
+
+
+@case("spot-inner-near-outer", "spots", "inner 30°, outer 30.05°: a hard edge, s = 1/(cos i − cos o) ≈ 2200")
+def _spot_sharp():
+    return _spot_over_plane(30.0, 30.05, n=128, reach=math.radians(30.1))
+
+
+@case("spot-inner-zero", "spots", "inner 0°: the factor falls from the axis itself")
+def _spot_inner0():
+    return _spot_over_plane(0.0, 25.0, model="blinn-phong")
+
+
+@case("spot-outer-90", "spots", "outer 90°: the factor reaches 0 only at the horizon (θ to 89.9°)")
+def _spot_outer90():
+    return _spot_over_plane(40.0, 90.0, height=0.05, attenuation=(1.0, 0.0, 0.5))
+
+
+@case("spot-on-sphere-with-points", "spots", "spots and point lights on a sphere, in one light sum")
+def _spot_sphere():
+    P, N, C, cov = _sphere()
+    lights = [dict(type="spot", position=(0.0, 0.0, 3.0), direction=(0.0, 0.1, -1.0),
+                   inner_angle=5.0, outer_angle=15.0, intensity=4.0),
+              dict(type="spot", position=(2.0, 1.0, 1.0), direction=(-2.0, -1.0, -1.0),
+                   inner_angle=10.0, outer_angle=12.0, intensity=3.0, attenuation=(0.0, 0.0, 1.0)),
+              dict(type="point", position=(-2.0, 1.0, 2.0), intensity=1.5),
+              dict(type="ambient", intensity=0.05)]
+    return make_scene(lights, model="blinn-phong"), make_gbuffer(P, N, C, coverage=cov)
+
+
+# ------------------------------------------------------------------------- Fresnel
+
+def _grazing_view(model, f0, n=96):
+    """A row of normals tilting from facing the viewer (+z, orthographic) to 1e-6 rad
+    short of edge-on, lit by directional lights near the mirror direction and near
+    grazing, so that cos α (n·v or v·h) runs from 1 down to ~1e-6 and W from f0 to ~1."""
+    a = np.concatenate([np.linspace(0.0, 1.5, n // 2),
+                        math.pi / 2 - np.geomspace(1e-1, 1e-6, n - n // 2)])
+    N = _tilted_normals(a)
+    P = np.zeros((1, n, 3))
+    P[0, :, 0] = np.linspace(-0.5, 0.5, n)
+    lights = [dict(type="directional", direction=(-0.999, 0.0, -0.045), intensity=2.0),
+              dict(type="directional", direction=(-0.6, 0.1, -0.8), intensity=1.0),
+              dict(type="ambient", intensity=0.02)]
+    scene = make_scene(lights, model=model, h=8.0, k_s=1.0, fresnel="schlick", f0=f0,
+                       camera=_ORTHO_DOWN)
+    return scene, make_gbuffer(P, N, np.ones((1, n, 3)))
+
+
+@case("fresnel-grazing-phong", "fresnel", "Phong's W with cos α = n·v from 1 to 1e-6 (edge-on)")
+def _fresnel_phong():
+    return _grazing_view("phong", 0.04)
+
+
+@case("fresnel-grazing-blinn", "fresnel", "Blinn's W with cos α = v·h, light near grazing on the far side")
+def _fresnel_blinn():
+    return _grazing_view("blinn-phong", 0.04)
+
+
+@case("fresnel-rgb-f0-points", "fresnel", "RGB f0 (a metal) with point lights and a perspective camera")
+def _fresnel_rgb():
+    P, N, C, cov = _sphere()
+    lights = [dict(type="point", position=(2.0, 1.0, 1.5), intensity=3.0),
+              dict(type="point", position=(-1.5, 0.5, -0.2), intensity=2.0),   # behind the limb
+              dict(type="ambient", intensity=0.05)]
+    return (make_scene(lights, model="blinn-phong", h=16.0, k_s=1.0, fresnel="schlick",
+                       f0=(0.95, 0.64, 0.54), camera=dict(type="perspective", position=(0.0, 0.0, 4.0))),
+            make_gbuffer(P, N, C, coverage=cov))
+
+
+@case("fresnel-f0-zero-phong", "fresnel", "f0 = 0: W = (1 − n·v)⁵ alone, 0 where the view is head-on")
+def _fresnel_zero():
+    P, N, C, cov = _sphere()
+    lights = [dict(type="point", position=(0.5, 1.0, 3.0), intensity=3.0), dict(type="ambient")]
+    return (make_scene(lights, model="phong", h=4.0, k_s=1.0, fresnel="schlick", f0=0.0,
+                       camera=dict(type="perspective", position=(0.0, 0.0, 4.0))),
+            make_gbuffer(P, N, C, coverage=cov))
 
 
 # ----------------------------------------------------------------------- evaluation

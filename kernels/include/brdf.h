@@ -13,6 +13,17 @@ inline wL lambert(wL NoL)
     return MAX0(NoL);
 }
 
+/* Schlick's Fresnel factor (1 − cos α)⁵ for cos α clamped to [0, 1] (the weight
+ * W = f0 + (1 − f0)·(1 − cos α)⁵ of FRESNEL, shade.cl): three multiplies. */
+inline dirL schlick_weight(dirL cos_a)
+{
+    const dirL c = SELECT_DIR(SELECT_DIR(cos_a, (dirL)(1.0f), cos_a > (dirL)(1.0f)), (dirL)(0.0f),
+                              cos_a < (dirL)(0.0f));
+    const dirL m = (dirL)(1.0f) - c;
+    const dirL m2 = m * m;
+    return m2 * m2 * m;
+}
+
 /* Phong: δ = 1 − r·v with r = 2n(n·l) − l.
  * For unit r and v, 1 − r·v = |r − v|²/2 exactly. The right-hand side has no
  * cancellation near the highlight peak (r·v → 1), where the naive 1 − r·v loses

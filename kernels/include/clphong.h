@@ -299,7 +299,8 @@ typedef double4 pointrec_t;
 #else
 typedef float4 pointrec_t;
 #endif
-#define POINT_LIGHT_FLOAT4S 3       /* (x, y, z, c0) (r, g, b, c1) (c2, 0, 0, 0) */
+#define POINT_LIGHT_FLOAT4S 4       /* (x, y, z, c0) (r, g, b, c1) (c2, ax, ay, az) (s, o, 0, 0):
+                                       clphong/device/culling.py POINT_RECORD */
 #define DIRECTIONAL_LIGHT_FLOAT4S 6 /* (lx, ly, lz, 0) (r, g, b, 0) (hx, hy, hz, undefined)
                                        (l − float(l), 0) (h − float(h), 0)
                                        (radiance − float(radiance), 0) */

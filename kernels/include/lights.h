@@ -54,7 +54,20 @@ typedef struct {
 typedef struct {
     wL diffuse;
     wL specular;
+#if FRESNEL && MODEL_BLINN
+    wL fresnel;      /* specular × (1 − v·h)⁵: the part of W that varies per light */
+#endif
 } weights_t;
+
+#if FRESNEL && MODEL_BLINN
+/* cos α = v·h = √((1 + l·v)/2) for h = (l + v)/|l + v| (l = −v: h is undefined,
+ * the specular weight is 0, and this is 0). */
+inline dirL v_dot_h(const pixel_t *p, dirL lx, dirL ly, dirL lz)
+{
+    const dirL x = (dirL)(0.5f) * ((dirL)(1.0f) + MUL_ADD(lx, p->vx, MUL_ADD(ly, p->vy, lz * p->vz)));
+    return sqrt(SELECT_DIR(x, (dirL)(0.0f), x < (dirL)(0.0f)));
+}
+#endif
 
 /* Both terms for a unit direction l towards the light. The specular term is on
  * only where n·l > 0 (the notes' E_S needs a lit side); the gate uses n·l
@@ -82,7 +95,27 @@ inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, di
 #else
     w.specular = (wL)(0.0f);
 #endif
+#if FRESNEL && MODEL_BLINN
+    /* cos α = v·h = √((1 + l·v)/2), h = (l + v)/|l + v| (l = −v: h undefined, the
+       specular weight is 0 and so is this) */
+    w.fresnel = w.specular * DIR_TO_W(schlick_weight(v_dot_h(p, lx, ly, lz)));
+#endif
     return w;
+}
+
+/* A spot's cone factor (glTF KHR_lights_punctual, Filament): t², t = clamp(cos θ·s
+ * + o, 0, 1), θ the angle between the spot's unit axis a and the direction from
+ * the light to the shaded point, −l: cos θ = −l·a. s = 1/(cos inner − cos outer)
+ * and o = −cos outer·s come from the host in float64 (scene.spot_scale_offset);
+ * a point light's record has a = 0, s = 0, o = 1: a factor of exactly 1.
+ * Written with comparisons, not clamp() (PoCL 3.0 calls builtins out of line). */
+inline dirL spot_factor(dirL lx, dirL ly, dirL lz, dirS ax, dirS ay, dirS az, dirS s, dirS o)
+{
+    const dirL cos_theta = -MUL_ADD(lx, (dirL)(ax), MUL_ADD(ly, (dirL)(ay), lz * (dirL)(az)));
+    const dirL x = MUL_ADD(cos_theta, (dirL)(s), (dirL)(o));
+    const dirL t = SELECT_DIR(SELECT_DIR(x, (dirL)(1.0f), x > (dirL)(1.0f)), (dirL)(0.0f),
+                              x < (dirL)(0.0f));
+    return t * t;
 }
 
 /* A point light at L (rebased on the frame origin, or as it is with
@@ -99,6 +132,9 @@ inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, di
  * d ≳ 1.8e19: d := ∞ there, so the falloff is 0 (and l = 0) instead of ∞·0 = NaN. */
 inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
                                    dirS c0, dirS c1, dirS c2, dirS Rr, dirS Rg, dirS Rb,
+#if HAS_SPOT
+                                   dirS ax, dirS ay, dirS az, dirS s, dirS o,
+#endif
                                    wL *ar, wL *ag, wL *ab)
 {
     const dirL dx = Lx - p->px, dy = Ly - p->py, dz = Lz - p->pz;
@@ -115,7 +151,13 @@ inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
     const dirL d = SELECT_DIR(d2 * inv_d, d2, d2 > FLT_MAX);   /* isinf(d2): d2 ≥ 0 (isinf is out of line) */
 #endif
     /* d = 0: no contribution, also where c0 = 0 makes the falloff infinite. */
+#if HAS_SPOT
+    /* the cone scales the falloff (at d = 0, l = 0 and the factor is t(o)², times 0) */
+    const dirL att = SELECT_DIR(attenuation(c0, c1, c2, d) * spot_factor(lx, ly, lz, ax, ay, az, s, o),
+                                (dirL)(0.0f), d2 <= (dirL)(0.0f));
+#else
     const dirL att = SELECT_DIR(attenuation(c0, c1, c2, d), (dirL)(0.0f), d2 <= (dirL)(0.0f));
+#endif
     *ar = DIR_TO_W(att * Rr);
     *ag = DIR_TO_W(att * Rg);
     *ab = DIR_TO_W(att * Rb);
@@ -138,6 +180,9 @@ inline weights_t shade_directional_light(const pixel_t *p, float4 l, float4 l_lo
 #else
     const dirL delta = blinn_delta_const_h(p->nx, p->ny, p->nz, h, h_lo);
     w.specular = SELECT((wL)(0.0f), SPECULAR_POWER(delta, p), NoLw > 0.0f);
+#endif
+#if FRESNEL
+    w.fresnel = w.specular * DIR_TO_W(schlick_weight(v_dot_h(p, (dirL)(lx), (dirL)(ly), (dirL)(lz))));
 #endif
     return w;
 #else

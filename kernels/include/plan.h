@@ -7,8 +7,13 @@
  *
  *   MODEL_BLINN      0: Phong (r·v)^h           1: Blinn-Phong (n·h)^(4h)
  *   HAS_POINT        point lights present (with 1/(c0 + c1·d + c2·d²) falloff)
+ *   HAS_SPOT         some point light is a spot: its falloff is scaled by the cone
+ *                    factor t², t = clamp(cos θ·s + o, 0, 1) (lights.h, spot_factor)
  *   HAS_DIRECTIONAL  directional lights present (no falloff)
  *   HAS_SPECULAR     k_s > 0 somewhere (uniform or in a map)
+ *   FRESNEL          Schlick's weight W(α) in place of C_s (material.fresnel), with
+ *                    f0 per channel as float32 bits FRESNEL_F0R, _G, _B and their
+ *                    float64 remainders FRESNEL_F0R_LO, … (shade.cl)
  *   CAMERA_ORTHO     viewer at infinity: v is constant
  *   BLINN_CONST_H    orthographic camera + Blinn: each directional light's half vector is
  *                    constant and precomputed on the host (Blinn 1977)
@@ -40,11 +45,20 @@
 #ifndef HAS_POINT
 #error "HAS_POINT must be set by the shading plan (clphong/device/plan.py)"
 #endif
+#ifndef HAS_SPOT
+#error "HAS_SPOT must be set by the shading plan (clphong/device/plan.py)"
+#endif
 #ifndef HAS_DIRECTIONAL
 #error "HAS_DIRECTIONAL must be set by the shading plan (clphong/device/plan.py)"
 #endif
 #ifndef HAS_SPECULAR
 #error "HAS_SPECULAR must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef FRESNEL
+#error "FRESNEL must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#if FRESNEL && !defined(FRESNEL_F0B_LO)
+#error "FRESNEL needs FRESNEL_F0R, _G, _B and their _LO remainders (clphong/device/plan.py)"
 #endif
 #ifndef CAMERA_ORTHO
 #error "CAMERA_ORTHO must be set by the shading plan (clphong/device/plan.py)"

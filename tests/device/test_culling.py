@@ -43,7 +43,7 @@ def dropped_sum(scene, gbuffer, renderer, cull):
     tile = tile_of_pixels(gbuffer.shape, renderer.lanes).reshape(-1)
     px, C, D, S, fg = reference._inputs(scene, gbuffer)
     tile_fg = tile[fg]
-    n_point = len(scene.lights_of("point"))
+    n_point = len(scene.light_arrays["point_position"])        # point and spot lights
     kept = np.zeros((cull.n_tiles, n_point), bool)
     for t, idx in enumerate(lists):
         kept[t, idx] = True
@@ -172,6 +172,51 @@ def test_budget_holds_on_adversarial_scenes(case):
     lights.append(dict(type="directional", direction=(0.3, 0.2, -1.0), intensity=0.5))
     lights.append(dict(type="ambient", intensity=0.2))
     check_budget_holds(make_scene(lights, **kw), gb, eps)
+
+
+def _spots(rng, n, *, outer=(6.0, 12.0), height=(0.8, 1.5), att=(1.0, 0.0, 1.0)):
+    """Spots over the heightfield pointing straight down (axis −z), narrow cones."""
+    out = []
+    for _ in range(n):
+        o = float(rng.uniform(*outer))
+        out.append(dict(type="spot", position=(float(rng.uniform(0, 4.4)), float(rng.uniform(0, 3.6)),
+                                               float(rng.uniform(*height))),
+                        direction=(0.0, 0.0, -1.0), inner_angle=o / 2, outer_angle=o,
+                        color=tuple(rng.uniform(0.2, 1, 3)), intensity=float(rng.uniform(1, 3)),
+                        attenuation=att))
+    return out
+
+
+@pytest.mark.parametrize("eps", [1e-5, 1e-3])
+def test_spot_cones_cull_the_tiles_they_miss(eps):
+    """Spots pointing down with 6-12° cones light a small disc each. The bound of a
+    spot in a tile uses the cone: a tile whose box lies wholly outside the cone
+    (cos θ over the box, here (L_z − lo_z)/distance to the box for the axis −z, below
+    cos outer by a margin) gets the bound 0 and drops the spot at any budget; without
+    the cone the bound is that of a point light, ≈ I·(D + S)/(1 + d²), far above ε.
+    The budget holds (both checks), points and spots mixed."""
+    rng = np.random.default_rng(11)
+    gb = heightfield(rng)
+    spots = _spots(rng, 30)
+    scene = make_scene(spots + point_lights(rng, 10, att=(1.0, 0.0, 1e3)), model="blinn-phong", h=20.0)
+    r, _, cull = check_budget_holds(scene, gb, eps)
+    lists = read_tile_lists(r.runtime, cull)
+    tile = tile_of_pixels(gb.shape, r.lanes).reshape(-1)
+    fg = ~gb.background_mask().reshape(-1)
+    P = gb.position.reshape(-1, 3).astype(np.float64)
+    outside = 0
+    shaded_tiles = np.unique(tile[fg])
+    for t in shaded_tiles:
+        box = P[fg & (tile == t)]
+        lo, hi = box.min(axis=0), box.max(axis=0)
+        for j, sp in enumerate(spots):
+            L = np.asarray(sp["position"])
+            d_lo = np.linalg.norm(np.maximum(lo - L, 0) + np.maximum(L - hi, 0))
+            cos_hi = (L[2] - lo[2]) / d_lo
+            if cos_hi < np.cos(np.radians(sp["outer_angle"])) - 1e-4:
+                outside += 1
+                assert j not in lists[t], f"tile {t} keeps spot {j}, whose cone misses its box"
+    assert outside > 0.3 * len(spots) * len(shaded_tiles)    # many pairs lie outside the cones
 
 
 @pytest.mark.parametrize("lanes", [1, 4])

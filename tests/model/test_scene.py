@@ -1089,3 +1089,103 @@ def test_render_aovs_and_albedo_space_round_trip():
     sc = parse_quietly(data)
     assert sc.aovs == ("specular", "key") and sc.color.albedo_space == "sRGB Encoded Rec.709 (sRGB)"
     assert parse_quietly(sc.to_dict()) == sc
+
+
+# ------------------------------------------------------------------ spots, environment, Fresnel
+
+def _with_light(light, material=None):
+    data = base()
+    data["light"] = [light]
+    if material:
+        data["material"].update(material)
+    return data
+
+
+_SPOT = {"type": "spot", "position": [0, 2, 0], "direction": [0, -1, 0],
+         "inner_angle": 10.0, "outer_angle": 20.0}
+
+
+@pytest.mark.parametrize("change, path, fragment", [
+    ({"inner_angle": 20.0}, "light[0].inner_angle", "not less than outer_angle = 20.0"),
+    ({"inner_angle": 30.0}, "light[0].inner_angle", "not less than outer_angle"),
+    ({"outer_angle": 91.0}, "light[0].outer_angle", "out of range"),
+    ({"inner_angle": -1.0}, "light[0].inner_angle", "out of range"),
+    ({"outer_angle": float("nan")}, "light[0].outer_angle", "must be finite"),
+    ({"inner_angle": 10.0, "outer_angle": 10.0001}, "light[0].outer_angle", "too sharp"),
+    ({"direction": [0, 0, 0]}, "light[0].direction", "zero-length"),
+    ({"direction": None}, "light[0].direction", "missing"),
+    ({"file": "x.exr"}, "light[0].file", "does not apply to a 'spot' light"),
+])
+def test_spot_errors_name_the_key(change, path, fragment):
+    lt = dict(_SPOT, **change)
+    lt = {k: v for k, v in lt.items() if v is not None}
+    msg = error_of(_with_light(lt))
+    assert_one_line(msg)
+    assert msg.startswith(f"{SRC}: {path}: "), msg
+    assert fragment in msg, msg
+
+
+def test_spot_defaults_and_cone_constants():
+    """glTF's defaults (inner 0, outer 45°) and s, o from the half-angles: s·cos inner + o = 1
+    and s·cos outer + o = 0, the two ends of the fade."""
+    lt = parse_quietly(_with_light({"type": "spot", "position": [0, 2, 0], "direction": [0, -2, 0]})).lights[0]
+    assert (lt.inner_angle, lt.outer_angle, lt.direction) == (0.0, 45.0, (0.0, -1.0, 0.0))
+    s, o = lt.spot_scale_offset()
+    assert s * 1.0 + o == pytest.approx(1.0, abs=1e-15)
+    assert s * math.cos(math.radians(45.0)) + o == pytest.approx(0.0, abs=1e-15)
+    s90, o90 = parse_quietly(_with_light(dict(_SPOT, outer_angle=90.0))).lights[0].spot_scale_offset()
+    assert o90 == 0.0          # the horizon exactly: cos 90° taken as 0, not 6e-17
+
+
+def test_spot_power_is_cycles_point_intensity():
+    """power: the point light's convention (the cone does not concentrate it)."""
+    sp = parse_quietly(_with_light(dict(_SPOT, power=100.0))).lights[0]
+    pt = parse_quietly(_with_light({"type": "point", "position": [0, 2, 0], "power": 100.0})).lights[0]
+    assert (sp.intensity, sp.attenuation) == (pt.intensity, pt.attenuation)
+
+
+@pytest.mark.parametrize("light, path, fragment", [
+    ({"type": "environment"}, "light[0].file", "missing"),
+    ({"type": "environment", "file": ""}, "light[0].file", "expected a file name"),
+    ({"type": "environment", "file": 3}, "light[0].file", "expected a file name"),
+    ({"type": "environment", "file": "a.exr", "rotation": float("inf")}, "light[0].rotation",
+     "must be finite"),
+    ({"type": "environment", "file": "a.exr", "color": [1, 1, 1]}, "light[0].color",
+     "does not apply to an 'environment' light"),
+])
+def test_environment_errors_name_the_key(light, path, fragment):
+    msg = error_of(_with_light(light))
+    assert msg.startswith(f"{SRC}: {path}: "), msg
+    assert fragment in msg, msg
+
+
+def test_environment_file_is_relative_to_the_scene(tmp_path):
+    (tmp_path / "s.toml").write_text(
+        '[material]\nmodel = "phong"\nk_a = 0\nk_d = 1\nk_s = 0\nh = 1\n'
+        '[[light]]\ntype = "environment"\nfile = "sky.exr"\nrotation = 90\nintensity = 2\n')
+    lt = load_scene(tmp_path / "s.toml").lights[0]
+    assert (lt.file, lt.rotation, lt.intensity) == (str(tmp_path / "sky.exr"), 90.0, 2.0)
+
+
+@pytest.mark.parametrize("material, path, fragment", [
+    ({"fresnel": "fresnel"}, "material.fresnel", "invalid value"),
+    ({"fresnel": "schlick"}, "material.f0", "missing"),
+    ({"fresnel": "schlick", "f0": 1.5}, "material.f0", "above 1"),
+    ({"fresnel": "schlick", "f0": [0.1, 2, 0.1]}, "material.f0[1]", "above 1"),
+    ({"fresnel": "schlick", "f0": -0.1}, "material.f0", "must be >= 0"),
+    ({"f0": 0.04}, "material.f0", "applies only with fresnel"),
+    ({"fresnel": "schlick", "f0": 0.04, "specular_color": [1, 1, 1]}, "material.specular_color",
+     "does not apply with fresnel"),
+])
+def test_fresnel_errors_name_the_key(material, path, fragment):
+    msg = error_of(_with_light({"type": "ambient"}, material))
+    assert msg.startswith(f"{SRC}: {path}: "), msg
+    assert fragment in msg, msg
+
+
+def test_fresnel_round_trips():
+    s = parse_quietly(_with_light({"type": "ambient"}, {"fresnel": "schlick", "f0": [0.9, 0.6, 0.2]}))
+    assert (s.material.fresnel, s.material.f0) == ("schlick", (0.9, 0.6, 0.2))
+    assert parse_quietly(s.to_dict()) == s
+    sp = parse_quietly(_with_light(_SPOT))
+    assert parse_quietly(sp.to_dict()) == sp
