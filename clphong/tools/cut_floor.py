@@ -1,0 +1,155 @@
+"""The floor of light-tree cuts (issue 16): how small can a cut be at a budget ε?
+
+Lightcuts-style trees (Walter et al. 2005; the light trees of Cycles and pbrt-v4)
+replace a node's lights by one representative with the node's total radiance. A
+cut whose error is *bounded* by ε needs Σ over its nodes of a bound of each node's
+error ≤ ε; a bound is never below the node's true error. So the cut chosen with
+the true errors, per pixel (an oracle: no bound, no tile), is a lower bound of
+the size of every bounded cut that sums per-node errors, whatever the bound.
+
+For sample pixels of the bench G-buffer this builds a kd-tree over the scene's
+point lights (median splits on the longest axis), takes as each node's
+representative a virtual light at its radiance-weighted centroid (the choice
+that cancels the first-order error), and refines greedily (the node of largest
+true error first) until the true errors sum to ≤ ε. The shading is the float64
+reference's model (clphong.reference.shading), per light, on that pixel.
+
+    python -m clphong.tools.cut_floor --eps 1e-3,1e-2 --pixels 8
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import sys
+
+import numpy as np
+
+from ..reference import shading as reference
+from .bench import bench_gbuffer, bench_scene
+from .report import markdown_table
+
+
+def _pixels_of(scene, gbuffer, idx):
+    """The reference's Pixels, D and S of the shaded pixels ``idx`` (flat indices)."""
+    px, C, D, S, fg = reference._inputs(scene, gbuffer)
+    pos = np.cumsum(fg) - 1                      # flat pixel -> index among shaded pixels
+    k = pos[idx]
+    sub = reference.Pixels(p=px.p[k], n=px.n[k], v=px.v[k], k=px.k[k], blinn=px.blinn,
+                           specular=px.specular, f0=px.f0)
+    return sub, D[k], S[k]
+
+
+def light_contributions(px, D, S, Y, R, att, cone=None):
+    """(K, M, 3) contribution of K point lights at Y (K, 3) with radiance R (K, 3)
+    and attenuation (K, 3) to M pixels, through the reference's shade_point_light."""
+    c = att[:, :, None]
+    diffuse, specular = reference.shade_point_light(px, Y[:, None, :], c[:, 0], c[:, 1], c[:, 2])
+    return R[:, None, :] * (D * diffuse[..., None] + S * specular[..., None])
+
+
+class KdTree:
+    """Point lights in tree order; node k covers lights [lo[k], hi[k])."""
+
+    def __init__(self, Y):
+        self.order = np.arange(len(Y))
+        self.lo, self.hi, self.children = [], [], []
+        stack = [(0, len(Y), None, 0)]
+        while stack:
+            lo, hi, parent, side = stack.pop()
+            k = len(self.lo)
+            self.lo.append(lo)
+            self.hi.append(hi)
+            self.children.append(None)
+            if parent is not None:
+                ch = self.children[parent] or [None, None]
+                ch[side] = k
+                self.children[parent] = ch
+            if hi - lo > 1:
+                sub = self.order[lo:hi]
+                P = Y[sub]
+                axis = int(np.argmax(P.max(axis=0) - P.min(axis=0)))
+                self.order[lo:hi] = sub[np.argsort(P[:, axis], kind="stable")]
+                mid = (lo + hi) // 2
+                stack.append((mid, hi, k, 1))
+                stack.append((lo, mid, k, 0))
+
+
+def oracle_cut(contrib, Y, R, att, tree: KdTree, rep_of, eps: float) -> int:
+    """The greedy cut's size for one pixel: ``contrib`` (N, 3) its per-light
+    contributions in tree order, ``rep_of(Yc, Rc)`` the representative's (3,)."""
+    pref = np.vstack([np.zeros(3), np.cumsum(contrib, axis=0)])
+    pR = np.vstack([np.zeros(3), np.cumsum(R, axis=0)])
+    w = R.sum(axis=1)
+    pW = np.concatenate([[0.0], np.cumsum(w)])
+    pYW = np.vstack([np.zeros(3), np.cumsum(Y * w[:, None], axis=0)])
+
+    def err(k):
+        lo, hi = tree.lo[k], tree.hi[k]
+        if hi - lo == 1:
+            return 0.0
+        exact = pref[hi] - pref[lo]
+        W_ = pW[hi] - pW[lo]
+        yc = (pYW[hi] - pYW[lo]) / W_ if W_ > 0 else Y[lo]
+        return float(np.abs(exact - rep_of(yc, pR[hi] - pR[lo])).max())
+
+    heap = [(-err(0), 0)]
+    total = -heap[0][0]
+    while total > eps and heap:
+        e, k = heapq.heappop(heap)
+        total += e
+        if tree.children[k] is None:        # a single light: exact (error 0)
+            heapq.heappush(heap, (0.0, k))
+            break
+        for ch in tree.children[k]:
+            ec = err(ch)
+            total += ec
+            heapq.heappush(heap, (-ec, ch))
+    return len(heap)
+
+
+def cut_sizes(scene, gbuffer, eps_list, n_pixels: int, seed: int = 0):
+    """{ε: [cut size per sample pixel]} for the scene's point lights (one attenuation)."""
+    a = scene.light_arrays
+    att_all = a["point_attenuation"]
+    if len(np.unique(att_all, axis=0)) != 1 or a["point_is_spot"].any():
+        raise ValueError("cut_floor takes point lights that share one attenuation polynomial")
+    tree = KdTree(a["point_position"])
+    Y = a["point_position"][tree.order]
+    R = a["point_radiance"][tree.order]
+    att1 = att_all[:1]
+    fg = np.flatnonzero(~gbuffer.background_mask().reshape(-1))
+    rng = np.random.default_rng(seed)
+    idx = rng.choice(fg, size=min(n_pixels, len(fg)), replace=False)
+    px, D, S = _pixels_of(scene, gbuffer, idx)
+    out = {e: [] for e in eps_list}
+    for m in range(len(idx)):
+        one = reference.Pixels(p=px.p[m:m + 1], n=px.n[m:m + 1], v=px.v[m:m + 1], k=px.k[m:m + 1],
+                               blinn=px.blinn, specular=px.specular)
+        contrib = light_contributions(one, D[m:m + 1], S[m:m + 1], Y, R,
+                                      np.broadcast_to(att1, (len(Y), 3)))[:, 0, :]
+
+        def rep_of(yc, rc, one=one, m=m):
+            return light_contributions(one, D[m:m + 1], S[m:m + 1], yc[None], rc[None], att1)[0, 0]
+
+        for e in eps_list:
+            out[e].append(oracle_cut(contrib, Y, R, att1, tree, rep_of, e))
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m clphong.tools.cut_floor", description=__doc__.split("\n\n")[0])
+    p.add_argument("--eps", default="1e-3,1e-2,3e-2", help="budgets, relative to white 1.0")
+    p.add_argument("--lights", type=int, default=65536, help="lights of the bench 'wide' scene")
+    p.add_argument("--pixels", type=int, default=8, help="sample pixels of the 1080p bench G-buffer")
+    args = p.parse_args(argv)
+    eps = [float(x) for x in args.eps.split(",")]
+    sizes = cut_sizes(bench_scene("wide", args.lights), bench_gbuffer(1920, 1080), eps, args.pixels)
+    rows = [[f"{e:g}", args.lights, f"{np.median(s):.0f}", min(s), max(s),
+             f"{np.median(s) / args.lights:.1%}"] for e, s in sizes.items()]
+    print(markdown_table(["ε", "lights", "median cut", "min", "max", "median / lights"], rows))
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
