@@ -1,0 +1,245 @@
+"""Environment maps: reading them, and resolving environment lights into directional ones.
+
+An ``[[light]]`` of ``type = "environment"`` names a latitude-longitude map
+(``file``, any format OpenImageIO reads: EXR, Radiance HDR, ...) in OpenEXR's
+orientation (:mod:`clphong.model.environment`). The kernels shade point, spot,
+directional and ambient lights only, so before a scene reaches them
+:func:`resolve_environment` replaces each environment light by the directional
+lights of :func:`clphong.model.environment.environment_lights` (same group),
+within the relative error ``max_error`` (``--env-error``).
+
+Bad input is one line naming the scene key (:class:`~clphong.core.errors.SceneError`)::
+
+    scene.toml: light[3].file: sky.exr: no such file
+    scene.toml: light[3].file: sky.exr: cannot read: <OpenImageIO's reason>
+    scene.toml: light[3].file: sky.exr: 1000 x 600 texels: a latitude-longitude map is 2:1 ...
+    scene.toml: light[3].file: sky.exr: 12 NaN texel(s), 3 with Inf, 40 negative; ...
+    scene.toml: light[3].file: sky.exr: reading a 65536x32768 map needs about ... of memory ...
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import threading
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import OpenImageIO as oiio
+
+from ..core.errors import SceneError, clean_line
+from ..core.files import not_regular
+from ..core.memory import require_memory
+from ..model.environment import DEFAULT_ENV_ERROR, EnvironmentLights, environment_lights
+from ..model.scene import Light, Scene, SceneWarning
+
+__all__ = ["read_envmap", "resolve_environment", "ResolvedScene", "ENV_BYTES_PER_TEXEL",
+           "ENV_FIXED_BYTES", "environment_key", "directional_lights"]
+
+#: Peak bytes per texel of reading a map and resolving it (the float32 read, its
+#: float64 energy, the directions, the tree's summed-area table and its node
+#: slices), plus :data:`ENV_FIXED_BYTES` for the probes' work arrays and the
+#: lights: above tracemalloc's peak (132 bytes a texel at 1024 x 512 and 1e-2;
+#: tests/io/test_envmap.py checks the model at two sizes).
+ENV_BYTES_PER_TEXEL = 160
+ENV_FIXED_BYTES = 64 << 20
+
+
+def environment_key(scene: Scene, index: int) -> str:
+    """``"<scene file>: light[i].file"``: where messages about light ``index``'s map point."""
+    return f"{scene.source}: light[{index}].file"
+
+
+def _fail(where: str, name: str, problem: str):
+    raise SceneError(clean_line(f"{where}: {name}: {problem}"))
+
+
+def _oiio_error(geterror) -> str:
+    try:
+        return clean_line(geterror() or "")
+    except UnicodeDecodeError:
+        return "OpenImageIO's message is not UTF-8 text (a corrupt file?)"
+
+
+def read_envmap(path, where: str = "environment") -> np.ndarray:
+    """Read a latitude-longitude map as (H, W, 3) float32 radiance, checked.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The map: any format OpenImageIO reads. Its R, G, B channels (by name),
+        else a single channel as grey, else its first three.
+    where : str
+        What the messages name first (the scene key, :func:`environment_key`).
+
+    Raises
+    ------
+    SceneError
+        One line ``"<where>: <file>: <problem>"``: missing, not a regular file,
+        unreadable, not 2:1 (W = 2H, H >= 2), more than memory allows, or
+        holding NaN, Inf or negative texels (with their counts).
+    """
+    name = os.fspath(path)
+    if not os.path.exists(name):
+        _fail(where, name, "no such file")
+    kind = not_regular(name)
+    if kind is not None:       # a FIFO would block OpenImageIO forever, a device read forever
+        _fail(where, name, f"cannot read: it is {kind}; give a regular file (an EXR or HDR map)")
+    inp = oiio.ImageInput.open(name)
+    if inp is None:
+        _fail(where, name, f"cannot read: {_oiio_error(oiio.geterror) or 'unknown error'}")
+    try:
+        spec = inp.spec()
+        W, H, C = int(spec.width), int(spec.height), int(spec.nchannels)
+        if W != 2 * H or H < 2:
+            _fail(where, name, f"{W} x {H} texels: a latitude-longitude map is 2:1 (width = 2 x "
+                               "height, at least 4 x 2); resample it, e.g. oiiotool IN --resize "
+                               f"{2 * max(H, 2)}x{max(H, 2)} -o OUT")
+        names = list(spec.channelnames)
+        if all(c in names for c in "RGB"):
+            pick = [names.index(c) for c in "RGB"]
+        elif C == 1 or "Y" in names:
+            pick = [names.index("Y") if "Y" in names else 0] * 3
+        elif C >= 3:
+            pick = [0, 1, 2]
+        else:
+            _fail(where, name, f"has channels {names}: give R, G, B (or one grey channel)")
+        lo, hi = min(pick), max(pick) + 1
+        require_memory(4 * W * H * (hi - lo) + ENV_BYTES_PER_TEXEL * W * H + ENV_FIXED_BYTES,
+                       f"{where}: {name}: reading and resolving a {W}x{H} environment map",
+                       SceneError, "use a smaller map (e.g. oiiotool IN --resize 2048x1024 -o OUT) "
+                       "or set CLPHONG_MAX_MEMORY if you know there is more memory")
+        pix = inp.read_image(0, 0, lo, hi, oiio.TypeDesc("float"))
+        if pix is None:
+            _fail(where, name, f"cannot read: {_oiio_error(inp.geterror) or 'unknown error'}")
+    finally:
+        inp.close()
+    pix = np.asarray(pix, np.float32).reshape(H, W, hi - lo)
+    L = np.ascontiguousarray(pix[:, :, [p - lo for p in pick]])
+    bad = _texel_problems(L)
+    if bad:
+        _fail(where, name, bad + "; an environment map holds finite radiance >= 0 (repair or "
+                                 "clamp it, e.g. oiiotool IN --fixnan black --clamp:min=0 -o OUT)")
+    return L
+
+
+def _texel_problems(L: np.ndarray) -> str:
+    """"12 NaN texel(s), 3 with Inf, 40 negative" (texels with any such channel), or ""."""
+    nan = int(np.isnan(L).any(axis=-1).sum())
+    inf = int(np.isinf(L).any(axis=-1).sum())
+    with np.errstate(invalid="ignore"):
+        neg = int((L < 0).any(axis=-1).sum())
+    parts = []
+    if nan:
+        parts.append(f"{nan} NaN texel(s)")
+    if inf:
+        parts.append(f"{inf} {'with Inf' if parts else 'texel(s) with Inf'}")
+    if neg:
+        parts.append(f"{neg} {'negative' if parts else 'negative texel(s)'}")
+    return ", ".join(parts)
+
+
+@dataclass(frozen=True)
+class ResolvedScene:
+    """A scene whose environment lights are directional lights now.
+
+    Attributes
+    ----------
+    scene : Scene
+        The scene the kernels can shade: each environment light replaced, in
+        place, by its directional lights (same group).
+    environments : tuple of (int, EnvironmentLights)
+        Per environment light: its index in the original ``lights`` and the
+        conversion (light count, estimated error, time).
+    """
+
+    scene: Scene
+    environments: tuple = ()
+
+
+_LOCK = threading.Lock()
+_CACHE: dict = {}
+#: Conversions kept per process (each holds its lights only, not the map).
+_CACHE_SIZE = 8
+
+
+def _view_of(scene: Scene):
+    cam = scene.camera
+    if cam.type == "orthographic" and cam.direction is not None:
+        return -np.asarray(cam.direction, np.float64)
+    return None
+
+
+def _convert(light: Light, where: str, material, view, max_error: float) -> EnvironmentLights:
+    name = light.file
+    try:
+        st = os.stat(name)
+        key = (os.path.realpath(name), st.st_ino, st.st_size, st.st_mtime_ns, light.rotation,
+               light.intensity, material, None if view is None else tuple(view), max_error)
+    except OSError:
+        key = None                        # read_envmap says what is wrong
+    with _LOCK:
+        hit = _CACHE.get(key) if key is not None else None
+    if hit is not None:
+        return hit
+    L = read_envmap(name, where)
+    result = environment_lights(L, material, rotation=light.rotation, intensity=light.intensity,
+                                view=view, max_error=max_error)
+    if key is not None:
+        with _LOCK:
+            if len(_CACHE) >= _CACHE_SIZE:
+                _CACHE.pop(next(iter(_CACHE)))
+            _CACHE[key] = result
+    return result
+
+
+def directional_lights(env: EnvironmentLights, group: str | None = None) -> tuple[Light, ...]:
+    """``env``'s lights as ``directional`` :class:`~clphong.model.scene.Light` objects
+    (``direction = -l``, ``color`` the radiance, ``intensity`` 1) in ``group``."""
+    return tuple(Light(type="directional", color=(float(r[0]), float(r[1]), float(r[2])),
+                       intensity=1.0, direction=(float(-x[0]), float(-x[1]), float(-x[2])), group=group)
+                 for x, r in zip(env.l, env.radiance))
+
+
+def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR) -> ResolvedScene:
+    """Replace every environment light of ``scene`` by directional lights.
+
+    Parameters
+    ----------
+    scene : Scene
+    max_error : float
+        The relative error target (``--env-error``, default 1e-3) of
+        :func:`clphong.model.environment.environment_lights`.
+
+    Returns
+    -------
+    ResolvedScene
+        ``.scene`` is ``scene`` itself when it has no environment light.
+        Conversions are cached per process (same file, unchanged on disk, same
+        rotation, intensity, material, view and target).
+
+    Raises
+    ------
+    SceneError
+        A map that cannot be used (:func:`read_envmap`), named by its scene key.
+    """
+    if not any(lt.type == "environment" for lt in scene.lights):
+        return ResolvedScene(scene=scene)
+    view = _view_of(scene)
+    lights: list[Light] = []
+    done = []
+    for i, lt in enumerate(scene.lights):
+        if lt.type != "environment":
+            lights.append(lt)
+            continue
+        r = _convert(lt, environment_key(scene, i), scene.material, view, max_error)
+        done.append((i, r))
+        if not r.met:
+            warnings.warn(SceneWarning(
+                f"{environment_key(scene, i)}: {lt.file}: {r.count} lights (the most allowed) "
+                f"reach an estimated {r.estimated_error:.2g} relative error, not the "
+                f"{max_error:g} asked for (--env-error)"))
+        lights.extend(directional_lights(r, lt.group))
+    return ResolvedScene(scene=dataclasses.replace(scene, lights=tuple(lights)),
+                         environments=tuple(done))

@@ -1,0 +1,204 @@
+"""clphong.io.envmap: reading lat-long maps (one-line errors naming the scene key) and
+resolving environment lights into directional ones."""
+
+from __future__ import annotations
+
+import os
+import tracemalloc
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from clphong.core.errors import SceneError
+from clphong.io import envmap
+from clphong.io.atomic import write_exr
+from clphong.model import environment as env
+from clphong.model.scene import load_scene
+from clphong.tools import samples
+
+KEY = "scene.toml: light[3].file"
+
+
+def _write(path, rgb, channels=("R", "G", "B")):
+    write_exr(path, np.asarray(rgb, np.float32), channel_names=channels)
+    return str(path)
+
+
+def _one_line(exc):
+    msg = str(exc.value)
+    assert "\n" not in msg
+    return msg
+
+
+def test_reads_exr_and_hdr_by_channel_name(tmp_path):
+    L = samples.sky_envmap(32, 16)
+    p = _write(tmp_path / "sky.exr", L)
+    assert np.array_equal(envmap.read_envmap(p, KEY), L)
+    # channels found by name, whatever their order in the file
+    q = _write(tmp_path / "bgr.exr", L[..., ::-1], channels=("B", "G", "R"))
+    assert np.array_equal(envmap.read_envmap(q, KEY), L)
+    grey = _write(tmp_path / "y.exr", L[..., 1], channels=("Y",))
+    assert np.array_equal(envmap.read_envmap(grey, KEY), np.repeat(L[..., 1:2], 3, axis=-1))
+    # Radiance HDR (RGBE: 8-bit mantissas under the texel's largest channel's exponent,
+    # so within 2^-7 of that channel, truncation and rounding both)
+    h = str(tmp_path / "sky.hdr")
+    out = oiio.ImageOutput.create(h)
+    assert out.open(h, oiio.ImageSpec(32, 16, 3, "float"))
+    assert out.write_image(L)
+    out.close()
+    got = envmap.read_envmap(h, KEY)
+    assert got.shape == L.shape
+    assert (np.abs(got - L) <= 2 ** -7 * L.max(axis=-1, keepdims=True)).all()
+
+
+def test_missing_folder_fifo_and_garbage_are_one_line_naming_the_key(tmp_path):
+    with pytest.raises(SceneError) as e:
+        envmap.read_envmap(str(tmp_path / "nope.exr"), KEY)
+    assert _one_line(e) == f"{KEY}: {tmp_path / 'nope.exr'}: no such file"
+    with pytest.raises(SceneError) as e:
+        envmap.read_envmap(str(tmp_path), KEY)
+    assert _one_line(e).startswith(f"{KEY}: {tmp_path}: cannot read: it is a directory")
+    fifo = tmp_path / "pipe.exr"
+    os.mkfifo(fifo)
+    with pytest.raises(SceneError) as e:                 # and does not block
+        envmap.read_envmap(str(fifo), KEY)
+    assert "it is a FIFO (named pipe); give a regular file" in _one_line(e)
+    junk = tmp_path / "junk.exr"
+    junk.write_bytes(b"\x76\x2f\x31\x01" + b"\x00" * 64)
+    with pytest.raises(SceneError) as e:
+        envmap.read_envmap(str(junk), KEY)
+    assert _one_line(e).startswith(f"{KEY}: {junk}: cannot read: ")
+
+
+@pytest.mark.parametrize("w,h", [(30, 16), (16, 16), (2, 1)])
+def test_not_two_to_one_says_the_size(tmp_path, w, h):
+    p = _write(tmp_path / "m.exr", np.ones((h, w, 3)))
+    with pytest.raises(SceneError) as e:
+        envmap.read_envmap(p, KEY)
+    assert f"{KEY}: {p}: {w} x {h} texels: a latitude-longitude map is 2:1" in _one_line(e)
+
+
+def test_nan_inf_and_negative_texels_are_counted(tmp_path):
+    L = np.ones((8, 16, 3), np.float32)
+    L[0, :12, 0] = np.nan                   # 12 texels with a NaN
+    L[1, 0, :] = np.nan                     # one more (three NaN channels, one texel)
+    L[2, :2, 1] = np.inf
+    L[3, :3, 2] = -1.0
+    L[4, 0] = [-1.0, -2.0, -3.0]
+    p = _write(tmp_path / "bad.exr", L)
+    with pytest.raises(SceneError) as e:
+        envmap.read_envmap(p, KEY)
+    assert _one_line(e).startswith(f"{KEY}: {p}: 13 NaN texel(s), 2 with Inf, 4 negative; ")
+    L = np.ones((8, 16, 3), np.float32)
+    L[5, 5, 1] = -1e-30
+    with pytest.raises(SceneError) as e:
+        envmap.read_envmap(_write(tmp_path / "neg.exr", L), KEY)
+    assert ": 1 negative texel(s); " in _one_line(e)
+
+
+def test_a_map_larger_than_memory_allows_is_refused_before_reading(tmp_path, monkeypatch):
+    p = _write(tmp_path / "m.exr", np.ones((64, 128, 3)))
+    monkeypatch.setenv("CLPHONG_MAX_MEMORY", "1M")
+    with pytest.raises(SceneError) as e:
+        envmap.read_envmap(p, KEY)
+    msg = _one_line(e)
+    assert msg.startswith(f"{KEY}: {p}: reading and resolving a 128x64 environment map needs about")
+    assert "CLPHONG_MAX_MEMORY" in msg
+
+
+@pytest.mark.parametrize("w,h,eps", [(128, 64, 3e-2), (1024, 512, 1e-2)])
+def test_memory_model_bounds_the_peak(tmp_path, w, h, eps):
+    """ENV_BYTES_PER_TEXEL·texels + ENV_FIXED_BYTES (+ the float32 read) is above
+    tracemalloc's peak of reading and resolving a map (the fixed part dominates the
+    small map, the per-texel part the large one)."""
+    p = _write(tmp_path / "m.exr", samples.sky_envmap(w, h))
+    m = load_scene_material()
+    tracemalloc.start()
+    try:
+        L = envmap.read_envmap(p, KEY)
+        env.environment_lights(L, m, max_error=eps)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 12 * w * h + envmap.ENV_BYTES_PER_TEXEL * w * h + envmap.ENV_FIXED_BYTES
+
+
+def load_scene_material():
+    from clphong.tools.bench import bench_scene
+
+    return bench_scene("wide", 1).material
+
+
+SCENE = """
+[camera]
+type = "perspective"
+position = [0.0, 2.0, 6.0]
+[material]
+model = "phong"
+k_a = 0.1
+k_d = 0.7
+k_s = 0.2
+h = 32.0
+[[light]]
+type = "ambient"
+intensity = 0.5
+[[light]]
+type = "environment"
+file = "maps/sky.exr"
+intensity = 0.5
+rotation = 30
+group = "sky"
+[[light]]
+type = "directional"
+direction = [0, -1, 0]
+"""
+
+
+def test_resolve_replaces_the_environment_in_place_within_its_group(tmp_path):
+    (tmp_path / "maps").mkdir()
+    L = samples.sky_envmap(64, 32)
+    _write(tmp_path / "maps" / "sky.exr", L)
+    (tmp_path / "s.toml").write_text(SCENE)
+    scene = load_scene(tmp_path / "s.toml")
+    r = envmap.resolve_environment(scene, max_error=1e-2)
+    (i, conv), = r.environments
+    assert i == 1 and conv.met and conv.count > 0
+    lights = r.scene.lights
+    assert lights[0] == scene.lights[0] and lights[-1] == scene.lights[2]
+    middle = lights[1:-1]
+    assert len(middle) == conv.count
+    assert all(lt.type == "directional" and lt.group == "sky" for lt in middle)
+    assert r.scene.light_groups == ("default", "sky")
+    # the lights are the conversion's: direction −l, radiance as colour
+    assert np.allclose([lt.direction for lt in middle], -conv.l)
+    assert np.allclose([lt.radiance for lt in middle], conv.radiance)
+    # the same as converting the map by hand with the light's rotation and intensity
+    again = env.environment_lights(L, scene.material, rotation=30, intensity=0.5, max_error=1e-2)
+    assert np.array_equal(again.l, conv.l) and np.array_equal(again.radiance, conv.radiance)
+    # cached: the same object for the same file, unchanged
+    assert envmap.resolve_environment(scene, max_error=1e-2).environments[0][1] is conv
+    # no environment light: the scene itself
+    plain = r.scene
+    assert envmap.resolve_environment(plain).scene is plain
+
+
+def test_resolve_names_the_scene_and_the_light(tmp_path):
+    (tmp_path / "s.toml").write_text(SCENE)
+    scene = load_scene(tmp_path / "s.toml")
+    with pytest.raises(SceneError) as e:
+        envmap.resolve_environment(scene)
+    assert _one_line(e) == (f"{tmp_path / 's.toml'}: light[1].file: "
+                            f"{tmp_path / 'maps' / 'sky.exr'}: no such file")
+
+
+def test_the_shipped_sky_is_the_generator_output():
+    here = os.path.join(os.path.dirname(__file__), "..", "..", "gbuffers")
+    L = envmap.read_envmap(os.path.join(here, "sky.exr"))
+    made = samples.sky_envmap()
+    assert L.shape == made.shape == (128, 256, 3)
+    assert np.array_equal(L, made.astype(np.float16).astype(np.float32))
+    scene = load_scene(os.path.join(here, "spheres_sky.toml"))
+    (lt,) = scene.lights_of("environment")
+    assert os.path.samefile(lt.file, os.path.join(here, "sky.exr"))
+    assert scene.camera.position == samples.SPHERES_CAMERA["position"]

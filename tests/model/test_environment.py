@@ -1,0 +1,232 @@
+"""clphong.model.environment: lat-long geometry, the light tree, its error estimate.
+
+Tolerances: float64 identities hold to 1e-12 (a few hundred roundings of
+values ≤ 4π); closed forms of the continuous sphere hold for the texel sum
+only to its discretisation, which is measured here on a finer map and bounds
+nothing else; the conversion is held to its own target (max_error) against the
+exact texel sum on probes it did not see.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from clphong.model import environment as env
+from clphong.model.scene import Camera, Material
+
+PHONG = Material(model="phong", k_a=0.0, k_d=0.7, k_s=0.2, h=32.0)
+BLINN = Material(model="blinn-phong", k_a=0.0, k_d=0.7, k_s=0.2, h=32.0)
+
+
+def _sky(w=64, h=32):
+    from clphong.tools.samples import sky_envmap
+
+    return sky_envmap(w, h)
+
+
+# ------------------------------------------------------------------------ geometry
+
+@pytest.mark.parametrize("w,h", [(4, 2), (8, 4), (64, 32), (1024, 512), (6, 4)])
+def test_solid_angles_cover_the_sphere(w, h):
+    om = env.texel_solid_angles(w, h)
+    assert om.shape == (h, w) and (om >= 0).all()
+    assert math.isclose(om.sum(), 4 * math.pi, rel_tol=1e-12)
+    # the first and last columns are one meridian (OpenEXR): half cells each
+    assert np.allclose(om[:, 0], om[:, 1] / 2) and np.allclose(om[:, -1], om[:, 1] / 2)
+    # each row is its latitude band: 2π(sin top − sin bottom), from the map's own latitudes
+    lat = lambda y: -math.pi * (np.clip(y, 0, h - 1) / (h - 1) - 0.5)  # noqa: E731
+    y = np.arange(h)
+    band = 2 * math.pi * (np.sin(lat(y - 0.5)) - np.sin(lat(y + 0.5)))
+    assert np.allclose(om.sum(axis=1), band, rtol=1e-12, atol=0)
+
+
+def test_directions_follow_openexr_latlong():
+    # ImfEnvmap.h: pixel (0, 0) is latitude +π/2, longitude +π; the last pixel −π/2, −π;
+    # latitude 0, longitude 0 is +z; longitude +π/2 is +x. For a 5 x 3 map the middle
+    # row is latitude 0, and column x has longitude −2π(x/4 − 1/2).
+    d = env.texel_directions(5, 3)
+    assert np.allclose(d[1, 2], [0, 0, 1], atol=1e-15)        # lon 0
+    assert np.allclose(d[1, 1], [1, 0, 0], atol=1e-15)        # lon +π/2
+    assert np.allclose(d[1, 3], [-1, 0, 0], atol=1e-15)       # lon −π/2
+    assert np.allclose(d[1, 0], [0, 0, -1], atol=1e-15)       # lon +π
+    assert np.allclose(d[1, 4], d[1, 0], atol=1e-15)          # the same meridian
+    assert (d[0] == [0, 1, 0]).all() and (d[2] == [0, -1, 0]).all()   # the poles exactly
+    assert np.allclose(np.linalg.norm(env.texel_directions(64, 32), axis=-1), 1, atol=1e-15)
+
+
+def test_rotation_turns_longitude_about_up():
+    R = env.rotation_about_up(90)
+    assert np.allclose(R @ [0, 0, 1], [1, 0, 0], atol=1e-15)
+    assert np.allclose(R @ [0, 1, 0], [0, 1, 0])
+    assert np.allclose(env.rotation_about_up(30) @ env.rotation_about_up(60), R)
+    assert np.allclose(env.rotation_about_up(360 + 45), env.rotation_about_up(45), atol=1e-15)
+    L = np.ones((8, 16, 3), np.float32)
+    l0, _ = env.texel_lights(L)
+    l1, _ = env.texel_lights(L, rotation=90)
+    assert np.allclose(l1, l0 @ R.T)
+
+
+@pytest.mark.parametrize("bad", [0, -1, float("nan"), float("inf"), "x", None])
+def test_env_error_must_be_a_positive_number(bad):
+    with pytest.raises(ValueError, match="environment error"):
+        env.check_env_error(bad)
+
+
+# ------------------------------------------------------------------------ the tree
+
+def test_tree_leaves_partition_the_map_and_nest():
+    L = _sky(64, 32)
+    E = L * env.texel_solid_angles(64, 32)[..., None]
+    tree = env.LightTree(E, env.texel_directions(64, 32))
+    prev = None
+    for n in (1, 7, 40, 300):
+        cover = np.zeros((32, 64), int)
+        owner = np.zeros((32, 64), int)
+        for k in tree.leaf_nodes(n):
+            y0, y1, x0, x1 = tree.nodes[k]
+            cover[y0:y1, x0:x1] += 1
+            owner[y0:y1, x0:x1] = k
+        assert (cover == 1).all()                       # every texel in exactly one leaf
+        if prev is not None:                            # each leaf inside one of the coarser set
+            for k in np.unique(owner):
+                assert len(np.unique(prev[owner == k])) == 1
+        prev = owner
+
+
+def test_grey_tree_lights_keep_energy_and_first_moment_exactly():
+    # radiance_c = m_c·m̂ with m̂ ∥ m_c for a grey map: Σ rad·l = Σ E·l per channel, and the
+    # energy lost is the leaves' |m| < e (their spread), never gained.
+    L = np.repeat(_sky(64, 32).mean(axis=-1, keepdims=True), 3, axis=-1)
+    l_t, E_t = env.texel_lights(L)
+    tree = env.LightTree(E_t.reshape(32, 64, 3), l_t.reshape(32, 64, 3))
+    for n in (5, 50, 500):
+        l, rad = tree.lights(n)
+        assert np.allclose(rad.T @ l, E_t.T @ l_t, rtol=1e-12, atol=1e-14)
+        assert (rad.sum(axis=0) <= E_t.sum(axis=0) * (1 + 1e-12)).all()
+
+
+def test_diffuse_is_exact_where_every_leaf_is_lit():
+    # Energy only above latitude 30°, normal +y: n·l > 1/2 for every texel, so the
+    # clamped cosine is linear on every leaf and the lights' diffuse sum is the texel sum.
+    w, h = 64, 32
+    L = np.repeat(_sky(w, h).mean(axis=-1, keepdims=True), 3, axis=-1)
+    L[env.texel_directions(w, h)[..., 1] <= 0.5] = 0.0
+    l_t, E_t = env.texel_lights(L)
+    tree = env.LightTree(E_t.reshape(h, w, 3), l_t.reshape(h, w, 3))
+    n = np.array([[0.0, 1.0, 0.0]])
+    v = np.array([[0.0, 0.6, 0.8]])
+    exact, _ = env.probe_sums(n, v, l_t, E_t, PHONG)
+    for k in (1, 3, 30):
+        got, _ = env.probe_sums(n, v, *tree.lights(k), PHONG)
+        assert np.allclose(got, exact, rtol=1e-12, atol=0)
+
+
+# ------------------------------------------------------------------------ closed forms
+
+def _constant(w, h, value=0.75):
+    return np.full((h, w, 3), value, np.float32)
+
+
+def test_constant_environment_closed_forms():
+    """A constant radiance L0 from every direction: diffuse ∫max(n·l, 0)dω·L0 = π·L0 for
+    any n (the model's terms have no 1/π); at v = n, Phong's ∫(n·l)^h over the hemisphere
+    = 2π/(h + 1), Blinn-Phong's ∫cos(θ/2)^k = 8π(1 − 2^-(k+2)/2)/(k + 2) (k = 4h). The
+    texel sum reaches them to its discretisation (1/H² and kinks at the terminator),
+    shrinking 4x per halving of the texels: checked at two sizes."""
+    L0 = 0.75
+    normals = env._fibonacci(16)
+    errs = {}
+    for w, h in ((256, 128), (512, 256)):
+        l, E = env.texel_lights(_constant(w, h, L0))
+        for m, spec in ((PHONG, 2 * math.pi / (PHONG.h + 1)),
+                        (BLINN, 8 * math.pi * (1 - 2 ** (-(BLINN.exponent + 2) / 2)) / (BLINN.exponent + 2))):
+            d, s = env.probe_sums(normals, normals, l, E, m)
+            errs.setdefault((m.model, "d"), []).append(np.abs(d / (math.pi * L0) - 1).max())
+            errs.setdefault((m.model, "s"), []).append(np.abs(s / (spec * L0) - 1).max())
+    for key, (coarse, fine) in errs.items():
+        assert fine < 1e-3, (key, fine)
+        assert fine < coarse / 2.5, (key, coarse, fine)          # it converges: ~1/H² (≥ 2.5x)
+
+
+def test_conversion_meets_its_target_on_unseen_probes():
+    """The resolved lights of the sample sky stay within max_error of the exact texel sum
+    on 300 probes the estimate did not use (another Fibonacci set), Phong and Blinn."""
+    L = _sky(128, 64)
+    l_t, E_t = env.texel_lights(L)
+    n = env._fibonacci(300, offset=0.25)
+    rng = np.random.default_rng(1)
+    v = n + rng.normal(scale=0.5, size=n.shape)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    v = np.where((np.sum(v * n, axis=1) > 0)[:, None], v, n)
+    for m, target in ((PHONG, 1e-2), (BLINN, 1e-2), (PHONG, 3e-3)):
+        r = env.environment_lights(L, m, max_error=target, probes=1024)
+        assert r.met and r.estimated_error <= target and 0 < r.count < 128 * 64
+        exact = env._pixels(*env.probe_sums(n, v, l_t, E_t, m), m)
+        got = env._pixels(*env.probe_sums(n, v, r.l, r.radiance, m), m)
+        assert env.probe_error(got, exact) <= target, (m.model, target, r.count)
+
+
+def test_more_lights_for_a_tighter_target_and_the_cap_says_so():
+    L = _sky(64, 32)
+    loose = env.environment_lights(L, PHONG, max_error=3e-2, probes=512)
+    tight = env.environment_lights(L, PHONG, max_error=3e-3, probes=512)
+    assert loose.count < tight.count
+    capped = env.environment_lights(L, PHONG, max_error=1e-6, max_lights=64, probes=512)
+    assert capped.count <= 64 and not capped.met and capped.estimated_error > 1e-6
+
+
+def test_orthographic_probes_use_the_camera_view():
+    v = np.array([0.3, 0.5, -0.8])
+    v /= np.linalg.norm(v)
+    n, vv = env.probe_pairs(200, v)
+    assert np.allclose(vv, v) and (np.sum(n * v, axis=1) > 0).all()
+    assert np.allclose(np.linalg.norm(n, axis=1), 1)
+    n, vv = env.probe_pairs(200)
+    assert (np.sum(n * vv, axis=1) > 0).all() and np.allclose(np.linalg.norm(vv, axis=1), 1)
+
+
+def test_black_map_has_no_lights():
+    r = env.environment_lights(np.zeros((16, 32, 3), np.float32), PHONG)
+    assert r.count == 0 and r.estimated_error == 0 and r.met
+
+
+# ------------------------------------------------------------------------ against the reference
+
+@pytest.mark.parametrize("material", [
+    PHONG, BLINN, dataclasses.replace(BLINN, h=7.3), dataclasses.replace(PHONG, h=0.0),
+    dataclasses.replace(PHONG, fresnel="schlick", f0=(0.04, 0.5, 0.9)),
+    dataclasses.replace(BLINN, fresnel="schlick", f0=(0.04, 0.5, 0.9))])
+def test_probe_sums_are_the_reference_shading(material):
+    """probe_sums is the reference's shading of directional lights (held to 1e-12
+    relative: both in float64, different association of a few dozen operations)."""
+    from clphong.io.gbuffer import GBuffer
+    from clphong.model.scene import Light, Scene
+    from clphong.reference import shading
+
+    rng = np.random.default_rng(4)
+    M, K = 40, 25
+    nrm = rng.normal(size=(M, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    eye = np.array([0.5, 1.0, 4.0])
+    P = (rng.normal(size=(M, 3)) * 0.5).astype(np.float32)
+    l = rng.normal(size=(K, 3))
+    l /= np.linalg.norm(l, axis=1, keepdims=True)
+    rad = rng.uniform(0.1, 2.0, (K, 3))
+    gb = GBuffer(position=P[None], normal=nrm.astype(np.float32)[None],
+                 albedo=np.ones((1, M, 3), np.float32), coverage=np.ones((1, M), np.float32), maps={})
+    lights = tuple(Light(type="directional", color=tuple(map(float, r)), intensity=1.0,
+                         direction=tuple(map(float, -x))) for x, r in zip(l, rad))
+    scene = Scene(camera=Camera(type="perspective", position=tuple(eye)), material=material,
+                  lights=lights)
+    ref = shading.shade(scene, gb).reshape(-1, 3)
+    px, C, D, S, fg = shading._inputs(scene, gb)
+    d, s = env.probe_sums(px.n, px.v, l, rad, material)
+    if material.fresnel == "schlick":
+        got = material.k_d * d + material.k_s * s
+    else:
+        got = material.k_d * d + material.k_s * np.asarray(material.specular_color) * s
+    assert np.allclose(got, ref, rtol=1e-12, atol=1e-15)
