@@ -10,6 +10,8 @@ import math
 import numpy as np
 import pytest
 from conftest import heightfield, make_scene
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
 
 from clphong.device import culling
 from clphong.device.renderer import Renderer, prepare_frame
@@ -146,3 +148,21 @@ def test_blender_mapping_follows_cycles_smoothstep(size_deg, blend):
         s2, o2 = spot_scale_offset(outer * (1 - blend), outer)
         t2 = np.clip(np.cos(th) * s2 + o2, 0, 1)
         assert np.abs(t2 * t2 - cycles).max() > 0.5
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(inner=st.floats(0.0, 89.0), width=st.floats(0.01, 60.0), tilt=st.floats(-1.0, 1.0),
+       height=st.floats(0.05, 5.0), model=st.sampled_from(["phong", "blinn-phong"]),
+       fp64=st.booleans())
+def test_property_any_cone_within_the_bound(inner, width, tilt, height, model, fp64):
+    """Random cones (any inner, any width up to outer = 90°, tilted axes, near and far)
+    on the heightfield: the kernel within the error bound on both direction paths."""
+    outer = min(inner + width, 90.0)
+    s, _ = spot_scale_offset(inner, outer)
+    assume(inner < outer and s <= 2.0 ** 18)
+    rng = np.random.default_rng(1)
+    gb = heightfield(rng, 17, 23)
+    lt = dict(type="spot", position=(1.1, 0.8, height), direction=(tilt, 0.3 * tilt, -1.0),
+              inner_angle=inner, outer_angle=outer, intensity=2.0, attenuation=(1.0, 0.0, 1.0))
+    scene = make_scene([lt, dict(type="ambient", intensity=0.05)], model=model, h=10.0)
+    _check(scene, gb, fp64_directions=fp64)
