@@ -384,16 +384,18 @@ def test_bad_scene(work, capsys, case, text, needles):
 
 
 def test_light_beyond_float32_range_of_the_frame(work, capsys):
-    """Each finite as float32, but 6e38 apart: rebased on the frame, the light would
-    round to inf (NaN pixels): a one-line error naming the scene, no output."""
+    """Each finite as float32, but 4.5e38 apart: rebased on the frame, the light would
+    round to inf (NaN pixels): a one-line error naming the scene, no output. (The
+    positions stay below 2^127 = 1.7e38: beyond it they are implausible and left
+    as background, clphong.io.nonfinite.LIMITS.)"""
     src, out = work
     gb = random_gbuffer(np.random.default_rng(7), H, W)
-    write_gbuffer(src / "far.exr", gb.position - np.float32(3e38), gb.normal, gb.albedo,
+    write_gbuffer(src / "far.exr", gb.position - np.float32(1.5e38), gb.normal, gb.albedo,
                   coverage=gb.coverage)
     _scene(src, SCENE.replace("position = [3.0, 5.0, 4.0]", "position = [3e38, 5.0, 4.0]"))
     fails(render_argv(src, out, gbuffer=src / "far.exr", scene=src / "bad.toml"), capsys,
-          src.parent, "bad.toml: light[0].position lies 6e+38 units along an axis from this "
-          "frame's positions (centred near (-3e+38, -3e+38, -3e+38))", "float32 range")
+          src.parent, "bad.toml: light[0].position lies 4.5e+38 units along an axis from this "
+          "frame's positions (centred near (-1.5e+38, -1.5e+38, -1.5e+38))", "float32 range")
 
 
 def test_scene_file_too_large_for_memory(work, capsys, monkeypatch):
@@ -1165,3 +1167,193 @@ def test_a_uint_channel_among_floats_is_refused(work, capsys):
     assert o.close()
     fails(render_argv(src, out, gbuffer=bad), capsys, src.parent, "uint.exr", "channel P.Z is stored as uint",
           "(the others as float)")
+
+
+# =========================================================================== implausible decodes
+# Issue 15: a flipped compression byte (ZIP read as PXR24) or pixel type decoded to
+# garbage (NaN, ±3.4e38, 41,201 negative pixels) with exit 0 and NaN in the output.
+
+SAMPLES = Path(__file__).resolve().parent.parent / "gbuffers"
+
+
+def warns(argv, capsys, root: Path, *needles: str, lines: int = 1) -> str:
+    """Run the CLI; check exit 0, ``lines`` warning lines (the first with ``needles``),
+    no error, and an output file of finite values only (R, G, B and A); catalogued."""
+    rc = cli(argv)
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    got = err.splitlines()
+    assert len(got) == lines and all(ln.startswith("clphong: warning: ") for ln in got), err
+    for needle in needles:
+        assert needle in got[0], f"{needle!r} not in {got[0]!r}"
+    out = Path(argv[argv.index("-o") + 1])
+    pix = oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)
+    assert np.all(np.isfinite(pix)), f"{int((~np.isfinite(pix)).sum())} non-finite value(s) in {out}"
+    case = os.environ.get("PYTEST_CURRENT_TEST", "?").split("::")[-1].split(" ")[0]
+    CATALOGUE.append((case, rc, got[0].replace(str(root), "DIR")))
+    return got[0]
+
+
+def _pixels_at(shape, *flat):
+    """(H, W) bool, True at the given flat pixel indices."""
+    m = np.zeros(shape, bool)
+    m.reshape(-1)[list(flat)] = True
+    return m
+
+
+_IMPLAUSIBLE = [
+    ("position-3.4e38", "position", 3.4028235e38, "P.X,P.Y,P.Z: X 2 pixel(s)"),
+    ("position-minus-2^127", "position", -2.0 ** 127, "P.X,P.Y,P.Z: X 2 pixel(s)"),
+    ("albedo-1e30", "albedo", 1e30, "albedo.R,albedo.G,albedo.B: R 2 pixel(s)"),
+    ("k_s-3e38", "k_s", 3e38, "k_s: 2 pixel(s)"),
+    ("specular-colour-2^63", "specular_color", 2.0 ** 63, "specular_color.R,specular_color.G,"
+                                                           "specular_color.B: R 2 pixel(s)"),
+    ("shininess-2^126", "h", 2.0 ** 126, "shininess: 2 pixel(s)"),
+]
+
+
+@pytest.mark.parametrize("case,buffer,value,label", _IMPLAUSIBLE, ids=[c[0] for c in _IMPLAUSIBLE])
+def test_implausible_magnitudes_are_background_with_counts_or_refused(work, capsys, case, buffer,
+                                                                       value, label):
+    """A finite value at or beyond its buffer's limit (clphong.io.nonfinite.LIMITS: the
+    kernels' float32 differences, products or Blinn's 4h would overflow) shaded as it
+    was, with exit 0 (and NaN pixels on the float paths). Now: those pixels are
+    background, with one warning giving the counts per channel, or refused under
+    --nonfinite error."""
+    src, out = work
+    gb = random_gbuffer(np.random.default_rng(5), H, W)
+    at = _pixels_at((H, W), 3, 17)
+    P, A = gb.position.copy(), gb.albedo.copy()
+    maps = {"k_s": np.full((H, W), 0.3, np.float32), "h": np.full((H, W), 20.0, np.float32),
+            "specular_color": np.ones((H, W, 3), np.float32)}
+    target = {"position": P, "albedo": A}.get(buffer, maps.get(buffer))
+    if target.ndim == 3:
+        target[at, 0] = value
+    else:
+        target[at] = value
+    path = src / "big.exr"
+    write_gbuffer(path, P, gb.normal, A, coverage=np.ones((H, W), np.float32), maps=maps)
+    warns(render_argv(src, out, gbuffer=path), capsys, src.parent, "big.exr",
+          "implausibly large G-buffer values", "left unshaded as background", label)
+    pix = oiio.ImageBuf(str(out / "beauty.exr")).get_pixels(oiio.FLOAT)
+    assert np.all(pix[at][:, :3] == 0.0) and np.all(pix[~at][:, :3] > 0)   # the scene's background
+    (out / "beauty.exr").unlink()
+    fails(render_argv(src, out, gbuffer=path, extra=["--nonfinite", "error"]), capsys, src.parent,
+          "big.exr", "implausibly large G-buffer values", label)
+
+
+def test_a_nan_coverage_is_background_not_a_nan_alpha(work, capsys):
+    """A NaN coverage (a garbage decode of A) made the pixel's A, and with partial
+    coverage its colour, NaN in the output, with exit 0. Now: background, counted."""
+    src, out = work
+    gb = random_gbuffer(np.random.default_rng(5), H, W)
+    cov = np.full((H, W), 0.5, np.float32)
+    cov[_pixels_at((H, W), 4, 9)] = np.nan
+    write_gbuffer(src / "nancov.exr", gb.position, gb.normal, gb.albedo, coverage=cov)
+    warns(render_argv(src, out, gbuffer=src / "nancov.exr"), capsys, src.parent, "nancov.exr: A: 2 pixel(s)",
+          "non-finite G-buffer values left unshaded as background")
+    (out / "beauty.exr").unlink()
+    fails(render_argv(src, out, gbuffer=src / "nancov.exr", extra=["--nonfinite", "error"]), capsys,
+          src.parent, "nancov.exr: A: 2 pixel(s)")
+
+
+def test_a_nan_in_a_map_does_not_let_its_negative_values_escape_the_clamp(work, capsys):
+    """A NaN anywhere in a map made its minimum NaN, so the negative check saw none:
+    a shininess of -1.4e6 beside it (a PXR24 garbage decode of gbuffers/ortho.exr)
+    shaded to NaN with exit 0. Now: the NaN pixel is background, the negative one
+    clamped, each with its line."""
+    src, out = work
+    fg = np.flatnonzero(~random_gbuffer(np.random.default_rng(5), H, W).background_mask())
+    h = np.full((H, W), 20.0, np.float32)
+    h.reshape(-1)[fg[0]] = np.nan
+    h.reshape(-1)[fg[1]] = -1.4e6
+    path = _with_maps(src, {"h": h})
+    rc = cli(render_argv(src, out, gbuffer=path))
+    err = capsys.readouterr().err
+    assert rc == 0 and err.count("\n") == 2, err
+    nonfinite, negative = err.splitlines()
+    assert "non-finite G-buffer values left unshaded as background" in nonfinite
+    assert "negative G-buffer values clamped to 0" in negative and "maps.exr: shininess: 1 pixel(s)" in negative
+    assert np.all(np.isfinite(oiio.ImageBuf(str(out / "beauty.exr")).get_pixels(oiio.FLOAT)))
+
+
+def _recompressed_as(sample: Path, dst: Path, code: int) -> Path:
+    """``sample`` with the compression attribute's byte changed to ``code`` (5 = PXR24)
+    in every part, the rest as it was (the chunks still hold the old compression)."""
+    data = bytearray(sample.read_bytes())
+    key = b"compression\x00compression\x00\x01\x00\x00\x00"
+    at = data.find(key)
+    assert at >= 0
+    while at >= 0:
+        data[at + len(key)] = code
+        at = data.find(key, at + 1)
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+@pytest.mark.parametrize("sample,scene,needles", [
+    ("spheres.exr", "spheres.toml", ["P.X,P.Y,P.Z: X ", "albedo.R,albedo.G,albedo.B: R ", "A: "]),
+    ("ortho.exr", "ortho.toml", ["P.X,P.Y,P.Z: X ", "shininess: "]),
+    ("blender/cycles-5.0.exr", "blender/spheres.toml", ["ViewLayer.Position.X,"]),
+], ids=["spheres", "ortho", "cycles-5.0"])
+def test_zip_read_as_pxr24_is_counted_not_shaded_to_nan(work, capsys, sample, scene, needles):
+    """The finding: ZIP chunks read as PXR24 decode without error to garbage (NaN,
+    ±3.4e38, tens of thousands of negatives); the output had NaN (in A, from a NaN
+    coverage, or from a negative shininess next to a NaN) with exit 0. Now: NaN and
+    implausible pixels background, one line with their counts (per channel for the
+    implausible), negatives clamped on a second line; the output finite; refused,
+    one line, under --nonfinite error."""
+    src, out = work
+    bad = _recompressed_as(SAMPLES / sample, src / "pxr24.exr", 5)
+    line = warns(render_argv(src, out, gbuffer=bad, scene=SAMPLES / scene), capsys, src.parent,
+                 "pxr24.exr", "non-finite G-buffer values left unshaded as background",
+                 "also implausibly large G-buffer values", *needles, lines=2)
+    assert "\n" not in line
+    (out / "beauty.exr").unlink()
+    fails(render_argv(src, out, gbuffer=bad, scene=SAMPLES / scene, extra=["--nonfinite", "error"]),
+          capsys, src.parent, "pxr24.exr", "non-finite (NaN/Inf) G-buffer values",
+          "implausibly large G-buffer values", *needles)
+
+
+def _typed_exr(path, types: dict, compression="zip"):
+    """The 9 channels of _gbuffer_planes written by OpenImageIO, channel ``n`` as
+    ``types.get(n, "float")``."""
+    planes = _gbuffer_planes()
+    names = list(planes)
+    data = np.ascontiguousarray(np.stack([np.asarray(planes[n], np.float32) for n in names], -1))
+    spec = oiio.ImageSpec(W, H, len(names), oiio.TypeDesc("float"))
+    spec.channelnames = tuple(names)
+    spec.channelformats = tuple(oiio.TypeDesc(types.get(n, "float")) for n in names)
+    spec.attribute("compression", compression)
+    o = oiio.ImageOutput.create(str(path))
+    assert o.open(str(path), spec), o.geterror()
+    assert o.write_image(data) and o.close()
+    return path
+
+
+def test_a_vector_with_one_half_channel_warns_with_the_types(work, capsys):
+    """P.X half while P.Y, P.Z float (what a flipped pixel-type byte makes, in a file
+    whose chunks still decode) was read silently. Now one warning line naming the
+    file, buffer, channels and types; a whole layer in another type (half albedo,
+    float position) stays silent: renderers write that."""
+    src, out = work
+    path = _typed_exr(src / "mixed.exr", {"P.X": "half"})
+    warns(render_argv(src, out, gbuffer=path), capsys, src.parent, "mixed.exr",
+          "(position: P.X as half and P.Y, P.Z as float)", "flipped pixel-type byte")
+    layer = _typed_exr(src / "layers.exr", {f"albedo.{c}": "half" for c in "RGB"})
+    assert cli(render_argv(src, out, gbuffer=layer)) == 0
+    assert capsys.readouterr().err == ""
+
+
+def test_a_pixel_type_byte_flipped_float_to_half_names_the_channel(work, capsys):
+    """FLOAT -> HALF in one channel's header entry: every ZIP chunk is then the wrong
+    size and the read failed with OpenImageIO's 'missing or corrupted' alone. Now the
+    line names the channel and the types."""
+    src, out = work
+    data = bytearray((src / "gbuf.exr").read_bytes())
+    at = data.find(b"P.Y\x00")
+    assert at >= 0 and data[at + 4:at + 8] == b"\x02\x00\x00\x00"     # FLOAT
+    data[at + 4] = 1                                                   # HALF
+    (src / "flipped.exr").write_bytes(bytes(data))
+    fails(render_argv(src, out, gbuffer=src / "flipped.exr"), capsys, src.parent, "flipped.exr",
+          "failed: ", "(position: P.Y as half and P.X, P.Z as float): a flipped pixel-type byte?")

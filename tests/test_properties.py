@@ -124,3 +124,46 @@ def test_no_finite_input_yields_a_non_finite_output(case, maps):
         warnings.simplefilter("ignore")
         image = Renderer(scene).render(gb).image
     assert np.all(np.isfinite(image))
+
+
+#: One scene for the float paths' property (one kernel variant a path, so it stays fast):
+#: a point light with falloff, a directional and an ambient one; k_d = k_s = 1, the
+#: largest a plausible material has (the bound of clphong.io.nonfinite.LIMITS).
+_FLOAT_SCENE = make_scene([dict(type="point", position=(0.5, 2.0, 3.0), intensity=4.0,
+                                attenuation=(1.0, 0.2, 0.05)),
+                           dict(type="directional", direction=(-1.0, -1.0, -0.5), intensity=2.0),
+                           dict(type="ambient", intensity=0.5)],
+                          model="blinn-phong", h=16.0, k_d=1.0, k_s=1.0)
+_finite32 = st.floats(width=32, allow_nan=False, allow_infinity=False) | st.sampled_from(
+    [-3.4e38, -1.0, 0.0, 0.5, 1.0, 1e19, 2.0 ** 63, 1e30, 3.4e38])
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.lists(_finite32, min_size=6 * 8, max_size=6 * 8),
+       st.sampled_from(["float", "fast"]))
+def test_no_finite_input_yields_a_non_finite_output_on_the_float_paths(seed, values, path):
+    """The same on the paths that form D = C_d·k_d and S = k_s·C_s in float32: an albedo
+    and a k_d map both near 3.4e38 made D = ∞, and ∞ times a back-facing light's weight
+    0 a NaN. Values at or beyond clphong.io.nonfinite.LIMITS (2^63 for colours and
+    weights, 2^126 for shininess) are now background; below them D + S stays finite.
+    Every map present, each plane a shuffle of ``values``."""
+    import warnings
+
+    from clphong.device.renderer import Renderer
+    from clphong.io.gbuffer import GBuffer
+
+    rng = np.random.default_rng(seed)
+    h, w = 6, 8
+    base = np.array(values, np.float32).reshape(h, w)
+
+    def plane(*shape):
+        return np.stack([rng.permutation(base.reshape(-1)).reshape(h, w) for _ in range(shape[0])], -1) \
+            if shape else rng.permutation(base.reshape(-1)).reshape(h, w)
+
+    gb = GBuffer(position=rng.uniform(-1, 1, (h, w, 3)).astype(np.float32),
+                 normal=rng.normal(size=(h, w, 3)).astype(np.float32), albedo=plane(3),
+                 maps={"k_d": plane(), "k_s": plane(), "h": plane(), "specular_color": plane(3)})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        image = Renderer(_FLOAT_SCENE, path=path).render(gb).image
+    assert np.all(np.isfinite(image))

@@ -202,10 +202,10 @@ class GBuffer:
         Returns
         -------
         numpy.ndarray
-            (H, W) bool, True where the coverage is 0, where the normal has
-            zero length (``|N|^2`` is computed in float64, so a denormal
-            normal is *not* background), or where any normal component is
-            not finite.
+            (H, W) bool, True where the coverage is 0 or not finite, where
+            the normal has zero length (``|N|^2`` is computed in float64, so
+            a denormal normal is *not* background), or where any normal
+            component is not finite.
         """
         n = np.asarray(self.normal)
         x, y, z = n[..., 0], n[..., 1], n[..., 2]
@@ -221,7 +221,12 @@ class GBuffer:
         if not all_finite(n):                              # the common case, cheaply
             mask |= ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(z))
         if self.coverage is not None:
-            mask |= np.asarray(self.coverage) == 0
+            cov = np.asarray(self.coverage)
+            mask |= cov == 0
+            if not all_finite(cov):
+                # no coverage, as the EXR writer takes a NaN: its alpha, and so the
+                # pixel's output and its A, would be NaN (a damaged file decodes so)
+                mask |= ~np.isfinite(cov)
         return mask
 
 
@@ -631,6 +636,14 @@ def _gathered_names(part_name: str, names: Sequence[str], multipart: bool) -> li
     return [n if "." in n or n.startswith(part_name + ".") else f"{part_name}.{n}" for n in names]
 
 
+def _by_type(names: Sequence[str], types: Sequence[str]) -> str:
+    """Channels grouped by pixel type, the rarest first: ``P.X as half and P.Y, P.Z as float``."""
+    by: dict[str, list[str]] = {}
+    for n, t in zip(names, types):
+        by.setdefault(t, []).append(_show(n))
+    return " and ".join(f"{', '.join(ns)} as {t}" for t, ns in sorted(by.items(), key=lambda kv: len(kv[1])))
+
+
 def _part_name(index: int, name: str) -> str:
     """"part N" or "part N (NAME)" for messages."""
     return f"part {index} ({_show(name)})" if name else f"part {index}"
@@ -712,6 +725,7 @@ class _ExrFile:
         self._where = {n: (part, k) for part in self.parts for k, n in enumerate(part.full_names)}
         self.attributes = attributes
         self._data: dict[str, np.ndarray] = {}
+        self._mixed = ""                       # _mixed_types of the groups being read
         # channel -> (the run read, its index there), for channels read in the display window
         self._run_of: dict[str, tuple[np.ndarray, int]] = {}
 
@@ -780,6 +794,30 @@ class _ExrFile:
                 if plane is view:                    # in the display window: stack slices pix
                     self._run_of[part.full_names[i]] = (pix, i - lo)
 
+    def _pixel_type(self, name: str) -> str:
+        """The pixel type of channel ``name`` as the header gives it: "half", "float", "uint"."""
+        part, k = self._where[name]
+        s = part.spec
+        return str(s.channelformats[k] if len(s.channelformats) else s.format)
+
+    def _mixed_types(self, groups: Mapping[str, Sequence[str]]) -> str:
+        """The buffers whose channels the header gives different pixel types, as text
+        (``position: P.X as half and P.Y, P.Z as float``), or "".
+
+        A renderer writes one type per layer (Blender all half or all float; half
+        albedo beside float position, in different layers, is normal and not
+        looked at). One channel of a vector in another type is what a flipped
+        pixel-type byte makes: if its chunks still decode (a file written so) the
+        values are the writer's, read as stored, so it is a warning; if they do not
+        (the chunk sizes no longer match), the read error names it
+        (:meth:`_read_failed`)."""
+        mixed = []
+        for key, chans in groups.items():
+            types = [self._pixel_type(n) for n in chans]
+            if len(set(types)) > 1:
+                mixed.append(f"{key}: {_by_type(chans, types)}")
+        return "; ".join(mixed)
+
     def _check_pixel_types(self, names) -> None:
         """A G-buffer channel is half or float: a uint one (a flipped pixel-type byte,
         FLOAT -> UINT, decoded as garbage: ±3.4e38 and negatives, exit 0) is an error."""
@@ -808,6 +846,18 @@ class _ExrFile:
         """
         names = [n for chans in groups.values() for n in chans]
         self._check_pixel_types(names)
+        self._mixed = mixed = self._mixed_types(groups)
+        out = self._read_groups(groups, names)
+        if mixed:
+            warnings.warn(InputWarning(
+                f"{self.path}: channels of one buffer stored as different pixel types ({mixed}): "
+                "a renderer writes one type per layer, a flipped pixel-type byte in the header "
+                "gives this; read as stored (a half channel holds 11 significant bits, at most "
+                "65504); check the file (oiiotool --info -v)"), stacklevel=3)
+        return out
+
+    def _read_groups(self, groups: Mapping[str, Sequence[str]], names: Sequence[str]) -> dict[str, np.ndarray]:
+        """The reading of :meth:`read_stacked`: in bands where it can, else :meth:`load`."""
         runs = self.runs(names)
         if not self._bandable(groups, runs):
             self.load(names)
@@ -857,7 +907,27 @@ class _ExrFile:
                or "unknown error")
         where = f" of part {part.index}" if self.multipart else ""
         raise GBufferError(f"{self.path}: reading channels "
-                           f"{','.join(map(_show, part.full_names[lo:hi]))}{where} failed: {msg}")
+                           f"{','.join(map(_show, part.full_names[lo:hi]))}{where} failed: {msg}"
+                           f"{self._odd_types(part)}")
+
+    def _odd_types(self, part: _Part) -> str:
+        """A hint for a failed read: a flipped pixel-type byte (FLOAT -> HALF) changes the
+        size of every chunk, which then no longer decodes. Named when one buffer's
+        channels have different types, or one channel of the part differs from all
+        the others (a whole layer in another type, half albedo beside float
+        position, is normal and not named)."""
+        if self._mixed:
+            return (f"; the header gives one buffer's channels different pixel types "
+                    f"({self._mixed}): a flipped pixel-type byte?")
+        names = part.full_names
+        types = [self._pixel_type(n) for n in names]
+        odd = [k for k, t in enumerate(types) if types.count(t) == 1]
+        if len(names) < 3 or len(set(types)) != 2 or len(odd) != 1:
+            return ""
+        k = odd[0]
+        common = types[1 - k] if k < 2 else types[0]
+        return (f"; the header gives {_show(names[k])} as {types[k]} but the other "
+                f"{len(names) - 1} channels as {common}: a flipped pixel-type byte?")
 
     def _fit(self, plane: np.ndarray, s) -> np.ndarray:
         """Place a data-window plane of a part with spec ``s`` in the display window (zeros outside)."""

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import OpenImageIO as oiio
 import pytest
 from conftest import GBUFFERS
 
 from clphong.core.errors import GBufferError, InputWarning
+from clphong.core.geometry import unit_normal_planes
 from clphong.io.atomic import write_exr
 from clphong.io.gbuffer import (
     CHANNEL_KEYS,
@@ -15,6 +18,12 @@ from clphong.io.gbuffer import (
     parse_channel_mapping,
     read_gbuffer,
     write_gbuffer,
+)
+from clphong.io.nonfinite import (
+    LIMITS,
+    apply_nonfinite_policy,
+    implausible_counts,
+    nonfinite_counts,
 )
 
 H, W = 5, 7
@@ -683,3 +692,146 @@ def test_shipped_samples_are_the_generator_output(name):
     for key, value in camera.items():
         want = constant[key]
         assert (tuple(value) if isinstance(value, list) else value) == want, key
+
+
+# --------------------------------------------------------------------------- issue 15: implausible decodes
+
+
+def test_the_magnitude_limits_follow_the_kernels_float32_arithmetic():
+    """What each limit of clphong.io.nonfinite.LIMITS claims, in float32 as the kernels
+    compute: below it the operation is finite, at it it can overflow."""
+    f32 = np.float32
+    below = {k: np.nextafter(f32(v), f32(0)) for k, v in LIMITS.items()}
+    with np.errstate(over="ignore", invalid="ignore"):
+        # positions: the difference of two points on either side of the origin
+        p = below["position"]
+        assert np.isfinite(p - (-p))
+        assert np.isinf(f32(LIMITS["position"]) - f32(-LIMITS["position"]))
+        # colours and weights: D + S, each a product of two G-buffer values (scene factors <= 1)
+        c = below["albedo"]
+        assert np.isfinite(c * c + c * c) and c * c + c * c < f32(2.0 ** 127)
+        assert all(below[k] == c for k in ("k_d", "k_s", "specular_color"))
+        # and past it a product can be ∞, and ∞ · 0 (a back-facing light's weight) NaN
+        big = f32(2.0 ** 65)
+        assert np.isnan((big * big) * f32(0))
+        # Blinn's exponent 4h
+        assert np.isfinite(f32(4) * below["h"]) and np.isinf(f32(4) * f32(LIMITS["h"]))
+    # normals have no limit: normalised in float64, the extremes are unit
+    for n in ([3.4028235e38, 3.4028235e38, -3.4028235e38], [1e-45, 0, 0], [1e-45, 3.4e38, 0]):
+        x, y, z = unit_normal_planes(np.array([[n]], np.float32))
+        assert abs(float(x[0] ** 2 + y[0] ** 2 + z[0] ** 2) - 1.0) < 1e-15
+
+
+def test_implausible_counts_per_channel_at_the_limits():
+    f32 = np.float32
+    rng = np.random.default_rng(2)
+    P = rng.uniform(-1, 1, (2, 3, 3)).astype(np.float32)
+    N = rng.normal(size=(2, 3, 3)).astype(np.float32)
+    A = rng.uniform(0, 1, (2, 3, 3)).astype(np.float32)
+    maps = {"k_d": np.full((2, 3), 0.5, f32), "k_s": np.full((2, 3), 0.5, f32),
+            "h": np.full((2, 3), 10, f32), "specular_color": np.ones((2, 3, 3), f32)}
+    gb = GBuffer(P, N, A, coverage=np.ones((2, 3), f32), maps=maps)
+    assert implausible_counts(gb) == {}
+    for key, limit in LIMITS.items():
+        for value, counted in ((np.nextafter(f32(limit), f32(0)), False), (f32(limit), True),
+                               (-f32(limit), True), (np.inf, False), (np.nan, False)):
+            arrays = {"position": P.copy(), "albedo": A.copy(), **{k: v.copy() for k, v in maps.items()}}
+            a = arrays[key]
+            if a.ndim == 2:
+                a[0, 1] = value
+            else:
+                a[0, 1, 1] = value                                     # the G/Y channel of pixel (0, 1)
+            cov = np.ones((2, 3), f32)
+            g = GBuffer(arrays["position"], N, arrays["albedo"], coverage=cov,
+                        maps={k: arrays[k] for k in maps})
+            label = key if a.ndim == 2 else f"{key}.{'Y' if key == 'position' else 'G'}"
+            assert implausible_counts(g) == ({label: 1} if counted else {}), (key, value)
+            cov[0, 1] = 0                                              # background: not counted
+            assert implausible_counts(g) == {}
+    # a huge normal is a direction like any other
+    N2 = N.copy()
+    N2[1, 2] = [3.4e38, -3.4e38, 1.0]
+    assert implausible_counts(GBuffer(P, N2, A)) == {}
+
+
+def test_nonfinite_coverage_is_background_and_counted():
+    rng = np.random.default_rng(3)
+    P, N, A = (rng.uniform(0.1, 1, (2, 3, 3)).astype(np.float32) for _ in range(3))
+    cov = np.full((2, 3), 0.5, np.float32)
+    assert "coverage" not in nonfinite_counts(GBuffer(P, N, A, coverage=cov))
+    cov[0, 0], cov[1, 2] = np.nan, np.inf
+    gb = GBuffer(P, N, A, coverage=cov)
+    assert gb.background_mask().tolist() == [[True, False, False], [False, False, True]]
+    assert nonfinite_counts(gb)["coverage"] == 2
+    with pytest.warns(InputWarning, match=r"coverage: 2 pixel\(s\)"):
+        out, _ = apply_nonfinite_policy(gb)
+    assert np.all(np.isfinite(out.coverage)) and out.coverage[0, 0] == out.coverage[1, 2] == 0
+    with pytest.raises(GBufferError, match=r"non-finite .*coverage: 2 pixel\(s\)"):
+        apply_nonfinite_policy(gb, "error")
+
+
+def test_implausible_values_follow_the_nonfinite_policy_in_one_line():
+    rng = np.random.default_rng(4)
+    P, N, A = (rng.uniform(0.1, 1, (2, 3, 3)).astype(np.float32) for _ in range(3))
+    P[0, 0, 2] = -3e38
+    A[1, 1] = [1e20, 0.5, 1e30]
+    P[1, 2, 0] = np.nan
+    gb = GBuffer(P, N, A, coverage=np.ones((2, 3), np.float32),
+                 sources={"position": "f.exr: P.X,P.Y,P.Z", "albedo": "f.exr: albedo.R,albedo.G,albedo.B"})
+    with pytest.warns(InputWarning) as caught:
+        out, counts = apply_nonfinite_policy(gb)
+    (w,) = caught
+    text = str(w.message)
+    assert "\n" not in text and counts["position"] == 1
+    assert text.startswith("non-finite G-buffer values left unshaded as background: f.exr: P.X,P.Y,P.Z: 1 pixel(s); "
+                           "also implausibly large G-buffer values (position |x| >= 1.7e+38, albedo |x| >= 9.2e+18")
+    assert text.endswith("left unshaded as background: f.exr: P.X,P.Y,P.Z: Z 1 pixel(s); "
+                         "f.exr: albedo.R,albedo.G,albedo.B: R 1, B 1 pixel(s)")
+    assert out.coverage.tolist() == [[0, 1, 1], [1, 0, 0]]
+    with pytest.raises(GBufferError, match=r"implausibly large .*albedo.R,albedo.G,albedo.B: R 1, B 1 pixel\(s\); "
+                                           r"fix the input"):
+        apply_nonfinite_policy(gb, "error")
+    with pytest.warns(InputWarning, match="implausibly large .* passed to the kernels"):
+        same, _ = apply_nonfinite_policy(gb, "pass")
+    assert same is gb
+
+
+def _typed(path, types):
+    P, N, A, _, _ = _data(6)
+    planes = {**{f"P.{c}": P[..., i] for i, c in enumerate("XYZ")},
+              **{f"N.{c}": N[..., i] for i, c in enumerate("XYZ")},
+              **{f"albedo.{c}": A[..., i] for i, c in enumerate("RGB")}}
+    names = list(planes)
+    spec = oiio.ImageSpec(W, H, len(names), oiio.TypeDesc("float"))
+    spec.channelnames = tuple(names)
+    spec.channelformats = tuple(oiio.TypeDesc(types.get(n, "float")) for n in names)
+    o = oiio.ImageOutput.create(str(path))
+    assert o.open(str(path), spec)
+    assert o.write_image(np.ascontiguousarray(np.stack([planes[n] for n in names], -1)))
+    assert o.close()
+    return path
+
+
+def test_a_vector_of_mixed_pixel_types_warns_a_layer_of_another_type_does_not(tmp_path):
+    with pytest.warns(InputWarning, match=r"mixed.exr: channels of one buffer stored as different pixel "
+                                          r"types \(normal: N.Z as half and N.X, N.Y as float\)"):
+        gb = read_gbuffer(_typed(tmp_path / "mixed.exr", {"N.Z": "half"}))
+    assert gb.normal.dtype == np.float32
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_gbuffer(_typed(tmp_path / "layers.exr", {"albedo.R": "half", "albedo.G": "half",
+                                                      "albedo.B": "half"}))
+
+
+def test_a_read_failure_names_a_lone_channel_of_another_pixel_type(tmp_path):
+    """A flipped pixel-type byte in a channel that is no vector's (A): the chunks no
+    longer decode; the error names it. A whole layer of another type is not named."""
+    P, N, A, cov, _ = _data(7)
+    write_gbuffer(tmp_path / "g.exr", P, N, A, coverage=cov)
+    data = bytearray((tmp_path / "g.exr").read_bytes())
+    at = data.find(b"A\x00\x02\x00\x00\x00")
+    data[at + 2] = 1                                                     # FLOAT -> HALF
+    (tmp_path / "a.exr").write_bytes(bytes(data))
+    with pytest.raises(GBufferError, match=r"failed: .*; the header gives A as half but the other 9 "
+                                           r"channels as float: a flipped pixel-type byte\?$"):
+        read_gbuffer(tmp_path / "a.exr")
