@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from clphong.core.errors import ClphongError, GBufferError, SceneError
@@ -386,6 +386,102 @@ def test_fuzz_scene_text_mutations(data):
                  "\\u0000", "[camera]\n", "0x7fffffffffffffffffff", "\ttype = 'point'\n", "#", "."]))
             text[i:i] = snippet.encode()
     _check_scene(bytes(text))
+
+
+# --------------------------------------------------------------------------- issue 15: shipped samples, flipped
+
+
+#: The shipped samples and their scenes (gbuffers/): what a user renders first.
+_SAMPLES = Path(__file__).resolve().parent.parent / "gbuffers"
+SHIPPED = {"spheres.exr": "spheres.toml", "ortho.exr": "ortho.toml",
+           "blender/cycles-4.5.exr": "blender/spheres.toml",
+           "blender/cycles-5.0.exr": "blender/spheres.toml"}
+_SHIPPED_BYTES = {name: (_SAMPLES / name).read_bytes() for name in SHIPPED}
+_COMPRESSION = b"compression\x00compression\x00\x01\x00\x00\x00"
+
+
+def _compression_offsets(data: bytes) -> list[int]:
+    """Byte offsets of the compression attribute's value, one per part."""
+    out, at = [], data.find(_COMPRESSION)
+    while at >= 0:
+        out.append(at + len(_COMPRESSION))
+        at = data.find(_COMPRESSION, at + 1)
+    return out
+
+
+def _all_chlist_type_offsets(data: bytes) -> list[int]:
+    """:func:`_chlist_type_offsets` of every part's header (a multi-part file has one each)."""
+    out, at = [], 0
+    while True:
+        found = _chlist_type_offsets(data[at:])
+        if not found:
+            return out
+        out += [at + i for i in found]
+        at += found[-1] + 16
+
+
+def _flip(data: bytes, kind: str, which: int, value: int, every_part: bool) -> bytes:
+    """The compression byte of one part (or all) set to ``value`` (0-9 are OpenEXR's:
+    5 = PXR24, 6 = B44, ...), or channel ``which``'s pixel-type byte (0 UINT, 1 HALF,
+    2 FLOAT, others invalid)."""
+    raw = bytearray(data)
+    offsets = _compression_offsets(data) if kind == "compression" else _all_chlist_type_offsets(data)
+    assert offsets, kind
+    for off in (offsets if every_part and kind == "compression" else [offsets[which % len(offsets)]]):
+        raw[off] = value
+    return bytes(raw)
+
+
+def _render_cli(argv) -> tuple[int, str]:
+    """``clphong`` in-process: (exit status, stderr). Any exception escapes (a traceback)."""
+    import contextlib
+    import io
+
+    from clphong.console.cli import main
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        rc = main([str(a) for a in argv])
+    return rc, err.getvalue()
+
+
+@_settings(0.015)
+@given(st.sampled_from(sorted(SHIPPED)),
+       st.tuples(st.sampled_from(["compression", "pixel-type"]), st.integers(0, 63),
+                 st.sampled_from(range(10)) | st.integers(0, 255), st.booleans()),
+       st.sampled_from(["background", "error"]))
+@example("spheres.exr", ("compression", 0, 5, True), "background")       # the finding: ZIP as PXR24
+@example("ortho.exr", ("compression", 0, 5, True), "background")         # NaN beside a shininess of -1e6
+@example("blender/cycles-5.0.exr", ("compression", 0, 5, True), "error")
+@example("spheres.exr", ("pixel-type", 4, 1, False), "background")       # P.X FLOAT -> HALF
+@example("spheres.exr", ("pixel-type", 4, 0, False), "background")       # P.X FLOAT -> UINT
+def test_fuzz_shipped_samples_with_a_flipped_compression_or_pixel_type(sample, edit, policy):
+    """A shipped sample (gbuffers/) with its compression byte (one part or all) or one
+    channel's pixel type changed, rendered through the CLI under ``--nonfinite``
+    background or error: no traceback; exit 0, or 1 with one ``clphong: error:`` line
+    naming the file and no output; every line one clphong message; under ``error``
+    stderr is at most one line; under ``background`` at most two warning lines (the
+    NaN/implausible policy's and the negative clamp's: the renderer applies them one
+    after the other), and never a NaN or Inf in the output file (R, G, B, A).
+    ~0.07 s an example; CLPHONG_FUZZ_EXAMPLES scales the count."""
+    path = _DIR / "flipped.exr"
+    out = _DIR / "flipped-out.exr"
+    path.write_bytes(_flip(_SHIPPED_BYTES[sample], *edit))
+    out.unlink(missing_ok=True)
+    rc, err = _render_cli(["render", _SAMPLES / SHIPPED[sample], path, "-o", out, "--nonfinite", policy])
+    lines = err.splitlines()
+    assert "Traceback" not in err, err
+    assert all(ln.startswith(("clphong: warning: ", "clphong: error: ")) for ln in lines), err
+    errors = [ln for ln in lines if ln.startswith("clphong: error: ")]
+    assert rc in (0, 1), (rc, err)
+    if rc == 1:
+        assert len(errors) == 1 and lines[-1] == errors[0] and str(path) in errors[0], err
+        assert not out.exists()
+    else:
+        assert not errors and out.exists(), err
+        pix = oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)
+        assert np.all(np.isfinite(pix)), f"{int((~np.isfinite(pix)).sum())} non-finite output value(s)"
+    assert len(lines) <= (1 if policy == "error" else 2), err
 
 
 # --------------------------------------------------------------------------- regressions found by fuzzing
