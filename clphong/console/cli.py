@@ -32,8 +32,10 @@ from ..device.culling import BRUTE_ABOVE
 from ..device.renderer import Renderer
 from ..device.runtime import get_runtime, list_devices
 from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
+from ..io.envmap import resolve_environment
 from ..io.gbuffer import parse_channel_mapping, read_gbuffer
 from ..io.inspection import METRICS, DiffError, diff_images, format_report, inspect_file
+from ..model.environment import DEFAULT_ENV_ERROR, check_env_error
 from ..model.options import KERNELS, LANES, NONFINITE_POLICIES, PATHS
 from ..model.scene import MAP_KEYS, load_scene
 from ..model.tonemap import OPERATORS
@@ -50,8 +52,8 @@ from ..pipeline.relighter import (
     _hashable_channels,
     check_renderer_options,
 )
-from ..tools.bench import PATHS as BENCH_PATHS
 from ..tools.bench import (
+    ENV_ERRORS,
     BenchConfig,
     check_paths,
     missing_bench_modules,
@@ -60,6 +62,7 @@ from ..tools.bench import (
     summary_lines,
     table,
 )
+from ..tools.bench import PATHS as BENCH_PATHS
 from ..tools.commands import run_commands_bench
 from ..tools.samples import write_samples
 
@@ -250,7 +253,23 @@ def _add_device_options(p):
                    help="pixels per work-item of the lane kernel (default: chosen for the device)")
 
 
+def _env_error(text: str) -> float:
+    """``--env-error``: a finite number > 0 (argparse: one usage line otherwise)."""
+    try:
+        return check_env_error(float(text))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+ENV_ERROR_HELP = ("environment lights: each map becomes the fewest directional lights whose "
+                  "estimated relative error against the exact sum over its texels is within "
+                  f"REL on pixels >= 1e-3 of the maximum (default {DEFAULT_ENV_ERROR:g}); "
+                  "larger is faster (README, 'Environment light')")
+
+
 def _add_speed_options(p):
+    p.add_argument("--env-error", type=_env_error, default=DEFAULT_ENV_ERROR, metavar="REL",
+                   help=ENV_ERROR_HELP)
     p.add_argument("--max-error", type=float, metavar="EPS",
                    help="tiled light culling: per 16x16 tile, drop point lights only while the sum "
                         "of their upper bounds stays within EPS x reference white of output radiance "
@@ -281,6 +300,7 @@ def _renderer_options(args) -> dict:
     """Relighter/Renderer keyword arguments from the renderer options, validated (one-line errors)."""
     opts = dict(path=None if args.path == "accurate" else args.path,
                 max_error=args.max_error, reference_white=args.reference_white,
+                env_error=args.env_error,
                 nonfinite=getattr(args, "nonfinite", "background"),
                 aovs=tuple(a.strip() for a in (getattr(args, "aov", None) or "").split(",") if a.strip()))
     check_renderer_options(**opts)
@@ -315,6 +335,10 @@ def _add_bench_parser(sub):
                    help="float64 reference on about P/N sampled pixels (default 3e7)")
     b.add_argument("--numpy-pairs", type=float, metavar="P",
                    help="numpy float32 timed on about P pixel-light pairs (default 2e7)")
+    b.add_argument("--env-error", metavar="REL[,REL]",
+                   help="environment rows (the sample sky at 1024x512 on the bench G-buffer): "
+                        f"their error targets (default {DEFAULT_ENV_ERROR:g},0.01, none with "
+                        "--sizes; '' for none)")
     b.add_argument("--device", metavar="DEV", help="OpenCL device (see 'clphong devices')")
     b.add_argument("--commands", action="store_true",
                    help="instead, time whole commands at 1 point light: 'clphong render' EXR to EXR "
@@ -359,6 +383,15 @@ def cmd_bench(args) -> int:
             raise _Usage(f"--paths: {exc}") from None
     if args.budgets:
         kw["budgets"] = _csv(args.budgets, float, "--budgets")
+    # the environment rows by default at the bench's own size (the issue's 1080p), or --quick's
+    kw["env_errors"] = (BenchConfig.quick().env_errors if args.quick
+                        else () if args.sizes else ENV_ERRORS)
+    if args.env_error is not None:
+        kw["env_errors"] = _csv(args.env_error, float, "--env-error")
+        try:
+            kw["env_errors"] = tuple(check_env_error(x) for x in kw["env_errors"])
+        except ValueError as exc:
+            raise _Usage(f"--env-error: {exc}") from None
     for name in ("repeats", "warmup"):
         value = getattr(args, name)
         if value is not None:
@@ -480,6 +513,10 @@ def cmd_render(args) -> int:
             for name, value in dt.defines().items():
                 print(f"  -D{name}={value}  {why.get(name, '')}", file=sys.stderr)
         print(f"device: {renderer.runtime.name}", file=sys.stderr)
+        for i, env in relighter.environments:
+            print(f"environment: light[{i}]: {env.texels} texels as {env.count} directional lights, "
+                  f"estimated max relative error {env.estimated_error:.2g} (--env-error "
+                  f"{env.max_error:g}), {env.seconds:.2f} s", file=sys.stderr)
         kinds = ", ".join(f"{k} {v:.3f} s" for k, v in times.items())
         print(f"{w}x{h}: read {t_read - t0:.3f} s, setup {t_end - t_read - t_shade - t_write:.3f} s, "
               f"shade {t_shade:.3f} s (kernel {st.kernel_seconds:.4f} s), write {t_write:.3f} s"
@@ -506,7 +543,7 @@ def _remove_stale_temporaries(files) -> None:
 
 def cmd_plan(args) -> int:
     opts = _renderer_options(args)
-    scene = load_scene(args.scene)
+    scene = resolve_environment(load_scene(args.scene), max_error=opts.pop("env_error")).scene
     maps = ()
     if args.gbuffer or args.position or args.normal or args.albedo:
         maps = tuple(_read_gbuffer(args).maps)
@@ -556,6 +593,9 @@ def cmd_relight(args) -> int:
         raise _Usage("give at least one output template: -o OUT.####.exr, --sdr OUT.####.png, "
                      "--hdr OUT.####.png or --contact-sheet OUT.####.png")
     rigs = [_rig(r) for r in args.rig]
+    # environment maps resolved once here, not in every worker
+    rigs = [type(r)(r.name, resolve_environment(r.scene, max_error=args.env_error).scene)
+            for r in rigs]
     frames = parse_frame_range(args.frames) if args.frames else None
     plan = plan_batch(args.sequence, rigs, args.output, sdr=args.sdr, hdr=args.hdr,
                       contact_sheet=args.contact_sheet, frames=frames,

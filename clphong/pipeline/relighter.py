@@ -46,9 +46,12 @@ from ..deliver.outputs import (
     write_output,
 )
 from ..device.renderer import Renderer
+from ..device.renderer import render as render_resolved
 from ..io.atomic import same_file
 from ..io.camera import resolve_camera
+from ..io.envmap import resolve_environment
 from ..io.gbuffer import MAP_KEYS, GBuffer, read_gbuffer
+from ..model.environment import DEFAULT_ENV_ERROR, check_env_error
 from ..model.options import (
     check_budget,
     check_fp64_directions,
@@ -157,22 +160,24 @@ class RelighterSpec:
     nonfinite: str = "background"
     path: str | None = None
     aovs: tuple = ()
+    env_error: float = DEFAULT_ENV_ERROR
 
     def __post_init__(self):
         check_renderer_options(fp64_directions=self.fp64_directions, max_error=self.max_error,
                                reference_white=self.reference_white, nonfinite=self.nonfinite,
-                               path=self.path)
+                               path=self.path, env_error=self.env_error)
 
     def build(self) -> Relighter:
         return Relighter(self.scene, device=self.device, kernel=self.kernel, lanes=self.lanes,
                          channels=dict(self.channels) or None, output=self.output,
                          fp64_directions=self.fp64_directions, max_error=self.max_error,
                          reference_white=self.reference_white, nonfinite=self.nonfinite,
-                         path=self.path, aovs=self.aovs)
+                         path=self.path, aovs=self.aovs, env_error=self.env_error)
 
 
 def check_renderer_options(*, fp64_directions=None, max_error=None, reference_white=1.0,
-                           nonfinite="background", path=None, aovs=()) -> None:
+                           nonfinite="background", path=None, aovs=(),
+                           env_error=DEFAULT_ENV_ERROR) -> None:
     """Check the renderer options of a :class:`Relighter` without compiling anything.
 
     Raises
@@ -182,7 +187,8 @@ def check_renderer_options(*, fp64_directions=None, max_error=None, reference_wh
         is not a finite number > 0.
     ValueError
         An unknown ``nonfinite`` policy or ``path``, ``fp64_directions`` not
-        None/bool, or both ``path`` and ``fp64_directions``.
+        None/bool, both ``path`` and ``fp64_directions``, or an ``env_error``
+        that is not a finite number > 0.
     """
     check_fp64_directions(fp64_directions)
     if path is not None:
@@ -191,6 +197,7 @@ def check_renderer_options(*, fp64_directions=None, max_error=None, reference_wh
             raise ValueError("give either path or fp64_directions")
     check_budget(max_error, reference_white)
     check_nonfinite(nonfinite)
+    check_env_error(env_error)
 
 
 _CACHE: dict = {}
@@ -241,6 +248,11 @@ class Relighter:
         override the scene's ``[render]`` keys (``None`` fields take the
         scene's). Resolved and checked here: a bad operator or working space
         fails at construction.
+    env_error : float
+        Relative error target of the scene's environment lights (``--env-error``,
+        default 1e-3): each is resolved into directional lights here
+        (:func:`clphong.io.envmap.resolve_environment`); ``environments`` holds
+        what each became.
 
     Notes
     -----
@@ -253,12 +265,18 @@ class Relighter:
                  lanes: int | None = None, channels: Mapping | None = None,
                  output: OutputOptions | None = None, fp64_directions: bool | None = None,
                  max_error: float | None = None, reference_white: float = 1.0,
-                 nonfinite: str = "background", path: str | None = None, aovs=()):
+                 nonfinite: str = "background", path: str | None = None, aovs=(),
+                 env_error: float = DEFAULT_ENV_ERROR):
         # Renderer options first: a bad value fails before the scene is read or compiled.
         check_renderer_options(fp64_directions=fp64_directions, max_error=max_error,
-                               reference_white=reference_white, nonfinite=nonfinite, path=path)
+                               reference_white=reference_white, nonfinite=nonfinite, path=path,
+                               env_error=env_error)
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
+        # The kernels shade directional lights, not maps: environment lights resolved here.
+        resolved = resolve_environment(scene, max_error=env_error)
+        scene = resolved.scene
+        self.environments = resolved.environments
         self.scene = scene
         self.channels = dict(channels) if channels else None
         self.output = (output or OutputOptions()).for_scene(scene)
@@ -270,7 +288,7 @@ class Relighter:
                                   channels=_hashable_channels(channels), output=self.output,
                                   fp64_directions=fp64_directions, max_error=max_error,
                                   reference_white=reference_white, nonfinite=nonfinite,
-                                  path=path, aovs=tuple(aovs))
+                                  path=path, aovs=tuple(aovs), env_error=env_error)
 
     @property
     def camera_from_metadata(self) -> bool:
@@ -462,3 +480,17 @@ def deliver_staged(relighter, gbuffer: GBuffer, paths: OutputPaths, *, source: s
     t1 = time.perf_counter()
     return result.image, {"shade": marks["shaded"] - t0, "wait": marks["writing"] - marks["shaded"],
                           "write": t1 - marks["writing"]}
+
+
+def render(scene, gbuffer, *, env_error: float = DEFAULT_ENV_ERROR, **kwargs) -> np.ndarray:
+    """Shade ``gbuffer`` with ``scene``: (H, W, 3) float32, scene-linear (``clphong.render``).
+
+    :func:`clphong.device.renderer.render` after the scene's environment lights are
+    resolved into directional lights within ``env_error``
+    (:func:`clphong.io.envmap.resolve_environment`); other keyword arguments go to
+    :class:`~clphong.device.renderer.Renderer`.
+    """
+    check_env_error(env_error)
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    return render_resolved(resolve_environment(scene, max_error=env_error).scene, gbuffer, **kwargs)

@@ -61,6 +61,18 @@ What is measured
   with exp/log1p, 89 for the obvious kernel; double operations count as one
   flop each).
 
+* Environment light (issue 16; :func:`run_environment`): the sample sky
+  (:func:`clphong.tools.samples.sky_envmap`) at 1024×512 on the bench
+  G-buffer, bench material, no other light, for each ``env_errors`` target
+  (``--env-error``): the conversion's light count, estimate and time; ms per
+  frame (timed as above, on a crop, round-robin with a 256-point-light brute
+  force frame: ``time_ratio_256_point``); and the max relative error of the
+  kernel's image against the exact float64 texel sum
+  (:mod:`clphong.reference.environment`, every texel) on ``env_pixels``
+  (2000) seeded random shaded pixels, on those ≥ 10⁻³ of their maximum, with
+  the diffuse and specular terms' shares apart and the fewest lights of the
+  same tree that would meet the target on these pixels.
+
 The report is JSON (``--json``) and a Pareto plot PNG (``--plot``, matplotlib)
 of throughput against error. A benchmark, not a test: the tests only check that
 a tiny run produces a well-formed report.
@@ -84,10 +96,19 @@ from ..device.plan import int_pow_multiplies
 from ..device.renderer import Renderer, prepare_frame
 from ..device.runtime import get_runtime
 from ..io.atomic import atomic_path
+from ..io.envmap import directional_lights
 from ..io.gbuffer import GBuffer
+from ..model.environment import (
+    DEFAULT_ENV_ERROR,
+    FLOOR,
+    LightTree,
+    environment_lights,
+    texel_lights,
+)
 from ..model.scene import Camera, Light, Material, Scene
+from ..reference import environment as env_reference
 from ..reference import shading as reference
-from . import numba_peer
+from . import numba_peer, samples
 
 #: Flops per pixel-light evaluation of a point light with attenuation, by part,
 #: counted on kernels/lights.cl + brdf.cl (shade_obvious.cl for the naive
@@ -408,12 +429,16 @@ class BenchConfig:
     small_lights: tuple = (65536,)
     device: str | None = None
     log: object = None
+    env_errors: tuple = ()                          # environment rows' targets (the CLI: ENV_ERRORS)
+    env_size: tuple = (1024, 512)                   # the sky map's width and height
+    env_pixels: int = 2000                          # pixels of the exact texel sum
 
     @classmethod
     def quick(cls, **kw):
         base = dict(sizes=((480, 270),), lights=(1, 16, 256, 4096), budgets=(0.0, 1e-3),
                     repeats=3, crop_pairs=3e7, error_pairs=5e6, numpy_pairs=4e6,
-                    small_lights=(4096,))
+                    small_lights=(4096,), env_errors=(1e-2,), env_size=(256, 128),
+                    env_pixels=500)
         base.update(kw)
         return cls(**base)
 
@@ -478,10 +503,12 @@ def run_bench(cfg: BenchConfig) -> dict:
                      "error_pairs": cfg.error_pairs, "numpy_pairs": cfg.numpy_pairs,
                      "numba": use_numba,
                      "small_lights": list(cfg.small_lights), "seed": SEED,
-                     "reference_white": 1.0},
+                     "reference_white": 1.0, "env_errors": list(cfg.env_errors),
+                     "env_size": list(cfg.env_size), "env_pixels": cfg.env_pixels},
         "numpy": [],
         "numba": [],
         "runs": [],
+        "environment": [],
     }
     for (W, H) in cfg.sizes:
         full = bench_gbuffer(W, H)
@@ -606,6 +633,8 @@ def run_bench(cfg: BenchConfig) -> dict:
                     + f"  max rel {err['max_rel']:.2e} mean {err['mean_rel']:.2e}"
                     f" abs {err['max_abs']:.2e} band {err['band_pixels']}"
                     + (f" kept {entry['kept_fraction']:.4f}" if entry["kept_fraction"] is not None else ""))
+        if cfg.env_errors:
+            report["environment"] += run_environment(cfg, full, report["runs"], log)
     report["summary"] = summarise(report)
     return report
 
@@ -641,6 +670,7 @@ def summarise(report: dict) -> dict:
         out["cull_vs_256_brute_time_ratio"] = s["ms_per_frame"] / acc256["ms_per_frame"]
         out["cull_max_abs_error"] = s["error"]["max_abs"]
         out["target_3x_met"] = out["cull_vs_256_brute_time_ratio"] <= 3.0
+    out.update(summarise_environment(report.get("environment", [])))
     return out
 
 
@@ -674,6 +704,7 @@ def summary_lines(summary: dict) -> list[str]:
                      f"within 3x the time of 256 lights brute force: {met(summary['target_3x_met'])} "
                      f"({summary['cull_vs_256_brute_time_ratio']:.3g}x; max abs error "
                      f"{summary['cull_max_abs_error']:.2e})")
+    lines += environment_summary_lines(summary)
     return lines
 
 
@@ -758,4 +789,185 @@ def table(report: dict) -> str:
             + f"{e['max_rel']:9.2e} {e['mean_rel']:9.2e} {e['max_abs']:9.2e} {e['band_pixels']:5d} "
             + (f"{r['kept_fraction']:7.4f}" if r["kept_fraction"] is not None else f"{'':7s}"))
     lines.append("* brute force timed on a crop of the top rows; ms/frame scaled to the full frame")
+    lines += environment_table(report.get("environment", []))
     return "\n".join(lines)
+
+
+# ==================================================================== environment light (issue 16)
+# The environment rows: the sample sky as directional lights (clphong.model.environment)
+# on the bench G-buffer, timed against 256 point lights brute force and held to the
+# exact texel sum (clphong.reference.environment). Everything of the rows is here.
+
+#: The environment rows of ``clphong bench`` (``--env-error``): the issue's 1e-3, and 1e-2.
+ENV_ERRORS = (DEFAULT_ENV_ERROR, 1e-2)
+
+
+def environment_scene(lights=()) -> Scene:
+    """The bench camera and material with ``lights`` only (no ambient light)."""
+    base = bench_scene("wide", 1)
+    return Scene(camera=base.camera, material=base.material, lights=tuple(lights),
+                 source="bench:environment")
+
+
+def _first_n_for(target, exact, D_part, S_part, tree, base_lights):
+    """The fewest leaves of ``tree`` within ``target`` on these pixels (geometric steps
+    of ~6 %), with the terms' rows of each count from ``base_lights(n)``."""
+    def err(n):
+        d, sp = base_lights(n)
+        return _env_rel(d + sp, exact)
+    lo, hi = 0, 16
+    while err(hi) > target:
+        if hi >= tree.height * tree.width:
+            return None
+        lo, hi = hi, min(2 * hi, tree.height * tree.width)
+    while lo and hi > lo * 1.0625 and hi - lo > 1:
+        mid = int(round(math.sqrt(lo * hi)))
+        lo, hi = (lo, mid) if err(mid) <= target else (mid, hi)
+    return hi
+
+
+def _env_rel(value, exact):
+    """max |value − exact|/exact over the channels ≥ FLOOR (1e-3) of the sample's maximum."""
+    top = float(exact.max(initial=0.0))
+    big = exact >= FLOOR * top
+    return float((np.abs(value - exact)[big] / exact[big]).max(initial=0.0))
+
+
+def run_environment(cfg: BenchConfig, full, runs, log) -> list[dict]:
+    """The environment rows of the report (module docstring)."""
+    H, W = full.shape
+    mw, mh = cfg.env_size
+    L = samples.sky_envmap(mw, mh)
+    base = environment_scene()
+    material = base.material
+    # the exact texel sum on a seeded pixel sample, each term apart (computed once)
+    idx = sample_pixels(full, cfg.env_pixels)
+    sub = sub_gbuffer(full, idx)
+    t0 = time.perf_counter()
+    l_all, E_all = texel_lights(L)
+    keep = E_all.max(axis=1) > 0
+    ex_d, ex_s = env_reference.texel_terms(base, sub, l_all[keep], E_all[keep])
+    exact = ex_d + ex_s
+    t_exact = time.perf_counter() - t0
+    log(f"environment: exact texel sum of {mw}x{mh} texels on {len(idx)} pixels in {t_exact:.1f} s")
+    tree = LightTree(*(a.reshape(mh, mw, 3) for a in (E_all, l_all)))
+
+    def terms_of(n):
+        return env_reference.texel_terms(base, sub, *tree.lights(n))
+
+    # 256 point lights brute force: this run's, else timed here alongside
+    p256 = next((r for r in runs if r["scene"] == "wide" and r["lights"] == 256
+                 and r["path"] == "accurate" and r["max_error"] is None), None)
+    slots = []
+    for target in cfg.env_errors:
+        conv = environment_lights(L, material, max_error=target)
+        scene = environment_scene(directional_lights(conv))
+        n = len(scene.lights)
+        rows = _crop_rows(W, H, max(n, 1), cfg.crop_pairs)
+        gb = full if rows == H else bench_gbuffer(W, H, rows)
+        r = Renderer(scene, device=cfg.device)
+        slots.append({"target": target, "conv": conv, "scene": scene, "rows": rows, "gb": gb,
+                      "r": r, "frame": prepare_frame(gb, lanes=max(r.lanes, 1)), "times": []})
+    if p256 is None:
+        sc = bench_scene("wide", 256)
+        rows = _crop_rows(W, H, 256, cfg.crop_pairs)
+        gb = full if rows == H else bench_gbuffer(W, H, rows)
+        r = Renderer(sc, device=cfg.device)
+        slots.append({"target": None, "rows": rows, "gb": gb, "r": r,
+                      "frame": prepare_frame(gb, lanes=max(r.lanes, 1)), "times": []})
+    for round_ in range(cfg.warmup + cfg.repeats):
+        for slot in slots:
+            t, _, _ = time_frame(slot["r"], slot["gb"], slot["frame"])
+            if round_ >= cfg.warmup:
+                slot["times"].append(t)
+    shaded_full = shaded_pixels(full)
+
+    def per_frame(slot):
+        return statistics.median(slot["times"]) * 1e3 * shaded_full / shaded_pixels(slot["gb"])
+
+    if p256 is None:
+        p256_ms, p256_source = per_frame(slots[-1]), "timed with the environment rows"
+    else:
+        p256_ms, p256_source = p256["ms_per_frame"], "the wide scene's 256-light accurate run"
+    out = []
+    for slot in slots:
+        if slot["target"] is None:
+            continue
+        conv, target = slot["conv"], slot["target"]
+        got = slot["r"].render(sub).image.reshape(-1, 3).astype(np.float64)
+        d, sp = env_reference.texel_terms(base, sub, conv.l, conv.radiance)
+        top = float(exact.max(initial=0.0))
+        big = exact >= FLOOR * top
+        rel = np.abs(got - exact)[big] / exact[big]
+        ms = per_frame(slot)
+        entry = {
+            "scene": "environment", "size": [W, H], "map": [mw, mh], "texels": conv.texels,
+            "env_error": target, "lights": conv.count, "estimated_error": conv.estimated_error,
+            "estimate_met": conv.met, "probes": conv.probes, "conversion_s": conv.seconds,
+            "crop_rows": slot["rows"], "extrapolated": slot["rows"] != H,
+            "ms_per_frame": ms, "times_ms": [t * 1e3 for t in slot["times"]],
+            "point256_ms_per_frame": p256_ms, "point256_source": p256_source,
+            "time_ratio_256_point": ms / p256_ms,
+            "error": {
+                "max_rel": float(rel.max(initial=0.0)),
+                "mean_rel": float(rel.mean()) if rel.size else 0.0,
+                "floor": FLOOR, "sampled_pixels": int(len(idx)), "exact_seconds": t_exact,
+                # each term's error as a share of the pixel (float64 model sums, no kernel)
+                "diffuse_max_rel": _env_rel(d + ex_s, exact),
+                "specular_max_rel": _env_rel(ex_d + sp, exact),
+                "model_max_rel": _env_rel(d + sp, exact),
+            },
+            "lights_for_target_on_sample": _first_n_for(target, exact, ex_d, ex_s, tree, terms_of),
+        }
+        out.append(entry)
+        e = entry["error"]
+        log(f"environment     eps={target:<6g} {conv.count:6d} lights (est {conv.estimated_error:.2e}, "
+            f"{conv.seconds:.1f} s) {ms:10.1f} ms/frame x{entry['time_ratio_256_point']:.2f} of 256 "
+            f"point lights  max rel {e['max_rel']:.2e} (diffuse {e['diffuse_max_rel']:.2e}, "
+            f"specular {e['specular_max_rel']:.2e}); {entry['lights_for_target_on_sample']} lights "
+            f"would do on these pixels")
+    return out
+
+
+def summarise_environment(rows: list[dict]) -> dict:
+    """The issue-16 targets: the 1e-3 row's error and its time against 256 point lights."""
+    row = next((r for r in rows if r["env_error"] == DEFAULT_ENV_ERROR), None)
+    if row is None:
+        return {}
+    return {"env_lights": row["lights"], "env_max_rel": row["error"]["max_rel"],
+            "env_time_ratio_256_point": row["time_ratio_256_point"],
+            "env_lights_for_target_on_sample": row["lights_for_target_on_sample"],
+            "target_env_error_met": row["error"]["max_rel"] <= DEFAULT_ENV_ERROR,
+            "target_env_time_met": row["time_ratio_256_point"] <= 1.0}
+
+
+def environment_summary_lines(summary: dict) -> list[str]:
+    if "env_lights" not in summary:
+        return []
+    def met(ok):
+        return "met" if ok else "not met"
+    need = summary["env_lights_for_target_on_sample"]
+    return [f"issue-16 targets: environment at {DEFAULT_ENV_ERROR:g}: error "
+            f"{met(summary['target_env_error_met'])} (max rel {summary['env_max_rel']:.2e}); time "
+            f"within 256 point lights brute force {met(summary['target_env_time_met'])} "
+            f"({summary['env_time_ratio_256_point']:.3g}x, {summary['env_lights']} lights; "
+            f"{need} would meet it on the sampled pixels)"]
+
+
+def environment_table(rows: list[dict]) -> list[str]:
+    if not rows:
+        return []
+    lines = [f"{'environment':12s} {'eps':>7s} {'lights':>7s} {'est':>9s} {'conv s':>7s} "
+             f"{'ms/frame':>10s} {'x256pt':>7s} {'max rel':>9s} {'diffuse':>9s} {'specular':>9s} "
+             f"{'pixels':>6s} {'enough':>7s}"]
+    for r in rows:
+        e = r["error"]
+        lines.append(f"{'x'.join(map(str, r['map'])):12s} {r['env_error']:7.0e} {r['lights']:7d} "
+                     f"{r['estimated_error']:9.2e} {r['conversion_s']:7.1f} {r['ms_per_frame']:10.1f}"
+                     f"{'*' if r['extrapolated'] else ' '}{r['time_ratio_256_point']:7.2f} "
+                     f"{e['max_rel']:9.2e} {e['diffuse_max_rel']:9.2e} {e['specular_max_rel']:9.2e} "
+                     f"{e['sampled_pixels']:6d} {r['lights_for_target_on_sample'] or 0:7d}")
+    lines.append("environment: max rel against the exact float64 texel sum on the sampled pixels "
+                 ">= 1e-3 of their maximum; diffuse/specular: each term's approximation alone; "
+                 "enough: the fewest lights of the same tree within eps on those pixels")
+    return lines

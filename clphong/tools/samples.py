@@ -10,8 +10,13 @@ exact (up to the float32 rounding of the stored file):
     A 3 × 3 grid of spheres seen through an orthographic camera, with
     per-pixel k_s and shininess maps (``gbuffers/ortho.exr`` + ``ortho.toml``:
     directional lights, Blinn-Phong).
+``sky``
+    A procedural HDR sky, a latitude-longitude environment map in OpenEXR's
+    orientation (:func:`sky_envmap`; ``gbuffers/sky.exr``, 256 × 128 half
+    floats, lights ``gbuffers/spheres_sky.toml``; ``clphong bench`` shades its
+    1024 × 512 version).
 
-Regenerate with ``python -m clphong.tools.samples gbuffers/``. The scene TOMLs are
+Regenerate with ``python -m clphong.tools.samples gbuffers/`` (the sky too). The scene TOMLs are
 written by hand; their cameras must equal :data:`SPHERES_CAMERA` and
 :data:`ORTHO_CAMERA` (tests/test_gbuffer.py checks both, and that each shipped
 EXR holds exactly this module's output).
@@ -25,8 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import OutputError
-from ..io.atomic import check_output_path
+from ..io.atomic import check_output_path, write_exr
 from ..io.gbuffer import GBuffer, write_gbuffer
+from ..model.environment import texel_directions
 from ..model.scene import parse_scene
 
 SPHERES_CAMERA = dict(type="perspective", position=(0.0, 2.0, 6.0), target=(0.0, 0.5, 0.0),
@@ -157,6 +163,57 @@ def spheres_gbuffer(width: int = 384, height: int = 256):
     return GBuffer(position=P, normal=N, albedo=A, coverage=cov, maps={})
 
 
+# ------------------------------------------------------------------ the sky (environment map)
+
+#: The sample sky's sun: latitude and longitude (degrees, OpenEXR's orientation:
+#: longitude 0 along +z, 90 along +x), angular radius (degrees) and radiance.
+SKY_SUN = (25.0, 20.0, 1.0, 2000.0)
+#: Its seed (the clouds).
+SKY_SEED = 3
+
+
+def sky_envmap(width: int = 256, height: int = 128, seed: int = SKY_SEED) -> np.ndarray:
+    """A procedural outdoor sky: (height, width, 3) float32 radiance, lat-long (width = 2 height).
+
+    A blue gradient from the horizon (0.9, 0.95, 1) to the zenith (0.25, 0.45, 1),
+    40 soft clouds (Gaussian blobs in direction, seeded), a brown ground
+    (0.25, 0.2, 0.15 darkening to 60 % below) with a ±30 % texture of about 9°
+    period, and a sun (:data:`SKY_SUN`: radiance 2000 within 1° of its
+    direction; at 1024 × 512 it carries about as much energy as the sky). The
+    sun's edge and the ground's texture are what an environment light's
+    conversion finds hard (:mod:`clphong.model.environment`).
+    """
+    d = texel_directions(width, height)
+    y = d[..., 1]
+    rng = np.random.default_rng(seed)
+    zenith = np.array([0.25, 0.45, 1.0])
+    horizon = np.array([0.9, 0.95, 1.0])
+    ground = np.array([0.25, 0.2, 0.15])
+    t = np.sqrt(np.clip(y, 0.0, 1.0))[..., None]
+    L = np.where(y[..., None] > 0, horizon * (1 - t) + zenith * t,
+                 ground * (0.6 + 0.4 * np.clip(-y, 0.0, 1.0))[..., None])
+    for _ in range(40):
+        c = rng.normal(size=3)
+        c[1] = abs(c[1]) + 0.2
+        c /= np.linalg.norm(c)
+        w = rng.uniform(0.05, 0.3)
+        a = rng.uniform(0.3, 1.5)
+        L = L + (a * np.exp(-2.0 * (1.0 - d @ c) / w ** 2) * (y > 0))[..., None]
+    L = L * (1.0 + 0.3 * (y < 0) * np.sin(40.0 * d[..., 0]) * np.cos(37.0 * d[..., 2]))[..., None]
+    lat, lon, radius, radiance = SKY_SUN
+    la, lo = np.radians(lat), np.radians(lon)
+    sun = np.array([np.sin(lo) * np.cos(la), np.sin(la), np.cos(lo) * np.cos(la)])
+    inside = d @ sun > np.cos(np.radians(radius))
+    L = L + radiance * np.array([1.0, 0.95, 0.85]) * inside[..., None]
+    return L.astype(np.float32)
+
+
+def write_envmap(path, width: int = 256, height: int = 128) -> Path:
+    """Write :func:`sky_envmap` as a half-float EXR (``gbuffers/sky.exr``)."""
+    write_exr(path, sky_envmap(width, height), pixel_type="half")
+    return Path(path)
+
+
 def write_samples(folder, *, parents: bool = False) -> list[Path]:
     """Write ``spheres.exr`` and ``ortho.exr`` into ``folder``.
 
@@ -186,5 +243,6 @@ def write_samples(folder, *, parents: bool = False) -> list[Path]:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    for path in write_samples(sys.argv[1] if len(sys.argv) > 1 else "gbuffers", parents=True):
+    folder = sys.argv[1] if len(sys.argv) > 1 else "gbuffers"
+    for path in write_samples(folder, parents=True) + [write_envmap(Path(folder) / "sky.exr")]:
         print(path)

@@ -1,4 +1,5 @@
-"""clphong.reference.environment: the exact texel sum, two ways the same.
+"""clphong.reference.environment (the exact texel sum, two ways the same); named
+test_texel_sum.py as test modules need distinct names (tests/model/test_environment.py).
 
 Tolerances: the fast and the reference methods are both float64 sums of the
 same terms in different orders: 1e-12 relative. Closed forms of the continuous
