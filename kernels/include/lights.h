@@ -147,17 +147,23 @@ inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
     /* finite in double: |P| ≤ FLT_MAX, and the scene refuses a light position
        beyond float (clphong/model/scene.py), so d² < 3·(2·FLT_MAX)² */
     const dirL d = d2 * inv_d;
+#define NO_LIGHT (d2 <= (dirL)(0.0f))
 #else
     const dirL d = SELECT_DIR(d2 * inv_d, d2, d2 > FLT_MAX);   /* isinf(d2): d2 ≥ 0 (isinf is out of line) */
+    /* d² beyond float (d ≳ 1.8e19): l = 0 already (rsqrt(∞) = 0), and the falloff at
+       d = ∞ is ∞·0 = NaN in Horner's form where c2 = 0 (or c1 = c2 = 0): no
+       contribution there either, as the error model's "unbounded" pixels say */
+#define NO_LIGHT ((d2 <= (dirL)(0.0f)) | (d2 > FLT_MAX))
 #endif
     /* d = 0: no contribution, also where c0 = 0 makes the falloff infinite. */
 #if HAS_SPOT
     /* the cone scales the falloff (at d = 0, l = 0 and the factor is t(o)², times 0) */
     const dirL att = SELECT_DIR(attenuation(c0, c1, c2, d) * spot_factor(lx, ly, lz, ax, ay, az, s, o),
-                                (dirL)(0.0f), d2 <= (dirL)(0.0f));
+                                (dirL)(0.0f), NO_LIGHT);
 #else
-    const dirL att = SELECT_DIR(attenuation(c0, c1, c2, d), (dirL)(0.0f), d2 <= (dirL)(0.0f));
+    const dirL att = SELECT_DIR(attenuation(c0, c1, c2, d), (dirL)(0.0f), NO_LIGHT);
 #endif
+#undef NO_LIGHT
     *ar = DIR_TO_W(att * Rr);
     *ag = DIR_TO_W(att * Rg);
     *ab = DIR_TO_W(att * Rb);

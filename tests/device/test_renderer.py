@@ -580,3 +580,20 @@ def test_a_launch_in_pieces_is_bit_identical(opts, monkeypatch, device):
     assert np.array_equal(whole.image, pieces.image)
     if "max_error" in opts:
         assert pieces.plan.defines["CULLING"] == 1
+
+
+@pytest.mark.parametrize("path", [None, "float", "fast"])
+def test_a_light_beyond_the_float_distance_range_gives_no_nan(path):
+    """d² overflows float32 for d ≳ 1.8e19: the float paths lose the direction there
+    (l = 0) and Horner's falloff would be ∞·0 = NaN for a light with c2 = 0 beside
+    another that compiles the polynomial in (issue 15: no input that reads without error
+    yields NaN). Such a light adds nothing on the float paths; the default path shades
+    it exactly."""
+    P = np.zeros((1, 64, 3))
+    P[0, :, 0] = np.linspace(-0.5, 0.5, 64)
+    N = np.broadcast_to([0.0, 0.0, 1.0], (1, 64, 3)).copy()
+    gb = make_gbuffer(P, N, np.ones((1, 64, 3)))
+    lights = [dict(type="point", position=(2e19, 0.0, 1.0), intensity=1.0),
+              dict(type="point", position=(0.0, 0.0, 1.0), intensity=1.0, attenuation=(1.0, 0.0, 1.0))]
+    img = Renderer(make_scene(lights), path=path).render(gb).image
+    assert np.all(np.isfinite(img))
