@@ -1357,3 +1357,19 @@ def test_a_pixel_type_byte_flipped_float_to_half_names_the_channel(work, capsys)
     (src / "flipped.exr").write_bytes(bytes(data))
     fails(render_argv(src, out, gbuffer=src / "flipped.exr"), capsys, src.parent, "flipped.exr",
           "failed: ", "(position: P.Y as half and P.X, P.Z as float): a flipped pixel-type byte?")
+
+
+def test_inspect_escapes_control_bytes_in_its_table(tmp_path, capsys):
+    """`inspect` prints a table of the file's channels: a channel named with terminal
+    control bytes (ESC[2K ESC[1G erases the line on a terminal) is shown escaped on
+    stdout too, as every stderr line is (the layout of the table is kept)."""
+    path = tmp_path / "ctl.exr"
+    spec = oiio.ImageSpec(4, 3, 3, "float")
+    spec.channelnames = ("\x1b[2K\x1b[1G.R", "\x1b[2K\x1b[1G.G", "\x1b[2K\x1b[1G.B")
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec) and out.write_image(np.zeros((3, 4, 3), np.float32))
+    out.close()
+    assert main(["inspect", str(path)]) == 0
+    shown = capsys.readouterr().out
+    assert "\\x1b[2K\\x1b[1G.R" in shown
+    assert not any(ord(c) < 32 and c != "\n" for c in shown)

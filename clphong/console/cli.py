@@ -19,7 +19,7 @@ from pathlib import Path
 
 from .. import __version__
 from ..color.ocio import WORKING_SPACES, load_config
-from ..core.errors import ClphongError, OutputError, OutputWarning, clean_line
+from ..core.errors import ClphongError, OutputError, OutputWarning, clean_line, printable
 from ..deliver.outputs import OutputOptions, OutputPaths, check_outputs, render_outputs
 from ..deliver.writers import (
     EXR_BASE_COMPRESSIONS,
@@ -647,7 +647,9 @@ def cmd_inspect(args) -> int:
     import json
 
     report = inspect_file(args.file, stats=not args.no_stats)
-    print(json.dumps(report, indent=2) if args.json else format_report(report))
+    # json.dumps escapes control characters itself; the table shows names read from
+    # the file (channels, attributes), escaped like every other line clphong prints
+    print(json.dumps(report, indent=2) if args.json else printable(format_report(report)))
     return 0
 
 
@@ -658,7 +660,7 @@ def cmd_diff(args) -> int:
                              heatmap=args.heatmap, floor=args.floor, peak=args.peak)
     except (ClphongError, ValueError) as exc:
         raise DiffError(str(exc)) from None     # exit 2: could not compare
-    print(result.line())
+    print(printable(result.line()))
     return 0 if result.match else 1
 
 
@@ -846,7 +848,7 @@ def _main(argv: list[str] | None) -> int:
         print(f"clphong: terminated ({exc.name}); no partial output was left", file=sys.stderr)
         return 128 + exc.signum
     except KeyboardInterrupt:
-        print("clphong: interrupted", file=sys.stderr)
+        print("clphong: interrupted (SIGINT); no partial output was left", file=sys.stderr)
         return 130
     return 0
 

@@ -49,6 +49,16 @@ class OutputWarning(ClphongWarning):
 MAX_LINE = 2000
 
 
+def printable(text: str) -> str:
+    """``text`` with every control character but the newline escaped as ``\\xNN`` /
+    ``\\uNNNN`` (layout kept: spaces and line breaks stay), for multi-line reports
+    that show names read from files (a channel named ESC[2K would erase a line)."""
+    return "\n".join("".join(ch if ch.isprintable() or ch == " " else
+                              (f"\\x{ord(ch):02x}" if ord(ch) < 0x100 else f"\\u{ord(ch):04x}")
+                              for ch in line)
+                      for line in str(text).split("\n"))
+
+
 def clean_line(text: str, limit: int = MAX_LINE) -> str:
     """``text`` as one safe line for a terminal: whitespace runs (newlines, tabs)
     become one space, every other control character (C0, DEL, C1: what lets a

@@ -518,6 +518,33 @@ def set_attribute(spec: oiio.ImageSpec, name: str, value: object) -> None:
                       "in an image header")
 
 
+#: Rows written per call (a multiple of the EXR compressions' 16- and 32-line
+#: blocks): a 4096-wide float RGB strip takes ~0.15 s, so a terminating signal,
+#: which Python handles only between calls into OpenImageIO, takes effect within
+#: about that long instead of after the whole write (~10 s at 4096×4096).
+STRIP_ROWS = 64
+
+
+def _write_in_strips(out, spec, data: np.ndarray) -> bool:
+    """``out.write_image(data)`` in strips of :data:`STRIP_ROWS` rows (whole tile
+    rows for a tiled file), so that signals are handled while a large file is written."""
+    h = int(spec.height)
+    if data.ndim < 3 or h <= STRIP_ROWS:
+        return out.write_image(data)
+    tile_h = int(spec.tile_height or 0)
+    step = STRIP_ROWS if not tile_h else max(1, STRIP_ROWS // tile_h) * tile_h
+    for y in range(0, h, step):
+        y1 = min(y + step, h)
+        if tile_h:
+            ok = out.write_tiles(spec.x, spec.x + spec.width, spec.y + y, spec.y + y1,
+                                 spec.z, spec.z + max(int(spec.depth), 1), data[y:y1])
+        else:
+            ok = out.write_scanlines(spec.y + y, spec.y + y1, spec.z, data[y:y1])
+        if not ok:
+            return False
+    return True
+
+
 def write_image_atomically(display: str, spec, data: np.ndarray, *, what: str = "a writer") -> None:
     """Write ``data`` with ``spec`` to ``display`` through a temporary file.
 
@@ -535,7 +562,7 @@ def write_image_atomically(display: str, spec, data: np.ndarray, *, what: str = 
         try:
             if not out.open(tmp, spec):
                 raise OutputError(f"{display}: cannot open for writing: {_one_line(out.geterror())}")
-            if not out.write_image(np.ascontiguousarray(data)):
+            if not _write_in_strips(out, spec, np.ascontiguousarray(data)):
                 raise OutputError(f"{display}: writing the pixels failed: {_one_line(out.geterror())}")
             ok = True
         finally:
