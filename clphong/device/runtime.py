@@ -506,7 +506,8 @@ class Runtime:
             f"about 1.1 MB into its kernel cache ({pocl_cache_dir()}) to do so, over the file-size "
             f"limit of {limit // 1024} KiB (ulimit -f); run once with a higher limit "
             f"('ulimit -f unlimited', or at least {_SOURCE_BUILD_BYTES >> 20} MiB) to fill the "
-            "cache: later runs of the same scene write nothing there"
+            "cache (or point POCL_CACHE_DIR at a cache filled that way): later runs of the same "
+            "scene write nothing there"
         )
 
 
