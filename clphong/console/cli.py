@@ -19,7 +19,13 @@ from pathlib import Path
 
 from .. import __version__
 from ..color.ocio import WORKING_SPACES, load_config
-from ..core.errors import ClphongError, OutputError, OutputWarning, clean_line, printable
+from ..core.errors import (
+    ClphongError,
+    OutputError,
+    OutputWarning,
+    clean_line,
+    printable,
+)
 from ..deliver.outputs import OutputOptions, OutputPaths, check_outputs, render_outputs
 from ..deliver.writers import (
     EXR_BASE_COMPRESSIONS,
@@ -256,7 +262,7 @@ def _add_device_options(p):
 def _env_error(text: str) -> float:
     """``--env-error``: a finite number > 0 (argparse: one usage line otherwise)."""
     try:
-        return check_env_error(float(text))
+        return check_env_error(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 

@@ -202,3 +202,66 @@ def test_the_shipped_sky_is_the_generator_output():
     (lt,) = scene.lights_of("environment")
     assert os.path.samefile(lt.file, os.path.join(here, "sky.exr"))
     assert scene.camera.position == samples.SPHERES_CAMERA["position"]
+
+
+# ------------------------------------------------------------------ the command and the API
+
+def _sky_scene(tmp_path, extra=""):
+    _write(tmp_path / "sky.exr", samples.sky_envmap(32, 16))
+    (tmp_path / "s.toml").write_text(
+        '[camera]\ntype = "perspective"\nposition = [0.0, 2.0, 6.0]\n'
+        '[material]\nmodel = "phong"\nk_a = 0.0\nk_d = 0.7\nk_s = 0.2\nh = 32.0\n'
+        '[[light]]\ntype = "environment"\nfile = "sky.exr"\nintensity = 0.3\n' + extra)
+    return tmp_path / "s.toml"
+
+
+def test_render_relight_and_the_api_resolve_the_environment(tmp_path, capsys):
+    """`clphong render --env-error`, a Relighter and clphong.render shade the same
+    resolved lights: the same pixels; --stats names the conversion."""
+    import clphong
+    from clphong.console.cli import main
+
+    scene_path = _sky_scene(tmp_path)
+    gb = samples.spheres_gbuffer(64, 32)          # 2:1, so read_envmap reads the output back
+    from clphong.io.gbuffer import write_gbuffer
+
+    write_gbuffer(tmp_path / "g.exr", gb.position, gb.normal, gb.albedo, coverage=gb.coverage)
+    assert main(["render", str(scene_path), str(tmp_path / "g.exr"), "-o", str(tmp_path / "o.exr"),
+                 "--env-error", "0.02", "--stats"]) == 0
+    err = capsys.readouterr().err
+    assert "environment: light[0]: 512 texels as " in err and "(--env-error 0.02)" in err
+    got = envmap.read_envmap(str(tmp_path / "o.exr"))       # any RGB EXR reads back this way
+    api = clphong.render(load_scene(scene_path), gb, env_error=0.02)
+    assert np.array_equal(got, api)
+    r = clphong.Relighter(scene_path, env_error=0.02)
+    assert not r.scene.lights_of("environment") and r.environments[0][1].max_error == 0.02
+    assert r.spec.env_error == 0.02 and r.spec.build().scene.lights == r.scene.lights
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "x"])
+def test_bad_env_error_is_a_usage_line(tmp_path, capsys, value):
+    from clphong.console.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["render", "s.toml", "g.exr", "-o", str(tmp_path / "o.exr"), "--env-error", value])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--env-error" in err and "environment error" in err
+
+
+def test_a_bad_map_stops_render_with_one_line(tmp_path, capsys):
+    from clphong.console.cli import main
+
+    scene_path = _sky_scene(tmp_path)
+    L = samples.sky_envmap(32, 16)
+    L[0, :5] = -1.0
+    _write(tmp_path / "sky.exr", L)
+    write = samples.spheres_gbuffer(16, 8)
+    from clphong.io.gbuffer import write_gbuffer
+
+    write_gbuffer(tmp_path / "g.exr", write.position, write.normal, write.albedo, coverage=write.coverage)
+    assert main(["render", str(scene_path), str(tmp_path / "g.exr"), "-o", str(tmp_path / "o.exr")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert f"{scene_path}: light[0].file: {tmp_path / 'sky.exr'}: 5 negative texel(s); " in err
+    assert not (tmp_path / "o.exr").exists()
