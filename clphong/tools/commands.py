@@ -3,9 +3,11 @@
 Not a test. ``clphong bench`` times the shading kernels in one process; this
 times the commands around them, each run as a subprocess on files:
 
-``python -m clphong.tools.commands render [--lights 1,16,256] [--kernels lanes,obvious]``
-    ``clphong render SCENE G.exr -o OUT.exr --stats`` per light count and
-    kernel: the kernel time and the in-process total that ``--stats`` prints,
+``python -m clphong.tools.commands render [--lights 1,16,256] [--kernels lanes,obvious] [--formats toml,csv,npz]``
+    ``clphong render SCENE G.exr -o OUT.exr --stats`` per light count, kernel
+    and scene format (``toml``: the lights as ``[[light]]`` tables; ``csv``,
+    ``npz``: the same lights in a lights file, ``lights = "wideN.npz"``): the
+    kernel time, the read stage and the in-process total that ``--stats`` prints,
     and the wall time of the whole command (interpreter start-up, imports, the
     PoCL program cache, reading, shading, writing); medians of ``--runs``,
     taken in turns (one run of each case per round) so that other tenants'
@@ -36,6 +38,7 @@ and TOML into a temporary folder that is removed at the end unless ``--keep``
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import re
@@ -52,6 +55,7 @@ from ..core.errors import ClphongError, OutputError
 from ..deliver.writers import jpegxl_available
 from ..io.atomic import atomic_path, check_output_path
 from ..io.gbuffer import write_gbuffer
+from ..model.light_table import write_light_table
 from ..model.options import KERNELS
 from .bench import bench_gbuffer, bench_scene
 from .report import markdown_table
@@ -73,6 +77,28 @@ def scene_toml(scene) -> str:
     return tomli_w.dumps(plain(scene.to_dict()))
 
 
+#: How a bench scene's lights are written: [[light]] tables, or a lights file.
+SCENE_FORMATS = ("toml", "csv", "npz")
+
+
+def write_scene(folder: Path, n: int, fmt: str = "toml") -> Path:
+    """The ``wide`` scene with ``n`` point lights (and its ambient light) as
+    ``wide{n}.toml`` (``fmt="toml"``: ``[[light]]`` tables) or as ``wide{n}_{fmt}.toml``
+    with ``lights = "wide{n}.{fmt}"``, a lights file beside it holding every light."""
+    scene = bench_scene("wide", n)
+    if fmt == "toml":
+        path = folder / f"wide{n}.toml"
+        path.write_text(scene_toml(scene))
+        return path
+    if fmt not in SCENE_FORMATS:
+        raise ValueError(f"scene format must be one of {', '.join(SCENE_FORMATS)}, not {fmt!r}")
+    write_light_table(folder / f"wide{n}.{fmt}", scene.lights)
+    path = folder / f"wide{n}_{fmt}.toml"
+    text = scene_toml(dataclasses.replace(scene, lights=()))
+    path.write_text(f'lights = "wide{n}.{fmt}"\n' + text.replace("light = []\n", ""))
+    return path
+
+
 def write_inputs(folder: Path, lights, frames: int = 1, size=SIZE) -> tuple[Path, dict[int, Path]]:
     """The bench G-buffer as ``g.0001.exr`` … and one scene per light count."""
     gb = bench_gbuffer(*size)
@@ -80,11 +106,7 @@ def write_inputs(folder: Path, lights, frames: int = 1, size=SIZE) -> tuple[Path
     write_gbuffer(first, gb.position, gb.normal, gb.albedo, coverage=gb.coverage)
     for f in range(2, frames + 1):
         shutil.copyfile(first, folder / f"g.{f:04d}.exr")
-    scenes = {}
-    for n in lights:
-        scenes[n] = folder / f"wide{n}.toml"
-        scenes[n].write_text(scene_toml(bench_scene("wide", n)))
-    return first, scenes
+    return first, {n: write_scene(folder, n) for n in lights}
 
 
 def clphong_command() -> list[str]:
@@ -102,29 +124,33 @@ def _run(cmd: list[str], env=None) -> tuple[float, str]:
 _STATS = re.compile(r"\(kernel ([0-9.]+) s\).*total ([0-9.]+) s")
 
 
-def bench_render(folder: Path, lights, kernels, runs: int, size=SIZE) -> list[dict]:
-    """Time ``clphong render --stats`` per (light count, kernel); see the module docstring."""
-    gbuf, scenes = write_inputs(folder, lights, size=size)
-    cases = [(n, k) for n in lights for k in kernels]
-    times = {c: {"kernel": [], "total": [], "wall": []} for c in cases}
+def bench_render(folder: Path, lights, kernels, runs: int, size=SIZE,
+                 formats=("toml",)) -> list[dict]:
+    """Time ``clphong render --stats`` per (light count, kernel, scene format); see the
+    module docstring. Ratios are to the first kernel (same count and format)."""
+    gbuf, _ = write_inputs(folder, [], size=size)
+    scenes = {(n, f): write_scene(folder, n, f) for n in lights for f in formats}
+    cases = [(n, k, f) for n in lights for f in formats for k in kernels]
+    times = {c: {"kernel": [], "read": [], "total": [], "wall": []} for c in cases}
     base = clphong_command() + ["render"]
-    for c in cases:                                  # untimed: builds the PoCL cache
-        _run(base + [str(scenes[c[0]]), str(gbuf), "-o", str(folder / "o.exr"), "--kernel", c[1]])
+    for n, k, f in cases:                            # untimed: builds the PoCL cache
+        _run(base + [str(scenes[n, f]), str(gbuf), "-o", str(folder / "o.exr"), "--kernel", k])
     for _ in range(runs):
-        for n, k in cases:
-            wall, err = _run(base + [str(scenes[n]), str(gbuf), "-o", str(folder / "o.exr"),
+        for n, k, f in cases:
+            wall, err = _run(base + [str(scenes[n, f]), str(gbuf), "-o", str(folder / "o.exr"),
                                      "--kernel", k, "--stats"])
             m = _STATS.search(err)
             if m is None:
                 raise ClphongError(f"render --stats printed no timing line: {err[-200:]!r}")
-            times[(n, k)]["kernel"].append(float(m.group(1)))
-            times[(n, k)]["total"].append(float(m.group(2)))
-            times[(n, k)]["wall"].append(wall)
+            times[(n, k, f)]["kernel"].append(float(m.group(1)))
+            times[(n, k, f)]["total"].append(float(m.group(2)))
+            times[(n, k, f)]["read"].append(parse_stats(err).get("read", math.nan))
+            times[(n, k, f)]["wall"].append(wall)
     rows = []
-    for n, k in cases:
-        med = {key: statistics.median(v) for key, v in times[(n, k)].items()}
-        first = {key: statistics.median(v) for key, v in times[(n, kernels[0])].items()}
-        rows.append(dict(lights=n, kernel=k, **{f"{key}_s": v for key, v in med.items()},
+    for n, k, f in cases:
+        med = {key: statistics.median(v) for key, v in times[(n, k, f)].items()}
+        first = {key: statistics.median(v) for key, v in times[(n, kernels[0], f)].items()}
+        rows.append(dict(lights=n, kernel=k, format=f, **{f"{key}_s": v for key, v in med.items()},
                          **{f"{key}_ratio": med[key] / first[key] if first[key] > 0 else math.nan
                             for key in med}))
     return rows
@@ -134,7 +160,8 @@ def render_table(rows: list[dict]) -> str:
     return markdown_table(
         ["point lights", "kernel", "kernel ms", "×", "in-process total ms", "×",
          "whole command ms", "×"],
-        [[r["lights"], r["kernel"], f"{1e3 * r['kernel_s']:.1f}", f"{r['kernel_ratio']:.1f}",
+        [[r["lights"] if r.get("format", "toml") == "toml" else f"{r['lights']} ({r['format']})",
+          r["kernel"], f"{1e3 * r['kernel_s']:.1f}", f"{r['kernel_ratio']:.1f}",
           f"{1e3 * r['total_s']:.0f}", f"{r['total_ratio']:.2f}", f"{1e3 * r['wall_s']:.0f}",
           f"{r['wall_ratio']:.2f}"] for r in rows])
 
@@ -488,6 +515,9 @@ def main(argv=None) -> int:
     r.add_argument("--kernels", default=",".join(KERNELS),
                    help="kernels to compare (the first is the ratios' base)")
     r.add_argument("--runs", type=int, default=3, help="timed runs per case (median; default 3)")
+    r.add_argument("--formats", default="toml",
+                   help="how the lights are given: toml ([[light]] tables), csv, npz (lights "
+                        "files); comma-separated (default toml)")
     b = sub.add_parser("batch", help="clphong relight: frames per second")
     b.add_argument("--frames", type=int, default=24, help="frames in the sequence (default 24)")
     b.add_argument("--lights", type=int, default=64, help="point lights in the rig (default 64)")
@@ -507,10 +537,14 @@ def main(argv=None) -> int:
     try:
         if args.what == "render":
             kernels = [k for k in args.kernels.split(",") if k]
+            formats = [f for f in args.formats.split(",") if f]
             if args.runs < 1 or not kernels or set(kernels) - set(KERNELS):
                 p.error(f"--runs must be >= 1 and --kernels a list of {', '.join(KERNELS)}")
+            if not formats or set(formats) - set(SCENE_FORMATS):
+                p.error(f"--formats must be a list of {', '.join(SCENE_FORMATS)}")
             rows = in_folder(args.folder, args.keep,
-                             lambda f: bench_render(f, args.lights, kernels, args.runs, args.size))
+                             lambda f: bench_render(f, args.lights, kernels, args.runs, args.size,
+                                                    formats))
             print(f"clphong render at {args.size[0]}x{args.size[1]}, median of {args.runs} runs; "
                   f"× = ratio to {kernels[0]}")
             print(render_table(rows))

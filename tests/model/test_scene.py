@@ -160,7 +160,11 @@ ERROR_CASES = [
     ("unknown-top-table", lambda d: set_at(d, ("materal",), {}),
      "materal", ["unknown key; did you mean 'material'?"]),
     ("unknown-top-plural", lambda d: set_at(d, ("lights",), []),
-     "lights", ["did you mean 'light'?"]),
+     "lights", ["expected the name of a lights file", "[[light]], not [[lights]]"]),
+    ("lights-file-is-number", lambda d: set_at(d, ("lights",), 3),
+     "lights", ["expected the name of a lights file (.csv or .npz", "integer 3"]),
+    ("unknown-top-near-lights", lambda d: set_at(d, ("lightss",), "rig.csv"),
+     "lightss", ["unknown key; did you mean 'lights'?"]),
     ("unknown-top-far", lambda d: set_at(d, ("zzzz",), 1),
      "zzzz", ["unknown key; valid keys are 'camera', 'material', 'render', 'light'"]),
     ("unknown-material-key", lambda d: set_at(d, ("material", "k_dd"), 0.7),
@@ -1189,3 +1193,181 @@ def test_fresnel_round_trips():
     assert parse_quietly(s.to_dict()) == s
     sp = parse_quietly(_with_light(_SPOT))
     assert parse_quietly(sp.to_dict()) == sp
+
+
+# ------------------------------------------------------------------ loading many lights (issue 16)
+
+def _reference_light_arrays(scene: Scene) -> dict:
+    """light_arrays as the per-light loops of the first version formed them (the
+    reference the vectorised one is held to)."""
+    def table(lights, attr):
+        return np.array([getattr(lt, attr) for lt in lights], np.float64).reshape(-1, 3)
+
+    groups = scene.light_groups
+    rank = {g: k for k, g in enumerate(groups)}
+
+    def in_group_order(types):
+        idx = [i for i, lt in enumerate(scene.lights) if lt.type in types]
+        idx.sort(key=lambda i: rank.get(scene.lights[i].group_name, 0))
+        return idx, [scene.lights[i] for i in idx]
+
+    pi, pts = in_group_order(("point", "spot"))
+    di, dirs = in_group_order(("directional",))
+    cone = np.zeros((len(pts), 5))
+    cone[:, 4] = 1.0
+    spot = np.array([lt.type == "spot" for lt in pts], bool)
+    for k in np.flatnonzero(spot):
+        cone[k, :3] = pts[k].direction
+        cone[k, 3:] = pts[k].spot_scale_offset()
+    ends = {}
+    for name, lts in (("point", pts), ("directional", dirs)):
+        gid = np.array([rank.get(lt.group_name, 0) for lt in lts], int)
+        ends[name] = np.searchsorted(gid, np.arange(len(groups)), side="right")
+    amb_g = np.zeros((len(groups), 3))
+    for lt in scene.lights_of("ambient") if groups else ():
+        amb_g[rank[lt.group_name]] += lt.radiance
+    return {"point_position": table(pts, "position"), "point_radiance": table(pts, "radiance"),
+            "point_attenuation": table(pts, "attenuation"), "point_cone": cone,
+            "point_is_spot": spot, "directional_direction": table(dirs, "direction"),
+            "directional_radiance": table(dirs, "radiance"),
+            "ambient_radiance": table(scene.lights_of("ambient"), "radiance").sum(axis=0),
+            "point_index": np.array(pi, int), "directional_index": np.array(di, int),
+            "point_group_end": ends["point"], "directional_group_end": ends["directional"],
+            "ambient_group_radiance": amb_g}
+
+
+_MIXED = [
+    {"type": "point", "position": [1, 2, 3], "color": [0.3, 0.7, 0.9], "intensity": 3.0,
+     "attenuation": [1, 0.1, 0.05], "group": "key"},
+    {"type": "spot", "position": [0, 4, 0], "direction": [0, -1, 0.2], "inner_angle": 5.0,
+     "outer_angle": 30.0, "power": 40.0},
+    {"type": "directional", "direction": [-1, -1, -1], "intensity": 2.0, "group": "fill"},
+    {"type": "ambient", "color": [0.1, 0.2, 0.3], "intensity": 0.5, "group": "key"},
+    {"type": "point", "position": [-1, 0, 2], "power": 10.0, "group": "fill"},
+    {"type": "ambient", "intensity": 0.25},
+    {"type": "spot", "position": [2, 2, 2], "direction": [0, 0, -1], "group": "key"},
+    {"type": "directional", "direction": [0, -1, 0], "color": [1, 0.5, 0.5]},
+]
+
+
+@pytest.mark.parametrize("grouped", [True, False])
+def test_light_arrays_equal_the_per_light_reference(grouped):
+    lights = copy.deepcopy(_MIXED)
+    if not grouped:
+        for lt in lights:
+            lt.pop("group", None)
+    s = parse_quietly({**base(), "light": lights})
+    ref = _reference_light_arrays(s)
+    assert set(s.light_arrays) == set(ref)
+    for k, v in ref.items():
+        got = s.light_arrays[k]
+        assert got.shape == v.shape and got.dtype.kind == v.dtype.kind and np.array_equal(got, v), k
+        assert not got.flags.writeable
+    empty = parse_quietly({**base(), "light": []})
+    for k, v in _reference_light_arrays(empty).items():
+        assert empty.light_arrays[k].shape == v.shape, k
+
+
+def test_new_light_is_the_dataclass():
+    from clphong.model.scene import new_light
+
+    kw = dict(type="spot", color=(0.5, 0.25, 1.0), intensity=2.0, position=(1.0, 2.0, 3.0),
+              direction=(0.0, -1.0, 0.0), attenuation=(1.0, 0.0, 0.5), group="g",
+              inner_angle=10.0, outer_angle=20.0)
+    a, b = new_light(**kw), Light(**kw)
+    assert type(a) is Light and a == b and hash(a) == hash(b) and vars(a) == vars(b)
+    assert new_light(type="ambient") == Light("ambient")
+    with pytest.raises(Exception):
+        a.intensity = 3.0                    # still frozen
+
+
+def test_shared_attenuation_still_checks_every_lights_radiance():
+    """The polynomial's checks run once per distinct polynomial; each light's own
+    radiance x falloff is still checked, and the message names that light."""
+    lt = {"type": "point", "position": [0, 0, 1], "attenuation": [1e-30, 0, 1]}
+    data = {**base(), "light": [dict(lt, intensity=1.0), dict(lt, intensity=1.0),
+                                dict(lt, intensity=1e10)]}
+    msg = error_of(data)
+    assert msg.startswith(f"{SRC}: light[2].attenuation: color x intensity x the largest falloff"), msg
+    bad = {**base(), "light": [dict(lt, attenuation=[1, -3, 1], intensity=1.0)] * 2}
+    assert error_of(bad).startswith(f"{SRC}: light[0].attenuation: p(d) = c0 + c1*d + c2*d^2 reaches 0")
+
+
+def test_vectors_just_beyond_float32_max_round_to_it():
+    """The fast path for three floats hands the edge cases to the exact checks: a value
+    that rounds to FLT_MAX as a float32 is legal, 2^128 is not."""
+    flt_max = float(np.finfo(np.float32).max)
+    near = flt_max * (1 + 2.0 ** -26)
+    s = parse_quietly({**base(), "camera": {"type": "perspective", "position": [near, 0.0, -near]}})
+    assert s.camera.position == (near, 0.0, -near)
+    msg = error_of({**base(), "camera": {"type": "perspective", "position": [0.0, 2.0 ** 128, 0.0]}})
+    assert msg.startswith(f"{SRC}: camera.position[1]: 3.40282e+38 is beyond the float32 range"), msg
+    assert error_of({**base(), "camera": {"type": "perspective", "position": [0.0, math.nan, 0.0]}}) \
+        .startswith(f"{SRC}: camera.position[1]: must be finite, got nan")
+    assert "must be >= 0, got -0.5" in error_of(
+        {**base(), "light": [{"type": "ambient", "color": [1.0, -0.5, 1.0]}]})
+    assert parse_quietly({**base(), "light": [{"type": "ambient", "color": [-0.0, 0.0, 1.0]}]}
+                         ).lights[0].color == (-0.0, 0.0, 1.0)
+
+
+@pytest.mark.parametrize("fails", [False, True])
+def test_parsing_leaves_the_garbage_collector_as_it_was(fails):
+    import gc
+
+    data = base() if not fails else {**base(), "material": 3}
+    for enabled in (True, False):
+        (gc.enable if enabled else gc.disable)()
+        try:
+            try:
+                parse_quietly(data)
+            except SceneError:
+                assert fails
+            assert gc.isenabled() == enabled
+        finally:
+            gc.enable()
+
+
+def test_spot_with_angles_equal_in_float64_cosines_is_refused():
+    """inner 0 and outer 1e-40 have the same float64 cosine (a division by zero once)."""
+    msg = error_of(_with_light(dict(_SPOT, inner_angle=0.0, outer_angle=1e-40)))
+    assert msg.startswith(f"{SRC}: light[0].outer_angle: the edge from inner_angle = 0.0 to "
+                          "outer_angle = 1e-40 is too sharp"), msg
+    assert "cos inner - cos outer = 0 <" in msg
+
+
+def test_lights_file_rows_follow_the_tables(tmp_path):
+    (tmp_path / "rig.csv").write_text("type,x,y,z,intensity\npoint,1,2,3,4\nambient,,,,0.5\n")
+    (tmp_path / "s.toml").write_text('lights = "rig.csv"\n[material]\nmodel = "phong"\nk_a = 0.1\n'
+                                     'k_d = 0.7\nk_s = 0.2\nh = 32.0\n[[light]]\ntype = "ambient"\n'
+                                     'intensity = 1.0\n')
+    s = load_scene(tmp_path / "s.toml")
+    assert [(lt.type, lt.intensity) for lt in s.lights] == [("ambient", 1.0), ("point", 4.0),
+                                                            ("ambient", 0.5)]
+    assert list(s.light_arrays["ambient_radiance"]) == [1.5, 1.5, 1.5]
+    assert parse_quietly(s.to_dict()) == dataclasses_replace_source(s)
+
+
+def dataclasses_replace_source(s: Scene) -> Scene:
+    import dataclasses
+
+    return dataclasses.replace(s, source=SRC, warnings=())
+
+
+@pytest.mark.parametrize("text", ['a = ', 'a = [1,', '[material\n', 'a = 1\na = 2\n', 'a = "x',
+                                  'a = 1e', 'x = {a=1', '[[light]]\ntype = "point"\n[light]\n',
+                                  'a = tru', 'a = 0x', "[a]\n[a]\n", "a.b = 1\na = 2\n", "a = 1 2",
+                                  "= 1", 'a = {b = 1, b = 2}', 'a = "\\q"', 'a = """x'])
+def test_toml_messages_are_tomllibs(text):
+    """load_scene parses with tomli where it is installed (tomllib's own parser, compiled):
+    an invalid document gets the message tomllib's error gives."""
+    import tomllib
+
+    from clphong.model import scene
+
+    def message(mod):
+        with pytest.raises(mod.TOMLDecodeError) as info:
+            mod.loads(text)
+        return scene._toml_message(SRC, info.value, text)
+
+    assert message(scene._toml) == message(tomllib)
+    assert re.match(rf"{re.escape(SRC)}:\d+:\d+: invalid TOML: \S", message(tomllib))
