@@ -307,19 +307,26 @@ inline floatL light_bound(const tile_t *t, float4 A, float4 B, float4 C, float4 
     const floatL br = C.y * MUL_ADD(t->Dr, w_d, t->Sr * w_s);
     const floatL bg = C.z * MUL_ADD(t->Dg, w_d, t->Sg * w_s);
     const floatL bb = C.w * MUL_ADD(t->Db, w_d, t->Sb * w_s);
-    /* A spot's cone: cos θ = a·(P − L)/|P − L| ≤ max over the box of a·(P − L) (each
-       axis at a corner, plus 8u of the terms for the roundings), over d⁻ where that
-       is positive (else ≤ 0), plus the kernel's error of cos θ (margin, as n·l's);
-       t is increasing in cos θ (s > 0), so t(cos⁺)², rounded up by 4u in t and 4u
-       in t², bounds the factor. s = 0 (a point light): no cone, factor 1 exactly. */
+    /* A spot's cone: cos θ = a·(P − L)/|P − L| ≤ ua = max over the box of a·(P − L)
+       (each axis at a corner, plus 8u of the terms for the roundings), over d⁻ where
+       ua > 0, else over d⁺ (the farthest corner, rounded up: a negative numerator
+       over a larger distance is nearer 0), plus the kernel's error of cos θ (margin,
+       as n·l's); t is increasing in cos θ (s > 0), so t(cos⁺)², with x's roundings
+       (4u of its terms) and 4u in t², bounds the factor: 0 for a tile wholly behind
+       an outer = 90° spot's plane too. s = 0 (a point light): factor 1 exactly. */
+    const floatL fx = MAX_(ABS_(t->lox - A.x), ABS_(t->hix - A.x));
+    const floatL fy = MAX_(ABS_(t->loy - A.y), ABS_(t->hiy - A.y));
+    const floatL fz = MAX_(ABS_(t->loz - A.z), ABS_(t->hiz - A.z));
+    const floatL d_hi = MUL_ADD(sqrt(MUL_ADD(fx, fx, MUL_ADD(fy, fy, fz * fz))),
+                                (floatL)(1.0f + 16.0f * U_F32), 2.0f * U_F32 * (t->R + E.x));
     const floatL ax = MAX_(E.y * (t->lox - A.x), E.y * (t->hix - A.x));
     const floatL ay = MAX_(E.z * (t->loy - A.y), E.z * (t->hiy - A.y));
     const floatL az = MAX_(E.w * (t->loz - A.z), E.w * (t->hiz - A.z));
     const floatL ua = (ax + ay + az) + 8.0f * U_F32 * (ABS_(ax) + ABS_(ay) + ABS_(az));
-    const floatL cos_hi = SEL_(SEL_(ua / d_lo, (floatL)(0.0f), (intL)(ua <= 0.0f)) + margin,
-                               (floatL)(1.0f), (intL)(d_lo <= 0.0f));
-    const floatL x_hi = MUL_ADD(MIN_(cos_hi, (floatL)(1.0f)), (floatL)(F.x), (floatL)(F.y))
-                        + 4.0f * U_F32 * (F.x + ABS1_(F.y));
+    const floatL cos_hi = MIN_(SEL_(SEL_(ua / d_lo, ua / d_hi, (intL)(ua <= 0.0f)) + margin,
+                                    (floatL)(1.0f), (intL)(d_lo <= 0.0f)), (floatL)(1.0f));
+    const floatL x_hi = MUL_ADD(cos_hi, (floatL)(F.x), (floatL)(F.y))
+                        + 4.0f * U_F32 * MUL_ADD(ABS_(cos_hi), (floatL)(F.x), (floatL)(ABS1_(F.y)));
     const floatL t_hi = MIN_(MAX_(x_hi, (floatL)(0.0f)), (floatL)(1.0f));
     const floatL cone = F.x > 0.0f ? t_hi * t_hi * (1.0f + 4.0f * U_F32) : (floatL)(1.0f);
     const floatL b = MAX_(MAX_(br, bg), bb) * cone / p_lo * (1.0f + 32.0f * U_F32);

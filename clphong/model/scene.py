@@ -675,7 +675,7 @@ class Scene:
 #: The largest cone scale s = 1/(cos inner − cos outer) a spot may have: the
 #: kernels form t = cos θ·s + o in float32 (|o| ≤ s), which errs by about 4u·s,
 #: so this keeps the cone factor's rounding error ≤ 2⁻⁴ at the sharpest edge
-#: allowed (cos inner − cos outer ≥ 3.8e-6, e.g. 10° and 10.022°).
+#: allowed (cos inner − cos outer ≥ 3.8e-6, e.g. 10° and 10.0013°).
 SPOT_MAX_SCALE = 2.0 ** 18
 
 
@@ -1384,9 +1384,10 @@ class _Parser:
             angles[key] = x
         inner, outer = angles["inner_angle"], angles["outer_angle"]
         if inner >= outer:
+            given = "" if "outer_angle" in v else " (the default)"
             self.fail(path + ".inner_angle", f"{inner!r} is not less than outer_angle = "
-                                             f"{outer!r}; the cone fades from inner to outer, so "
-                                             "0 <= inner < outer <= 90 (degrees)")
+                                             f"{outer!r}{given}; the cone fades from inner to "
+                                             "outer, so 0 <= inner < outer <= 90 (degrees)")
         try:
             s, _ = spot_scale_offset(inner, outer)
         except ZeroDivisionError:         # cos inner == cos outer in float64 (e.g. 0 and 1e-40)

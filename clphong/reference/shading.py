@@ -587,7 +587,8 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
             cos_t = -_dot(lvec, axis)
             t = np.clip(cos_t * sc + off, 0.0, 1.0)
             e_cos = eta_l + 3.0 * ud + (0.0 if fp64 else U)
-            e_x = sc * e_cos + (ud if fp64 else U) * np.abs(cos_t * sc + off) + \
+            # MUL_ADD may or may not be fused: the product's own rounding too
+            e_x = sc * e_cos + (ud if fp64 else U) * (np.abs(cos_t * sc + off) + np.abs(cos_t) * sc) + \
                 (0.0 if fp64 else U * (np.abs(cos_t) * sc + np.abs(off)))
             dF = 2.0 * t * e_x + e_x * e_x + (ud if fp64 else U) * t * t
             att = att_raw * t * t
@@ -633,17 +634,23 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
                 # that and a rounding; √ by Δx/(2c), or √Δx near c = 0, and a rounding
                 c = v_dot_h(lvec, px.v)
                 dx = 0.5 * (eta_l + eta_v + 3.0 * ud) + ud
+                # |√a − √b| = |a − b|/(√a + √b) ≤ Δx/c when the kernel's x is the
+                # smaller one; ≤ √Δx always
                 with np.errstate(divide="ignore"):
-                    dc = np.minimum(dx / (2.0 * c), np.sqrt(dx)) + ud
-                dF5 = 5.0 * dc + 5.0 * ud + uw
+                    dc = np.minimum(dx / c, np.sqrt(dx)) + ud
+                dF5 = 5.0 * dc + 8.0 * ud + uw
                 S_abs = np.abs(S)
             else:
                 c = _dot(px.n, px.v)                                    # (M,)
                 dc = eta_n + eta_v + 3.0 * ud
-                dF5 = 5.0 * (1.0 - np.clip(c - dc, 0.0, 1.0)) ** 4 * dc + 5.0 * ud + uw
+                dF5 = 5.0 * (1.0 - np.clip(c - dc, 0.0, 1.0)) ** 4 * dc + 8.0 * ud + uw
                 S_abs = np.abs(px.S_base)
-            B += np.sum(Lc * S_abs * ((1.0 - px.f0) * dF5[..., None] + 3.0 * uw) * w_hi[..., None],
-                        axis=0)
+            # 1 − m enters the power's 3 products 5 times (8u); the products with f0
+            # and 1 − f0, w·F5, S1·w_f and the add (7u); f0 itself rounded to float
+            # without WEIGHTS_FP64 (W_HI_LO keeps the hi part only: u·f0 ≤ u)
+            e_f0 = 0.0 if w64 else U
+            B += np.sum(Lc * S_abs * ((1.0 - px.f0) * dF5[..., None] + 7.0 * uw + e_f0)
+                        * w_hi[..., None], axis=0)
         total += np.sum(Lc * (np.abs(D) * diffuse[..., None] + np.abs(S) * specular[..., None]), axis=0)
     # The light sum: in double (SUM_FP64) by ≤ n·2⁻⁵³·Σ|c| before the one final
     # rounding; Neumaier's compensated sum by ≤ 2u|Σ| + O(n·u²)Σ|c|; the naive

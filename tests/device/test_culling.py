@@ -456,3 +456,22 @@ def test_lists_that_keep_nearly_every_light_fall_back_to_brute_force(monkeypatch
     result = Renderer(small, max_error=1e-3, device=device).render(gb)
     assert result.cull.kept_fraction <= BRUTE_ABOVE
     assert not result.cull.brute and result.plan.defines["CULLING"] == 1
+
+
+@pytest.mark.parametrize("outer", [60.0, 89.99, 90.0])
+def test_a_spot_facing_away_is_dropped_at_any_budget(outer):
+    """A spot above the surface pointing straight up lights none of it (cos θ < 0 at
+    every pixel, even for outer = 90°, whose factor reaches 0 exactly at the plane):
+    every tile drops it at ε = 0, where only a bound of exactly 0 may be dropped, and
+    the image is the brute-force one bit for bit."""
+    rng = np.random.default_rng(12)
+    gb = heightfield(rng)
+    spot = dict(type="spot", position=(2.0, 1.5, 1.0), direction=(0.0, 0.0, 1.0),
+                inner_angle=outer / 2, outer_angle=outer, intensity=3.0)
+    scene = make_scene([spot] + point_lights(rng, 5), model="blinn-phong", h=20.0)
+    r = Renderer(scene, max_error=0.0)
+    result = r.render(gb)
+    assert np.array_equal(result.image, Renderer(scene).render(gb).image)
+    lists = read_tile_lists(r.runtime, result.cull)
+    assert not any(0 in idx for idx in lists)
+    assert sum(len(idx) for idx in lists) > 0
