@@ -244,7 +244,7 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
 
 #: The plan defines kernels/cull.cl reads; passing only these keeps one cull
 #: program per material layout, whatever the shading variant (path, tone mapping).
-CULL_DEFINES = ("HAS_SPECULAR", "MAP_KD", "MAP_KS", "MAP_H", "MAP_CS")
+CULL_DEFINES = ("HAS_SPECULAR", "MAP_KD", "MAP_KS", "MAP_H", "MAP_CS", "HAS_SPOT")
 
 
 def build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k_d, S,
