@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +16,8 @@ from hypothesis import strategies as st
 
 from clphong.device import culling
 from clphong.device.renderer import Renderer, prepare_frame
-from clphong.model.scene import spot_angles_from_blender, spot_scale_offset
+from clphong.io.gbuffer import read_gbuffer
+from clphong.model.scene import load_scene, spot_angles_from_blender, spot_scale_offset
 from clphong.reference import shading as reference
 from clphong.tools.hardcases import _spot_over_plane
 
@@ -166,3 +168,12 @@ def test_property_any_cone_within_the_bound(inner, width, tilt, height, model, f
               inner_angle=inner, outer_angle=outer, intensity=2.0, attenuation=(1.0, 0.0, 1.0))
     scene = make_scene([lt, dict(type="ambient", intensity=0.05)], model=model, h=10.0)
     _check(scene, gb, fp64_directions=fp64)
+
+
+def test_the_spot_sample_scene_within_the_bound():
+    """gbuffers/spheres_spot.toml (README's spot and Fresnel sample) on spheres.exr."""
+    root = Path(__file__).resolve().parents[2] / "gbuffers"
+    scene = load_scene(root / "spheres_spot.toml")
+    gb = read_gbuffer(root / "spheres.exr")
+    result, ref = _check(scene, gb)
+    assert result.plan.defines["HAS_SPOT"] == 1 and result.plan.defines["FRESNEL"] == 1
