@@ -53,6 +53,7 @@ class ShadingPlan:
     reasons: tuple[tuple[str, str], ...]
     kernel: str = "lanes"
     n_point: int = 0
+    n_spot: int = 0                 # of the n_point, the spots
     n_directional: int = 0
     n_ambient: int = 0
     maps: tuple[str, ...] = ()
@@ -76,7 +77,9 @@ class ShadingPlan:
     def __str__(self) -> str:
         lines = [
             f"kernel: kernels/{self.entry_file} ({self.kernel}, {self.lanes} pixel(s) per work-item)",
-            f"lights: {self.n_point} point, {self.n_directional} directional, {self.n_ambient} ambient",
+            f"lights: {self.n_point} point"
+            + (f" ({self.n_spot} of them spots)" if self.n_spot else "")
+            + f", {self.n_directional} directional, {self.n_ambient} ambient",
             f"material maps: {', '.join(self.maps) if self.maps else 'none'}",
             "defines:",
         ]
@@ -280,6 +283,6 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     notes = []
     if not n_point and not n_dir:
         notes.append("no direct lights: only the ambient term is shaded")
-    return ShadingPlan(defines=d, reasons=tuple(r), kernel=kernel, n_point=n_point,
+    return ShadingPlan(defines=d, reasons=tuple(r), kernel=kernel, n_point=n_point, n_spot=n_spot,
                        n_directional=n_dir, n_ambient=n_amb, maps=maps, notes=tuple(notes),
                        groups=tuple(groups), aovs=tuple(a for a in AOV_NAMES if a in aovs))

@@ -696,14 +696,27 @@ BLENDER_SPOT_FIT = 1.255
 
 
 def spot_angles_from_blender(spot_size: float, spot_blend: float) -> tuple[float, float]:
-    """``(inner_angle, outer_angle)`` in degrees for a Blender spot (``spot_size`` the
-    full cone in radians, ``spot_blend`` in (0, 1]): outer = spot_size/2 and
+    """``(inner_angle, outer_angle)`` in degrees for a Blender spot: ``spot_size`` the
+    full cone in **radians** as bpy gives it (Blender's interface shows degrees),
+    0 < spot_size <= π, and ``spot_blend`` in [0, 1]. outer = spot_size/2 and
     cos inner = cos outer + spot_blend·(1 − cos outer)/:data:`BLENDER_SPOT_FIT`, so
-    that t² follows Cycles' smoothstep fade within 0.107."""
+    that t² follows Cycles' smoothstep fade within 0.107; a blend of 0 (Cycles' hard
+    edge) gives the sharpest edge the scene allows (:data:`SPOT_MAX_SCALE`).
+
+    Raises
+    ------
+    ValueError
+        For a size or blend out of range (a size in degrees, e.g. 45, is one).
+    """
+    if not (0.0 < spot_size <= math.pi):
+        raise ValueError(f"spot_size {spot_size!r} is not in (0, pi]: Blender's spot_size is the "
+                         "full cone in radians (bpy's value; the interface shows degrees)")
+    if not (0.0 <= spot_blend <= 1.0):
+        raise ValueError(f"spot_blend {spot_blend!r} is not in [0, 1]")
     outer = math.degrees(spot_size / 2)
-    co = math.cos(spot_size / 2)
-    ci = min(co + spot_blend * (1.0 - co) / BLENDER_SPOT_FIT, 1.0)
-    return math.degrees(math.acos(ci)), outer
+    co = 0.0 if outer == 90.0 else math.cos(spot_size / 2)
+    width = max(spot_blend * (1.0 - co) / BLENDER_SPOT_FIT, 1.0001 / SPOT_MAX_SCALE)
+    return math.degrees(math.acos(min(co + width, 1.0))), outer
 
 
 # --------------------------------------------------------------------------
@@ -962,6 +975,10 @@ class _Parser:
 
     def unknown(self, path: str, key: Any, valid: tuple[str, ...]) -> NoReturn:
         close = difflib.get_close_matches(key, valid, n=1) if isinstance(key, str) else []
+        if path and key in _TOP_KEYS:
+            # TOML puts a key written after a [table] header into that table
+            self.fail(_join(path, key), f"unknown key; {key!r} is a top-level key: write it "
+                                        "before the first [table] or [[light]] of the file")
         if close:
             hint = f"did you mean {close[0]!r}?"
         else:

@@ -177,3 +177,13 @@ def test_the_spot_sample_scene_within_the_bound():
     gb = read_gbuffer(root / "spheres.exr")
     result, ref = _check(scene, gb)
     assert result.plan.defines["HAS_SPOT"] == 1 and result.plan.defines["FRESNEL"] == 1
+
+
+def test_blender_mapping_refuses_degrees_and_makes_a_hard_edge_valid():
+    with pytest.raises(ValueError, match="radians"):
+        spot_angles_from_blender(45.0, 0.15)                 # degrees by mistake
+    with pytest.raises(ValueError, match="spot_blend"):
+        spot_angles_from_blender(1.0, -0.2)
+    inner, outer = spot_angles_from_blender(math.radians(60), 0.0)   # Cycles' hard edge
+    s, _ = spot_scale_offset(inner, outer)
+    assert inner < outer == pytest.approx(30.0) and s <= 2.0 ** 18   # the sharpest edge allowed

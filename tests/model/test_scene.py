@@ -1371,3 +1371,9 @@ def test_toml_messages_are_tomllibs(text):
 
     assert message(scene._toml) == message(tomllib)
     assert re.match(rf"{re.escape(SRC)}:\d+:\d+: invalid TOML: \S", message(tomllib))
+
+
+def test_a_top_level_key_after_a_table_says_where_it_belongs():
+    """TOML files a key written after [[light]] into that light: say it is a top-level key."""
+    msg = error_of(_with_light({"type": "ambient", "lights": "rig.csv"}))
+    assert msg.startswith(f"{SRC}: light[0].lights: unknown key; 'lights' is a top-level key"), msg
