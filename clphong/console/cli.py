@@ -510,7 +510,15 @@ def cmd_render(args) -> int:
         h, w = gbuffer.shape
         # The plan that ran (culling fallback), not a fresh one; then the display program's.
         plan = result.plan
-        print(plan, file=sys.stderr)
+        text = str(plan)
+        if result.cull is not None and result.cull.brute:
+            # the brute-force variant ran although a budget was given: say so on its line
+            text = "\n".join(ln.replace("no --max-error budget: every light shades every pixel",
+                                         "--max-error given, but the lists keep nearly every light: "
+                                         "every light shades every pixel (culling line below)")
+                              if ln.lstrip().startswith("-DCULLING=") else ln
+                              for ln in text.split("\n"))
+        print(text, file=sys.stderr)
         dt = result.display_transform
         if dt is not None:
             print("display: kernels/tonemap_apply.cl on the shaded planes (rebuilt alone when "
