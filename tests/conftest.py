@@ -103,17 +103,18 @@ def random_lights(rng, n_point=3, n_dir=1, n_amb=1):
 
 
 def check_against_reference(scene, gbuffer, *, kernel="lanes", lanes=None, compensated=None,
-                            fp64_directions=None, int_pow=True, device=None):
+                            fp64_directions=None, int_pow=None, device=None, path=None):
     """Render, compare with the float64 reference, assert |err| ≤ the error bound.
 
     ``device``: a device selector (the ``device`` fixture's "P:D"); None, the default device.
+    ``path``: the Renderer's named path ("float", "fast"), instead of the number options.
     Returns (rgb, ref, bound, band) for further checks.
     """
     from clphong.device.renderer import Renderer, prepare_frame
     from clphong.reference import shading as reference
 
     r = Renderer(scene, kernel=kernel, lanes=lanes, compensated=compensated,
-                 fp64_directions=fp64_directions, int_pow=int_pow, device=device)
+                 fp64_directions=fp64_directions, int_pow=int_pow, device=device, path=path)
     frame = prepare_frame(gbuffer, lanes=r.lanes)
     result = r.shade(frame)
     rgb, plan = result.image, result.plan      # plan: the variant that ran

@@ -30,9 +30,11 @@ import OpenImageIO as oiio
 
 from ..core.errors import SceneError, clean_line
 from ..core.files import not_regular
+from ..core.geometry import view_vector
 from ..core.memory import require_memory
 from ..model.environment import DEFAULT_ENV_ERROR, EnvironmentLights, environment_lights
 from ..model.scene import Light, Scene, SceneWarning
+from .gbuffer import oiio_message
 
 __all__ = ["read_envmap", "resolve_environment", "ResolvedScene", "ENV_BYTES_PER_TEXEL",
            "ENV_FIXED_BYTES", "environment_key", "directional_lights"]
@@ -53,13 +55,6 @@ def environment_key(scene: Scene, index: int) -> str:
 
 def _fail(where: str, name: str, problem: str):
     raise SceneError(clean_line(f"{where}: {name}: {problem}"))
-
-
-def _oiio_error(geterror) -> str:
-    try:
-        return clean_line(geterror() or "")
-    except UnicodeDecodeError:
-        return "OpenImageIO's message is not UTF-8 text (a corrupt file?)"
 
 
 def read_envmap(path, where: str = "environment") -> np.ndarray:
@@ -88,7 +83,7 @@ def read_envmap(path, where: str = "environment") -> np.ndarray:
         _fail(where, name, f"cannot read: it is {kind}; give a regular file (an EXR or HDR map)")
     inp = oiio.ImageInput.open(name)
     if inp is None:
-        _fail(where, name, f"cannot read: {_oiio_error(oiio.geterror) or 'unknown error'}")
+        _fail(where, name, f"cannot read: {oiio_message(oiio.geterror) or 'unknown error'}")
     try:
         spec = inp.spec()
         W, H, C = int(spec.width), int(spec.height), int(spec.nchannels)
@@ -112,7 +107,7 @@ def read_envmap(path, where: str = "environment") -> np.ndarray:
                        "or set CLPHONG_MAX_MEMORY if you know there is more memory")
         pix = inp.read_image(0, 0, lo, hi, oiio.TypeDesc("float"))
         if pix is None:
-            _fail(where, name, f"cannot read: {_oiio_error(inp.geterror) or 'unknown error'}")
+            _fail(where, name, f"cannot read: {oiio_message(inp.geterror) or 'unknown error'}")
     finally:
         inp.close()
     pix = np.asarray(pix, np.float32).reshape(H, W, hi - lo)
@@ -162,13 +157,6 @@ _LOCK = threading.Lock()
 _CACHE: dict = {}
 #: Conversions kept per process (each holds its lights only, not the map).
 _CACHE_SIZE = 8
-
-
-def _view_of(scene: Scene):
-    cam = scene.camera
-    if cam.type == "orthographic" and cam.direction is not None:
-        return -np.asarray(cam.direction, np.float64)
-    return None
 
 
 def _convert(light: Light, where: str, material, view, max_error: float) -> EnvironmentLights:
@@ -226,7 +214,7 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR) -
     """
     if not any(lt.type == "environment" for lt in scene.lights):
         return ResolvedScene(scene=scene)
-    view = _view_of(scene)
+    view = view_vector(scene.camera)
     lights: list[Light] = []
     done = []
     for i, lt in enumerate(scene.lights):

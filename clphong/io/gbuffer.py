@@ -507,7 +507,7 @@ def _explicit(ch: _Channels, key: str, spec: tuple[str, object], path: str,
 # --------------------------------------------------------------------------- file access
 
 
-def _oiio_message(geterror) -> str:
+def oiio_message(geterror) -> str:
     """OpenImageIO's pending error as one line; its binding fails on non-UTF-8 text."""
     try:
         text = geterror()             # reading it clears it: call once
@@ -572,7 +572,7 @@ def open_image(path: str, *, what: str = "an EXR file", verb: str = "read as EXR
             tmp.seek(0)
             noise = tmp.read().decode("utf-8", "replace")
     if inp is None:
-        message = _oiio_message(oiio.geterror) or _one_line(noise) or "unknown error"
+        message = oiio_message(oiio.geterror) or _one_line(noise) or "unknown error"
         raise GBufferError(f"{path}: cannot {verb}: {message}")
     return inp
 
@@ -667,7 +667,7 @@ class _ExrFile:
                 specs.append(inp.spec())
             if not specs:
                 raise GBufferError(f"{p}: cannot read as EXR: "
-                                   f"{_oiio_message(inp.geterror) or 'no readable part'}")
+                                   f"{oiio_message(inp.geterror) or 'no readable part'}")
             multipart = len(specs) > 1
             self.parts = []
             owner: dict[str, int] = {}
@@ -903,7 +903,7 @@ class _ExrFile:
         return True
 
     def _read_failed(self, part: _Part, lo: int, hi: int):
-        msg = (_oiio_message(self.inp.geterror) or _oiio_message(oiio.geterror)
+        msg = (oiio_message(self.inp.geterror) or oiio_message(oiio.geterror)
                or "unknown error")
         where = f" of part {part.index}" if self.multipart else ""
         raise GBufferError(f"{self.path}: reading channels "

@@ -385,7 +385,7 @@ def probe_sums(n, v, l, radiance, material, *, chunk: int = 128, specular: bool 
     specular = np.zeros((P, 3))
     blinn = material.model == "blinn-phong"
     k = material.exponent
-    f0 = np.asarray(material.f0, np.float64) if getattr(material, "fresnel", "none") == "schlick" else None
+    f0 = np.asarray(material.f0, np.float64) if material.fresnel == "schlick" else None
     NoV = np.einsum("ij,ij->i", n, v)[:, None]
     for a in range(0, len(l), chunk):
         li, Li = l[a:a + chunk], radiance[a:a + chunk]
@@ -423,7 +423,7 @@ def probe_sums(n, v, l, radiance, material, *, chunk: int = 128, specular: bool 
 
 def _pixels(diffuse, specular, material) -> np.ndarray:
     """Probe pixel values at white albedo: k_d·diffuse + k_s·C_s·specular (Fresnel's W in specular)."""
-    cs = np.ones(3) if getattr(material, "fresnel", "none") == "schlick" else \
+    cs = np.ones(3) if material.fresnel == "schlick" else \
         np.asarray(material.specular_color, np.float64)
     return material.k_d * diffuse + material.k_s * cs * specular
 

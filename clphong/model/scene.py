@@ -682,10 +682,14 @@ SPOT_MAX_SCALE = 2.0 ** 18
 def spot_scale_offset(inner: float, outer: float) -> tuple[float, float]:
     """``(s, o)`` of glTF KHR_lights_punctual's spot factor for half-angles in
     degrees: ``t = clamp(cos θ·s + o, 0, 1)``, factor ``t²``, with
-    ``s = 1/(cos inner − cos outer)`` and ``o = −cos outer·s`` (float64)."""
+    ``s = 1/(cos inner − cos outer)`` and ``o = −cos outer·s`` (float64); ``s = ∞``
+    where the cosines are equal in float64 (e.g. 0 and 1e-40), an edge no scene
+    accepts (:data:`SPOT_MAX_SCALE`)."""
     ci, co = math.cos(math.radians(inner)), math.cos(math.radians(outer))
     if outer == 90.0:
         co = 0.0                   # cos(π/2) is 6e-17 in float64: the horizon exactly
+    if ci <= co:
+        return (math.inf, -math.inf)
     s = 1.0 / (ci - co)
     return (s, -co * s)
 
@@ -1405,10 +1409,7 @@ class _Parser:
             self.fail(path + ".inner_angle", f"{inner!r} is not less than outer_angle = "
                                              f"{outer!r}{given}; the cone fades from inner to "
                                              "outer, so 0 <= inner < outer <= 90 (degrees)")
-        try:
-            s, _ = spot_scale_offset(inner, outer)
-        except ZeroDivisionError:         # cos inner == cos outer in float64 (e.g. 0 and 1e-40)
-            s = math.inf
+        s, _ = spot_scale_offset(inner, outer)
         if s > SPOT_MAX_SCALE:
             self.fail(path + ".outer_angle", f"the edge from inner_angle = {inner!r} to "
                       f"outer_angle = {outer!r} is too sharp for the kernels' float32 cone "

@@ -46,7 +46,7 @@ def without_environment(scene):
 
 
 def _fast_applies(scene, gbuffer) -> bool:
-    return "h" not in gbuffer.maps and getattr(scene.material, "fresnel", "none") == "none"
+    return "h" not in gbuffer.maps and scene.material.fresnel == "none"
 
 
 def _texels_fast(scene, gbuffer, l, E):

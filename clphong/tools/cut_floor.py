@@ -40,7 +40,7 @@ def _pixels_of(scene, gbuffer, idx):
     return sub, D[k], S[k]
 
 
-def light_contributions(px, D, S, Y, R, att, cone=None):
+def light_contributions(px, D, S, Y, R, att):
     """(K, M, 3) contribution of K point lights at Y (K, 3) with radiance R (K, 3)
     and attenuation (K, 3) to M pixels, through the reference's shade_point_light."""
     c = att[:, :, None]
@@ -75,7 +75,7 @@ class KdTree:
                 stack.append((lo, mid, k, 0))
 
 
-def oracle_cut(contrib, Y, R, att, tree: KdTree, rep_of, eps: float) -> int:
+def oracle_cut(contrib, Y, R, tree: KdTree, rep_of, eps: float) -> int:
     """The greedy cut's size for one pixel: ``contrib`` (N, 3) its per-light
     contributions in tree order, ``rep_of(Yc, Rc)`` the representative's (3,)."""
     pref = np.vstack([np.zeros(3), np.cumsum(contrib, axis=0)])
@@ -133,7 +133,7 @@ def cut_sizes(scene, gbuffer, eps_list, n_pixels: int, seed: int = 0):
             return light_contributions(one, D[m:m + 1], S[m:m + 1], yc[None], rc[None], att1)[0, 0]
 
         for e in eps_list:
-            out[e].append(oracle_cut(contrib, Y, R, att1, tree, rep_of, e))
+            out[e].append(oracle_cut(contrib, Y, R, tree, rep_of, e))
     return out
 
 

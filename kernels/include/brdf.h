@@ -13,13 +13,17 @@ inline wL lambert(wL NoL)
     return MAX0(NoL);
 }
 
+/* x clamped to [0, 1], with comparisons: PoCL 3.0 calls clamp() out of line. */
+inline dirL clamp01(dirL x)
+{
+    return SELECT_DIR(SELECT_DIR(x, (dirL)(1.0f), x > (dirL)(1.0f)), (dirL)(0.0f), x < (dirL)(0.0f));
+}
+
 /* Schlick's Fresnel factor (1 − cos α)⁵ for cos α clamped to [0, 1] (the weight
  * W = f0 + (1 − f0)·(1 − cos α)⁵ of FRESNEL, shade.cl): three multiplies. */
 inline dirL schlick_weight(dirL cos_a)
 {
-    const dirL c = SELECT_DIR(SELECT_DIR(cos_a, (dirL)(1.0f), cos_a > (dirL)(1.0f)), (dirL)(0.0f),
-                              cos_a < (dirL)(0.0f));
-    const dirL m = (dirL)(1.0f) - c;
+    const dirL m = (dirL)(1.0f) - clamp01(cos_a);
     const dirL m2 = m * m;
     return m2 * m2 * m;
 }

@@ -96,8 +96,6 @@ inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, di
     w.specular = (wL)(0.0f);
 #endif
 #if FRESNEL && MODEL_BLINN
-    /* cos α = v·h = √((1 + l·v)/2), h = (l + v)/|l + v| (l = −v: h undefined, the
-       specular weight is 0 and so is this) */
     w.fresnel = w.specular * DIR_TO_W(schlick_weight(v_dot_h(p, lx, ly, lz)));
 #endif
     return w;
@@ -108,13 +106,11 @@ inline weights_t shade_direction(const pixel_t *p, dirL lx, dirL ly, dirL lz, di
  * the light to the shaded point, −l: cos θ = −l·a. s = 1/(cos inner − cos outer)
  * and o = −cos outer·s come from the host in float64 (scene.spot_scale_offset);
  * a point light's record has a = 0, s = 0, o = 1: a factor of exactly 1.
- * Written with comparisons, not clamp() (PoCL 3.0 calls builtins out of line). */
+ */
 inline dirL spot_factor(dirL lx, dirL ly, dirL lz, dirS ax, dirS ay, dirS az, dirS s, dirS o)
 {
     const dirL cos_theta = -MUL_ADD(lx, (dirL)(ax), MUL_ADD(ly, (dirL)(ay), lz * (dirL)(az)));
-    const dirL x = MUL_ADD(cos_theta, (dirL)(s), (dirL)(o));
-    const dirL t = SELECT_DIR(SELECT_DIR(x, (dirL)(1.0f), x > (dirL)(1.0f)), (dirL)(0.0f),
-                              x < (dirL)(0.0f));
+    const dirL t = clamp01(MUL_ADD(cos_theta, (dirL)(s), (dirL)(o)));
     return t * t;
 }
 

@@ -10,12 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import heightfield, make_scene
+from conftest import check_against_reference, heightfield, make_scene
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from clphong.device import culling
-from clphong.device.renderer import Renderer, prepare_frame
+from clphong.device.renderer import Renderer
 from clphong.io.gbuffer import read_gbuffer
 from clphong.model.scene import load_scene, spot_angles_from_blender, spot_scale_offset
 from clphong.reference import shading as reference
@@ -46,17 +46,6 @@ def test_reference_factor_is_gltfs():
     assert got.max() == 1.0 and got.min() == 0.0 and ((got > 0) & (got < 1)).sum() > 5
 
 
-def _check(scene, gb, **kw):
-    r = Renderer(scene, **kw)
-    frame = prepare_frame(gb, lanes=max(r.lanes, 1))
-    result = r.shade(frame)
-    ref = reference.shade(scene, gb)
-    bound, _ = reference.error_bound(scene, gb, origin=frame.origin, plan=result.plan)
-    err = np.abs(result.image.astype(np.float64) - ref)
-    assert np.all(err <= bound), f"max |err|/bound {np.max(err / np.maximum(bound, 1e-300)):.3g}"
-    return result, ref
-
-
 def _scene(rng, model="blinn-phong", n=12, groups=False):
     lights = []
     for j in range(n):
@@ -81,8 +70,9 @@ def _scene(rng, model="blinn-phong", n=12, groups=False):
 def test_spots_within_the_error_bound(kw, model):
     rng = np.random.default_rng(2)
     gb = heightfield(rng)
-    result, ref = _check(_scene(rng, model), gb, **kw)
-    assert result.plan.defines["HAS_SPOT"] == 1
+    scene = _scene(rng, model)
+    _, ref, _, _ = check_against_reference(scene, gb, **kw)
+    assert Renderer(scene, **kw).plan_for(()).defines["HAS_SPOT"] == 1
     # the cones matter: the same lights as point lights shade differently
     fg = ~gb.background_mask()
     assert np.abs(ref[fg]).max() > 0
@@ -167,7 +157,7 @@ def test_property_any_cone_within_the_bound(inner, width, tilt, height, model, f
     lt = dict(type="spot", position=(1.1, 0.8, height), direction=(tilt, 0.3 * tilt, -1.0),
               inner_angle=inner, outer_angle=outer, intensity=2.0, attenuation=(1.0, 0.0, 1.0))
     scene = make_scene([lt, dict(type="ambient", intensity=0.05)], model=model, h=10.0)
-    _check(scene, gb, fp64_directions=fp64)
+    check_against_reference(scene, gb, fp64_directions=fp64)
 
 
 def test_the_spot_sample_scene_within_the_bound():
@@ -175,8 +165,9 @@ def test_the_spot_sample_scene_within_the_bound():
     root = Path(__file__).resolve().parents[2] / "gbuffers"
     scene = load_scene(root / "spheres_spot.toml")
     gb = read_gbuffer(root / "spheres.exr")
-    result, ref = _check(scene, gb)
-    assert result.plan.defines["HAS_SPOT"] == 1 and result.plan.defines["FRESNEL"] == 1
+    check_against_reference(scene, gb)
+    plan = Renderer(scene).plan_for(())
+    assert plan.defines["HAS_SPOT"] == 1 and plan.defines["FRESNEL"] == 1
 
 
 def test_blender_mapping_refuses_degrees_and_makes_a_hard_edge_valid():
