@@ -22,11 +22,20 @@ never culled.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..core.floats import U
+from ..model.light_tree import (
+    LightTree,
+    SpecularModel,
+    TileBoxes,
+    choose_cut,
+    cluster_bounds,
+    representative_records,
+)
 from .runtime import float4
 
 #: float4s per point-light record (POINT_LIGHT_FLOAT4S in kernels/include/clphong.h):
@@ -59,6 +68,16 @@ CULL_LOCAL = 8
 #: (256 lights, c2 = 20, 98.9 % kept: 1.13x before this fallback), and keeps its
 #: gain where it can.
 BRUTE_ABOVE = 0.85
+#: The light tree (clphong/model/light_tree.py) is tried where the super-tiles'
+#: lists keep more than this share of the point lights on average: below it
+#: culling alone does well (the small-reach scene keeps 0.2 %), and the host's cut
+#: is not worth its time.
+TREE_ABOVE = 0.25
+#: Share of the budget the tree's clusters may use where the tree is tried; the
+#: tiles' culling gets what the super-tiles and the tree leave (1 − 1/4 − 1/4).
+TREE_SHARE = 0.25
+#: Super-tiles per chunk of the host's cut (bounds are (chunk, nodes, 3) float64).
+TREE_CHUNK = 8
 
 
 def super_tiles(lanes: int) -> int:
@@ -139,6 +158,13 @@ class TileLists:
     seconds: float            # device time of the three culling kernels
     active_tiles: int = 0     # tiles with at least one shaded pixel
     brute: bool = False       # the lists kept too much to pay off: shaded brute force
+    #: with the light tree's clusters: the point records the lists index (the
+    #: scene's, then the representatives'), float32 rebased and float64; else None
+    records: np.ndarray | None = None
+    records64: np.ndarray | None = None
+    clusters: int = 0         # Σ over super-tiles of the clusters their cuts use
+    covered: int = 0          # Σ over super-tiles of the lights those clusters stand for
+    tree_seconds: float = 0.0  # the host's cut (bounds and choice)
 
     @property
     def pays(self) -> bool:
@@ -248,15 +274,26 @@ CULL_DEFINES = ("HAS_SPECULAR", "MAP_KD", "MAP_KS", "MAP_H", "MAP_CS", "HAS_SPOT
 
 
 def build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k_d, S,
-                     gbuf_buffer=None, maps_buffer=None):
+                     gbuf_buffer=None, maps_buffer=None, tree=None):
     """See :func:`_build_tile_lists`; holds the runtime's launch lock (its cached kernels)."""
     with runtime.lock:
         return _build_tile_lists(runtime, plan, frame, point_records, n_point, budget=budget,
-                                 k_d=k_d, S=S, gbuf_buffer=gbuf_buffer, maps_buffer=maps_buffer)
+                                 k_d=k_d, S=S, gbuf_buffer=gbuf_buffer, maps_buffer=maps_buffer,
+                                 tree=tree)
+
+
+@dataclass(frozen=True)
+class TreeInput:
+    """What the light tree's cut needs besides the frame: the tree, the specular
+    model its bound uses, and the float64 point records (the fp64 path's)."""
+
+    tree: LightTree
+    spec: SpecularModel
+    point64: np.ndarray
 
 
 def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k_d, S,
-                      gbuf_buffer=None, maps_buffer=None):
+                      gbuf_buffer=None, maps_buffer=None, tree: TreeInput | None = None):
     """Run kernels/cull.cl for one frame; return :class:`TileLists`, or None when
     culling cannot pay off (the lists would exceed ``MAX_LIST_ENTRIES``).
 
@@ -295,11 +332,23 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                          budget=coarse_budget, tiles_x=super_x, tiles_y=super_y, lanes=lanes)
     if coarse is None:
         return None
-    c_ranges, c_lists, _, c_seconds = coarse
+    c_ranges, c_lists, c_kept, c_seconds = coarse
+    rest = budget - coarse_budget
+    cut = None
+    if tree is not None and budget > 0:
+        cut = _tree_cut(runtime, tree, coarse_tiles, c_ranges, c_lists, c_kept, point_records,
+                        n_point, frame.origin, n_super=super_x * super_y,
+                        budget=budget * TREE_SHARE, lanes=lanes)
+    n_lists = n_point
+    if cut is not None:
+        c_ranges, c_lists, records, records64, clusters, covered, tree_s = cut
+        rest = budget - coarse_budget - budget * TREE_SHARE
+        n_lists = len(records) // POINT_RECORD
+        lb = cl.Buffer(ctx, ro, hostbuf=pack_cull_lights(records, n_lists))
     crb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(c_ranges))
-    # the rest of the budget, rounded down so that the two parts never sum past it
-    fine_budget = float(np.nextafter(np.float32(budget - coarse_budget), np.float32(0)))
-    fine = _cull_level(runtime, prog, fine_tiles, [], lb, n_point, budget=max(fine_budget, 0.0),
+    # the rest of the budget, rounded down so that the parts never sum past it
+    fine_budget = float(np.nextafter(np.float32(rest), np.float32(0)))
+    fine = _cull_level(runtime, prog, fine_tiles, [], lb, n_lists, budget=max(fine_budget, 0.0),
                        tiles_x=tiles_x, tiles_y=tiles_y, lanes=lanes,
                        candidates=(crb, c_lists), super_tiles=super_x * super_y)
     if fine is None:
@@ -307,9 +356,74 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
     ranges, lists, kept, seconds = fine
     rb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(ranges))
     shaded = tile_of_pixels(frame.shape, lanes, tiles_x).reshape(-1)[~frame.background]
+    extra = {}
+    if cut is not None:
+        extra = dict(records=records, records64=records64, clusters=clusters, covered=covered,
+                     tree_seconds=tree_s)
     return TileLists(ranges=rb, lights=lists, width=w, tiles_x=tiles_x, n_tiles=tiles_x * tiles_y,
                      kept=kept, n_point=n_point, seconds=c_seconds + seconds,
-                     active_tiles=int(np.unique(shaded).size))
+                     active_tiles=int(np.unique(shaded).size), **extra)
+
+
+def read_tile_boxes(runtime, tiles_buffer, n_tiles: int, lanes: int) -> TileBoxes:
+    """The tile records of kernels/cull.cl tile_bounds / merge_bounds, read back."""
+    import pyopencl as cl
+
+    n_pad = _n_pad(n_tiles, lanes)
+    planes = np.empty((T_PLANES, n_pad), np.float32)
+    cl.enqueue_copy(runtime.queue, planes, tiles_buffer).wait()
+    p = planes[:, :n_tiles].astype(np.float64)
+    return TileBoxes(lo=p[0:3].T, hi=p[3:6].T, nlo=p[6:9].T, nhi=p[9:12].T, D=p[12:15].T,
+                     S=p[15:18].T)
+
+
+def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, c_kept, point_records,
+              n_point, origin, *, n_super, budget, lanes):
+    """The super-tiles' lists with the tree's clusters: per super-tile, the cut of
+    :func:`~clphong.model.light_tree.choose_cut` within ``budget``; its clusters
+    replace the lights they stand for, and the culled lights stay out. None where
+    the coarse lists keep little (:data:`TREE_ABOVE`) or no cluster fits.
+
+    Returns (ranges, lists buffer, float32 records, float64 records, clusters,
+    covered, seconds).
+    """
+    import pyopencl as cl
+
+    counts = c_ranges[:, 1].astype(np.int64)
+    active = max(int((counts > 0).sum()), 1)
+    if c_kept <= TREE_ABOVE * active * n_point:
+        return None
+    t0 = time.perf_counter()
+    tree = tin.tree
+    boxes = read_tile_boxes(runtime, coarse_tiles, n_super, lanes)
+    flat = np.zeros(max(c_lists.size // 4, 1), np.uint32)    # capacities ≥ counts
+    cl.enqueue_copy(runtime.queue, flat, c_lists).wait()
+    new_lists, clusters, covered_n = [], 0, 0
+    for s0 in range(0, n_super, TREE_CHUNK):
+        s1 = min(s0 + TREE_CHUNK, n_super)
+        part = TileBoxes(*(getattr(boxes, f)[s0:s1] for f in ("lo", "hi", "nlo", "nhi", "D", "S")))
+        b = cluster_bounds(tree, part, tin.spec, origin)
+        used, covered = choose_cut(tree, b, budget)
+        for t in range(s1 - s0):
+            o, c = c_ranges[s0 + t]
+            kept = flat[o:o + c]
+            kept = kept[~covered[t, kept]]
+            nodes = np.flatnonzero(used[t])
+            clusters += nodes.size
+            covered_n += int(covered[t].sum())
+            new_lists.append(np.concatenate([kept, (n_point + nodes).astype(np.uint32)]))
+    if clusters == 0:
+        return None
+    sizes = np.array([len(x) for x in new_lists], np.int64)
+    offsets = np.r_[0, np.cumsum(sizes)[:-1]]
+    ranges = np.stack([offsets, sizes], axis=1).astype(np.uint32)
+    lists = np.concatenate(new_lists).astype(np.uint32) if sizes.sum() else np.zeros(1, np.uint32)
+    buf = cl.Buffer(runtime.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                    hostbuf=lists)
+    rep32, rep64 = representative_records(tree, origin)
+    records = np.concatenate([point_records[:n_point * POINT_RECORD], rep32])
+    records64 = np.concatenate([tin.point64[:n_point * POINT_RECORD], rep64])
+    return ranges, buf, records, records64, clusters, covered_n, time.perf_counter() - t0
 
 
 def read_tile_lists(runtime, lists: TileLists) -> list[np.ndarray]:

@@ -24,6 +24,7 @@ from ..core.errors import DeviceError, GBufferError, SceneError
 from ..core.geometry import split_hi_lo
 from ..core.memory import ENV_VAR, F32, format_size, memory_budget
 from ..io.nonfinite import apply_nonfinite_policy, apply_range_policy
+from ..model.light_tree import SpecularModel, build_light_tree
 from ..model.options import (
     check_budget,
     check_float_power,
@@ -44,7 +45,7 @@ from .bands import (
     plan_bands,
     render_bytes_per_pixel,
 )
-from .culling import TileLists, build_tile_lists
+from .culling import TileLists, TreeInput, build_tile_lists
 from .display import DisplayTransform, apply_display_transform, enqueue_display
 from .frame import (
     COVERAGE_PLANE,
@@ -172,8 +173,10 @@ class Renderer:
                  fp64_directions: bool | None = None, nonfinite: str = "background",
                  max_error: float | None = None, reference_white: float = 1.0,
                  int_pow: bool | str | None = None, path: str | None = None,
-                 aovs: Sequence[str] = (), straight_alpha: bool = False):
+                 aovs: Sequence[str] = (), straight_alpha: bool = False,
+                 light_tree: bool = True):
         self.scene = scene
+        self.use_tree = bool(light_tree)
         self.groups, self.aovs = check_layers(scene, aovs or scene.aovs)
         self.straight_alpha = bool(straight_alpha)
         if path is not None:
@@ -377,6 +380,30 @@ class Renderer:
                 f"{ENV_VAR} (e.g. {ENV_VAR}=1G) to shade in smaller bands, or choose another "
                 "device with --device or PYOPENCL_CTX") from exc
 
+    # ------------------------------------------------------------------ light tree
+
+    def light_tree(self):
+        """The scene's light tree (clphong/model/light_tree.py), built once; None
+        where too few lights may be clustered."""
+        if not hasattr(self, "_light_tree"):
+            self._light_tree = build_light_tree(self.scene.light_arrays)
+        return self._light_tree
+
+    def _tree_input(self, plan, frame, lights):
+        """What culling's light-tree cut needs, or None (no tree; light groups, whose
+        lists are read in group order, do not take clusters yet)."""
+        if not self.use_tree or plan.defines.get("N_GROUPS"):
+            return None
+        tree = self.light_tree()
+        if tree is None:
+            return None
+        m = self.scene.material
+        spec = SpecularModel(blinn=m.model == "blinn-phong",
+                             exponent=None if "h" in frame.map_names else m.exponent,
+                             fresnel=m.fresnel == "schlick", eye=np.asarray(lights.eye),
+                             perspective=self.scene.camera.type == "perspective")
+        return TreeInput(tree=tree, spec=spec, point64=lights.point64)
+
     # ------------------------------------------------------------------ one launch
 
     def shade(self, frame: Frame, *, display: DisplayTransform | None = None) -> RenderResult:
@@ -417,7 +444,8 @@ class Renderer:
             if plan.defines.get("CULLING"):
                 cull = build_tile_lists(self.runtime, plan, frame, lights.point, plan.n_point,
                                         budget=self.max_error, k_d=k_d, S=S, gbuf_buffer=g,
-                                        maps_buffer=mp)
+                                        maps_buffer=mp,
+                                        tree=self._tree_input(plan, frame, lights))
                 if cull is None or not cull.pays:
                     # lists too long, or keeping nearly every light: brute force (the
                     # lists' cost stays in cull.seconds, their kept share in the result)
@@ -427,6 +455,8 @@ class Renderer:
                                                         coverage=frame.coverage)
                 else:
                     cull_args = cull.kernel_args()
+                    if cull.records is not None:     # the lists name the tree's clusters too
+                        pl = cl.Buffer(ctx, ro, hostbuf=cull.records64 if fp64 else cull.records)
             kern = self.runtime.kernel(prog, "shade")
             kern.set_args(
                 g, mp, ob, np.uint32(frame.stride), np.uint32(0),

@@ -32,8 +32,10 @@ BRUTE_ABOVE = culling.BRUTE_ABOVE
 @pytest.fixture(autouse=True)
 def _shade_through_the_lists(monkeypatch):
     """These tests hold the culled kernel itself to its budget: its lists are used
-    whatever they keep (the brute-force fallback has tests of its own below)."""
+    whatever they keep (the brute-force fallback has tests of its own below), and
+    they are culling's alone (the light tree's clusters: tests/device/test_light_tree.py)."""
     monkeypatch.setattr(culling, "BRUTE_ABOVE", 1.0)
+    monkeypatch.setattr(culling, "TREE_ABOVE", 2.0)
 
 
 def dropped_sum(scene, gbuffer, renderer, cull):

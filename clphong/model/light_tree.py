@@ -1,0 +1,477 @@
+"""A light tree over the point lights, and the bound of a cluster's error (issue 16).
+
+Lightcuts (Walter et al. 2005) and the light trees of Cycles and pbrt-v4 replace
+the lights under a node by one *representative* that carries their summed
+radiance. Here a node's representative is a virtual point light at the
+radiance-weighted centroid ``p_k`` of its lights, with their summed radiance
+``R_k`` and their shared falloff polynomial; the representatives are appended to
+the point-light records after the scene's own lights, so a tile's list may name
+either (:func:`representative_records`).
+
+Which lights may share a node: plain point lights (no cone) with the same falloff
+coefficients ``c0, c1, c2 ≥ 0`` (so the falloff ``A(d) = 1/p(d)`` decreases in
+``d``), finite non-negative radiance and at least one positive channel. Spots,
+lights with another falloff of their own and lights with negative radiance are
+leaves that are never clustered.
+
+The tree is a kd-tree (median split on the longest axis of the node's lights),
+built level by level with vectorised sorts: 65 536 lights in about 0.1 s.
+
+The bound (:func:`cluster_bounds`): for a pixel ``x`` and channel ``c``, the
+error of the representative is
+
+    e_c = Σ_i R_ic·(f_c(x, p_i) − f_c(x, p_k)),  f_c = D_c·g_d + S_c·g_s,
+
+with ``g_d = max(n·u, 0)·A(d)`` and ``g_s`` the specular weight times ``A(d)``
+(``u = (p − x)/d``, ``d = |p − x|``). Every ``p_i`` and ``p_k`` lie in the node's
+box, so the segment between them does, and ``|f(p_i) − f(p_k)| ≤ Λ·|p_i − p_k|``
+with ``Λ`` a bound of ``|∇_p f|`` over the box pair (tile box × node box):
+
+* ``|∇(n·u)| ≤ 1/d``, ``max(·, 0)`` is 1-Lipschitz, ``A ≤ A(d⁻)`` and
+  ``|A'| = (c1 + 2c2·d)/p² ≤ 2/(d·p) ≤ 2A(d⁻)/d⁻`` (``p ≥ c1·d + c2·d²`` for
+  ``c0 ≥ 0``): ``Λ_d = 3·A(d⁻)/d⁻``;
+* Phong, ``max(r·v, 0)^K`` with ``r = 2n(n·u) − u``: ``|∇r| ≤ 3/d``, so
+  ``Λ_s = (3K + 2)·A(d⁻)/d⁻`` for ``K ≥ 1`` (its Fresnel weight depends on n·v only);
+* Blinn-Phong, ``max(n·h, 0)^K`` with ``h = (u + v)/|u + v|``:
+  ``|∇h| ≤ 1/(d·|u + v|)``, so ``Λ_s = ((K + 5φ)/|u + v|⁻ + 2)·A(d⁻)/d⁻``, where
+  ``φ = 1`` with the Schlick weight (``|W'| ≤ 5``) and ``|u + v|⁻ = √(2 + 2·(u·v)⁻)``
+  from a lower bound of ``u·v`` over the boxes.
+
+so ``|e_c| ≤ Λ_c·M_kc`` with the node's first moment ``M_kc = Σ_i R_ic·|p_i − p_k|``.
+Where ``n·u`` may change sign over the box pair the specular term (gated on
+``n·l > 0``) is not continuous; there, and for ``K < 1`` or a shininess map, it is
+bounded by its range instead: both sums lie in ``[0, S_c·A(d⁻)·R_kc]``. Where
+``n·u ≤ 0`` over the whole box pair, both sums are 0: the bound is 0. Boxes that
+touch (``d⁻ = 0``) get no bound (+inf): the node is never used there.
+
+The float32 roundings of the representative's record (position ``u·|p|``,
+radiance ``u``) are added; the shading arithmetic itself is the float error
+model's, the same for a representative as for any light.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.floats import U
+
+#: Fewest clusterable lights worth a tree (below it every list is short anyway).
+MIN_TREE_LIGHTS = 64
+
+
+@dataclass(frozen=True)
+class LightTree:
+    """Internal nodes of a forest over the point lights (see the module docstring).
+
+    Nodes are numbered after the leaves: leaf ``j`` is point light ``j``, internal
+    node ``k`` is ``n_leaves + k``. ``levels`` lists the internal nodes depth by
+    depth (roots first), for top-down passes; ``children`` (K, 2) holds the
+    combined numbers of each internal node's two children.
+    """
+
+    n_leaves: int
+    lo: np.ndarray          # (K, 3) box of the node's light positions
+    hi: np.ndarray
+    position: np.ndarray    # (K, 3) the representative: radiance-weighted centroid
+    radiance: np.ndarray    # (K, 3) summed radiance
+    moment: np.ndarray      # (K, 3) Σ_i R_ic·|p_i − p_k|
+    quadratic: np.ndarray   # (K, 3) Σ_i R_ic·|p_i − p_k|²
+    first: np.ndarray       # (K, 3) |Σ_i R_ic·(p_i − p_k)| (0 for lights of one colour)
+    attenuation: np.ndarray  # (K, 3) the shared c0, c1, c2
+    children: np.ndarray    # (K, 2) combined numbers
+    levels: tuple           # tuple of int arrays of internal-node numbers (0-based k)
+    clusterable: int        # lights under some internal node
+    seconds: float          # build time
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.lo)
+
+
+def clusterable_classes(arrays) -> list[np.ndarray]:
+    """Index arrays of the point lights that may share nodes, one per falloff."""
+    pos = arrays["point_position"]
+    if len(pos) == 0:
+        return []
+    R = arrays["point_radiance"]
+    att = arrays["point_attenuation"]
+    ok = (~arrays["point_is_spot"] & np.isfinite(R).all(axis=1) & (R >= 0).all(axis=1)
+          & (R.sum(axis=1) > 0) & np.isfinite(pos).all(axis=1)
+          & (att >= 0).all(axis=1) & np.isfinite(att).all(axis=1) & (att.sum(axis=1) > 0))
+    idx = np.flatnonzero(ok)
+    if idx.size == 0:
+        return []
+    _, inv = np.unique(att[idx], axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    return [idx[inv == c] for c in range(inv.max() + 1) if (inv == c).sum() >= 2]
+
+
+def build_light_tree(arrays) -> LightTree | None:
+    """The forest over ``arrays``' clusterable point lights (:func:`clusterable_classes`),
+    or None when fewer than :data:`MIN_TREE_LIGHTS` may be clustered."""
+    t0 = time.perf_counter()
+    classes = clusterable_classes(arrays)
+    if sum(len(c) for c in classes) < MIN_TREE_LIGHTS:
+        return None
+    n = len(arrays["point_position"])
+    P = np.asarray(arrays["point_position"], np.float64)
+    R = np.asarray(arrays["point_radiance"], np.float64)
+    A = np.asarray(arrays["point_attenuation"], np.float64)
+    los, his, reps, rads, moms, atts, kids = [], [], [], [], [], [], []
+    quads, firsts = [], []
+    levels: list[list[np.ndarray]] = []
+    base = 0                                    # internal nodes numbered so far
+    for members in classes:
+        order = members.copy()
+        # segments of the current level, as [start, end) into `order`, each an internal node
+        starts, ends = np.array([0]), np.array([len(order)])
+        ids = np.array([base])
+        base += 1
+        depth = 0
+        while starts.size:
+            # sort each segment along its longest axis (one lexsort for the level)
+            seg = np.repeat(np.arange(starts.size), ends - starts)
+            at = np.concatenate([np.arange(s, e) for s, e in zip(starts, ends)])
+            p = P[order[at]]
+            lo = np.minimum.reduceat(p, np.r_[0, np.cumsum(ends - starts)[:-1]], axis=0)
+            hi = np.maximum.reduceat(p, np.r_[0, np.cumsum(ends - starts)[:-1]], axis=0)
+            axis = np.argmax(hi - lo, axis=1)
+            key = p[np.arange(len(at)), axis[seg]]
+            perm = np.lexsort((key, seg))
+            order[at] = order[at][perm]
+            w = R[order[at]]                    # radiance in the level's (sorted) order
+            pp = P[order[at]]
+            ww = w.sum(axis=1)
+            off = np.r_[0, np.cumsum(ends - starts)[:-1]]
+            W = np.add.reduceat(ww, off)
+            cent = np.add.reduceat(pp * ww[:, None], off, axis=0) / W[:, None]
+            dist = np.sqrt(((pp - cent[seg]) ** 2).sum(axis=1))
+            moms.append(np.add.reduceat(w * dist[:, None], off, axis=0))
+            quads.append(np.add.reduceat(w * (dist * dist)[:, None], off, axis=0))
+            delta = pp - cent[seg]                      # (m, 3) offsets from the centroid
+            firsts.append(np.sqrt(sum(np.add.reduceat(w * delta[:, i:i + 1], off, axis=0) ** 2
+                                      for i in range(3))))
+            rads.append(np.add.reduceat(w, off, axis=0))
+            los.append(lo)
+            his.append(hi)
+            reps.append(cent)
+            atts.append(A[order[starts]])
+            while len(levels) <= depth:
+                levels.append([])
+            levels[depth].append(ids)
+            # children: halves; a half of one light is a leaf (its light's number)
+            mids = (starts + ends) // 2
+            halves = [(starts, mids), (mids, ends)]
+            ch = np.empty((starts.size, 2), np.int64)
+            nxt_s, nxt_e, nxt_id = [], [], []
+            for side, (s, e) in enumerate(halves):
+                leaf = (e - s) == 1
+                ch[leaf, side] = order[s[leaf]]
+                inner = ~leaf
+                new = base + np.arange(inner.sum())
+                base += inner.sum()
+                ch[inner, side] = n + new
+                nxt_s.append(s[inner])
+                nxt_e.append(e[inner])
+                nxt_id.append(new)
+            kids.append((ids, ch))
+            # next level in id order, so that ids stay sorted within a level
+            s2, e2, i2 = np.concatenate(nxt_s), np.concatenate(nxt_e), np.concatenate(nxt_id)
+            o = np.argsort(i2)
+            starts, ends, ids = s2[o], e2[o], i2[o]
+            depth += 1
+    K = base
+    cat_ids = np.concatenate([i for i, _ in kids])
+
+    def place(parts):
+        out = np.empty((K,) + parts[0].shape[1:], parts[0].dtype)
+        out[cat_ids] = np.concatenate(parts)
+        return out
+
+    children = place([c for _, c in kids])
+    return LightTree(n_leaves=n, lo=place(los), hi=place(his), position=place(reps),
+                     radiance=place(rads), moment=place(moms), quadratic=place(quads),
+                     first=place(firsts), attenuation=place(atts),
+                     children=children, levels=tuple(np.concatenate(lv) for lv in levels),
+                     clusterable=sum(len(c) for c in classes),
+                     seconds=time.perf_counter() - t0)
+
+
+def representative_records(tree: LightTree, origin) -> tuple[np.ndarray, np.ndarray]:
+    """(float32 rebased, float64 as they are) point records of the representatives,
+    in the layout of the scene's own (clphong/device/frame.py pack_lights)."""
+    rec = np.zeros((tree.n_nodes, 4, 4))
+    rec[:, 0, :3] = tree.position
+    rec[:, 0, 3] = tree.attenuation[:, 0]
+    rec[:, 1, :3] = tree.radiance
+    rec[:, 1, 3] = tree.attenuation[:, 1]
+    rec[:, 2, 0] = tree.attenuation[:, 2]
+    rec[:, 3, 1] = 1.0                          # (s, o) = (0, 1): no cone
+    rec64 = rec.reshape(-1, 4).copy()
+    rec[:, 0, :3] -= np.asarray(origin, np.float64)
+    return rec.reshape(-1, 4).astype(np.float32), rec64
+
+
+@dataclass(frozen=True)
+class TileBoxes:
+    """What a bound needs of a set of screen tiles (arrays of shape (T,) or (T, 3)),
+    in the frame's rebased coordinates: boxes of P and of the unit normals, the
+    largest |D| and |S| per channel; empty tiles have lo > hi."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    nlo: np.ndarray
+    nhi: np.ndarray
+    D: np.ndarray
+    S: np.ndarray
+
+
+@dataclass(frozen=True)
+class SpecularModel:
+    """The specular term's shape, for its Lipschitz constant."""
+
+    blinn: bool
+    exponent: float          # K: h (Phong) or 4h (Blinn-Phong); None with a shininess map
+    fresnel: bool            # Schlick's weight on v·h (Blinn-Phong only depends on l)
+    eye: np.ndarray          # perspective: eye − origin; orthographic: unit v
+    perspective: bool
+
+
+def _interval_dot(alo, ahi, blo, bhi):
+    """Bounds of a·b for a ∈ [alo, ahi], b ∈ [blo, bhi] (…, 3): (lo, hi)."""
+    c = np.stack([alo * blo, alo * bhi, ahi * blo, ahi * bhi])
+    return c.min(axis=0).sum(axis=-1), c.max(axis=0).sum(axis=-1)
+
+
+def _unit(x):
+    n = np.sqrt((x * x).sum(axis=-1, keepdims=True))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return x / n, n[..., 0]
+
+
+def _angle(a, b):
+    """Angle between unit vectors (…, 3), from atan2 (accurate near 0 and π)."""
+    c = np.cross(a, b)
+    return np.arctan2(np.sqrt((c * c).sum(axis=-1)), (a * b).sum(axis=-1))
+
+
+def _cone(dirs_center, radius, dist):
+    """Half-angle of the directions from a point to a ball of ``radius`` at ``dist``
+    (π where the ball holds the point)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(dist > radius, np.arcsin(np.clip(radius / dist, 0, 1)), np.pi)
+
+
+def specular_cosine(tiles: TileBoxes, blo, bhi, spec: SpecularModel):
+    """(T, K) upper bound c of the specular cosine (n·h, or r·v for Phong) over the
+    tiles × node boxes, from cones: of the normals (the normal box), of the light
+    directions (ball to ball) and of the view directions; the power is ≤ c^K. 1
+    where no cone holds."""
+    T = len(tiles.lo)
+    # normal cone: axis n0 the box's centre; cos α_n ≥ min over the box's corners of c·n0
+    n0, _ = _unit(0.5 * (tiles.nlo + tiles.nhi))
+    corner = np.minimum(tiles.nlo * n0, tiles.nhi * n0).sum(axis=-1)
+    a_n = np.where(corner > 0, np.arccos(np.clip(corner, -1, 1)), np.pi)[:, None]
+    ct, rt = 0.5 * (tiles.lo + tiles.hi), 0.5 * _unit(tiles.hi - tiles.lo)[1]
+    cb, rb = 0.5 * (blo + bhi), 0.5 * _unit(bhi - blo)[1]
+    u0, dist = _unit(cb - ct[:, None])
+    a_u = _cone(None, rt[:, None] + rb, dist)
+    if spec.perspective:
+        v0, de = _unit(np.asarray(spec.eye, np.float64) - ct)
+        a_v = _cone(None, rt, de)[:, None]
+        v0 = v0[:, None]
+    else:
+        v0 = np.broadcast_to(np.asarray(spec.eye, np.float64), (T, 1, 3))
+        a_v = np.zeros((T, 1))
+    n0 = n0[:, None]
+    with np.errstate(invalid="ignore"):
+        if spec.blinn:
+            # the half vector h = (u + v)/|u + v| moves by ≤ (δu + δv)/(2 cos(γ/2)),
+            # γ ≤ γ⁺ the angle between u and v
+            gamma = _angle(u0, v0) + a_u + a_v
+            h0, _ = _unit(u0 + v0)
+            d_h = (a_u + a_v) / (2.0 * np.cos(np.minimum(gamma, np.pi) / 2.0))
+            beta = np.where(gamma < np.pi, _angle(n0, h0) - a_n - d_h, -1.0)
+        else:
+            # r = 2n(n·u) − u, the reflection of u: moves by ≤ δu + 2δn
+            r0 = 2.0 * n0 * (n0 * u0).sum(axis=-1, keepdims=True) - u0
+            beta = _angle(r0, v0) - a_u - 2.0 * a_n - a_v
+    beta = np.nan_to_num(beta, nan=-1.0)
+    # + 1e-5: the kernel's cosine errs by a few u
+    c = np.minimum(np.cos(np.clip(beta, 0.0, np.pi / 2)) + 1e-5, 1.0)
+    return np.where(beta > 0, c, 1.0)
+
+
+def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
+                   origin, nodes: np.ndarray | None = None) -> np.ndarray:
+    """(T, K) upper bounds of the error of using each internal node's representative
+    for its lights, for any pixel and channel of each tile (see the module docstring);
+    +inf where no bound holds, 0 for empty tiles. ``nodes``: a subset of the
+    internal nodes (their 0-based numbers), by default all."""
+    k = np.arange(tree.n_nodes) if nodes is None else np.asarray(nodes)
+    o = np.asarray(origin, np.float64)
+    blo = (tree.lo[k] - o)[None]                     # (1, K, 3)
+    bhi = (tree.hi[k] - o)[None]
+    # the tile boxes widened by the float32 rounding of the positions they hold
+    pad = 4 * U * (np.abs(tiles.lo) + np.abs(tiles.hi)).max(axis=1, keepdims=True)
+    tlo = (tiles.lo - pad)[:, None]                  # (T, 1, 3)
+    thi = (tiles.hi + pad)[:, None]
+    empty = (tiles.lo > tiles.hi).any(axis=1)
+    gap = np.maximum(blo - thi, 0) + np.maximum(tlo - bhi, 0)
+    d_lo = np.sqrt((gap * gap).sum(axis=-1))         # (T, K)
+    c0, c1, c2 = (tree.attenuation[k, i][None] for i in range(3))
+    D = tiles.D[:, None]                             # (T, 1, 3)
+    S = tiles.S[:, None]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        A_lo = 1.0 / (c0 + d_lo * (c1 + d_lo * c2))  # A(d⁻) ≥ A(d) for d ≥ d⁻
+        lip = A_lo / d_lo                            # A(d⁻)/d⁻
+        # n·(p − x) over the boxes: its sign decides the gate. The kernel's n·l errs
+        # by up to u(12 + 2(|P| + |L|)/d) (cull.cl's margin): the boxes are dark, or
+        # surely lit, only beyond it; n·u = n·(p − x)/d with d⁻ ≤ d ≤ d⁺
+        nl_lo, nl_hi = _interval_dot(tiles.nlo[:, None], tiles.nhi[:, None], blo - thi, bhi - tlo)
+        span = np.maximum(bhi, thi) - np.minimum(blo, tlo)
+        d_hi = np.sqrt((span * span).sum(axis=-1))
+        reach = (np.maximum(np.abs(tlo), np.abs(thi)).max(axis=-1)
+                 + np.maximum(np.abs(blo), np.abs(bhi)).max(axis=-1))
+        margin = U * (12.0 + 2.0 * reach / d_lo)
+        dark = nl_hi / d_hi + margin <= 0
+        lit = nl_lo / d_hi - margin > 0              # the gate n·l > 0 surely on
+        nu_hi = np.minimum(np.where(nl_hi > 0, nl_hi / d_lo, 0.0) + margin, 1.0)
+        Rk = tree.radiance[k][None]
+        # the record's float32 roundings: position (u·|p|), added to the moments
+        rp = U * (np.abs(tree.position[k] - o).max(axis=1) + np.abs(o).max())[None, :, None]
+        M = tree.moment[k][None] + Rk * rp
+        F = tree.first[k][None] + Rk * rp
+        Q = tree.quadratic[k][None] + Rk * rp * (rp + 2 * tree.moment[k][None] / np.maximum(Rk, 1e-300))
+        # diffuse: both sums lie in [0, R·A(d⁻)·(n·u)⁺]; Lipschitz Λ_d = 3A/d; where
+        # surely lit, Taylor to second order: |∇²| ≤ 15 A/d², the first-order term
+        # |∇f(p_k)·Σ R_i (p_i − p_k)| ≤ 3A/d·F
+        e_rng = Rk * (A_lo * nu_hi)[..., None]
+        e_lip = 3.0 * lip[..., None] * M
+        e_two = 3.0 * lip[..., None] * F + 7.5 * (lip / d_lo)[..., None] * Q
+        e = D * np.fmin(np.fmin(e_rng, e_lip), np.where(lit[..., None], e_two, np.inf))
+        if tiles.S.any():
+            e = e + S * _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q,
+                                        spec)
+        e = e + U * Rk * A_lo[..., None] * (D + S)
+        b = e.max(axis=-1) * (1 + 1e-6)
+    b = np.where(np.isfinite(b) & (d_lo > 0), b, np.inf)
+    b = np.where(dark, 0.0, b)
+    return np.where(empty[:, None], 0.0, b)
+
+
+def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spec):
+    """(T, K, 3) bound of the specular error per unit S (see the module docstring):
+    the range R·A(d⁻)·c^K everywhere; where surely lit, also the Lipschitz bound and
+    the second-order Taylor bound, with the cosine x ≤ c (:func:`specular_cosine`):
+    |∇x| ≤ g, |∇²x| ≤ η (Blinn-Phong: g = 1/(d·|u + v|⁻), η = (3/|u + v|⁻² +
+    3/|u + v|⁻)/d²; Phong: g = 3/d, η = 9/d²), so for P = x^K
+    |∇(P·A)| ≤ A·(K·c^(K−1)·g + 2c^K/d) (+ 5g·c^K·A for Blinn-Phong's Schlick weight)
+    and |∇²(P·A)| ≤ A·(K(K−1)c^(K−2)g² + K·c^(K−1)·η + 4K·c^(K−1)·g/d + 8c^K/d²)
+    (K ≥ 2, and not with Blinn-Phong's Schlick weight)."""
+    K = spec.exponent
+    if K is None or K < 1:                           # a shininess map, or x^K not Lipschitz
+        return Rk * A_lo[..., None]
+    c = specular_cosine(tiles, blo, bhi, spec)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        cK, cK1 = c ** K, c ** (K - 1)
+        rng = Rk * (A_lo * cK)[..., None]
+        if spec.blinn:
+            uv = _view_dot_lower(tiles, blo, bhi, thi, tlo, d_lo, spec)
+            huv = np.sqrt(np.maximum(2.0 + 2.0 * uv, 0.0))
+            g = 1.0 / (d_lo * huv)                   # |∇h| ≤ |∇u|/|u + v|
+            eta = (3.0 / huv ** 2 + 3.0 / huv) / d_lo ** 2
+        else:
+            g = 3.0 / d_lo                           # |∇r| ≤ 3|∇u|
+            eta = 9.0 / d_lo ** 2
+        fres = spec.blinn and spec.fresnel
+        # x = cos θ with |∇θ| ≤ g, so |∇x| ≤ sin θ·g: the power's slopes peak away
+        # from the highlight's centre: K·x^(K−1)·|∇x| ≤ K·h1·g, K(K−1)x^(K−2)|∇x|² ≤
+        # K(K−1)·f1·g², h1 and f1 the maxima over x ∈ [0, c] of x^(K−1)·√(1 − x²)
+        # and x^(K−2)·(1 − x²)
+        h1 = _peak(c, K - 1.0, 0.5)
+        grad = A_lo * (K * h1 * g + 2.0 * cK / d_lo + (5.0 * g * cK if fres else 0.0))
+        e_lip = grad[..., None] * M
+        if K >= 2 and not fres:
+            f1 = _peak(c, K - 2.0, 1.0)
+            hess = A_lo * (K * (K - 1) * f1 * g * g + K * cK1 * eta
+                           + 4.0 * K * h1 * g / d_lo + 8.0 * cK / d_lo ** 2)
+            e_two = grad[..., None] * F + 0.5 * hess[..., None] * Q
+            e_lip = np.fmin(e_lip, e_two)
+        return np.where(lit[..., None], np.fmin(e_lip, rng), rng)
+
+
+def _peak(c, a, b):
+    """max over x ∈ [0, c] of x^a·(1 − x²)^b (a ≥ 0, b > 0): at x*² = a/(a + 2b), or c."""
+    xs = np.sqrt(a / (a + 2.0 * b))
+    x = np.minimum(c, xs)
+    return x ** a * (1.0 - x * x) ** b
+
+
+def _view_dot_lower(tiles, blo, bhi, thi, tlo, d_lo, spec):
+    """A lower bound of u·v over the boxes (u the light direction, v the view), ≥ −1."""
+    if spec.perspective:
+        e = np.asarray(spec.eye, np.float64)
+        vlo, vhi = e - thi, e - tlo                  # e − x
+        num_lo, _ = _interval_dot(blo - thi, bhi - tlo, vlo, vhi)
+        far = (np.maximum(vlo, 0) + np.maximum(-vhi, 0))   # distance from the eye to the box
+        de_lo = np.sqrt((far * far).sum(axis=-1))
+        den = d_lo * de_lo
+    else:
+        v = np.asarray(spec.eye, np.float64)
+        num_lo, _ = _interval_dot(blo - thi, bhi - tlo, v, v)
+        den = d_lo
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = np.where(num_lo >= 0, 0.0, num_lo / den)
+    return np.clip(np.nan_to_num(uv, nan=-1.0, neginf=-1.0), -1.0, 0.0)
+
+
+def choose_cut(tree: LightTree, bounds: np.ndarray, budget: float, *, steps: int = 96):
+    """Per tile, the internal nodes of a cut whose bounds sum to ≤ ``budget``.
+
+    A cut for a threshold τ takes every topmost node with bound ≤ τ (leaves have
+    error 0 and end every path). Node k is in it for τ ∈ [b_k, a_k), ``a_k`` the
+    smallest bound of its ancestors. For thresholds τ_m = budget·2^(−m/4) the sums
+    are formed for all m at once; the largest τ whose sum fits is taken.
+
+    Returns (used (T, K) bool: internal nodes used as clusters; covered (T, n_leaves)
+    bool: leaves under a used node).
+    """
+    T, K = bounds.shape
+    a = np.full((T, K), np.inf)
+    for lv in tree.levels:                           # top-down: a_child = min(a, b) of the parent
+        ch = tree.children[lv]
+        m = np.minimum(a[:, lv], bounds[:, lv])
+        for side in (0, 1):
+            c = ch[:, side] - tree.n_leaves
+            inner = c >= 0
+            a[:, c[inner]] = m[:, inner]
+    grid = budget * 2.0 ** (-np.arange(steps)[::-1] / 4.0)     # ascending
+    i_lo = np.searchsorted(grid, bounds, side="left")
+    i_hi = np.searchsorted(grid, a, side="left")
+    contributes = i_lo < i_hi
+    sums = np.zeros((T, steps + 1))
+    rows = np.broadcast_to(np.arange(T)[:, None], (T, K))
+    b_ = np.where(contributes, bounds, 0.0)
+    np.add.at(sums, (rows[contributes], i_lo[contributes]), b_[contributes])
+    np.add.at(sums, (rows[contributes], i_hi[contributes]), -b_[contributes])
+    S = np.cumsum(sums, axis=1)[:, :steps]
+    fits = S <= budget * (1 - 1e-9)
+    # the largest fitting threshold per tile (−1: none fits; then no cluster at all)
+    best = np.where(fits.any(axis=1), steps - 1 - np.argmax(fits[:, ::-1], axis=1), -1)
+    tau = np.where(best >= 0, grid[np.maximum(best, 0)], -np.inf)[:, None]
+    used = (bounds <= tau) & (tau < a)
+    covered = np.zeros((T, tree.n_leaves), bool)
+    # leaves under a used node: push "covered" down the levels
+    cov_inner = used.copy()
+    for lv in tree.levels:
+        ch = tree.children[lv]
+        for side in (0, 1):
+            c = ch[:, side]
+            inner = c >= tree.n_leaves
+            cov_inner[:, c[inner] - tree.n_leaves] |= cov_inner[:, lv[inner]]
+            covered[:, c[~inner]] |= cov_inner[:, lv[~inner]]
+    return used, covered

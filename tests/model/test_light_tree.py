@@ -1,0 +1,228 @@
+"""The light tree (clphong/model/light_tree.py): its nodes, and the bound of a
+cluster's error, checked against the float64 reference's own contributions.
+
+The claim: for every internal node, tile box and pixel in it, and channel,
+|Σ_i R_i·f(x, p_i) − R_k·f(x, p_k)| ≤ the node's bound (``cluster_bounds``),
+f being the reference's shading (clphong.reference.shading, the kernels' twin).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from clphong.core.geometry import view_vector
+from clphong.model.light_tree import (
+    MIN_TREE_LIGHTS,
+    SpecularModel,
+    TileBoxes,
+    build_light_tree,
+    choose_cut,
+    cluster_bounds,
+    clusterable_classes,
+)
+from clphong.reference import shading as reference
+from clphong.tools.hardcases import make_gbuffer, make_scene
+
+
+def clustered_lights(rng, n, *, centre, spread, att=(1.0, 0.0, 0.01), grey=False):
+    out = []
+    for _ in range(n):
+        pos = np.asarray(centre) + rng.normal(0, spread, 3)
+        col = (1.0, 1.0, 1.0) if grey else tuple(rng.uniform(0.3, 1.0, 3))
+        out.append(dict(type="point", position=tuple(pos), color=col,
+                        intensity=float(rng.uniform(0.5, 2.0)), attenuation=att))
+    return out
+
+
+def subtree_leaves(tree, node):
+    """Point-light indices under internal node ``node`` (0-based)."""
+    out, stack = [], [node]
+    while stack:
+        k = stack.pop()
+        for c in tree.children[k]:
+            if c < tree.n_leaves:
+                out.append(int(c))
+            else:
+                stack.append(int(c) - tree.n_leaves)
+    return np.array(sorted(out))
+
+
+def test_nodes_hold_their_lights_statistics():
+    rng = np.random.default_rng(0)
+    lights = (clustered_lights(rng, 90, centre=(0, 0, 5), spread=1.0)
+              + clustered_lights(rng, 40, centre=(3, 0, 5), spread=0.5, att=(1.0, 0.1, 0.0))
+              + [dict(type="spot", position=(0, 0, 3), direction=(0, 0, -1), color=(1, 1, 1),
+                      intensity=1.0, inner_angle=10.0, outer_angle=20.0),
+                 dict(type="point", position=(1, 1, 1), color=(1, 1, 1), intensity=-1.0,
+                      attenuation=(1.0, 0.0, 0.01))])
+    scene = make_scene(lights)
+    arrays = scene.light_arrays
+    tree = build_light_tree(arrays)
+    classes = clusterable_classes(arrays)
+    assert sorted(len(c) for c in classes) == [40, 90]       # no spot, no negative light
+    # every clusterable light is a leaf exactly once; the others are in no node
+    leaves = np.concatenate([c[c < tree.n_leaves] for c in tree.children])
+    assert sorted(leaves) == sorted(np.concatenate(classes))
+    P, R = arrays["point_position"], arrays["point_radiance"]
+    for k in range(tree.n_nodes):
+        idx = subtree_leaves(tree, k)
+        assert len(idx) >= 2
+        np.testing.assert_allclose(tree.radiance[k], R[idx].sum(axis=0), rtol=1e-12)
+        np.testing.assert_array_equal(tree.lo[k], P[idx].min(axis=0))
+        np.testing.assert_array_equal(tree.hi[k], P[idx].max(axis=0))
+        w = R[idx].sum(axis=1)
+        c = (P[idx] * w[:, None]).sum(axis=0) / w.sum()
+        np.testing.assert_allclose(tree.position[k], c, rtol=1e-12, atol=1e-12)
+        dist = np.linalg.norm(P[idx] - c, axis=1)
+        np.testing.assert_allclose(tree.moment[k], (R[idx] * dist[:, None]).sum(axis=0), rtol=1e-10)
+        np.testing.assert_allclose(tree.quadratic[k], (R[idx] * dist[:, None] ** 2).sum(axis=0),
+                                   rtol=1e-10)
+        first = np.linalg.norm((R[idx][:, :, None] * (P[idx] - c)[:, None, :]).sum(axis=0), axis=1)
+        np.testing.assert_allclose(tree.first[k], first, rtol=1e-8, atol=1e-12)
+        np.testing.assert_array_equal(tree.attenuation[k], arrays["point_attenuation"][idx[0]])
+
+
+def test_too_few_lights_build_no_tree():
+    rng = np.random.default_rng(1)
+    scene = make_scene(clustered_lights(rng, MIN_TREE_LIGHTS - 1, centre=(0, 0, 5), spread=1.0))
+    assert build_light_tree(scene.light_arrays) is None
+
+
+def node_errors(scene, tree, px, D, S):
+    """(K,) max over the pixels and channels of |Σ leaves − representative|, exactly
+    (float64), with the reference's per-light contributions."""
+    arrays = scene.light_arrays
+    reps = [dict(type="point", position=tuple(tree.position[k]), color=tuple(tree.radiance[k]),
+                 intensity=1.0, attenuation=tuple(tree.attenuation[k])) for k in range(tree.n_nodes)]
+    both = make_scene(list(scene.lights) + reps, model=scene.material.model,
+                      k_s=scene.material.k_s, h=scene.material.h, camera=dataclasses.asdict(scene.camera),
+                      fresnel=scene.material.fresnel,
+                      f0=scene.material.f0 if scene.material.fresnel == "schlick" else None)
+    contrib = []
+    for kind, L, params, diffuse, specular in reference._light_terms(both, px):
+        if kind == "point":
+            spec = reference.specular_rgb(px, S, specular, params["l"])
+            contrib.append(L * (D * diffuse[..., None] + spec))
+    contrib = np.concatenate(contrib)                    # (n + K, M, 3)
+    n = len(arrays["point_position"])
+    out = np.zeros(tree.n_nodes)
+    for k in range(tree.n_nodes):
+        idx = subtree_leaves(tree, k)
+        out[k] = np.abs(contrib[idx].sum(axis=0) - contrib[n + k]).max()
+    return out
+
+
+def patch(rng, *, centre, size, tilt, m=60):
+    """Random pixels in a box around ``centre``, normals within ``tilt`` of +z."""
+    P = np.asarray(centre) + rng.uniform(-size, size, (m, 3)) * [1, 1, 0.3]
+    N = np.column_stack([rng.uniform(-tilt, tilt, (m, 2)), np.ones(m)])
+    N /= np.linalg.norm(N, axis=1)[:, None]
+    return P, N
+
+
+def check_bound(rng, *, model, h, k_s, fresnel, camera, spread, dist, att, size, tilt, grey):
+    lights = clustered_lights(rng, 70, centre=(0.0, 0.0, dist), spread=spread, att=att, grey=grey)
+    f0 = (0.04, 0.05, 0.06) if fresnel == "schlick" else None
+    scene = make_scene(lights, model=model, h=h, k_s=k_s, camera=camera, fresnel=fresnel, f0=f0)
+    tree = build_light_tree(scene.light_arrays)
+    P, N = patch(rng, centre=(0.5, -0.3, 0.0), size=size, tilt=tilt)
+    C = rng.uniform(0.1, 1.0, (len(P), 3))
+    gb = make_gbuffer(P.reshape(1, -1, 3), N.reshape(1, -1, 3), C.reshape(1, -1, 3))
+    px, _, D, S, _ = reference._inputs(scene, gb)
+    boxes = TileBoxes(lo=px.p.min(axis=0)[None], hi=px.p.max(axis=0)[None],
+                      nlo=px.n.min(axis=0)[None], nhi=px.n.max(axis=0)[None],
+                      D=np.abs(D).max(axis=0)[None], S=np.abs(S).max(axis=0)[None])
+    m = scene.material
+    cam = scene.camera
+    eye = (np.asarray(cam.position, np.float64) if cam.type == "perspective"
+           else view_vector(cam))
+    spec = SpecularModel(blinn=m.model == "blinn-phong", exponent=m.exponent,
+                         fresnel=m.fresnel == "schlick", eye=eye,
+                         perspective=cam.type == "perspective")
+    bound = cluster_bounds(tree, boxes, spec, np.zeros(3))[0]
+    err = node_errors(scene, tree, px, D, S)
+    worst = int(np.argmax(err - bound))
+    assert np.all(err <= bound), (f"node {worst}: error {err[worst]:.3g} > bound "
+                                  f"{bound[worst]:.3g}")
+    return err, bound
+
+
+#: Random scenes per run (CLPHONG_TREE_EXAMPLES=400 for a deeper run: it passed).
+EXAMPLES = int(os.environ.get("CLPHONG_TREE_EXAMPLES", "25"))
+
+CAMERAS = [dict(type="perspective", position=(0.0, -3.0, 6.0)),
+           dict(type="orthographic", direction=(0.0, 0.3 / 1.044030650891055, -1.0 / 1.044030650891055))]
+
+
+@settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), model=st.sampled_from(["phong", "blinn-phong"]),
+       h=st.sampled_from([0.5, 1.0, 8.0, 64.0]), k_s=st.sampled_from([0.0, 0.3]),
+       fresnel=st.sampled_from(["none", "schlick"]), cam=st.sampled_from([0, 1]),
+       spread=st.sampled_from([0.05, 0.3, 1.5]), dist=st.sampled_from([1.5, 4.0, 20.0]),
+       att=st.sampled_from([(1.0, 0.0, 0.01), (0.0, 0.0, 1.0), (1.0, 0.5, 0.0), (0.2, 0.1, 0.3)]),
+       size=st.sampled_from([0.05, 0.5, 2.0]), tilt=st.sampled_from([0.0, 0.3, 2.0]),
+       grey=st.booleans())
+def test_cluster_bound_holds_on_random_scenes(seed, model, h, k_s, fresnel, cam, spread, dist,
+                                              att, size, tilt, grey):
+    check_bound(np.random.default_rng(seed), model=model, h=h, k_s=k_s, fresnel=fresnel,
+                camera=CAMERAS[cam], spread=spread, dist=dist, att=att, size=size, tilt=tilt,
+                grey=grey)
+
+
+def test_bound_falls_with_the_square_of_the_cluster_size():
+    """A far, compact cluster of one colour, lit: the first-order term vanishes
+    (Σ R_i·(p_i − p_k) = 0 at the centroid), so the bound is second order, ∝ Σ R_i·|δ_i|²:
+    halving the spread must cut it about 4× (≤ 0.3×), and it must be finite and hold."""
+    kw = dict(model="blinn-phong", h=32.0, k_s=0.2, fresnel="none", camera=CAMERAS[0],
+              dist=20.0, att=(1.0, 0.0, 0.01), size=0.05, tilt=0.05, grey=True)
+    _, wide = check_bound(np.random.default_rng(3), spread=0.2, **kw)
+    _, tight = check_bound(np.random.default_rng(3), spread=0.1, **kw)
+    assert np.isfinite(wide[0]) and np.isfinite(tight[0])
+    assert tight[0] <= 0.3 * wide[0], (tight[0], wide[0])
+
+
+def test_dark_boxes_have_zero_bound_and_touching_boxes_none():
+    rng = np.random.default_rng(4)
+    lights = clustered_lights(rng, 70, centre=(0.0, 0.0, -5.0), spread=0.3)
+    scene = make_scene(lights)
+    tree = build_light_tree(scene.light_arrays)
+    spec = SpecularModel(blinn=False, exponent=32.0, fresnel=False, eye=np.array([0, 0, 5.0]),
+                         perspective=True)
+    up = TileBoxes(lo=np.array([[-1.0, -1, 0]]), hi=np.array([[1.0, 1, 0]]),
+                   nlo=np.array([[0.0, 0, 1]]), nhi=np.array([[0.0, 0, 1]]),
+                   D=np.ones((1, 3)), S=np.ones((1, 3)))
+    assert np.all(cluster_bounds(tree, up, spec, np.zeros(3)) == 0)     # lights below the surface
+    around = TileBoxes(lo=np.array([[-10.0, -10, -10]]), hi=np.array([[10.0, 10, 10]]),
+                       nlo=-np.ones((1, 3)), nhi=np.ones((1, 3)), D=np.ones((1, 3)),
+                       S=np.ones((1, 3)))
+    assert np.all(np.isinf(cluster_bounds(tree, around, spec, np.zeros(3))))
+
+
+@pytest.mark.parametrize("budget", [1e-4, 1e-2, 1.0])
+def test_cut_sums_within_the_budget_and_covers_each_light_once(budget):
+    rng = np.random.default_rng(5)
+    scene = make_scene(clustered_lights(rng, 300, centre=(0, 0, 8), spread=1.0))
+    tree = build_light_tree(scene.light_arrays)
+    b = rng.exponential(budget, (3, tree.n_nodes)) * rng.choice([0.1, 1, 10], (3, tree.n_nodes))
+    used, covered = choose_cut(tree, b, budget)
+    for t in range(3):
+        nodes = np.flatnonzero(used[t])
+        assert b[t, nodes].sum() <= budget
+        cover = np.concatenate([subtree_leaves(tree, k) for k in nodes]) if nodes.size else []
+        assert len(cover) == len(set(cover)), "a light under two clusters"
+        assert sorted(cover) == sorted(np.flatnonzero(covered[t]))
+        # no used node under another used node
+        for k in nodes:
+            for c in tree.children[k]:
+                if c >= tree.n_leaves:
+                    assert not used[t, c - tree.n_leaves] and not np.any(
+                        used[t, [j for j in range(tree.n_nodes)
+                                 if set(subtree_leaves(tree, j)) < set(subtree_leaves(tree, k))]])
+    if budget == 1.0:
+        assert used.any(), "a loose budget takes clusters"
