@@ -282,6 +282,11 @@ def _add_speed_options(p):
                         "per pixel and channel (0: bit-identical to brute force; default: no culling)")
     p.add_argument("--reference-white", type=float, default=1.0, metavar="W",
                    help="output radiance of reference white for --max-error (default 1.0)")
+    p.add_argument("--no-light-tree", dest="light_tree", action="store_false",
+                   help="with --max-error: no light-tree clusters, culling only (by default, "
+                        "where culling keeps most lights, compact groups of point lights may "
+                        "shade as one representative within a proven share of EPS; README, "
+                        "'Light tree')")
     p.add_argument("--path", choices=tuple(PATHS), default="accurate",
                    help="'accurate' (default: directions, weights and sums in double where the "
                         "device has fp64), 'float' (float32 directions, for devices without fast "
@@ -306,7 +311,7 @@ def _renderer_options(args) -> dict:
     """Relighter/Renderer keyword arguments from the renderer options, validated (one-line errors)."""
     opts = dict(path=None if args.path == "accurate" else args.path,
                 max_error=args.max_error, reference_white=args.reference_white,
-                env_error=args.env_error,
+                env_error=args.env_error, light_tree=args.light_tree,
                 nonfinite=getattr(args, "nonfinite", "background"),
                 aovs=tuple(a.strip() for a in (getattr(args, "aov", None) or "").split(",") if a.strip()))
     check_renderer_options(**opts)
@@ -539,6 +544,11 @@ def cmd_render(args) -> int:
         if cull is not None:
             print(f"culling: {cull.seconds * 1e3:.1f} ms, tiles keep {cull.kept_fraction:.2%} of "
                   f"{cull.n_point} point lights on average", file=sys.stderr)
+            if cull.clusters:
+                print(f"light tree: {cull.tree_nodes} clusters over {cull.tree_lights} lights, "
+                      f"built in {cull.tree_build_seconds:.3f} s; the cuts use {cull.clusters} "
+                      f"clusters for {cull.covered} lights over the super-tiles, host cut "
+                      f"{cull.tree_seconds:.3f} s", file=sys.stderr)
             if cull.brute:
                 print("culling: the lists keep nearly every light (more than "
                       f"{BRUTE_ABOVE:.0%}): shaded brute force", file=sys.stderr)

@@ -392,17 +392,14 @@ class Renderer:
     def _tree_input(self, plan, frame, lights):
         """What culling's light-tree cut needs, or None (no tree; light groups, whose
         lists are read in group order, do not take clusters yet)."""
-        if not self.use_tree or plan.defines.get("N_GROUPS"):
-            return None
-        tree = self.light_tree()
-        if tree is None:
+        if not self.use_tree or plan.defines.get("N_GROUPS") or plan.n_spot == plan.n_point:
             return None
         m = self.scene.material
         spec = SpecularModel(blinn=m.model == "blinn-phong",
                              exponent=None if "h" in frame.map_names else m.exponent,
                              fresnel=m.fresnel == "schlick", eye=np.asarray(lights.eye),
                              perspective=self.scene.camera.type == "perspective")
-        return TreeInput(tree=tree, spec=spec, point64=lights.point64)
+        return TreeInput(tree=self.light_tree, spec=spec, point64=lights.point64)
 
     # ------------------------------------------------------------------ one launch
 

@@ -377,27 +377,27 @@ def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spe
         return Rk * A_lo[..., None]
     c = specular_cosine(tiles, blo, bhi, spec)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        cK, cK1 = c ** K, c ** (K - 1)
+        cK = c ** K
         rng = Rk * (A_lo * cK)[..., None]
         if spec.blinn:
             uv = _view_dot_lower(tiles, blo, bhi, thi, tlo, d_lo, spec)
             huv = np.sqrt(np.maximum(2.0 + 2.0 * uv, 0.0))
             g = 1.0 / (d_lo * huv)                   # |∇h| ≤ |∇u|/|u + v|
-            eta = (3.0 / huv ** 2 + 3.0 / huv) / d_lo ** 2
+            t = 3.0 * g / d_lo                       # |n_⊥·Dh[∇²u]| ≤ sin θ·3/(d²|u + v|)
         else:
-            g = 3.0 / d_lo                           # |∇r| ≤ 3|∇u|
-            eta = 9.0 / d_lo ** 2
+            g = 1.0 / d_lo                           # r = (2nnᵀ − I)u: |∇r| = |∇u| ≤ 1/d
+            t = 0.0
         fres = spec.blinn and spec.fresnel
         # x = cos θ with |∇θ| ≤ g, so |∇x| ≤ sin θ·g: the power's slopes peak away
         # from the highlight's centre: K·x^(K−1)·|∇x| ≤ K·h1·g, K(K−1)x^(K−2)|∇x|² ≤
         # K(K−1)·f1·g², h1 and f1 the maxima over x ∈ [0, c] of x^(K−1)·√(1 − x²)
-        # and x^(K−2)·(1 − x²)
+        # and x^(K−2)·(1 − x²); |∇²x| ≤ (2 sin θ + cos θ)·g² + sin θ·t
         h1 = _peak(c, K - 1.0, 0.5)
         grad = A_lo * (K * h1 * g + 2.0 * cK / d_lo + (5.0 * g * cK if fres else 0.0))
         e_lip = grad[..., None] * M
         if K >= 2 and not fres:
             f1 = _peak(c, K - 2.0, 1.0)
-            hess = A_lo * (K * (K - 1) * f1 * g * g + K * cK1 * eta
+            hess = A_lo * (K * (K - 1) * f1 * g * g + K * (2.0 * h1 + cK) * g * g + K * h1 * t
                            + 4.0 * K * h1 * g / d_lo + 8.0 * cK / d_lo ** 2)
             e_two = grad[..., None] * F + 0.5 * hess[..., None] * Q
             e_lip = np.fmin(e_lip, e_two)

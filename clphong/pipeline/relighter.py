@@ -161,6 +161,7 @@ class RelighterSpec:
     path: str | None = None
     aovs: tuple = ()
     env_error: float = DEFAULT_ENV_ERROR
+    light_tree: bool = True
 
     def __post_init__(self):
         check_renderer_options(fp64_directions=self.fp64_directions, max_error=self.max_error,
@@ -172,12 +173,13 @@ class RelighterSpec:
                          channels=dict(self.channels) or None, output=self.output,
                          fp64_directions=self.fp64_directions, max_error=self.max_error,
                          reference_white=self.reference_white, nonfinite=self.nonfinite,
-                         path=self.path, aovs=self.aovs, env_error=self.env_error)
+                         path=self.path, aovs=self.aovs, env_error=self.env_error,
+                         light_tree=self.light_tree)
 
 
 def check_renderer_options(*, fp64_directions=None, max_error=None, reference_white=1.0,
                            nonfinite="background", path=None, aovs=(),
-                           env_error=DEFAULT_ENV_ERROR) -> None:
+                           env_error=DEFAULT_ENV_ERROR, light_tree=True) -> None:
     """Check the renderer options of a :class:`Relighter` without compiling anything.
 
     Raises
@@ -266,7 +268,7 @@ class Relighter:
                  output: OutputOptions | None = None, fp64_directions: bool | None = None,
                  max_error: float | None = None, reference_white: float = 1.0,
                  nonfinite: str = "background", path: str | None = None, aovs=(),
-                 env_error: float = DEFAULT_ENV_ERROR):
+                 env_error: float = DEFAULT_ENV_ERROR, light_tree: bool = True):
         # Renderer options first: a bad value fails before the scene is read or compiled.
         check_renderer_options(fp64_directions=fp64_directions, max_error=max_error,
                                reference_white=reference_white, nonfinite=nonfinite, path=path,
@@ -283,12 +285,14 @@ class Relighter:
         self.renderer = Renderer(scene, device=device, kernel=kernel, lanes=lanes,
                                  fp64_directions=fp64_directions, max_error=max_error,
                                  reference_white=reference_white, nonfinite=nonfinite,
-                                 path=path, aovs=aovs, straight_alpha=self.output.alpha)
+                                 path=path, aovs=aovs, straight_alpha=self.output.alpha,
+                                 light_tree=light_tree)
         self.spec = RelighterSpec(scene=scene, device=device, kernel=kernel, lanes=lanes,
                                   channels=_hashable_channels(channels), output=self.output,
                                   fp64_directions=fp64_directions, max_error=max_error,
                                   reference_white=reference_white, nonfinite=nonfinite,
-                                  path=path, aovs=tuple(aovs), env_error=env_error)
+                                  path=path, aovs=tuple(aovs), env_error=env_error,
+                                  light_tree=light_tree)
 
     @property
     def camera_from_metadata(self) -> bool:

@@ -220,6 +220,10 @@ def bench_gbuffer(width: int, height: int, rows: int | None = None):
                    albedo=C.astype(np.float32), coverage=cov, maps={})
 
 
+#: Light groups of the ``clusters`` bench scene.
+CLUSTERS = 64
+
+
 def bench_scene(kind: str, n_lights: int):
     """The ``wide`` or ``small`` scene with ``n_lights`` point lights (seeded)."""
     rng = np.random.default_rng(SEED + n_lights)
@@ -233,8 +237,17 @@ def bench_scene(kind: str, n_lights: int):
     elif kind == "small":
         z = rng.uniform(0.01, 0.05, n_lights)
         att, intensity, k_s = (1.0, 0.0, 1.0e6), 2.0, 0.02
+    elif kind == "clusters":
+        # CLUSTERS compact groups (Gaussian, σ = 0.1) 8–12 units above the surface:
+        # chandeliers or LED panels, far from the pixels for their size
+        centres = np.column_stack([rng.uniform(-8, 8, CLUSTERS), rng.uniform(-4.5, 4.5, CLUSTERS),
+                                   rng.uniform(8.0, 12.0, CLUSTERS)])
+        which = np.arange(n_lights) % CLUSTERS
+        x, y, z = (centres[which] + rng.normal(0.0, 0.1, (n_lights, 3))).T
+        colors = rng.uniform(0.3, 1.0, (CLUSTERS, 3))[which]     # one colour a cluster
+        att, intensity, k_s = (1.0, 0.0, 0.01), 40.0 / n_lights, 0.2
     else:
-        raise ValueError(f"scene kind must be 'wide' or 'small', not {kind!r}")
+        raise ValueError(f"scene kind must be 'wide', 'small' or 'clusters', not {kind!r}")
     for j in range(n_lights):
         lights.append(Light(type="point", color=tuple(colors[j]), intensity=intensity,
                             position=(float(x[j]), float(y[j]), float(z[j])), attenuation=att))

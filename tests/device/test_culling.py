@@ -33,7 +33,7 @@ BRUTE_ABOVE = culling.BRUTE_ABOVE
 def _shade_through_the_lists(monkeypatch):
     """These tests hold the culled kernel itself to its budget: its lists are used
     whatever they keep (the brute-force fallback has tests of its own below), and
-    they are culling's alone (the light tree's clusters: tests/device/test_light_tree.py)."""
+    they are culling's alone (the light tree's clusters: tests/device/test_tree_cut.py)."""
     monkeypatch.setattr(culling, "BRUTE_ABOVE", 1.0)
     monkeypatch.setattr(culling, "TREE_ABOVE", 2.0)
 
