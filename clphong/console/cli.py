@@ -60,6 +60,7 @@ from ..pipeline.relighter import (
 )
 from ..tools.bench import (
     ENV_ERRORS,
+    TREE_CASES,
     BenchConfig,
     check_paths,
     missing_bench_modules,
@@ -350,6 +351,11 @@ def _add_bench_parser(sub):
                    help="environment rows (the sample sky at 1024x512 on the bench G-buffer): "
                         f"their error targets (default {DEFAULT_ENV_ERROR:g},0.01, none with "
                         "--sizes; '' for none)")
+    b.add_argument("--tree", metavar="SCENE:N:EPS[,...]",
+                   help="light-tree rows: brute force, culling alone and culling with the tree's "
+                        "clusters, in turns, for each scene ('wide' or 'clusters'), point-light "
+                        "count and budget (default: " + ",".join(f"{k}:{n}:{e:g}" for k, n, e in TREE_CASES)
+                        + "; '' for none)")
     b.add_argument("--device", metavar="DEV", help="OpenCL device (see 'clphong devices')")
     b.add_argument("--commands", action="store_true",
                    help="instead, time whole commands at 1 point light: 'clphong render' EXR to EXR "
@@ -366,6 +372,13 @@ def _csv(text, conv, what):
         raise _Usage(f"{what}: expected a comma-separated list, got {text!r}") from None
 
 
+def _tree_case(text):
+    kind, n, eps = text.split(":")
+    if kind.strip() not in ("wide", "clusters", "small") or int(n) <= 0 or not float(eps) >= 0:
+        raise ValueError(text)
+    return (kind.strip(), int(n), float(eps))
+
+
 def _size(text):
     w, h = text.lower().split("x")
     w, h = int(w), int(h)
@@ -380,19 +393,21 @@ def cmd_bench(args) -> int:
     if args.json is None:
         args.json = "bench.json"
     kw = {}
-    if args.sizes:
+    if args.sizes is not None:
         kw["sizes"] = _csv(args.sizes, _size, "--sizes")
-    if args.lights:
+        if not kw["sizes"]:
+            raise _Usage("--sizes: give at least one WxH")
+    if args.lights is not None:
         kw["lights"] = _csv(args.lights, int, "--lights")
-    if args.small_lights:
+    if args.small_lights is not None:
         kw["small_lights"] = _csv(args.small_lights, int, "--small-lights")
-    if args.paths:
+    if args.paths is not None:
         kw["paths"] = _csv(args.paths, str, "--paths")
         try:
             kw["paths"] = check_paths(kw["paths"])
         except ValueError as exc:
             raise _Usage(f"--paths: {exc}") from None
-    if args.budgets:
+    if args.budgets is not None:
         kw["budgets"] = _csv(args.budgets, float, "--budgets")
     # the environment rows by default at the bench's own size (the 1080p), or --quick's
     kw["env_errors"] = (BenchConfig.quick().env_errors if args.quick
@@ -403,6 +418,9 @@ def cmd_bench(args) -> int:
             kw["env_errors"] = tuple(check_env_error(x) for x in kw["env_errors"])
         except ValueError as exc:
             raise _Usage(f"--env-error: {exc}") from None
+    kw["tree_cases"] = BenchConfig.quick().tree_cases if args.quick else TREE_CASES
+    if args.tree is not None:
+        kw["tree_cases"] = _csv(args.tree, _tree_case, "--tree")
     for name in ("repeats", "warmup"):
         value = getattr(args, name)
         if value is not None:

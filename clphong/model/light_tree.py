@@ -22,31 +22,46 @@ error of the representative is
 
     e_c = Σ_i R_ic·(f_c(x, p_i) − f_c(x, p_k)),  f_c = D_c·g_d + S_c·g_s,
 
-with ``g_d = max(n·u, 0)·A(d)`` and ``g_s`` the specular weight times ``A(d)``
-(``u = (p − x)/d``, ``d = |p − x|``). Every ``p_i`` and ``p_k`` lie in the node's
-box, so the segment between them does, and ``|f(p_i) − f(p_k)| ≤ Λ·|p_i − p_k|``
-with ``Λ`` a bound of ``|∇_p f|`` over the box pair (tile box × node box):
+with ``g_d = max(n·u, 0)·A(d)`` and ``g_s`` the specular power (times the Schlick
+weight, ≤ 1) times ``A(d)``, ``u = (p − x)/d``, ``d = |p − x|``. Every ``p_i`` and
+``p_k`` lie in the node's box, so the segment between them does; over the box pair
+(the tile's box of P and normals × the node's box, ``d ≥ d⁻ > 0``) three bounds
+hold, and the smallest is taken, per term:
 
-* ``|∇(n·u)| ≤ 1/d``, ``max(·, 0)`` is 1-Lipschitz, ``A ≤ A(d⁻)`` and
-  ``|A'| = (c1 + 2c2·d)/p² ≤ 2/(d·p) ≤ 2A(d⁻)/d⁻`` (``p ≥ c1·d + c2·d²`` for
-  ``c0 ≥ 0``): ``Λ_d = 3·A(d⁻)/d⁻``;
-* Phong, ``max(r·v, 0)^K`` with ``r = 2n(n·u) − u``: ``|∇r| ≤ 3/d``, so
-  ``Λ_s = (3K + 2)·A(d⁻)/d⁻`` for ``K ≥ 1`` (its Fresnel weight depends on n·v only);
-* Blinn-Phong, ``max(n·h, 0)^K`` with ``h = (u + v)/|u + v|``:
-  ``|∇h| ≤ 1/(d·|u + v|)``, so ``Λ_s = ((K + 5φ)/|u + v|⁻ + 2)·A(d⁻)/d⁻``, where
-  ``φ = 1`` with the Schlick weight (``|W'| ≤ 5``) and ``|u + v|⁻ = √(2 + 2·(u·v)⁻)``
-  from a lower bound of ``u·v`` over the boxes.
+* **range**: both sums lie in ``[0, R_kc·A(d⁻)·w⁺]``, ``w⁺`` the largest weight: for
+  the diffuse term ``(n·u)⁺`` from interval arithmetic, for the specular term
+  ``c^K``, ``c`` a bound of its cosine from cones (:func:`specular_cosine`: of the
+  normals, of the directions to the node's box, of the view directions);
+* **first order**: ``|e_c| ≤ Λ·M_kc`` with ``M_kc = Σ_i R_ic·|p_i − p_k|`` and ``Λ`` a
+  bound of the gradient in ``p``;
+* **second order** (Taylor about the centroid ``p_k``, where ``Σ_i w_i (p_i − p_k) = 0``):
+  ``|e_c| ≤ Λ·F_kc + ½·H·Q_kc`` with ``F_kc = |Σ_i R_ic (p_i − p_k)|`` (0 for lights
+  of one colour), ``Q_kc = Σ_i R_ic·|p_i − p_k|²`` and ``H`` a bound of the Hessian;
+  only where ``n·u > 0`` over the whole box pair (the terms are smooth there).
 
-so ``|e_c| ≤ Λ_c·M_kc`` with the node's first moment ``M_kc = Σ_i R_ic·|p_i − p_k|``.
-Where ``n·u`` may change sign over the box pair the specular term (gated on
-``n·l > 0``) is not continuous; there, and for ``K < 1`` or a shininess map, it is
-bounded by its range instead: both sums lie in ``[0, S_c·A(d⁻)·R_kc]``. Where
-``n·u ≤ 0`` over the whole box pair, both sums are 0: the bound is 0. Boxes that
-touch (``d⁻ = 0``) get no bound (+inf): the node is never used there.
+The constants, with ``A = A(d⁻)`` and ``d = d⁻`` (each is decreasing in ``d``):
+``|∇(n·u)| ≤ 1/d``, ``|∇²(n·u)| ≤ 3/d²``, ``|A'| = (c1 + 2c2·d)/p² ≤ 2A/d`` (``p ≥
+c1·d + c2·d²`` for ``c0 ≥ 0``), ``‖∇²A‖ ≤ 8A/d²``, so for the diffuse term ``Λ_d =
+3A/d`` and ``H_d = 15A/d²``. The specular cosine ``x = cos θ`` (``n·h``, or ``r·v``
+for Phong) moves with ``|∇θ| ≤ g``: Phong's ``r = (2nnᵀ − I)u`` is an orthogonal map
+of ``u``, so ``g = 1/d``; Blinn-Phong's half vector moves by ``|∇u|/|u + v|``, so
+``g = 1/(d·|u + v|⁻)``, ``|u + v|⁻`` from a lower bound of ``u·v``. Then ``|∇x| ≤
+sin θ·g`` and ``|∇²x| ≤ (2 sin θ + cos θ)·g² + sin θ·t`` (``t = 3g/d`` for
+Blinn-Phong, the curvature of ``u``; 0 for Phong), so for ``P = x^K`` (``K ≥ 1``;
+``K ≥ 2`` for the second order) with ``h1, f1`` the maxima over ``x ∈ [0, c]`` of
+``x^(K−1)·√(1 − x²)`` and ``x^(K−2)·(1 − x²)``:
+``Λ_s = A·(K·h1·g + 2c^K/d)`` (``+ 5g·c^K·A`` with Blinn-Phong's Schlick weight,
+which depends on ``v·h``) and ``H_s = A·(K(K−1)·f1·g² + K(2h1 + c^K)·g² + K·h1·t +
+4K·h1·g/d + 8c^K/d²)`` (not used with Blinn-Phong's Schlick weight). A shininess map
+or ``K < 1`` leaves the specular term its range ``R·A`` alone.
 
-The float32 roundings of the representative's record (position ``u·|p|``,
-radiance ``u``) are added; the shading arithmetic itself is the float error
-model's, the same for a representative as for any light.
+Where ``n·u ≤ 0`` over the whole box pair both sums are 0 (bound 0); where the
+boxes touch (``d⁻ = 0``) there is no bound (+inf: the node is never used there).
+The gate tests carry cull.cl's margin for the kernel's error of ``n·l``; the float32
+roundings of the representative's record (position ``u·|p|``, radiance ``u``) are
+added; the shading arithmetic itself is the float error model's, the same for a
+representative as for any light. tests/model/test_light_tree.py holds the bound
+against the float64 reference's own contributions (hypothesis, random scenes).
 """
 
 from __future__ import annotations

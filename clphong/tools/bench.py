@@ -92,6 +92,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..device.culling import TILE, super_tiles
 from ..device.peak import measure_peak_gflops
 from ..device.plan import int_pow_multiplies
 from ..device.renderer import Renderer, prepare_frame
@@ -106,6 +107,7 @@ from ..model.environment import (
     environment_lights,
     texel_lights,
 )
+from ..model.light_tree import build_light_tree
 from ..model.scene import Camera, Light, Material, Scene
 from ..reference import environment as env_reference
 from ..reference import shading as reference
@@ -420,9 +422,10 @@ def make_oracle(scene, gbuffer, frame, n_pixels: int) -> Oracle:
 # --------------------------------------------------------------------------------- timing
 
 def time_frame(renderer, gbuffer, frame):
-    """One frame: (device seconds of shading + culling, of culling alone, the RenderResult)."""
+    """One frame: (seconds of shading + culling, of culling alone, the RenderResult):
+    device time of the kernels, plus the host's light-tree cut where one ran."""
     result = renderer.shade(frame)
-    c = result.cull.seconds if result.cull is not None else 0.0
+    c = result.cull.seconds + result.cull.tree_seconds if result.cull is not None else 0.0
     return result.stats.kernel_seconds + c, c, result
 
 
@@ -446,13 +449,14 @@ class BenchConfig:
     env_errors: tuple = ()                          # environment rows' targets (the CLI: ENV_ERRORS)
     env_size: tuple = (1024, 512)                   # the sky map's width and height
     env_pixels: int = 2000                          # pixels of the exact texel sum
+    tree_cases: tuple = ()                          # light-tree rows: (scene, N, ε) (the CLI: TREE_CASES)
 
     @classmethod
     def quick(cls, **kw):
         base = dict(sizes=((480, 270),), lights=(1, 16, 256, 4096), budgets=(0.0, 1e-3),
                     repeats=3, crop_pairs=3e7, error_pairs=5e6, numpy_pairs=4e6,
                     small_lights=(4096,), env_errors=(1e-2,), env_size=(256, 128),
-                    env_pixels=500)
+                    env_pixels=500, tree_cases=(("clusters", 4096, 1e-2),))
         base.update(kw)
         return cls(**base)
 
@@ -518,11 +522,13 @@ def run_bench(cfg: BenchConfig) -> dict:
                      "numba": use_numba,
                      "small_lights": list(cfg.small_lights), "seed": SEED,
                      "reference_white": 1.0, "env_errors": list(cfg.env_errors),
-                     "env_size": list(cfg.env_size), "env_pixels": cfg.env_pixels},
+                     "env_size": list(cfg.env_size), "env_pixels": cfg.env_pixels,
+                     "tree_cases": [list(c) for c in cfg.tree_cases]},
         "numpy": [],
         "numba": [],
         "runs": [],
         "environment": [],
+        "tree": [],
     }
     for (W, H) in cfg.sizes:
         full = bench_gbuffer(W, H)
@@ -649,6 +655,8 @@ def run_bench(cfg: BenchConfig) -> dict:
                     + (f" kept {entry['kept_fraction']:.4f}" if entry["kept_fraction"] is not None else ""))
         if cfg.env_errors:
             report["environment"] += run_environment(cfg, full, report["runs"], log)
+        if cfg.tree_cases:
+            report["tree"] += run_tree(cfg, full, log)
     report["summary"] = summarise(report)
     return report
 
@@ -804,6 +812,7 @@ def table(report: dict) -> str:
             + (f"{r['kept_fraction']:7.4f}" if r["kept_fraction"] is not None else f"{'':7s}"))
     lines.append("* brute force timed on a crop of the top rows; ms/frame scaled to the full frame")
     lines += environment_table(report.get("environment", []))
+    lines += tree_table(report.get("tree", []))
     return "\n".join(lines)
 
 
@@ -939,6 +948,98 @@ def run_environment(cfg: BenchConfig, full, runs, log) -> list[dict]:
             f"specular {e['specular_max_rel']:.2e}); {entry['lights_for_target_on_sample']} lights "
             f"would do on these pixels")
     return out
+
+
+#: The light-tree rows of ``clphong bench`` (``--tree``): (scene, N, ε).
+TREE_CASES = (("wide", 4096, 1e-3), ("wide", 4096, 1e-2), ("clusters", 4096, 1e-3),
+              ("clusters", 4096, 1e-2), ("clusters", 65536, 1e-2), ("clusters", 65536, 1e-3))
+
+
+def run_tree(cfg: BenchConfig, full, log) -> list[dict]:
+    """The light-tree rows (module docstring): per (scene, N, ε), brute force, culling
+    alone and culling with the tree's clusters, timed in turns on the same crop."""
+    H, W = full.shape
+    out = []
+    for kind, n, eps in cfg.tree_cases:
+        scene = bench_scene(kind, n)
+        t0 = time.perf_counter()
+        built = build_light_tree(scene.light_arrays)
+        build_s = time.perf_counter() - t0
+        # whole rows of super-tiles (the cut's unit), about crop_pairs pairs
+        slots = []
+        for label, opts in (("brute", dict(max_error=None)),
+                            ("culling", dict(max_error=eps, light_tree=False)),
+                            ("tree", dict(max_error=eps))):
+            r = Renderer(scene, device=cfg.device, **opts)
+            band = super_tiles(max(r.lanes, 1)) * TILE
+            rows = min(H, band * max(1, round(_crop_rows(W, H, n, cfg.crop_pairs) / band)))
+            gb = full if rows == H else bench_gbuffer(W, H, rows)
+            slots.append({"label": label, "r": r, "rows": rows, "gb": gb, "times": [], "cull": [],
+                          "frame": prepare_frame(gb, lanes=max(r.lanes, 1))})
+        for round_ in range(cfg.warmup + cfg.repeats):
+            for slot in slots:
+                t, c, slot["result"] = time_frame(slot["r"], slot["gb"], slot["frame"])
+                if round_ >= cfg.warmup:
+                    slot["times"].append(t)
+                    slot["cull"].append(c)
+        shaded_full = shaded_pixels(full)
+        rows = slots[0]["rows"]
+        oracle = make_oracle(scene, slots[0]["gb"], slots[0]["frame"],
+                             max(500, int(cfg.error_pairs // max(n, 1))))
+        row = {"scene": kind, "size": [W, H], "lights": n, "max_error": eps, "crop_rows": rows,
+               "extrapolated": rows != H, "tree_nodes": built.n_nodes if built else 0,
+               "tree_lights": built.clusterable if built else 0, "tree_build_s": build_s}
+        for slot in slots:
+            res = slot["result"]
+            c = res.cull
+            ms = statistics.median(slot["times"]) * 1e3 * shaded_full / shaded_pixels(slot["gb"])
+            row[slot["label"]] = {
+                "ms_per_frame": ms, "times_ms": [t * 1e3 for t in slot["times"]],
+                "cull_ms": statistics.median(slot["cull"]) * 1e3 * shaded_full
+                / shaded_pixels(slot["gb"]),
+                "kept_fraction": None if c is None else c.kept_fraction,
+                "brute_fallback": None if c is None else c.brute,
+                "clusters": 0 if c is None else c.clusters,
+                "covered": 0 if c is None else c.covered,
+                "cut_ms": 0.0 if c is None else c.tree_seconds * 1e3 * shaded_full
+                / shaded_pixels(slot["gb"]),
+                "max_abs_error": oracle.errors(res.image)["max_abs"],
+            }
+        b = row["brute"]["ms_per_frame"]
+        for label in ("culling", "tree"):
+            x = row[label]
+            x["speedup"] = b / x["ms_per_frame"]
+            x["within_budget"] = x["max_abs_error"] <= eps
+        out.append(row)
+        t, cu = row["tree"], row["culling"]
+        log(f"tree {kind:8s} N={n:<6d} eps={eps:<6g} brute {b:9.1f} ms  culling {cu['ms_per_frame']:9.1f} "
+            f"ms (x{cu['speedup']:.2f}, kept {cu['kept_fraction'] or 0:.3f})  tree "
+            f"{t['ms_per_frame']:9.1f} ms (x{t['speedup']:.2f}, kept {t['kept_fraction'] or 0:.3f}, "
+            f"{t['clusters']} clusters, cut {t['cut_ms']:.0f} ms)  max abs {t['max_abs_error']:.2e}"
+            f"  tree {row['tree_nodes']} nodes in {build_s:.2f} s")
+    return out
+
+
+def tree_table(rows: list[dict]) -> list[str]:
+    if not rows:
+        return []
+    lines = [f"{'tree':9s} {'N':>6s} {'eps':>6s} {'brute ms':>10s} {'cull ms':>10s} {'x':>6s} "
+             f"{'tree ms':>10s} {'x':>6s} {'kept':>6s} {'clusters':>9s} {'cut ms':>7s} "
+             f"{'max abs':>9s} {'nodes':>6s} {'build s':>7s}"]
+    for r in rows:
+        c, t = r["culling"], r["tree"]
+        lines.append(f"{r['scene']:9s} {r['lights']:6d} {r['max_error']:6.0e} "
+                     f"{r['brute']['ms_per_frame']:10.1f}{'*' if r['extrapolated'] else ' '}"
+                     f"{c['ms_per_frame']:9.1f} {c['speedup']:6.2f} {t['ms_per_frame']:10.1f} "
+                     f"{t['speedup']:6.2f} {t['kept_fraction'] or 0:6.3f} {t['clusters']:9d} "
+                     f"{t['cut_ms']:7.0f} {t['max_abs_error']:9.2e} {r['tree_nodes']:6d} "
+                     f"{r['tree_build_s']:7.2f}")
+    lines.append("tree: ms per frame (brute force, culling alone, culling with the light tree's "
+                 "clusters; * from a crop of whole super-tile rows), speed-ups over brute force, "
+                 "the tree run's kept share, clusters over the super-tiles, host cut (per frame), max abs error "
+                 "against the float64 reference (within eps: the budget held), the tree's size and "
+                 "build time")
+    return lines
 
 
 def summarise_environment(rows: list[dict]) -> dict:

@@ -25,6 +25,14 @@ import sys
 
 import numpy as np
 
+from ..core.geometry import view_vector
+from ..model.light_tree import (
+    SpecularModel,
+    TileBoxes,
+    build_light_tree,
+    choose_cut,
+    cluster_bounds,
+)
 from ..reference import shading as reference
 from .bench import bench_gbuffer, bench_scene
 from .report import markdown_table
@@ -137,13 +145,97 @@ def cut_sizes(scene, gbuffer, eps_list, n_pixels: int, seed: int = 0):
     return out
 
 
+def _tile_boxes(scene, gbuffer, y, x, tile):
+    """TileBoxes of the aligned ``tile`` × ``tile`` block holding pixel (y, x)."""
+    y0, x0 = (y // tile) * tile, (x // tile) * tile
+    sl = (slice(y0, y0 + tile), slice(x0, x0 + tile))
+    fg = ~gbuffer.background_mask()[sl].reshape(-1)
+    P = gbuffer.position[sl].reshape(-1, 3).astype(np.float64)[fg]
+    N = gbuffer.normal[sl].reshape(-1, 3).astype(np.float64)[fg]
+    N /= np.linalg.norm(N, axis=1)[:, None]
+    m = scene.material
+    D = gbuffer.albedo[sl].reshape(-1, 3).astype(np.float64)[fg] * m.k_d
+    S = np.asarray(m.specular_color, np.float64) * m.k_s
+    return TileBoxes(lo=P.min(axis=0)[None], hi=P.max(axis=0)[None], nlo=N.min(axis=0)[None],
+                     nhi=N.max(axis=0)[None], D=np.abs(D).max(axis=0)[None], S=np.abs(S)[None])
+
+
+def _entries(tree, used, covered, n_lights):
+    """List entries of a cut: its clusters, plus every light no cluster stands for."""
+    return int(used.sum()) + n_lights - int(covered.sum())
+
+
+def bound_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, tiles=(1, 16, 128), seed: int = 0):
+    """{(what, ε): [list entries per sample pixel]} of the threshold cut
+    (:func:`clphong.model.light_tree.choose_cut`) of the scene's light tree: ``what``
+    is ``"exact"`` (each node's true error at the pixel, float64) or a tile size
+    (the proven :func:`~clphong.model.light_tree.cluster_bounds` on the aligned tile
+    holding the pixel). The gap from "exact" to tile 1 is the bound's slack; from
+    tile 1 to the super-tiles', the tile's."""
+    tree = build_light_tree(scene.light_arrays)
+    if tree is None:
+        raise ValueError("the scene has too few clusterable point lights for a tree")
+    a = scene.light_arrays
+    n = len(a["point_position"])
+    m = scene.material
+    cam = scene.camera
+    eye = (np.asarray(cam.position, np.float64) if cam.type == "perspective"
+           else view_vector(cam))
+    spec = SpecularModel(blinn=m.model == "blinn-phong", exponent=m.exponent,
+                         fresnel=m.fresnel == "schlick", eye=eye,
+                         perspective=cam.type == "perspective")
+    fg = np.flatnonzero(~gbuffer.background_mask().reshape(-1))
+    rng = np.random.default_rng(seed)
+    idx = rng.choice(fg, size=min(n_pixels, len(fg)), replace=False)
+    px, D, S = _pixels_of(scene, gbuffer, idx)
+    h, w = gbuffer.shape
+    out = {}
+    for j, flat in enumerate(idx):
+        one = reference.Pixels(p=px.p[j:j + 1], n=px.n[j:j + 1], v=px.v[j:j + 1],
+                               k=px.k[j:j + 1], blinn=px.blinn, specular=px.specular)
+        leaves = light_contributions(one, D[j:j + 1], S[j:j + 1], a["point_position"],
+                                     a["point_radiance"], a["point_attenuation"])[:, 0]
+        reps = light_contributions(one, D[j:j + 1], S[j:j + 1], tree.position, tree.radiance,
+                                   tree.attenuation)[:, 0]
+        sums = np.zeros_like(reps)
+        for lv in reversed(tree.levels):              # deepest first: children before parents
+            for side in (0, 1):
+                c = tree.children[lv, side]
+                inner = c >= tree.n_leaves
+                sums[lv[~inner]] += leaves[c[~inner]]
+                sums[lv[inner]] += sums[c[inner] - tree.n_leaves]
+        exact = np.abs(sums - reps).max(axis=1)[None]
+        y, x = divmod(int(flat), w)
+        for e in eps_list:
+            out.setdefault(("exact", e), []).append(_entries(tree, *choose_cut(tree, exact, e), n))
+        for t in tiles:
+            b = cluster_bounds(tree, _tile_boxes(scene, gbuffer, y, x, t), spec, np.zeros(3))
+            for e in eps_list:
+                out.setdefault((t, e), []).append(_entries(tree, *choose_cut(tree, b, e), n))
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m clphong.tools.cut_floor", description=__doc__.split("\n\n")[0])
     p.add_argument("--eps", default="1e-3,1e-2,3e-2", help="budgets, relative to white 1.0")
     p.add_argument("--lights", type=int, default=65536, help="lights of the bench 'wide' scene")
     p.add_argument("--pixels", type=int, default=8, help="sample pixels of the 1080p bench G-buffer")
+    p.add_argument("--scene", default="wide", choices=("wide", "clusters"),
+                   help="bench scene (default wide)")
+    p.add_argument("--bound", action="store_true",
+                   help="also the threshold cut of the light tree itself: with the true errors, "
+                        "and with the proven bound on tiles of 1, 16 and 128 pixels")
     args = p.parse_args(argv)
     eps = [float(x) for x in args.eps.split(",")]
+    if args.bound:
+        scene = bench_scene(args.scene, args.lights)
+        got = bound_cut_sizes(scene, bench_gbuffer(1920, 1080), eps, args.pixels)
+        whats = ["exact", 1, 16, 128]
+        rows = [[f"{e:g}", args.lights] + [f"{np.median(got[(t, e)]):.0f}" for t in whats]
+                for e in eps]
+        print(markdown_table(["ε", "lights", "true errors", "bound, 1 px", "bound, 16 px",
+                              "bound, 128 px"], rows))
+        print()
     sizes = cut_sizes(bench_scene("wide", args.lights), bench_gbuffer(1920, 1080), eps, args.pixels)
     rows = [[f"{e:g}", args.lights, f"{np.median(s):.0f}", min(s), max(s),
              f"{np.median(s) / args.lights:.1%}"] for e, s in sizes.items()]

@@ -298,3 +298,24 @@ def test_environment_rows_against_the_exact_texel_sum():
     lines = bench.environment_table(rows)
     assert len(lines) == 4 and "environment" in lines[0]
     assert "environment" in bench.table(report)
+
+
+def test_tree_rows_time_three_ways_and_keep_the_budget():
+    """The light-tree rows: brute force, culling alone and with the tree, on one crop;
+    speed-ups are ratios of the same run's medians, and the error is within ε
+    (brute force's own error is far below ε here)."""
+    cfg = bench.BenchConfig(sizes=((160, 90),), lights=(), small_lights=(), paths=(), budgets=(),
+                            env_errors=(), tree_cases=(("clusters", 512, 3e-2),), repeats=1,
+                            warmup=0, crop_pairs=1e9, error_pairs=1e6, numpy_pairs=1e9)
+    report = bench.run_bench(cfg)
+    (row,) = report["tree"]
+    assert (row["scene"], row["lights"], row["max_error"]) == ("clusters", 512, 3e-2)
+    assert row["tree_nodes"] == 511 and row["tree_lights"] == 512 and row["tree_build_s"] > 0
+    assert row["brute"]["kept_fraction"] is None
+    for label in ("culling", "tree"):
+        x = row[label]
+        assert x["speedup"] == pytest.approx(row["brute"]["ms_per_frame"] / x["ms_per_frame"])
+        assert x["within_budget"] and x["max_abs_error"] <= 3e-2
+    assert row["culling"]["clusters"] == 0 and row["tree"]["clusters"] > 0
+    text = bench.table(report)
+    assert "tree" in text and "clusters" in text
