@@ -69,10 +69,11 @@ CULL_LOCAL = 8
 #: (256 lights, c2 = 20, 98.9 % kept: 1.13x before this fallback), and keeps its
 #: gain where it can.
 BRUTE_ABOVE = 0.85
-#: The light tree (clphong/model/light_tree.py) is tried where the super-tiles'
-#: lists keep more than this share of the point lights on average: below it
-#: culling alone does well (the small-reach scene keeps 0.2 %), and the host's cut
-#: is not worth its time.
+#: The light tree (clphong/model/light_tree.py) is tried where the tiles' lists
+#: from culling alone keep more than this share of the point lights on average:
+#: below it culling does well (the small-reach scene keeps 0.2 %: its super-tiles
+#: keep more than a quarter, and clusters there made the tiles keep 3.2 %), and
+#: the host's cut is not worth its time.
 TREE_ABOVE = 0.25
 #: Share of the budget the tree's clusters may use where a cut takes clusters; the
 #: tiles' culling gets what the super-tiles and the tree leave (1 − 1/4 − 1/2).
@@ -340,39 +341,50 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                          budget=coarse_budget, tiles_x=super_x, tiles_y=super_y, lanes=lanes)
     if coarse is None:
         return None
-    c_ranges, c_lists, c_kept, c_seconds = coarse
-    rest = budget - coarse_budget
-    cut = None
-    if tree is not None and budget > 0:
-        cut = _tree_cut(runtime, tree, coarse_tiles, c_ranges, c_lists, c_kept, point_records,
-                        n_point, frame.origin, n_super=super_x * super_y,
-                        budget=budget * TREE_SHARE, lanes=lanes)
-    n_lists = n_point
-    if cut is not None:
-        c_ranges, c_lists, records, records64, clusters, covered, tree_s = cut
-        rest = budget - coarse_budget - budget * TREE_SHARE
-        n_lists = len(records) // POINT_RECORD
-        lb = cl.Buffer(ctx, ro, hostbuf=pack_cull_lights(records, n_lists))
-    crb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(c_ranges))
-    # the rest of the budget, rounded down so that the parts never sum past it
-    fine_budget = float(np.nextafter(np.float32(rest), np.float32(0)))
-    fine = _cull_level(runtime, prog, fine_tiles, [], lb, n_lists, budget=max(fine_budget, 0.0),
-                       tiles_x=tiles_x, tiles_y=tiles_y, lanes=lanes,
-                       candidates=(crb, c_lists), super_tiles=super_x * super_y)
+    c_ranges, c_lists, _, c_seconds = coarse
+    shaded = tile_of_pixels(frame.shape, lanes, tiles_x).reshape(-1)[~frame.background]
+    active = int(np.unique(shaded).size)
+
+    def fine_level(ranges_, lists_, lb_, n_lists, rest):
+        crb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(ranges_))
+        # the rest of the budget, rounded down so that the parts never sum past it
+        fb = float(np.nextafter(np.float32(rest), np.float32(0)))
+        return _cull_level(runtime, prog, fine_tiles, [], lb_, n_lists, budget=max(fb, 0.0),
+                           tiles_x=tiles_x, tiles_y=tiles_y, lanes=lanes,
+                           candidates=(crb, lists_), super_tiles=super_x * super_y)
+
+    fine = fine_level(c_ranges, c_lists, lb, n_point, budget - coarse_budget)
+    extra, spent = {}, 0.0
+    # The light tree where culling alone keeps much (TREE_ABOVE of the lights on
+    # average, or lists too long): the tiles cull again from the super-tiles' cuts,
+    # and the shorter lists win. Elsewhere nothing changes (nor is the tree built).
+    if tree is not None and budget > 0 and (fine is None or fine[2] > TREE_ABOVE * active * n_point):
+        cut = _tree_cut(runtime, tree, coarse_tiles, c_ranges, c_lists, point_records, n_point,
+                        frame.origin, n_super=super_x * super_y, budget=budget * TREE_SHARE,
+                        lanes=lanes)
+        if cut is not None:
+            t_ranges, t_lists, records, records64, clusters, covered, tree_s = cut
+            n_ext = len(records) // POINT_RECORD
+            lb_ext = cl.Buffer(ctx, ro, hostbuf=pack_cull_lights(records, n_ext))
+            with_tree = fine_level(t_ranges, t_lists, lb_ext, n_ext,
+                                   budget - coarse_budget - budget * TREE_SHARE)
+            if with_tree is not None and (fine is None or with_tree[2] < fine[2]):
+                if fine is not None:
+                    spent += fine[3]                 # the pass without the tree, not used
+                fine = with_tree
+                t = tree.tree()
+                extra = dict(records=records, records64=records64, clusters=clusters,
+                             covered=covered, tree_seconds=tree_s, tree_nodes=t.n_nodes,
+                             tree_lights=t.clusterable, tree_build_seconds=t.seconds)
+            else:
+                spent += tree_s + (with_tree[3] if with_tree is not None else 0.0)
     if fine is None:
         return None
     ranges, lists, kept, seconds = fine
     rb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(ranges))
-    shaded = tile_of_pixels(frame.shape, lanes, tiles_x).reshape(-1)[~frame.background]
-    extra = {}
-    if cut is not None:
-        t = tree.tree()
-        extra = dict(records=records, records64=records64, clusters=clusters, covered=covered,
-                     tree_seconds=tree_s, tree_nodes=t.n_nodes, tree_lights=t.clusterable,
-                     tree_build_seconds=t.seconds)
     return TileLists(ranges=rb, lights=lists, width=w, tiles_x=tiles_x, n_tiles=tiles_x * tiles_y,
-                     kept=kept, n_point=n_point, seconds=c_seconds + seconds,
-                     active_tiles=int(np.unique(shaded).size), **extra)
+                     kept=kept, n_point=n_point, seconds=c_seconds + seconds + spent,
+                     active_tiles=active, **extra)
 
 
 def read_tile_boxes(runtime, tiles_buffer, n_tiles: int, lanes: int) -> TileBoxes:
@@ -387,22 +399,18 @@ def read_tile_boxes(runtime, tiles_buffer, n_tiles: int, lanes: int) -> TileBoxe
                      S=p[15:18].T)
 
 
-def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, c_kept, point_records,
+def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_records,
               n_point, origin, *, n_super, budget, lanes):
     """The super-tiles' lists with the tree's clusters: per super-tile, the cut of
     :func:`~clphong.model.light_tree.choose_cut` within ``budget``; its clusters
     replace the lights they stand for, and the culled lights stay out. None where
-    the coarse lists keep little (:data:`TREE_ABOVE`) or no cluster fits.
+    no cluster fits.
 
     Returns (ranges, lists buffer, float32 records, float64 records, clusters,
     covered, seconds).
     """
     import pyopencl as cl
 
-    counts = c_ranges[:, 1].astype(np.int64)
-    active = max(int((counts > 0).sum()), 1)
-    if c_kept <= TREE_ABOVE * active * n_point:
-        return None
     tree = tin.tree()
     if tree is None:
         return None

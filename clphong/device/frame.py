@@ -121,6 +121,15 @@ class LightArrays:
 
 
 
+def shading_records(records: np.ndarray, has_spot: bool) -> np.ndarray:
+    """Point records as the shading kernels read them (POINT_LIGHT_FLOAT4S, plan.h):
+    all POINT_RECORD float4s with spots, else the first 3 (a point light's fourth,
+    its cone (0, 1), is not read): fewer bytes gathered through the tile lists."""
+    if has_spot:
+        return records
+    return np.ascontiguousarray(records.reshape(-1, POINT_RECORD, 4)[:, :3]).reshape(-1, 4)
+
+
 def _check_reach(scene, o: np.ndarray, rebased: np.ndarray) -> None:
     """Refuse a point light (``rebased``: the positions minus the frame origin ``o``)
     or eye that lies beyond float32 from the frame (one end of the range against

@@ -55,6 +55,7 @@ from .frame import (
     material_uniforms,
     pack_lights,
     prepare_frame,
+    shading_records,
 )
 from .plan import ShadingPlan, make_plan
 from .runtime import float4, get_runtime
@@ -430,7 +431,9 @@ class Renderer:
             # WEIGHTS_FP64 forms D, S, the ambient term and a non-whole power in double: hi + lo
             _, (kd_lo, *S_lo, k_lo) = split_hi_lo([k_d, *S, k])
             amb_lo = split_hi_lo(lights.ambient)[1]
-            pl = cl.Buffer(ctx, ro, hostbuf=lights.point64 if fp64 else lights.point)
+            spots = plan.n_spot > 0
+            pl = cl.Buffer(ctx, ro, hostbuf=shading_records(
+                lights.point64 if fp64 else lights.point, spots))
             dl = cl.Buffer(ctx, ro, hostbuf=lights.directional)
             out = np.empty((3 * (1 + len(plan.layers)), frame.stride), np.float32)
             gt = cl.Buffer(ctx, ro, hostbuf=lights.group_table)
@@ -453,7 +456,8 @@ class Renderer:
                 else:
                     cull_args = cull.kernel_args()
                     if cull.records is not None:     # the lists name the tree's clusters too
-                        pl = cl.Buffer(ctx, ro, hostbuf=cull.records64 if fp64 else cull.records)
+                        pl = cl.Buffer(ctx, ro, hostbuf=shading_records(
+                            cull.records64 if fp64 else cull.records, spots))
             kern = self.runtime.kernel(prog, "shade")
             kern.set_args(
                 g, mp, ob, np.uint32(frame.stride), np.uint32(0),

@@ -299,8 +299,9 @@ typedef double4 pointrec_t;
 #else
 typedef float4 pointrec_t;
 #endif
-#define POINT_LIGHT_FLOAT4S 4       /* (x, y, z, c0) (r, g, b, c1) (c2, ax, ay, az) (s, o, 0, 0):
-                                       clphong/device/culling.py POINT_RECORD */
+/* Point records on the host: (x, y, z, c0) (r, g, b, c1) (c2, ax, ay, az) (s, o, 0, 0)
+ * (clphong/device/culling.py POINT_RECORD); the kernels read POINT_LIGHT_FLOAT4S of
+ * them (plan.h: 3 without spots). */
 #define DIRECTIONAL_LIGHT_FLOAT4S 6 /* (lx, ly, lz, 0) (r, g, b, 0) (hx, hy, hz, undefined)
                                        (l − float(l), 0) (h − float(h), 0)
                                        (radiance − float(radiance), 0) */

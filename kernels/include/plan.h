@@ -48,6 +48,16 @@
 #ifndef HAS_SPOT
 #error "HAS_SPOT must be set by the shading plan (clphong/device/plan.py)"
 #endif
+/* float4s (double4s with DIRECTIONS_FP64) per point-light record as the shading
+ * kernels read them: (x, y, z, c0) (r, g, b, c1) (c2, ax, ay, az), and a spot's
+ * (s, o, 0, 0) only in scenes with spots (clphong/device/frame.py shading_records
+ * drops that fourth from the host's records otherwise: 3/4 of the bytes gathered
+ * through the tile lists). */
+#if HAS_SPOT
+#define POINT_LIGHT_FLOAT4S 4
+#else
+#define POINT_LIGHT_FLOAT4S 3
+#endif
 #ifndef HAS_DIRECTIONAL
 #error "HAS_DIRECTIONAL must be set by the shading plan (clphong/device/plan.py)"
 #endif
