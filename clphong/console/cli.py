@@ -355,7 +355,7 @@ def _add_bench_parser(sub):
                    help="light-tree rows: brute force, culling alone and culling with the tree's "
                         "clusters, in turns, for each scene ('wide' or 'clusters'), point-light "
                         "count and budget (default: " + ",".join(f"{k}:{n}:{e:g}" for k, n, e in TREE_CASES)
-                        + "; '' for none)")
+                        + ", none with --sizes; '' for none)")
     b.add_argument("--device", metavar="DEV", help="OpenCL device (see 'clphong devices')")
     b.add_argument("--commands", action="store_true",
                    help="instead, time whole commands at 1 point light: 'clphong render' EXR to EXR "
@@ -418,7 +418,8 @@ def cmd_bench(args) -> int:
             kw["env_errors"] = tuple(check_env_error(x) for x in kw["env_errors"])
         except ValueError as exc:
             raise _Usage(f"--env-error: {exc}") from None
-    kw["tree_cases"] = BenchConfig.quick().tree_cases if args.quick else TREE_CASES
+    kw["tree_cases"] = (BenchConfig.quick().tree_cases if args.quick
+                        else () if args.sizes else TREE_CASES)
     if args.tree is not None:
         kw["tree_cases"] = _csv(args.tree, _tree_case, "--tree")
     for name in ("repeats", "warmup"):

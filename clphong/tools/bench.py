@@ -456,7 +456,7 @@ class BenchConfig:
         base = dict(sizes=((480, 270),), lights=(1, 16, 256, 4096), budgets=(0.0, 1e-3),
                     repeats=3, crop_pairs=3e7, error_pairs=5e6, numpy_pairs=4e6,
                     small_lights=(4096,), env_errors=(1e-2,), env_size=(256, 128),
-                    env_pixels=500, tree_cases=(("clusters", 4096, 1e-2),))
+                    env_pixels=500, tree_cases=(("clusters", 1024, 3e-2),))
         base.update(kw)
         return cls(**base)
 
