@@ -395,11 +395,8 @@ class Renderer:
         lists are read in group order, do not take clusters yet)."""
         if not self.use_tree or plan.defines.get("N_GROUPS") or plan.n_spot == plan.n_point:
             return None
-        m = self.scene.material
-        spec = SpecularModel(blinn=m.model == "blinn-phong",
-                             exponent=None if "h" in frame.map_names else m.exponent,
-                             fresnel=m.fresnel == "schlick", eye=np.asarray(lights.eye),
-                             perspective=self.scene.camera.type == "perspective")
+        spec = SpecularModel.of_scene(self.scene, lights.eye,
+                                      shininess_map="h" in frame.map_names)
         return TreeInput(tree=self.light_tree, spec=spec, point64=lights.point64)
 
     # ------------------------------------------------------------------ one launch

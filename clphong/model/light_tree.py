@@ -72,6 +72,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.floats import U
+from ..core.geometry import view_vector
 
 #: Fewest clusterable lights worth a tree (below it every list is short anyway).
 MIN_TREE_LIGHTS = 64
@@ -243,6 +244,16 @@ class TileBoxes:
     D: np.ndarray
     S: np.ndarray
 
+    @classmethod
+    def of_pixels(cls, P, N, D, S) -> "TileBoxes":
+        """One tile holding the pixels P, N (unit), D, S ((M, 3) each; S may be (3,))."""
+        def box(x):
+            return np.min(x, axis=0)[None], np.max(x, axis=0)[None]
+
+        (lo, hi), (nlo, nhi) = box(P), box(N)
+        return cls(lo=lo, hi=hi, nlo=nlo, nhi=nhi, D=np.abs(D).max(axis=0)[None],
+                   S=np.abs(np.atleast_2d(S)).max(axis=0)[None])
+
 
 @dataclass(frozen=True)
 class SpecularModel:
@@ -253,6 +264,18 @@ class SpecularModel:
     fresnel: bool            # Schlick's weight on v·h (Blinn-Phong only depends on l)
     eye: np.ndarray          # perspective: eye − origin; orthographic: unit v
     perspective: bool
+
+    @classmethod
+    def of_scene(cls, scene, eye=None, *, shininess_map: bool = False) -> "SpecularModel":
+        """The scene's material and camera; ``eye`` (rebased, or the unit v) by default
+        the camera's own: its position, or the orthographic view vector."""
+        m, cam = scene.material, scene.camera
+        perspective = cam.type == "perspective"
+        if eye is None:
+            eye = np.asarray(cam.position, np.float64) if perspective else view_vector(cam)
+        return cls(blinn=m.model == "blinn-phong", exponent=None if shininess_map else m.exponent,
+                   fresnel=m.fresnel == "schlick", eye=np.asarray(eye, np.float64),
+                   perspective=perspective)
 
 
 def _interval_dot(alo, ahi, blo, bhi):

@@ -429,6 +429,15 @@ def time_frame(renderer, gbuffer, frame):
     return result.stats.kernel_seconds + c, c, result
 
 
+def _time_slots(slots, *, keep: bool) -> None:
+    """One frame of each slot in turn (its ``result``); ``keep``: record its times."""
+    for slot in slots:
+        t, c, slot["result"] = time_frame(slot["r"], slot["gb"], slot["frame"])
+        if keep:
+            slot["times"].append(t)
+            slot["cull"].append(c)
+
+
 # --------------------------------------------------------------------------------- the run
 
 @dataclass
@@ -572,11 +581,7 @@ def run_bench(cfg: BenchConfig) -> dict:
                     peer_gb = full if peer_rows == H else bench_gbuffer(W, H, peer_rows)
                     peer, peer_times = numba_peer.NumbaPeer(scene, peer_gb), []
             for round_ in range(cfg.warmup + cfg.repeats):
-                for slot in slots:
-                    t, c, slot["result"] = time_frame(slot["r"], slot["gb"], slot["frame"])
-                    if round_ >= cfg.warmup:
-                        slot["times"].append(t)
-                        slot["cull"].append(c)
+                _time_slots(slots, keep=round_ >= cfg.warmup)
                 if peer is not None:
                     t0 = time.perf_counter()
                     peer.shade_flat()
@@ -977,11 +982,7 @@ def run_tree(cfg: BenchConfig, full, log) -> list[dict]:
             slots.append({"label": label, "r": r, "rows": rows, "gb": gb, "times": [], "cull": [],
                           "frame": prepare_frame(gb, lanes=max(r.lanes, 1))})
         for round_ in range(cfg.warmup + cfg.repeats):
-            for slot in slots:
-                t, c, slot["result"] = time_frame(slot["r"], slot["gb"], slot["frame"])
-                if round_ >= cfg.warmup:
-                    slot["times"].append(t)
-                    slot["cull"].append(c)
+            _time_slots(slots, keep=round_ >= cfg.warmup)
         shaded_full = shaded_pixels(full)
         rows = slots[0]["rows"]
         oracle = make_oracle(scene, slots[0]["gb"], slots[0]["frame"],

@@ -25,7 +25,6 @@ import sys
 
 import numpy as np
 
-from ..core.geometry import view_vector
 from ..model.light_tree import (
     SpecularModel,
     TileBoxes,
@@ -155,9 +154,7 @@ def _tile_boxes(scene, gbuffer, y, x, tile):
     N /= np.linalg.norm(N, axis=1)[:, None]
     m = scene.material
     D = gbuffer.albedo[sl].reshape(-1, 3).astype(np.float64)[fg] * m.k_d
-    S = np.asarray(m.specular_color, np.float64) * m.k_s
-    return TileBoxes(lo=P.min(axis=0)[None], hi=P.max(axis=0)[None], nlo=N.min(axis=0)[None],
-                     nhi=N.max(axis=0)[None], D=np.abs(D).max(axis=0)[None], S=np.abs(S)[None])
+    return TileBoxes.of_pixels(P, N, D, np.asarray(m.specular_color, np.float64) * m.k_s)
 
 
 def _entries(tree, used, covered, n_lights):
@@ -177,13 +174,7 @@ def bound_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, tiles=(1, 16, 128),
         raise ValueError("the scene has too few clusterable point lights for a tree")
     a = scene.light_arrays
     n = len(a["point_position"])
-    m = scene.material
-    cam = scene.camera
-    eye = (np.asarray(cam.position, np.float64) if cam.type == "perspective"
-           else view_vector(cam))
-    spec = SpecularModel(blinn=m.model == "blinn-phong", exponent=m.exponent,
-                         fresnel=m.fresnel == "schlick", eye=eye,
-                         perspective=cam.type == "perspective")
+    spec = SpecularModel.of_scene(scene)
     fg = np.flatnonzero(~gbuffer.background_mask().reshape(-1))
     rng = np.random.default_rng(seed)
     idx = rng.choice(fg, size=min(n_pixels, len(fg)), replace=False)

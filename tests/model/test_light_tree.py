@@ -16,7 +16,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from clphong.core.geometry import view_vector
 from clphong.model.light_tree import (
     MIN_TREE_LIGHTS,
     SpecularModel,
@@ -135,17 +134,8 @@ def check_bound(rng, *, model, h, k_s, fresnel, camera, spread, dist, att, size,
     C = rng.uniform(0.1, 1.0, (len(P), 3))
     gb = make_gbuffer(P.reshape(1, -1, 3), N.reshape(1, -1, 3), C.reshape(1, -1, 3))
     px, _, D, S, _ = reference._inputs(scene, gb)
-    boxes = TileBoxes(lo=px.p.min(axis=0)[None], hi=px.p.max(axis=0)[None],
-                      nlo=px.n.min(axis=0)[None], nhi=px.n.max(axis=0)[None],
-                      D=np.abs(D).max(axis=0)[None], S=np.abs(S).max(axis=0)[None])
-    m = scene.material
-    cam = scene.camera
-    eye = (np.asarray(cam.position, np.float64) if cam.type == "perspective"
-           else view_vector(cam))
-    spec = SpecularModel(blinn=m.model == "blinn-phong", exponent=m.exponent,
-                         fresnel=m.fresnel == "schlick", eye=eye,
-                         perspective=cam.type == "perspective")
-    bound = cluster_bounds(tree, boxes, spec, np.zeros(3))[0]
+    boxes = TileBoxes.of_pixels(px.p, px.n, D, S)
+    bound = cluster_bounds(tree, boxes, SpecularModel.of_scene(scene), np.zeros(3))[0]
     err = node_errors(scene, tree, px, D, S)
     worst = int(np.argmax(err - bound))
     assert np.all(err <= bound), (f"node {worst}: error {err[worst]:.3g} > bound "
