@@ -336,6 +336,12 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
     vstoreL(Or, i, out + 0 * stride);
     vstoreL(Og, i, out + 1 * stride);
     vstoreL(Ob, i, out + 2 * stride);
+#ifdef SELFTEST_FAULT
+    /* test-only: the last lane of each work-item made wrong by a factor (1 + SELFTEST_FAULT),
+       set only by the self-test's fault injection (tests/device/test_selftest.py) to show
+       that a wrong lane is caught; never in a plan */
+    out[i * LANES + (LANES - 1)] *= 1.0f + SELFTEST_FAULT;
+#endif
 #if AOV_DIFFUSE
     vstoreL(COVER(SELECT(finish_sum(dr, dcr), (floatL)(0.0f), bg)), i, out + (OUT_DIFFUSE + 0) * stride);
     vstoreL(COVER(SELECT(finish_sum(dg, dcg), (floatL)(0.0f), bg)), i, out + (OUT_DIFFUSE + 1) * stride);

@@ -157,8 +157,11 @@ def patch_everywhere(monkeypatch, module, name, replacement):
 def _device_ids(plat, dev):
     import pyopencl as cl
 
+    from clphong.device.platforms import platform_kind
+
     pname = plat.name.lower()
-    short = ("pocl" if "portable computing language" in pname or "pocl" in pname
+    kind = platform_kind(plat.name)
+    short = ({"intel-cpu": "intel"}.get(kind, kind) if kind != "other"
              else pname.split()[0] if pname.split() else "platform")
     kinds = [k for k, flag in (("cpu", cl.device_type.CPU), ("gpu", cl.device_type.GPU),
                                ("accelerator", cl.device_type.ACCELERATOR)) if dev.type & flag]
@@ -166,8 +169,13 @@ def _device_ids(plat, dev):
 
 
 def opencl_devices():
-    """[(selector "P:D", id)] of every OpenCL device present; [] when none (or no pyopencl)."""
+    """[(selector "P:D", id, why not)] of every OpenCL device present, ``why not`` the
+    one-line reason the device cannot be used on this host (the host rule or its
+    self-test: the test is skipped there), else None; [] when none (or no pyopencl)."""
     try:
+        from clphong.device.platforms import register_pip_runtimes
+
+        register_pip_runtimes()        # Intel's pip runtime is a platform, as for a user
         import pyopencl as cl
 
         platforms = cl.get_platforms()
@@ -185,8 +193,20 @@ def opencl_devices():
     seen: dict[str, int] = {}
     for _, ident in out:
         seen[ident] = seen.get(ident, 0) + 1
-    return [(sel, ident if seen[ident] == 1 else f"{ident}-{sel.replace(':', '.')}")
+    return [(sel, ident if seen[ident] == 1 else f"{ident}-{sel.replace(':', '.')}", _unusable(sel))
             for sel, ident in out]
+
+
+def _unusable(selector):
+    """Why clphong refuses this device here (one line), or None."""
+    from clphong.core.errors import DeviceError
+    from clphong.device.runtime import get_runtime
+
+    try:
+        get_runtime(selector)
+    except DeviceError as exc:
+        return str(exc).split("; choose another device")[0]
+    return None
 
 
 _DEVICES = None
@@ -199,8 +219,10 @@ def pytest_generate_tests(metafunc):
     if _DEVICES is None:
         _DEVICES = opencl_devices()
     if _DEVICES:
-        metafunc.parametrize("device", [sel for sel, _ in _DEVICES],
-                             ids=[ident for _, ident in _DEVICES])
+        metafunc.parametrize("device", [
+            sel if why is None else pytest.param(sel, marks=pytest.mark.skip(
+                reason=f"not usable on this host: {why}"))
+            for sel, _, why in _DEVICES], ids=[ident for _, ident, _ in _DEVICES])
     else:
         metafunc.parametrize("device", [pytest.param(None, marks=pytest.mark.skip(
             reason="no OpenCL device found"))], ids=["no-device"])

@@ -36,7 +36,8 @@ from ..deliver.writers import (
 from ..device import runtime as _runtime
 from ..device.culling import BRUTE_ABOVE
 from ..device.renderer import Renderer
-from ..device.runtime import get_runtime, list_devices
+from ..device.hostrule import host
+from ..device.runtime import describe_devices, get_runtime, list_devices
 from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
 from ..io.envmap import resolve_environment
 from ..io.gbuffer import parse_channel_mapping, read_gbuffer
@@ -598,10 +599,19 @@ def cmd_plan(args) -> int:
 
 
 def cmd_devices(args) -> int:
-    for line in list_devices():
-        print(line)
-    rt = get_runtime(None)
-    print(f"default: {rt.name} ({rt.lanes} lane(s); LLVM target {rt.llvm_target or 'n/a'})")
+    rows, why = describe_devices()
+    print(f"host: {host().label}")
+    for row in rows:
+        mark = "  (default)" if row["default"] else ""
+        print(f"{row['selector']}  {row['name']}{mark}")
+        if "target" in row:
+            print(f"      compiler target {row['target']}; matches the host: {row['match']}")
+        width = f"{row['width']} lane(s)" if row.get("width") else "no width"
+        print(f"      {width}; self-test: {row['verdict']}")
+        if "rule" in row:
+            print(f"      rule: {row['rule']}")
+    default = next((r for r in rows if r["default"]), None)
+    print(f"default: {default['name']}: {why}" if default else f"default: none: {why}")
     return 0
 
 

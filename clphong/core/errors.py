@@ -41,6 +41,10 @@ class InputWarning(ClphongWarning):
     """Non-finite G-buffer values were handled by the input policy."""
 
 
+class DeviceWarning(ClphongWarning):
+    """A device configuration failed its self-test and a safer one is used instead."""
+
+
 class OutputWarning(ClphongWarning):
     """Output values were changed to fit the file format (e.g. the half range)."""
 

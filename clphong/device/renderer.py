@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.errors import DeviceError, GBufferError, SceneError
+from ..core.errors import DeviceError, DeviceWarning, GBufferError, SceneError
 from ..core.geometry import split_hi_lo
 from ..core.memory import ENV_VAR, F32, format_size, memory_budget
 from ..io.nonfinite import apply_nonfinite_policy, apply_range_policy
@@ -58,7 +59,8 @@ from .frame import (
     shading_records,
 )
 from .plan import ShadingPlan, make_plan
-from .runtime import float4, get_runtime
+from .isolate import VariantCrash
+from .runtime import float4, get_runtime, verify
 
 
 @dataclass(frozen=True)
@@ -194,10 +196,13 @@ class Renderer:
         self.int_pow = int_pow
         self.kernel_kind = check_kernel(kernel)
         self.runtime = get_runtime(device)
+        lanes_given = lanes is not None or kernel != "lanes"
         if kernel != "lanes":
             lanes = 1
         elif lanes is None:
             lanes = self.runtime.lanes
+        else:
+            self.runtime.check_width(check_lanes(lanes))
         self.lanes = check_lanes(lanes)
         self.compensated = compensated
         self.max_error = check_budget(max_error, reference_white)   # absolute, or None
@@ -212,8 +217,30 @@ class Renderer:
         # Launches on one device are serialised: its cached kernel objects hold their
         # arguments between set_args and the enqueue.
         self._lock = self.runtime.lock
-        # Compile the variant without maps now, so errors surface at construction.
-        self.plan_for(())
+        # Compile the variant without maps now, so errors surface at construction; a
+        # compiler that dies on it moves to the next narrower width the device passed
+        # (unless the caller chose the width), with a warning.
+        while True:
+            try:
+                self.plan_for(())
+                break
+            except VariantCrash as exc:
+                narrower = self._narrower_width(pinned=lanes_given)
+                if narrower is None:
+                    raise
+                warnings.warn(DeviceWarning(f"{str(exc).splitlines()[0]}; using {narrower} "
+                                            "lane(s) instead"))
+                self.lanes = narrower
+
+    def _narrower_width(self, *, pinned: bool) -> int | None:
+        """The next width below :attr:`lanes` that the host rule allows on this device and
+        whose self-test passes; None if there is none or the caller chose the width."""
+        if pinned:
+            return None
+        for width in self.runtime.decision.widths:
+            if width < self.lanes and verify(self.runtime, width)["ok"]:
+                return width
+        return None
 
     @property
     def fp64_directions(self) -> bool:

@@ -4,9 +4,17 @@ Device choice, in order:
 
 1. ``device=`` argument (CLI ``--device``), in ``PYOPENCL_CTX`` syntax
    (``"0"``, ``"0:1"``) or as a case-insensitive substring of a platform or
-   device name (``"pocl"``, ``"nvidia"``);
+   device name (``"pocl"``, ``"intel"``, ``"nvidia"``);
 2. the ``PYOPENCL_CTX`` environment variable, as PyOpenCL reads it;
-3. PoCL's CPU device (installed from PyPI with ``pip install "pyopencl[pocl]"``).
+3. the first CPU device, in the order of :data:`clphong.device.platforms.PREFERENCE`
+   (Intel's CPU runtime, then PoCL), whose width from the host rule
+   (:mod:`clphong.device.hostrule`) passes the self-test; then any other device.
+
+Whatever chose the device, its lane width comes from the host rule and is
+self-tested (:mod:`clphong.device.selftest`, in a child process) before the first
+frame; a width that fails is never used: the next one the rule allows is tried
+with a one-line warning. Verdicts are cached in clphong's cache folder, keyed by
+the platform, the driver, the host's features and the kernel sources.
 
 Programs are built once per (device, kernel sources, options) and cached in the
 process. Across processes PoCL's own kernel cache (``$XDG_CACHE_HOME/pocl`` or
@@ -20,8 +28,10 @@ builds from it, so that a run whose programs are cached writes no file there
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import sys
+import tempfile
 import threading
 import time
 import warnings
@@ -29,7 +39,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from ..core.errors import DeviceError
+from ..core.errors import DeviceError, DeviceWarning
+from . import hostrule, platforms
+from .isolate import VariantCrash, build_child, in_child, run_child
 
 # PoCL's CPU drivers install a SIGFPE handler (integer division by zero in a
 # kernel then gives an undefined value instead of killing the process), and to
@@ -52,20 +64,6 @@ _CHOICE_HINT = (
     "not listed needs its vendor's OpenCL driver (ICD); the CPU device comes with PoCL: "
     "pip install \"pyopencl[pocl]\""
 )
-
-
-#: LLVM CPU names with avx512f (prefixes), for which 16 float lanes fill a register.
-AVX512_TARGETS = (
-    "skylake-avx512", "cascadelake", "cooperlake", "cannonlake", "icelake", "tigerlake",
-    "rocketlake", "sapphirerapids", "graniterapids", "emeraldrapids", "diamondrapids",
-    "znver4", "znver5", "knl", "knm", "x86-64-v4",
-)
-#: AVX2 targets where 16 lanes (two 256-bit halves per vector) were built,
-#: launched, passed the whole test suite and measured faster than 8: on znver3
-#: (PoCL 3.0, LLVM 14) the bench scene ran 1.3× faster at 16 lanes, on the fp64
-#: and the float path alike (issue 4's notes). Other AVX2 targets keep 8 until
-#: measured.
-WIDE_AVX2_TARGETS = ("znver3",)
 
 
 #: The last component of a target triple before PoCL's CPU name (the OS or
@@ -219,6 +217,9 @@ def notice_on_tty(message: str, stream=None) -> None:
 
 
 def _cl():
+    # Intel's pip-installed CPU runtime becomes a platform only if the ICD loader sees it
+    # when platforms are first listed
+    platforms.register_pip_runtimes()
     try:
         import pyopencl as cl
     except ImportError as exc:  # pragma: no cover - dependency is declared
@@ -248,16 +249,11 @@ def list_devices() -> list[str]:
     return [f"{pi}:{di}  {plat.name} / {dev.name.strip()}" for pi, di, plat, dev in _all_devices()]
 
 
-def _choose(spec: str | None):
+def _choose(spec: str):
+    """The device a --device value names: "P:D" indices, or a name substring or alias."""
     devices = _all_devices()
     if not devices:
         raise DeviceError(f"no OpenCL device found; {_INSTALL_HINT}")
-    if spec is None:
-        for _, _, plat, dev in devices:
-            if "portable computing language" in plat.name.lower() or "pocl" in plat.name.lower():
-                if dev.type & _cl().device_type.CPU:
-                    return dev
-        return devices[0][3]
     spec = spec.strip()
     parts = spec.split(":")
     if all(p.isdigit() for p in parts if p) and parts[0]:
@@ -270,12 +266,29 @@ def _choose(spec: str | None):
             f"device '{spec}': no such OpenCL device; available: " + "; ".join(list_devices())
             + "; " + _CHOICE_HINT
         )
-    low = spec.lower()
     for _, _, plat, dev in devices:
-        if low in dev.name.lower() or low in plat.name.lower():
+        if platforms.matches(spec, plat.name, dev.name):
             return dev
     raise DeviceError(f"device '{spec}': no match; available: " + "; ".join(list_devices())
                       + "; " + _CHOICE_HINT)
+
+
+def _selector(device) -> str:
+    """The "P:D" indices of ``device`` in this process's platform list."""
+    for pi, di, _, dev in _all_devices():
+        if dev == device:
+            return f"{pi}:{di}"
+    return "0:0"
+
+
+def _candidates() -> list:
+    """Devices in the default order: CPU devices by platform preference, then the rest."""
+    cl = _cl()
+    devices = [dev for _, _, _, dev in _all_devices()]
+    cpus = [d for d in devices if d.type & cl.device_type.CPU]
+    rank = {k: i for i, k in enumerate(platforms.PREFERENCE)}
+    cpus.sort(key=lambda d: rank.get(platforms.device_kind(d), len(rank)))
+    return cpus + [d for d in devices if not d.type & cl.device_type.CPU]
 
 
 @dataclass
@@ -296,6 +309,36 @@ class Runtime:
     #: Of :attr:`builds`, those compiled from source: not found in clphong's
     #: binaries in PoCL's cache folder (:meth:`program`).
     compiled: int = 0
+    #: Pixels per work-item of the lane kernel: the best width the host rule allows on
+    #: this device whose self-test passed (set by :func:`get_runtime`).
+    lanes: int = 1
+    #: Why this device and width: a line for ``clphong devices`` and ``--stats``.
+    choice: str = ""
+    #: Defines added to every program (the self-test's test-only fault; else empty).
+    extra_defines: dict = field(default_factory=dict)
+
+    @property
+    def kind(self) -> str:
+        """The host rule's kind of this device (:func:`clphong.device.platforms.device_kind`)."""
+        return platforms.device_kind(self.device)
+
+    @property
+    def target(self) -> str:
+        """What the device's compiler targets: PoCL's LLVM CPU name, "host" for Intel's CPU
+        runtime (it dispatches on the host's own features), else the device's name."""
+        if self.llvm_target or self.is_pocl:
+            return self.llvm_target or "generic"
+        return "host" if self.kind == "intel-cpu" else self.device.name.strip()
+
+    @property
+    def decision(self) -> hostrule.Decision:
+        """The widths the host rule allows on this device, best first, and why."""
+        return hostrule.decide(self.kind, self.target)
+
+    @property
+    def selector(self) -> str:
+        """This device as "P:D" indices (what a child process is given)."""
+        return _selector(self.device)
 
     @property
     def name(self) -> str:
@@ -323,23 +366,20 @@ class Runtime:
         for speed (the integer specular power, ``plan.SPEC_INT_POW``)."""
         return self.has_fp64 and bool(self.device.type & _cl().device_type.CPU)
 
-    @property
-    def lanes(self) -> int:
-        """Pixels per work-item for the lane kernel on this device.
-
-        16 where PoCL compiles for an AVX-512 target, and for the AVX2 targets
-        of ``WIDE_AVX2_TARGETS`` where 16 was measured faster; 8 on other CPUs
-        (16 lanes were once seen to abort PoCL 3.0 on a target without
-        avx512f, so they are used only where tested); 1 on GPUs and other
-        devices, whose hardware already runs work-items in SIMD.
-        """
-        cl = _cl()
-        if not self.device.type & cl.device_type.CPU:
-            return 1
-        target = self.llvm_target
-        if target and any(target.startswith(t) for t in AVX512_TARGETS + WIDE_AVX2_TARGETS):
-            return 16
-        return 8
+    def check_width(self, lanes: int) -> None:
+        """Refuse, in one line, a lane width the host rule leaves out on this device or
+        whose self-test fails (run now if it never ran here)."""
+        if lanes == self.lanes or in_child():
+            return
+        decision = self.decision
+        allowed = " or ".join(map(str, decision.widths)) or "none"
+        if lanes not in decision.widths:
+            raise DeviceError(f"--lanes {lanes} is not safe on {self.name}: {decision.why()}; "
+                              f"use --lanes {allowed} (or leave it out: {self.lanes})")
+        verdict = verify(self, lanes)
+        if not verdict["ok"]:
+            raise DeviceError(f"--lanes {lanes} failed the self-test on {self.name} "
+                              f"({verdict['detail']}); leave it out to use {self.lanes}")
 
     def kernel(self, program, name: str):
         """The ``cl.Kernel`` ``name`` of a program built by :meth:`program`, created once
@@ -359,66 +399,101 @@ class Runtime:
         except Exception:  # noqa: BLE001 - a stand-in device without these attributes
             return None, None
 
-    def program(self, entry_file: str, defines: dict[str, int | float | str]):
-        """Build (once) and return the program for ``kernels/entry_file`` with ``-D`` defines."""
-        cl = _cl()
+    def build_options(self, defines: dict[str, int | float | str]) -> list[str]:
+        """The build options of a program with these ``-D`` defines."""
         folder = kernel_dir()
-        opts = [f"-D{k}={v}" for k, v in sorted(defines.items())]
+        opts = [f"-D{k}={v}" for k, v in sorted({**defines, **self.extra_defines}.items())]
         opts += ["-cl-denorms-are-zero", f"-I{folder / 'include'}"]
         # -w: PoCL prints clang's notes ("AVX vector argument of type double8 ...
         # changes the ABI") straight to stderr, which would break the CLI's
         # one-line output. Set CLPHONG_CL_WARNINGS=1 to see them when editing kernels.
         if not os.environ.get("CLPHONG_CL_WARNINGS"):
             opts.append("-w")
-        key = (entry_file, tuple(opts), _sources_digest(folder))
+        return opts
+
+    def program(self, entry_file: str, defines: dict[str, int | float | str]):
+        """Build (once) and return the program for ``kernels/entry_file`` with ``-D`` defines.
+
+        A program not in the binary store is compiled in a child process
+        (:mod:`clphong.device.isolate`), so that a compiler abort becomes a
+        :class:`~clphong.device.isolate.VariantCrash`; its binary is loaded here."""
+        opts = self.build_options(defines)
+        key = (entry_file, tuple(opts), _sources_digest(kernel_dir()))
         with self._lock:
             prog = self._programs.get(key)
             if prog is not None:
                 return prog
-            src = (folder / entry_file).read_text()
             t0 = time.perf_counter()
             store = self._binary_path(entry_file, opts, key[2])
             prog = self._load_binary(store, opts) if store is not None else None
-            if prog is not None:
-                self.build_seconds += time.perf_counter() - t0
-                self.builds += 1
-                self._programs[key] = prog
-                return prog
-            self._check_room_to_compile(entry_file)
-            notice = _start_notice(entry_file)
-            try:
-                with warnings.catch_warnings():
-                    # PoCL reports harmless AVX ABI notes for float16 lanes on AVX2 CPUs.
-                    warnings.simplefilter("ignore", cl.CompilerWarning)
-                    prog = cl.Program(self.context, src).build(options=opts)
+            if prog is None:
+                self._check_room_to_compile(entry_file)
+                notice = _start_notice(entry_file)
+                try:
+                    prog = (self._compile(entry_file, opts) if in_child()
+                            else self._compile_in_child(entry_file, opts))
+                finally:
+                    if notice is not None:
+                        notice.cancel()
                 if store is not None:
                     self._save_binary(prog, store)
-            except cl.Error as exc:
-                log = str(exc).strip().splitlines()
-                first = next((ln for ln in log if "error" in ln.lower()), log[-1] if log else "")
-                problem = cache_problem(pocl_cache_dir()) if self.is_pocl else None
-                if problem:
-                    # PoCL writes its compiles there: a full or read-only folder fails the
-                    # build, and it is not the device or the install that is at fault
-                    raise DeviceError(
-                        f"kernels/{entry_file} failed to build: PoCL's kernel cache folder "
-                        f"{pocl_cache_dir()} {problem}; free space there or make it writable, or "
-                        "set POCL_CACHE_DIR to a writable folder with room (about 2 MiB a "
-                        "kernel variant)") from exc
-                raise DeviceError(
-                    f"kernels/{entry_file} failed to build on {self.name}: "
-                    f"{first.strip() or type(exc).__name__}; set PYOPENCL_CTX or --device to use "
-                    "another device, e.g. PoCL's CPU device (install it with "
-                    "'pip install \"pyopencl[pocl]\"')"
-                ) from exc
-            finally:
-                if notice is not None:
-                    notice.cancel()
+                self.compiled += 1
             self.build_seconds += time.perf_counter() - t0
             self.builds += 1
-            self.compiled += 1
             self._programs[key] = prog
             return prog
+
+    def _compile(self, entry_file: str, opts: list[str]):
+        """Compile ``kernels/entry_file`` from source in this process."""
+        cl = _cl()
+        src = (kernel_dir() / entry_file).read_text()
+        try:
+            with warnings.catch_warnings():
+                # PoCL reports harmless AVX ABI notes for float16 lanes on AVX2 CPUs.
+                warnings.simplefilter("ignore", cl.CompilerWarning)
+                return cl.Program(self.context, src).build(options=opts)
+        except cl.Error as exc:
+            log = str(exc).strip().splitlines()
+            first = next((ln for ln in log if "error" in ln.lower()), log[-1] if log else "")
+            problem = cache_problem(pocl_cache_dir()) if self.is_pocl else None
+            if problem:
+                # PoCL writes its compiles there: a full or read-only folder fails the
+                # build, and it is not the device or the install that is at fault
+                raise DeviceError(
+                    f"kernels/{entry_file} failed to build: PoCL's kernel cache folder "
+                    f"{pocl_cache_dir()} {problem}; free space there or make it writable, or "
+                    "set POCL_CACHE_DIR to a writable folder with room (about 2 MiB a "
+                    "kernel variant)") from exc
+            raise DeviceError(
+                f"kernels/{entry_file} failed to build on {self.name}: "
+                f"{first.strip() or type(exc).__name__}; choose another device with --device "
+                "or PYOPENCL_CTX (see 'clphong devices')"
+            ) from exc
+
+    def compile_to(self, entry_file: str, opts: list[str], out: str) -> None:
+        """The compiling child's side: compile in this process, the binary written to ``out``."""
+        prog = self._compile(entry_file, opts)
+        if not self._save_binary(prog, Path(out)):
+            raise DeviceError(f"kernels/{entry_file}: the compiled binary could not be written "
+                              f"to {out}")
+
+    def _compile_in_child(self, entry_file: str, opts: list[str]):
+        """Compile in the device's compiling child and load the binary it hands back."""
+        lanes = next((o.split("=", 1)[1] for o in opts if o.startswith("-DLANES=")), "?")
+        what = f"kernels/{entry_file} at {lanes} lane(s) on {self.name}"
+        fd, out = tempfile.mkstemp(prefix="clphong-build-", suffix=".bin")
+        os.close(fd)
+        try:
+            build_child(self.selector).build(entry_file, opts, out, what)
+            prog = self._load_binary(Path(out), opts)
+        finally:
+            try:
+                os.unlink(out)
+            except OSError:
+                pass
+        if prog is None:
+            raise DeviceError(f"{what}: the binary compiled in a child process did not load")
+        return prog
 
     # PoCL 3.0 writes on every build from source, cached or not: the source to
     # ``tempfile_*.cl`` and its preprocessed text (1.1 MB, every macro of
@@ -438,9 +513,10 @@ class Runtime:
         return "portable computing language" in name or "pocl" in name
 
     def _binary_path(self, entry_file: str, opts: list[str], digest: str) -> Path | None:
-        """Where clphong keeps this program's PoCL binary; None off PoCL or with
-        PoCL's kernel cache switched off (``POCL_KERNEL_CACHE=0``)."""
-        if not self.is_pocl or not _pocl_kernel_cache_on():
+        """Where clphong keeps this program's binary: beside PoCL's kernel cache on PoCL
+        (None with it switched off, ``POCL_KERNEL_CACHE=0``), in clphong's cache folder
+        (``bin/``) on other platforms."""
+        if self.is_pocl and not _pocl_kernel_cache_on():
             return None
         dev, plat = self.device, self.device.platform
         h = hashlib.sha256()
@@ -450,6 +526,8 @@ class Runtime:
                      dev.driver_version, os.environ.get("POCL_EXTRA_BUILD_FLAGS", ""),
                      os.environ.get("POCL_WORK_GROUP_METHOD", "")):
             h.update(str(part).encode() + b"\0")
+        if not self.is_pocl:
+            return platforms.cache_dir() / "bin" / f"{Path(entry_file).stem}-{h.hexdigest()[:40]}.clbin"
         name = f"{Path(entry_file).stem}-{h.hexdigest()[:40]}.poclbin"
         return pocl_cache_dir() / _STORE_DIR / name
 
@@ -472,23 +550,24 @@ class Runtime:
         except cl.Error:
             return None
 
-    def _save_binary(self, prog, path: Path) -> None:
-        """Keep ``prog``'s PoCL binary at ``path`` (atomically); a folder that cannot
-        be written only costs the next process a compile."""
+    def _save_binary(self, prog, path: Path) -> bool:
+        """Keep ``prog``'s binary at ``path`` (atomically); whether it was written (a
+        folder that cannot be written only costs the next process a compile)."""
         cl = _cl()
         try:
             blob = bytes(prog.binaries[0])
         except cl.Error:
-            return
+            return False
         if not blob:
-            return
+            return False
         tmp = path.with_name(f".{path.name}.{os.getpid()}-{threading.get_ident()}.tmp")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp.write_bytes(_STORE_MAGIC + hashlib.sha256(blob).digest() + blob)
             os.replace(tmp, path)
+            return True
         except OSError:
-            pass
+            return False
         finally:
             try:
                 tmp.unlink()
@@ -511,14 +590,14 @@ class Runtime:
         )
 
 
-def _start_notice(entry_file: str):
+def _start_notice(entry_file: str | None, message: str = ""):
     """Call :data:`compile_notice` if the build started now is still running after
     :data:`COMPILE_NOTICE_AFTER_S`; the timer to cancel when it ends (or None)."""
     hook = compile_notice
     if hook is None:
         return None
     what = "" if entry_file == "peak.cl" else " for this scene"
-    message = f"clphong: compiling {entry_file}{what} (first run; cached afterwards)\u2026"
+    message = message or f"clphong: compiling {entry_file}{what} (first run; cached afterwards)\u2026"
     if COMPILE_NOTICE_AFTER_S <= 0:
         hook(message)
         return None
@@ -531,9 +610,128 @@ def _start_notice(entry_file: str):
 _RUNTIMES: dict[str | None, Runtime] = {}
 _RT_LOCK = threading.Lock()
 
+#: Bumped when the self-test changes what it checks: older verdicts are not reused.
+SELFTEST_VERSION = 1
+_VERDICTS: dict[Path, dict] = {}
 
-def get_runtime(device: str | None = None) -> Runtime:
-    """The process-wide runtime for ``device`` (see the module docstring)."""
+
+def _verdict_path(rt: Runtime, width: int) -> Path:
+    dev, plat = rt.device, rt.device.platform
+    h = hashlib.sha256()
+    for part in (plat.name, plat.version, dev.name, dev.version, dev.driver_version,
+                 hostrule.host().key, _sources_digest(kernel_dir()), width, SELFTEST_VERSION,
+                 os.environ.get("POCL_EXTRA_BUILD_FLAGS", "")):
+        h.update(str(part).encode() + b"\0")
+    return platforms.cache_dir() / "selftest" / f"{h.hexdigest()[:40]}.json"
+
+
+def verify(rt: Runtime, width: int) -> dict:
+    """The self-test verdict of ``rt``'s device at ``width`` lanes
+    (:mod:`clphong.device.selftest`, run in a child process once, then cached on disk):
+    ``{"ok": bool, "worst": max |err|/bound, "detail": str}``. In a child: not checked."""
+    if in_child():
+        return {"ok": True, "worst": 0.0, "detail": "not checked in a child process"}
+    path = _verdict_path(rt, width)
+    verdict = _VERDICTS.get(path)
+    if verdict is not None:
+        return verdict
+    try:
+        verdict = json.loads(path.read_text())
+        if isinstance(verdict, dict) and isinstance(verdict.get("ok"), bool):
+            _VERDICTS[path] = verdict
+            return verdict
+    except (OSError, ValueError):
+        pass
+    what = f"the self-test of {rt.name} at {width} lane(s)"
+    notice = _start_notice(None, f"clphong: checking {rt.name} at {width} lane(s) against the "
+                                 "float64 reference (first use; cached afterwards)\u2026")
+    keep = True
+    try:
+        out = run_child("clphong.device.selftest", ["--device", rt.selector, "--lanes", str(width)],
+                        timeout=SELFTEST_TIMEOUT_S, what=what)
+        verdict = json.loads(out.strip().splitlines()[-1])
+    except VariantCrash as exc:
+        verdict = {"ok": False, "worst": float("inf"), "detail": str(exc)}
+        keep = not exc.transient          # a timeout or ^C says nothing about the device
+    except (ValueError, IndexError):
+        verdict = {"ok": False, "worst": float("inf"), "detail": f"{what}: no verdict"}
+    finally:
+        if notice is not None:
+            notice.cancel()
+    _VERDICTS[path] = verdict
+    if keep:
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(json.dumps(verdict))
+            os.replace(tmp, path)
+        except OSError:
+            pass
+    return verdict
+
+
+#: A self-test compiles four small variants: seconds; more means a hung compiler.
+SELFTEST_TIMEOUT_S = 300.0
+
+
+def _configure(rt: Runtime, lanes: int | None) -> Runtime:
+    """Give ``rt`` its lane width: ``lanes`` if given (a child's), else the best width
+    the host rule allows whose self-test passes, warning at each that fails."""
+    decision = rt.decision
+    if in_child():
+        rt.lanes = lanes or (decision.widths or (1,))[0]
+        rt.choice = "a child process: the parent chose the width"
+        return rt
+    h = hostrule.host()
+    if decision.refused:
+        raise DeviceError(f"{rt.name} cannot be used on this CPU, {h.label}: {decision.why()}; "
+                          f"{_OTHER_DEVICE_HINT}")
+    for i, width in enumerate(decision.widths):
+        verdict = verify(rt, width)
+        if verdict["ok"]:
+            rt.lanes = width
+            rt.choice = (f"{width} lane(s), the host rule's best that passed the self-test "
+                         f"(worst |err|/bound {verdict['worst']:.2g}); rule: {decision.why()}")
+            return rt
+        rest = decision.widths[i + 1:]
+        warnings.warn(DeviceWarning(
+            f"{rt.name} at {width} lane(s) failed its self-test ({verdict['detail']}); "
+            + (f"trying {rest[0]} lane(s)" if rest else "not using this device")))
+    raise DeviceError(f"{rt.name} passed its self-test at no lane width the host rule allows "
+                      f"({', '.join(map(str, decision.widths))}); {_OTHER_DEVICE_HINT}")
+
+
+_OTHER_DEVICE_HINT = ("choose another device with --device (see 'clphong devices'), or install "
+                      "Intel's CPU runtime: pip install \"clphong[intel]\"")
+
+
+def _open(dev) -> Runtime:
+    cl = _cl()
+    ctx = cl.Context([dev])
+    queue = cl.CommandQueue(ctx, properties=cl.command_queue_properties.PROFILING_ENABLE)
+    return Runtime(device=dev, context=ctx, queue=queue)
+
+
+def _default_runtime() -> Runtime:
+    """The first device of :func:`_candidates` that the host rule allows and whose
+    self-test passes at some width."""
+    reasons = []
+    for dev in _candidates():
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", DeviceWarning)   # each device is said below
+                return _configure(_open(dev), None)
+        except DeviceError as exc:
+            reasons.append(str(exc).split("; choose another device")[0])
+    if not reasons:
+        raise DeviceError(f"no OpenCL device found; {_INSTALL_HINT}")
+    raise DeviceError("no OpenCL device renders right on this CPU: " + "; ".join(reasons)
+                      + "; install Intel's CPU runtime: pip install \"clphong[intel]\"")
+
+
+def get_runtime(device: str | None = None, *, lanes: int | None = None) -> Runtime:
+    """The process-wide runtime for ``device`` (see the module docstring); ``lanes``
+    is for child processes, which are told their width."""
     cl = _cl()
     if device is None and os.environ.get("PYOPENCL_CTX"):
         key = "PYOPENCL_CTX=" + os.environ["PYOPENCL_CTX"]
@@ -543,8 +741,11 @@ def get_runtime(device: str | None = None) -> Runtime:
         rt = _RUNTIMES.get(key)
         if rt is not None:
             return rt
+        if device is None and not os.environ.get("PYOPENCL_CTX"):
+            rt = _RUNTIMES[key] = _default_runtime()
+            return rt
         try:
-            if device is None and os.environ.get("PYOPENCL_CTX"):
+            if device is None:
                 ctx = cl.create_some_context(interactive=False)
                 dev = ctx.devices[0]
             else:
@@ -555,7 +756,7 @@ def get_runtime(device: str | None = None) -> Runtime:
             raise
         except Exception as exc:  # pyopencl raises several types here
             reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-            if device is None and os.environ.get("PYOPENCL_CTX"):
+            if device is None:
                 try:
                     choices = "; ".join(list_devices()) or "none"
                 except DeviceError:
@@ -565,9 +766,51 @@ def get_runtime(device: str | None = None) -> Runtime:
                     f"({reason}); unset it or set it to one of: {choices}; {_INSTALL_HINT}"
                 ) from exc
             raise DeviceError(f"could not open OpenCL device ({reason}); {_INSTALL_HINT}") from exc
-        rt = Runtime(device=dev, context=ctx, queue=queue)
+        rt = _configure(Runtime(device=dev, context=ctx, queue=queue), lanes)
         _RUNTIMES[key] = rt
         return rt
+
+
+def describe_devices() -> list[dict]:
+    """For ``clphong devices``: per device, its selector, name, kind, compiler target,
+    whether that matches the host, the width the rule and the self-test give (or why
+    none), and whether it is the default."""
+    h = hostrule.host()
+    try:
+        default = get_runtime(None)
+        default_dev, default_why = default.device, default.choice
+    except DeviceError as exc:
+        default_dev, default_why = None, str(exc)
+    rows = []
+    for pi, di, plat, dev in _all_devices():
+        rt = default if default_dev is not None and dev == default_dev else None
+        row = {"selector": f"{pi}:{di}", "name": f"{plat.name} / {dev.name.strip()}",
+               "default": rt is not None}
+        try:
+            rt = rt or _open(dev)
+            decision = rt.decision
+            has512 = hostrule.target_has_avx512(rt.target)
+            row.update(kind=rt.kind, target=rt.target, host=h.label,
+                       match=("n/a" if rt.kind == "gpu" else "yes (the host's own features)"
+                              if rt.target == "host" else "unknown target" if has512 is None
+                              else "yes" if has512 == h.avx512 else
+                              "NO: " + ("AVX-512 host, target without it" if h.avx512
+                                        else "target with AVX-512, host without")),
+                       rule=decision.why())
+            if decision.refused:
+                row.update(width=None, verdict="refused by the host rule")
+            else:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", DeviceWarning)
+                    chosen = rt if row["default"] else _configure(rt, None)
+                v = verify(chosen, chosen.lanes)
+                row.update(width=chosen.lanes,
+                           verdict=f"passed (worst |err|/bound {v['worst']:.2g})")
+        except DeviceError as exc:
+            row.setdefault("width", None)
+            row["verdict"] = "failed: " + str(exc).split("; choose another device")[0]
+        rows.append(row)
+    return rows, default_why
 
 
 def float4(x=0.0, y=0.0, z=0.0, w=0.0):

@@ -195,21 +195,29 @@ def test_render_as_a_subprocess(tmp_path):
 
 
 def test_programs_come_from_pocls_cache_in_a_second_process(tmp_path):
-    """A second process with the same scene finds the program in PoCL's kernel cache."""
+    """A second process with the same scene compiles nothing: it loads the binary kept
+    in clphong's store (beside PoCL's kernel cache on PoCL, in clphong's cache folder
+    elsewhere) and reuses the self-test's verdict."""
     cache = tmp_path / "pocl-cache"
-    env = dict(os.environ, POCL_CACHE_DIR=str(cache))
+    env = dict(os.environ, POCL_CACHE_DIR=str(cache), CLPHONG_CACHE_DIR=str(tmp_path / "clphong"))
     code = ("import clphong, sys; s = clphong.load_scene(sys.argv[1]); r = clphong.Renderer(s); "
-            "print(r.runtime.build_seconds)")
-    runs = []
+            "print(r.runtime.compiled, r.runtime.is_pocl)")
+    runs, compiled = [], []
     for _ in range(2):
         r = subprocess.run([sys.executable, "-c", code, SPHERES[0]], env=env, capture_output=True,
                            text=True, timeout=300)
         assert r.returncode == 0, r.stderr
-        # PoCL also leaves scratch files (tempfile_*) at the top; the built
-        # programs are <hash>/<hash>/program.bc.
-        runs.append({str(p.relative_to(cache)): p.stat().st_mtime_ns
-                     for p in cache.rglob("program.bc")})
-    assert runs[0], "PoCL wrote no program to its cache"
+        n, is_pocl = r.stdout.split()
+        compiled.append(int(n))
+        # PoCL's built programs are <hash>/<hash>/program.bc; clphong's binaries *.poclbin
+        # and *.clbin, its verdicts selftest/*.json
+        runs.append({str(p.relative_to(tmp_path)): p.stat().st_mtime_ns
+                     for pattern in ("program.bc", "*.poclbin", "*.clbin", "*.json")
+                     for p in tmp_path.rglob(pattern)})
+    assert compiled == [1, 0]
+    assert runs[0], "nothing was kept for the second process"
+    if is_pocl == "True":
+        assert any(k.endswith("program.bc") for k in runs[0]), "PoCL wrote no program to its cache"
     assert runs[1] == runs[0], "the second process built the program again"
 
 

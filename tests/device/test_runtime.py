@@ -6,7 +6,10 @@ import numpy as np
 import pytest
 from conftest import make_scene, random_gbuffer, random_lights
 
+from clphong.device import hostrule
 from clphong.device.renderer import Renderer
+
+ZEN3 = hostrule.Host("zen3", "AuthenticAMD", 25, 1, frozenset({"avx2", "fma"}))
 
 
 def test_programs_are_built_once_per_variant(monkeypatch):
@@ -45,6 +48,9 @@ class _FakePlatform:
 class _FakeDevice:
     def __init__(self, name, dtype, platform):
         self.name, self.type, self.platform = name, dtype, platform
+        pocl = platform.name == "Portable Computing Language"
+        self.version = ("OpenCL 3.0 PoCL HSTR: pthread-x86_64-unknown-linux-gnu-znver3"
+                        if pocl else "OpenCL 3.0")
 
 
 class _FakeContext:
@@ -69,14 +75,18 @@ def fake_platforms(monkeypatch):
     monkeypatch.setattr(cl, "Context", _FakeContext)
     monkeypatch.setattr(cl, "CommandQueue", lambda ctx, properties=None: ("queue", ctx))
     monkeypatch.setattr(runtime, "_RUNTIMES", {})
+    # every width passes its self-test on a Zen 3 host (the rule's own table is
+    # tested in test_hostrule.py, the self-test in test_selftest.py)
+    monkeypatch.setattr(runtime, "verify", lambda rt, width: {"ok": True, "worst": 0.0, "detail": ""})
+    monkeypatch.setattr(hostrule, "host", lambda: ZEN3)
     monkeypatch.delenv("PYOPENCL_CTX", raising=False)
     monkeypatch.delenv("PYOPENCL_TEST", raising=False)
     return platforms
 
 
 def test_default_device_is_pocl_cpu_even_when_listed_last(fake_platforms, monkeypatch):
-    """The module docstring's order: --device, then PYOPENCL_CTX, then PoCL's CPU device
-    (not the first platform's first device, nor PoCL's first device)."""
+    """The module docstring's order: --device, then PYOPENCL_CTX, then the preferred CPU
+    device, here PoCL's (not the first platform's first device, nor PoCL's first device)."""
     from clphong.device import runtime
 
     nvidia, = fake_platforms[0].get_devices()
@@ -100,10 +110,79 @@ def test_default_device_is_pocl_cpu_even_when_listed_last(fake_platforms, monkey
     assert chosen() is pocl_cpu                           # cached, still the default
 
 
-def test_default_device_without_pocl_is_the_first(fake_platforms, monkeypatch):
+def test_default_device_without_a_cpu_is_the_first(fake_platforms, monkeypatch):
     import pyopencl as cl
 
     from clphong.device import runtime
 
     monkeypatch.setattr(cl, "get_platforms", lambda: fake_platforms[:1])
     assert runtime.get_runtime().device is fake_platforms[0].get_devices()[0]
+
+
+def test_default_prefers_intels_cpu_runtime_and_pocl_matches_its_alias(fake_platforms, monkeypatch):
+    """Intel's CPU runtime comes first among CPU devices (platforms.PREFERENCE); "pocl"
+    and "intel" name their platforms though neither name holds the word."""
+    import pyopencl as cl
+
+    from clphong.device import runtime
+
+    intel = _FakePlatform("Intel(R) OpenCL", [("AMD EPYC 9654", cl.device_type.CPU)])
+    monkeypatch.setattr(cl, "get_platforms", lambda: fake_platforms + [intel])
+    rt = runtime.get_runtime()
+    assert rt.device is intel.get_devices()[0] and rt.lanes == 16
+    assert runtime.get_runtime("pocl").device is fake_platforms[1].get_devices()[0]
+    assert runtime.get_runtime("intel").device is intel.get_devices()[0]
+
+
+def test_a_width_that_fails_its_self_test_falls_back_with_a_warning(fake_platforms, monkeypatch):
+    from clphong.core.errors import DeviceError, DeviceWarning
+    from clphong.device import runtime
+
+    monkeypatch.setattr(runtime, "verify", lambda rt, width: {
+        "ok": width == 4, "worst": 0.5 if width == 4 else 7.0, "detail": "blinn-many: pixel (3, 1)"})
+    with pytest.warns(DeviceWarning, match=r"at 16 lane\(s\) failed its self-test .*trying 8"):
+        rt = runtime.get_runtime("1:1")
+    assert rt.lanes == 4
+    monkeypatch.setattr(runtime, "_RUNTIMES", {})
+    monkeypatch.setattr(runtime, "verify", lambda rt, width: {"ok": False, "worst": 9.0, "detail": "x"})
+    with pytest.warns(DeviceWarning), pytest.raises(DeviceError, match="passed its self-test at no lane width"):
+        runtime.get_runtime("1:1")
+
+
+def test_no_usable_cpu_device_is_one_line_naming_the_rule(fake_platforms, monkeypatch):
+    """Zen 5 with pip's PoCL alone: LLVM 14 says 'generic', the rule refuses PoCL, and the
+    default falls to the GPUs; without them the error names the reason and the cure."""
+    import pyopencl as cl
+
+    from clphong.core.errors import DeviceError
+    from clphong.device import runtime
+
+    zen5 = hostrule.Host("x86_64_v4", "AuthenticAMD", 26, 2, frozenset({"avx2", "avx512f"}))
+    monkeypatch.setattr(hostrule, "host", lambda: zen5)
+    pocl = fake_platforms[1]
+    for dev in pocl.get_devices():
+        dev.version = "OpenCL 3.0 PoCL HSTR: pthread-x86_64-unknown-linux-gnu-generic"
+    cpu_only = _FakePlatform("Portable Computing Language", [("pthread-AMD EPYC", cl.device_type.CPU)])
+    cpu_only.get_devices()[0].version = pocl.get_devices()[0].version
+    monkeypatch.setattr(cl, "get_platforms", lambda: [cpu_only])
+    with pytest.raises(DeviceError) as err:
+        runtime.get_runtime()
+    msg = str(err.value)
+    assert "\n" not in msg and "generic" in msg and 'pip install "clphong[intel]"' in msg
+    with pytest.raises(DeviceError, match="cannot be used on this CPU"):
+        runtime.get_runtime("pocl")
+
+
+def test_an_unsafe_lanes_value_is_refused_in_one_line(fake_platforms, monkeypatch):
+    """Zen 4 with PoCL 3.0 (target znver3, AVX-512 host): 16 and 8 lanes are refused."""
+    from clphong.core.errors import DeviceError
+    from clphong.device import runtime
+
+    zen4 = hostrule.Host("zen4", "AuthenticAMD", 25, 17, frozenset({"avx2", "avx512f"}))
+    monkeypatch.setattr(hostrule, "host", lambda: zen4)
+    rt = runtime.get_runtime("1:1")
+    assert rt.lanes == 4
+    for lanes in (16, 8):
+        with pytest.raises(DeviceError, match=rf"--lanes {lanes} is not safe on .*use --lanes 4 or 1"):
+            rt.check_width(lanes)
+    rt.check_width(1)

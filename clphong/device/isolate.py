@@ -1,0 +1,155 @@
+"""Compiling where an abort cannot kill the caller: a child process that builds kernels.
+
+LLVM answers some code generation bugs with abort() (PoCL 3.0 on Zen 4: ``LLVM
+ERROR: Cannot select``), which no exception handler survives. clphong therefore
+compiles every new kernel variant in a child process that stays alive for the
+parent's lifetime (``python -m clphong.device.buildchild --device P:D``): the parent
+sends one JSON request a line (entry file, build options, where to write the
+binary), the child compiles in-process and writes the program's binary
+(CL_PROGRAM_BINARIES), and the parent loads that binary in-process, as it loads a
+cached one. A child that dies is reported as :class:`VariantCrash` with the
+signal and LLVM's last line, and the next request starts a new child.
+
+:func:`run_child` runs a one-shot child module the same way (the self-test).
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+
+from ..core.errors import DeviceError
+
+#: Set in every child's environment: a child compiles in-process and self-tests nothing.
+CHILD_ENV = "CLPHONG_OPENCL_CHILD"
+
+
+class VariantCrash(DeviceError):
+    """A child building or testing a kernel variant died (a signal, or no answer).
+    ``transient``: it was interrupted or timed out, which says nothing of the variant."""
+
+    transient = False
+
+
+#: Signals that end a child from outside (a user's ^C, a job's kill): not the variant's fault.
+_OUTSIDE = {-signal.SIGINT, -signal.SIGTERM, -signal.SIGKILL, -signal.SIGHUP}
+
+
+def _crash(message: str, returncode: int | None) -> VariantCrash:
+    exc = VariantCrash(message)
+    exc.transient = returncode is None or returncode in _OUTSIDE
+    return exc
+
+
+def in_child() -> bool:
+    return os.environ.get(CHILD_ENV) == "1"
+
+
+def _child_env() -> dict:
+    env = dict(os.environ)
+    env[CHILD_ENV] = "1"
+    return env
+
+
+def death(returncode: int, stderr: str) -> str:
+    """How a child ended, in words: ``SIGABRT (LLVM ERROR: Cannot select ...)``."""
+    if returncode < 0:
+        try:
+            how = signal.Signals(-returncode).name
+        except ValueError:
+            how = f"signal {-returncode}"
+    else:
+        how = f"exit status {returncode}"
+    lines = [ln.strip() for ln in stderr.splitlines() if ln.strip()]
+    llvm = [ln for ln in lines if "LLVM ERROR" in ln or "error" in ln.lower()]
+    last = (llvm or lines or [""])[-1]
+    return f"{how} ({last[:200]})" if last else how
+
+
+def run_child(module: str, args: list[str], *, timeout: float, what: str) -> str:
+    """Run ``python -m module args`` as a child and return its stdout; a child killed by
+    a signal, timed out or failing raises :class:`VariantCrash` naming ``what``."""
+    try:
+        done = subprocess.run([sys.executable, "-m", module, *args], env=_child_env(),
+                              stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                              timeout=timeout)
+    except subprocess.TimeoutExpired:
+        raise _crash(f"{what}: no answer in {timeout:.0f} s", None) from None
+    if done.returncode != 0:
+        raise _crash(f"{what}: the child process ended by {death(done.returncode, done.stderr)}",
+                     done.returncode)
+    return done.stdout
+
+
+class BuildChild:
+    """One long-lived child compiling for one device; :meth:`build` is serialised."""
+
+    #: The child's module (``python -m``); a test points it at one that aborts.
+    module = "clphong.device.buildchild"
+
+    def __init__(self, selector: str):
+        self.selector = selector
+        self._proc: subprocess.Popen | None = None
+        self._err = None
+        self._lock = threading.Lock()
+
+    def _start(self) -> subprocess.Popen:
+        self._err = tempfile.TemporaryFile(mode="w+")
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", self.module, "--device", self.selector],
+            env=_child_env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._err,
+            text=True, bufsize=1)
+        return self._proc
+
+    def build(self, entry_file: str, opts: list[str], out: str, what: str) -> None:
+        """Compile ``entry_file`` with ``opts`` in the child, its binary written to ``out``.
+        A build error raises :class:`DeviceError` with the compiler's first error line."""
+        with self._lock:
+            proc = self._proc if self._proc is not None and self._proc.poll() is None else None
+            proc = proc or self._start()
+            try:
+                proc.stdin.write(json.dumps({"entry": entry_file, "opts": opts, "out": out}) + "\n")
+                proc.stdin.flush()
+                line = proc.stdout.readline()
+            except (BrokenPipeError, OSError):
+                line = ""
+            if not line:
+                rc = proc.wait()
+                self._err.seek(0)
+                stderr = self._err.read()
+                self._proc = None
+                raise _crash(f"{what}: the compiler's process ended by {death(rc, stderr)}", rc)
+            answer = json.loads(line)
+            if answer.get("error"):
+                raise DeviceError(answer["error"])
+
+    def close(self) -> None:
+        proc, self._proc = self._proc, None
+        if proc is not None and proc.poll() is None:
+            try:
+                proc.stdin.close()
+                proc.wait(timeout=5)
+            except (OSError, subprocess.TimeoutExpired):
+                proc.kill()
+
+
+_CHILDREN: dict[str, BuildChild] = {}
+
+
+def build_child(selector: str) -> BuildChild:
+    child = _CHILDREN.get(selector)
+    if child is None:
+        child = _CHILDREN[selector] = BuildChild(selector)
+    return child
+
+
+@atexit.register
+def _close_children() -> None:
+    for child in list(_CHILDREN.values()):
+        child.close()

@@ -1,0 +1,126 @@
+"""The self-test and the compiling child: a wrong lane is caught, an aborting compiler
+costs one line and a narrower width, never the process.
+
+Each fault is simulated: a lane made wrong in the kernel (SELFTEST_FAULT, test-only),
+a child that aborts as LLVM does, and fake host/target pairs (test_hostrule.py)."""
+
+from __future__ import annotations
+
+import os
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from conftest import make_scene, random_gbuffer, random_lights
+
+from clphong.core.errors import DeviceError, DeviceWarning
+from clphong.device import isolate, runtime, selftest
+from clphong.device.renderer import Renderer
+
+
+def test_the_self_test_passes_at_the_chosen_width(device):
+    rt = runtime.get_runtime(device)
+    verdict = selftest.check(device, rt.lanes)
+    assert verdict["ok"], verdict["detail"]
+    assert 0.0 <= verdict["worst"] <= 1.0
+
+
+@pytest.mark.parametrize("fault", [1e-4, -3e-5])
+def test_one_wrong_lane_is_caught(device, fault, monkeypatch):
+    """The last lane of each work-item scaled by 1 + fault (kernels/shade.cl SELFTEST_FAULT):
+    a relative error of 3e-5 is several times the accurate path's bound, and caught."""
+    rt = runtime.get_runtime(device)
+    monkeypatch.setattr(rt, "extra_defines", {})      # check() sets it; restored afterwards
+    verdict = selftest.check(device, rt.lanes, fault=fault)
+    assert not verdict["ok"]
+    assert verdict["worst"] > 1.0 and "pixel" in verdict["detail"]
+
+
+def test_a_wrong_variant_is_never_used(device, tmp_path, monkeypatch):
+    """Through the child processes, as at first use: with every width wrong, the device
+    is refused in one line after a warning per width, and nothing renders."""
+    monkeypatch.setenv("CLPHONG_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv(selftest.FAULT_ENV, "1e-3")
+    monkeypatch.setattr(runtime, "_RUNTIMES", {})
+    monkeypatch.setattr(runtime, "_VERDICTS", {})
+    with pytest.warns(DeviceWarning, match="failed its self-test"):
+        with pytest.raises(DeviceError, match="passed its self-test at no lane width") as err:
+            runtime.get_runtime(device)
+    assert "\n" not in str(err.value)
+    # the verdicts were kept: a second process would not run the child again
+    assert list(tmp_path.glob("selftest/*.json"))
+
+
+@pytest.fixture
+def aborting_compiler(tmp_path, monkeypatch):
+    """A compiling child that reads a request, says what LLVM says, and aborts."""
+    (tmp_path / "abort_like_llvm.py").write_text(textwrap.dedent("""\
+        import os, sys
+        sys.stdin.readline()
+        sys.stderr.write("LLVM ERROR: Cannot select: 0x5581 v16f32 = fsqrt\\n")
+        sys.stderr.flush()
+        os.abort()
+    """))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(tmp_path), *sys.path]))
+    monkeypatch.setattr(isolate.BuildChild, "module", "abort_like_llvm")
+    monkeypatch.setattr(isolate, "_CHILDREN", {})
+    return tmp_path
+
+
+def test_an_aborting_compiler_is_one_line_naming_the_variant(aborting_compiler):
+    child = isolate.build_child("0:0")
+    with pytest.raises(isolate.VariantCrash) as err:
+        child.build("shade.cl", ["-DLANES=16"], str(aborting_compiler / "out.bin"),
+                    "kernels/shade.cl at 16 lane(s) on a device")
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert "kernels/shade.cl at 16 lane(s)" in msg and "SIGABRT" in msg and "Cannot select" in msg
+    assert not err.value.transient
+
+
+def test_an_aborting_compiler_moves_the_renderer_to_a_narrower_width(device, aborting_compiler,
+                                                                      monkeypatch):
+    """At construction a crash at the chosen width warns and retries one width down (the
+    fake child aborts once; the narrower variant compiles in a real child)."""
+    rt = runtime.get_runtime(device)
+    if len(rt.decision.widths) < 2:
+        pytest.skip(f"{rt.name} has one width only")
+    monkeypatch.setattr(rt, "_programs", {})
+    monkeypatch.setattr(rt, "_binary_path", lambda *a: None)     # nothing cached: compile
+    real_build = isolate.BuildChild.build
+    calls = []
+
+    def build_once_aborting(self, entry, opts, out, what):
+        calls.append(what)
+        if len(calls) == 1:
+            return real_build(self, entry, opts, out, what)      # the fake child: aborts
+        monkeypatch.setattr(self, "module", "clphong.device.buildchild")
+        return real_build(self, entry, opts, out, what)
+
+    monkeypatch.setattr(isolate.BuildChild, "build", build_once_aborting)
+    rng = np.random.default_rng(3)
+    scene = make_scene(random_lights(rng, 3, 1), h=11.0)
+    with pytest.warns(DeviceWarning, match=rf"at {rt.lanes} lane\(s\).*SIGABRT.*; using \d+ lane"):
+        r = Renderer(scene, device=device)
+    assert r.lanes < rt.lanes and r.lanes in rt.decision.widths
+    img = r.render(random_gbuffer(rng, 5, 7)).image
+    assert np.isfinite(img).all()
+
+
+def test_a_pinned_width_is_not_changed_behind_the_users_back(device, aborting_compiler, monkeypatch):
+    rt = runtime.get_runtime(device)
+    monkeypatch.setattr(rt, "_programs", {})
+    monkeypatch.setattr(rt, "_binary_path", lambda *a: None)
+    rng = np.random.default_rng(4)
+    with pytest.raises(isolate.VariantCrash, match="SIGABRT"):
+        Renderer(make_scene(random_lights(rng, 2, 1), h=13.0), device=device, lanes=rt.lanes)
+
+
+def test_run_child_reports_a_signal_and_a_timeout(aborting_compiler):
+    with pytest.raises(isolate.VariantCrash, match=r"the self-test: the child process ended by SIGABRT"):
+        isolate.run_child("abort_like_llvm", [], timeout=60, what="the self-test")
+    (aborting_compiler / "sleepy.py").write_text("import time; time.sleep(30)\n")
+    with pytest.raises(isolate.VariantCrash, match="no answer in 1 s") as err:
+        isolate.run_child("sleepy", [], timeout=1, what="x")
+    assert err.value.transient
