@@ -43,7 +43,7 @@ from ..io.envmap import resolve_environment
 from ..io.gbuffer import parse_channel_mapping, read_gbuffer
 from ..io.inspection import METRICS, DiffError, diff_images, format_report, inspect_file
 from ..model.environment import DEFAULT_ENV_ERROR, check_env_error
-from ..model.options import KERNELS, LANES, NONFINITE_POLICIES, PATHS
+from ..model.options import KERNELS, LANES, NONFINITE_POLICIES, PATHS, check_lanes
 from ..model.scene import MAP_KEYS, load_scene
 from ..model.tonemap import OPERATORS
 from ..pipeline.batch import (
@@ -358,6 +358,10 @@ def _add_bench_parser(sub):
                         "count and budget (default: " + ",".join(f"{k}:{n}:{e:g}" for k, n, e in TREE_CASES)
                         + ", none with --sizes; '' for none)")
     b.add_argument("--device", metavar="DEV", help="OpenCL device (see 'clphong devices')")
+    b.add_argument("--lanes", metavar="N[,N]",
+                   help="also time the wide scene's brute-force rows at these lane widths, in "
+                        "turns with the device's own (rows marked PATH@N; a width the host rule "
+                        "refuses stops the run with one line)")
     b.add_argument("--commands", action="store_true",
                    help="instead, time whole commands at 1 point light: 'clphong render' EXR to EXR "
                         "against oiiotool on the same files (plus the kernel), and each display "
@@ -437,6 +441,11 @@ def cmd_bench(args) -> int:
             if not value > 0:
                 raise _Usage(f"--{name.replace('_', '-')}: expected a number > 0")
             kw[name] = value
+    if args.lanes is not None:
+        try:
+            kw["lanes"] = (None,) + tuple(check_lanes(w) for w in _csv(args.lanes, int, "--lanes"))
+        except ValueError as exc:
+            raise _Usage(f"--lanes: {exc}") from None
     kw["device"] = args.device
     kw["log"] = lambda msg: print(msg, file=sys.stderr, flush=True)
     # The report's names are checked before the run (a minute or more), not after it.

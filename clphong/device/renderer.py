@@ -60,7 +60,7 @@ from .frame import (
 )
 from .plan import ShadingPlan, make_plan
 from .isolate import VariantCrash
-from .runtime import float4, get_runtime, verify
+from .runtime import float4, get_runtime, next_default, verify
 
 
 @dataclass(frozen=True)
@@ -226,11 +226,19 @@ class Renderer:
                 break
             except VariantCrash as exc:
                 narrower = self._narrower_width(pinned=lanes_given)
-                if narrower is None:
+                if narrower is not None:
+                    warnings.warn(DeviceWarning(f"{str(exc).splitlines()[0]}; using {narrower} "
+                                                "lane(s) instead"))
+                    self.lanes = narrower
+                    continue
+                # no narrower width: the next default device, unless the caller chose one
+                other = None if lanes_given or device is not None else next_default(self.runtime)
+                if other is None:
                     raise
-                warnings.warn(DeviceWarning(f"{str(exc).splitlines()[0]}; using {narrower} "
-                                            "lane(s) instead"))
-                self.lanes = narrower
+                warnings.warn(DeviceWarning(f"{str(exc).splitlines()[0]}; using {other.name} "
+                                            f"at {other.lanes} lane(s) instead"))
+                self.runtime, self.lanes, self._lock = other, other.lanes, other.lock
+                self._fp64_directions = self._fp64_directions and other.has_fp64
 
     def _narrower_width(self, *, pinned: bool) -> int | None:
         """The next width below :attr:`lanes` that the host rule allows on this device and

@@ -712,11 +712,33 @@ def _open(dev) -> Runtime:
     return Runtime(device=dev, context=ctx, queue=queue)
 
 
+#: Devices whose compiler died on a variant at every width (:func:`next_default`).
+_CRASHED: list = []
+
+
+def next_default(rt: Runtime) -> Runtime | None:
+    """The default device after ``rt``'s, once ``rt``'s compiler has died at every width
+    it allows: ``rt``'s device is passed over for the rest of the process. None if no
+    other device passes (or ``rt`` was not the default)."""
+    with _RT_LOCK:
+        if _RUNTIMES.get(None) is not rt:
+            return None
+        _CRASHED.append(rt.device)
+        del _RUNTIMES[None]
+        try:
+            other = _RUNTIMES[None] = _default_runtime()
+        except DeviceError:
+            return None
+        return other
+
+
 def _default_runtime() -> Runtime:
     """The first device of :func:`_candidates` that the host rule allows and whose
-    self-test passes at some width."""
+    self-test passes at some width (none whose compiler died: :func:`next_default`)."""
     reasons = []
     for dev in _candidates():
+        if any(dev == crashed for crashed in _CRASHED):
+            continue
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", DeviceWarning)   # each device is said below

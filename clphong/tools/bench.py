@@ -459,6 +459,7 @@ class BenchConfig:
     env_size: tuple = (1024, 512)                   # the sky map's width and height
     env_pixels: int = 2000                          # pixels of the exact texel sum
     tree_cases: tuple = ()                          # light-tree rows: (scene, N, ε) (the CLI: TREE_CASES)
+    lanes: tuple = (None,)                          # widths of the wide scene's brute-force rows (None: the device's)
 
     @classmethod
     def quick(cls, **kw):
@@ -546,14 +547,16 @@ def run_bench(cfg: BenchConfig) -> dict:
         for kind, n in cases:
             scene = bench_scene(kind, n)
             oracle_cache: dict = {}
-            runs = [(p, None) for p in cfg.paths] if kind == "wide" else []
-            runs += [("accurate", b) for b in cfg.budgets]
+            runs = [(p, None, w) for p in cfg.paths for w in cfg.lanes] if kind == "wide" else []
+            runs += [("accurate", b, None) for b in cfg.budgets]
             # Set every run of this case up first, then time them round-robin (one
             # frame of each per round, numpy included), so that the other tenants'
             # load falls on every path alike and the ratios hold.
             slots = []
-            for path, budget in runs:
+            for path, budget, width in runs:
                 opts = dict(PATHS[path])
+                if width is not None and path != "obvious":
+                    opts["lanes"] = width
                 brute = budget is None
                 # crop where (nearly) every pair is evaluated: brute force, the wide scene
                 # (nothing to cull), and ε = 0; the small scene's culled runs use the full frame
@@ -570,6 +573,7 @@ def run_bench(cfg: BenchConfig) -> dict:
                 r = Renderer(scene, device=cfg.device, max_error=budget, **opts)
                 frame = prepare_frame(gb, lanes=max(r.lanes, 1))
                 slots.append({"path": path, "budget": budget, "rows": rows, "gb": gb, "r": r,
+                              "lanes_given": width is not None,
                               "frame": frame, "times": [], "cull": []})
             crop = peer = None
             if kind == "wide":      # numpy float32, on a crop (wide scene only: same shading)
@@ -634,6 +638,7 @@ def run_bench(cfg: BenchConfig) -> dict:
                 flops = flops_per_ple(result.plan, scene.material.exponent)
                 entry = {
                     "scene": kind, "size": [W, H], "lights": n, "path": path,
+                    "lanes": r.lanes, "lanes_given": slot["lanes_given"],
                     "max_error": budget, "crop_rows": rows, "extrapolated": rows != H,
                     "shaded_pixels": shaded_full,
                     "ms_per_frame": med * 1e3 * shaded_full / shaded,
@@ -650,6 +655,8 @@ def run_bench(cfg: BenchConfig) -> dict:
                 }
                 report["runs"].append(entry)
                 label = path if brute else f"cull ε={budget:g}"
+                if slot["lanes_given"]:
+                    label += f"@{r.lanes}"
                 log(f"{label:15s} {kind:5s} N={n:<6d} {rate / 1e9:7.3f} GPLE/s "
                     f"{entry['ms_per_frame']:10.1f} ms/frame"
                     + (f" ({W}x{rows} crop)" if rows != H else "")
@@ -672,6 +679,8 @@ def summarise(report: dict) -> dict:
 
     def find(**kw):
         for r in runs:
+            if r.get("lanes_given"):
+                continue            # the targets are the default width's
             if all(r.get(k) == v for k, v in kw.items()):
                 return r
         return None

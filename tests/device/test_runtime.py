@@ -186,3 +186,21 @@ def test_an_unsafe_lanes_value_is_refused_in_one_line(fake_platforms, monkeypatc
         with pytest.raises(DeviceError, match=rf"--lanes {lanes} is not safe on .*use --lanes 4 or 1"):
             rt.check_width(lanes)
     rt.check_width(1)
+
+
+def test_a_default_whose_compiler_dies_gives_way_to_the_next(fake_platforms, monkeypatch):
+    """next_default: the default device passed over (its compiler died at every width)
+    for the next candidate; a device the user chose is not the default to replace."""
+    import pyopencl as cl
+
+    from clphong.device import runtime
+
+    intel = _FakePlatform("Intel(R) OpenCL", [("AMD EPYC 9654", cl.device_type.CPU)])
+    monkeypatch.setattr(cl, "get_platforms", lambda: fake_platforms + [intel])
+    monkeypatch.setattr(runtime, "_CRASHED", [])
+    first = runtime.get_runtime()
+    assert first.device is intel.get_devices()[0]
+    second = runtime.next_default(first)
+    assert second.device is fake_platforms[1].get_devices()[1]          # PoCL's CPU device
+    assert runtime.get_runtime() is second
+    assert runtime.next_default(runtime.get_runtime("nvidia")) is None
