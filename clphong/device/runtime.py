@@ -41,7 +41,7 @@ from typing import Callable
 
 from ..core.errors import DeviceError, DeviceWarning
 from . import hostrule, platforms
-from .isolate import VariantCrash, build_child, in_child, run_child
+from .isolate import VariantCrash, build_child, in_child, intel_vectorizer_mode, run_child
 
 # PoCL's CPU drivers install a SIGFPE handler (integer division by zero in a
 # kernel then gives an undefined value instead of killing the process), and to
@@ -524,7 +524,7 @@ class Runtime:
         # build (driver version); plus the two knobs PoCL 3.0 reads at build time.
         for part in (entry_file, *opts, digest, plat.name, plat.version, dev.name, dev.version,
                      dev.driver_version, os.environ.get("POCL_EXTRA_BUILD_FLAGS", ""),
-                     os.environ.get("POCL_WORK_GROUP_METHOD", "")):
+                     os.environ.get("POCL_WORK_GROUP_METHOD", ""), intel_vectorizer_mode()):
             h.update(str(part).encode() + b"\0")
         if not self.is_pocl:
             return platforms.cache_dir() / "bin" / f"{Path(entry_file).stem}-{h.hexdigest()[:40]}.clbin"
@@ -620,7 +620,7 @@ def _verdict_path(rt: Runtime, width: int) -> Path:
     h = hashlib.sha256()
     for part in (plat.name, plat.version, dev.name, dev.version, dev.driver_version,
                  hostrule.host().key, _sources_digest(kernel_dir()), width, SELFTEST_VERSION,
-                 os.environ.get("POCL_EXTRA_BUILD_FLAGS", "")):
+                 os.environ.get("POCL_EXTRA_BUILD_FLAGS", ""), intel_vectorizer_mode()):
         h.update(str(part).encode() + b"\0")
     return platforms.cache_dir() / "selftest" / f"{h.hexdigest()[:40]}.json"
 

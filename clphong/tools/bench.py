@@ -815,6 +815,8 @@ def table(report: dict) -> str:
             f"{e['max_abs']:9.2e} {e['band_pixels']:5d}")
     for r in report["runs"]:
         label = r["path"] if r["max_error"] is None else f"cull ε={r['max_error']:g}"
+        if r.get("lanes_given"):
+            label += f"@{r['lanes']}"
         e = r["error"]
         lines.append(
             f"{r['scene']:6s} {r['lights']:6d} {label:16s} {r['gple_per_s']:8.3f} "
