@@ -1399,3 +1399,38 @@ def test_inspect_escapes_control_bytes_in_its_table(tmp_path, capsys):
     shown = capsys.readouterr().out
     assert "\\x1b[2K\\x1b[1G.R" in shown
     assert not any(ord(c) < 32 and c != "\n" for c in shown)
+
+
+def test_coverage_outside_zero_one_is_clipped_before_shading_and_counted(work, capsys):
+    """A coverage of -1 or -0.5 was shaded at full strength and written with A = 0 (colour
+    where alpha says nothing is there), silently. Now it is clipped before shading: below
+    0 is background, above 1 is 1, each side counted in the out-of-range warning; -0.0
+    is background as 0 is, a subnormal coverage a (flushed) partial one. The output is
+    held to the float64 reference of the clipped G-buffer within the error model; under
+    --nonfinite error the frame is refused with the counts."""
+    from clphong.io.gbuffer import read_gbuffer
+    from clphong.model.scene import load_scene
+    from clphong.reference import shading as reference
+
+    src, out = work
+    gb = random_gbuffer(np.random.default_rng(21), H, W, background_fraction=0.0)
+    cov = np.ones((H, W), np.float32)
+    cov[0, :6] = [-1.0, -0.5, -0.0, 1.5, 1e-40, 0.5]      # 1e-40: a float32 subnormal
+    cov[1, 0] = 3.0
+    write_gbuffer(src / "cov.exr", gb.position, gb.normal, gb.albedo, coverage=cov)
+    assert cli(render_argv(src, out, gbuffer=src / "cov.exr")) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "coverage outside [0, 1] clipped" in err, err
+    assert "below 0 2, above 1 2 pixel(s)" in err, err
+    rgba = oiio.ImageBuf(str(out / "beauty.exr")).get_pixels(oiio.FLOAT)
+    clipped = read_gbuffer(src / "cov.exr")
+    clipped = type(clipped)(**{**clipped.__dict__, "coverage": np.clip(clipped.coverage, 0, 1)})
+    scene = load_scene(src / "scene.toml")
+    ref = reference.shade(scene, clipped)
+    bound, _ = reference.error_bound(scene, clipped)
+    assert np.all(np.abs(rgba[..., :3] - ref) <= bound + 1e-38)   # + FLT_MIN/100: the flushed subnormal
+    assert np.all(rgba[0, :3, :3] == 0.0) and np.all(rgba[0, :3, 3] == 0.0)   # background, A = 0
+    assert rgba[0, 3, 3] == 1.0 and rgba[1, 0, 3] == 1.0
+    (out / "beauty.exr").unlink()
+    fails(render_argv(src, out, gbuffer=src / "cov.exr", extra=["--nonfinite", "error"]), capsys,
+          src.parent, "coverage outside [0, 1]", "below 0 2, above 1 2 pixel(s)")

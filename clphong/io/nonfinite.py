@@ -369,11 +369,33 @@ def out_of_range_counts(gbuffer) -> dict[str, int]:
     return out
 
 
+def coverage_out_of_range(gbuffer) -> dict[str, int]:
+    """Finite coverage outside [0, 1], per side: ``{"coverage.below 0": n, "coverage.above
+    1": m}`` (only those with some). A coverage of −1 was shaded at full strength and
+    written with A = 0: colour where alpha says nothing is there."""
+    cov = gbuffer.coverage
+    if cov is None:
+        return {}
+    cov = np.asarray(cov)
+    lo, hi = cov.min(initial=0.0), cov.max(initial=0.0)
+    if lo >= 0 and hi <= 1:                            # the common case: two contiguous passes
+        return {}
+    out = {}
+    below, above = int(np.count_nonzero(cov < 0)), int(np.count_nonzero(cov > 1))
+    if below:
+        out["coverage.below 0"] = below
+    if above:
+        out["coverage.above 1"] = above
+    return out
+
+
 def apply_range_policy(gbuffer, policy: str = "clamp"):
     """Negative albedo or material-map values (a k_s map of −1 gave negative
-    radiance, a shininess of −1e6 NaN pixels, with exit 0).
+    radiance, a shininess of −1e6 NaN pixels, with exit 0), and a coverage outside
+    [0, 1] (:func:`coverage_out_of_range`).
 
-    ``"clamp"``: set to 0, with an :class:`~clphong.core.errors.InputWarning`
+    ``"clamp"``: set to 0 (coverage clipped to [0, 1], so that below 0 is background),
+    with an :class:`~clphong.core.errors.InputWarning`
     giving the counts per buffer and channel; ``"error"``: a
     :class:`~clphong.core.errors.GBufferError` with those counts. Returns the
     G-buffer (a copy of the buffers concerned when clamped) and the counts.
@@ -384,12 +406,25 @@ def apply_range_policy(gbuffer, policy: str = "clamp"):
     if policy not in ("clamp", "error"):
         raise ValueError(f"out-of-range policy must be 'clamp' or 'error', not {policy!r}")
     counts = out_of_range_counts(gbuffer)
-    if not counts:
+    covs = coverage_out_of_range(gbuffer)
+    if not counts and not covs:
         return gbuffer, counts
-    what = _by_channel(gbuffer, counts)
+
+    def what(done: tuple[str, str]) -> str:
+        parts = ([f"negative G-buffer values{done[0]} (they must be >= 0, as the scene's): "
+                  f"{_by_channel(gbuffer, counts)}"] if counts else [])
+        parts += [f"coverage outside [0, 1]{done[1]}: {_by_channel(gbuffer, covs)}"] if covs else []
+        return "; ".join(parts)
+
     if policy == "error":
-        raise GBufferError(f"negative G-buffer values (they must be >= 0, as the scene's): {what}; "
-                           "fix the input, or drop --nonfinite error to clamp them to 0")
+        raise GBufferError(what(("", "")) + "; fix the input, or drop --nonfinite error to "
+                           + ("clip them (negative values to 0, coverage to [0, 1])" if covs
+                              else "clamp them to 0"))
+    coverage = gbuffer.coverage
+    if covs:
+        # clipped before shading: a coverage below 0 is background, as 0 is
+        coverage = np.clip(coverage, 0.0, 1.0).astype(np.float32, copy=False)
+    message = what((" clamped to 0", " clipped (below 0: background)"))
     albedo = gbuffer.albedo
     maps = dict(gbuffer.maps)
     if any(k.startswith("albedo") for k in counts):
@@ -397,6 +432,6 @@ def apply_range_policy(gbuffer, policy: str = "clamp"):
     for name in maps:
         if name in NONNEGATIVE and any(k.split(".")[0] == name for k in counts):
             maps[name] = np.maximum(maps[name], 0, dtype=np.float32)
-    warnings.warn(f"negative G-buffer values clamped to 0 (they must be >= 0, as the scene's): "
-                  f"{what}", InputWarning, stacklevel=3)
-    return dataclasses.replace(gbuffer, albedo=albedo, maps=maps), counts
+    counts = {**counts, **covs}
+    warnings.warn(message, InputWarning, stacklevel=3)
+    return dataclasses.replace(gbuffer, albedo=albedo, maps=maps, coverage=coverage), counts
