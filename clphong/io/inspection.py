@@ -44,6 +44,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from ..core.errors import ClphongError, GBufferError, OutputError
+from ..model.options import check_number
 from .atomic import _one_line, atomic_path, check_image_written, same_file, write_exr
 from .camera import WORLD_TO_CAMERA, eye_from_matrix, world_to_camera
 from .gbuffer import open_image, read_gbuffer
@@ -325,6 +326,9 @@ def diff_images(a: str | os.PathLike, b: str | os.PathLike, *, metric: str = "ma
         raise ValueError(f"unknown metric {metric!r}; choose one of {', '.join(METRICS)}")
     if not math.isfinite(tol):
         raise ValueError(f"tolerance must be a finite number, got {tol}")
+    # at the door: --floor inf (or --peak inf) made an all-black image "match" a lit one
+    floor = None if floor is None else check_number(floor, "--floor")
+    peak = None if peak is None else check_number(peak, "--peak")
     a, b = os.fspath(a), os.fspath(b)
     pa, na, sa = _load(a)
     pb, nb, sb = _load(b)

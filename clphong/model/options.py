@@ -17,7 +17,8 @@ from ..core.errors import ClphongError, ToneMapError
 __all__ = ["validate_method", "PATHS", "path_options", "NONFINITE_POLICIES", "check_nonfinite",
            "KERNELS", "check_kernel", "LANES", "check_lanes", "INT_POW", "check_int_pow",
            "check_fp64_directions", "check_float_power",
-           "MAX_EXPOSURE", "check_exposure", "ENCODINGS", "CullingError", "check_budget"]
+           "MAX_EXPOSURE", "check_exposure", "ENCODINGS", "CullingError", "check_budget",
+           "NUMBERS", "check_number"]
 
 
 def validate_method(value, methods, what: str, error: type[Exception] = ValueError):
@@ -132,6 +133,27 @@ def check_exposure(ev, what: str = "exposure") -> float:
     raise error
 
 
+#: Numeric options with a range: the lowest value and whether it is allowed. One entry,
+#: one range, one message (:func:`check_number`), whichever door the value comes in by.
+NUMBERS: Mapping[str, tuple[float, bool]] = {
+    "--max-error": (0.0, True),          # 0: drop only lights whose bound is exactly 0
+    "--reference-white": (0.0, False),   # divides the budget's units
+    "--floor": (0.0, False),             # diff's max-rel denominator: inf made any image match
+    "--peak": (0.0, False),              # diff's psnr peak: inf made any image match
+}
+
+
+def check_number(x, name: str, error: type[Exception] = ValueError) -> float:
+    """``x`` as a float if it is a finite number in :data:`NUMBERS`' range for ``name``;
+    else ``error``: ``--floor: expected a finite number > 0, got inf``."""
+    low, inclusive = NUMBERS[name]
+    ok = (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+          and (x >= low if inclusive else x > low))
+    if not ok:
+        raise error(f"{name}: expected a finite number {'≥' if inclusive else '>'} {low:g}, got {x!r}")
+    return float(x)
+
+
 class CullingError(ClphongError):
     """The culling options are invalid (e.g. a negative ``--max-error``)."""
 
@@ -142,14 +164,9 @@ def check_budget(max_error, reference_white=1.0) -> float | None:
     ``reference_white`` is checked even without a budget, so a bad value fails
     the same way whether or not culling is on.
     """
-    checks = [("--reference-white", reference_white)]
     if max_error is not None:
-        checks.insert(0, ("--max-error", max_error))
-    for name, x in checks:
-        if not (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x >= 0):
-            raise CullingError(f"{name}: expected a finite number ≥ 0, got {x!r}")
-    if reference_white <= 0:
-        raise CullingError(f"--reference-white: expected a number > 0, got {reference_white!r}")
+        check_number(max_error, "--max-error", CullingError)
+    check_number(reference_white, "--reference-white", CullingError)
     if max_error is None:
         return None
     return float(max_error) * float(reference_white)

@@ -170,3 +170,28 @@ def test_heatmap_never_overwrites_an_input(pair, capsys, which):
     with pytest.raises(OutputError, match="would overwrite the input"):
         diff_images(d / "a.exr", d / "b.exr", tol=1, heatmap=d / "." / f"{which}.exr")
     assert sorted(p.name for p in d.iterdir()) == ["a.exr", "b.exr"]
+
+
+@pytest.mark.parametrize("option, value, why", [
+    ("--floor", "inf", "got inf"), ("--floor", "nan", "got nan"), ("--floor", "-1", "got -1.0"),
+    ("--floor", "0", "got 0.0"), ("--peak", "inf", "got inf"), ("--peak", "0", "got 0.0"),
+])
+def test_diff_limits_that_would_make_everything_match_are_refused(pair, tmp_path, capsys, option,
+                                                                  value, why):
+    """--floor inf (or --peak inf) let an all-black image "match" a lit one, exit 0; nan, -1
+    and 0 went in without a word. Each is refused at the door with the registry's one
+    line (model.options.NUMBERS), from the CLI (exit 2) and the API alike."""
+    d, A, _ = pair
+    write_exr(d / "black.exr", np.zeros_like(A))
+    metric = "max-rel" if option == "--floor" else "psnr"
+    tol = "1e-3" if metric == "max-rel" else "40"
+    assert main(["diff", str(d / "a.exr"), str(d / "black.exr"), "--metric", metric, "--tol", tol,
+                 option, value]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{option}: expected a finite number > 0, {why}" in err, err
+    with pytest.raises(ValueError, match=f"{option}: expected a finite number > 0"):
+        diff_images(d / "a.exr", d / "black.exr", metric=metric, tol=float(tol),
+                    **{option[2:]: float(value)})
+    # a sound limit still tells the images apart
+    assert main(["diff", str(d / "a.exr"), str(d / "black.exr"), "--metric", metric, "--tol", tol,
+                 option, "1e-3"]) == 1

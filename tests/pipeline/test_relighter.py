@@ -389,7 +389,7 @@ def test_accurate_and_float_paths_differ():
 @pytest.mark.parametrize("kwargs, exc, fragment", [
     (dict(max_error=-1.0), "CullingError", "--max-error: expected a finite number ≥ 0"),
     (dict(max_error=float("inf")), "CullingError", "--max-error: expected a finite number ≥ 0"),
-    (dict(reference_white=0.0), "CullingError", "--reference-white: expected a number > 0"),
+    (dict(reference_white=0.0), "CullingError", "--reference-white: expected a finite number > 0, got 0.0"),
     (dict(nonfinite="ignore"), "ValueError", "nonfinite must be one of background, error, pass"),
     (dict(fp64_directions="no"), "ValueError", "fp64_directions must be None, True or False"),
 ])
