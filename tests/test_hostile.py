@@ -1434,3 +1434,46 @@ def test_coverage_outside_zero_one_is_clipped_before_shading_and_counted(work, c
     (out / "beauty.exr").unlink()
     fails(render_argv(src, out, gbuffer=src / "cov.exr", extra=["--nonfinite", "error"]), capsys,
           src.parent, "coverage outside [0, 1]", "below 0 2, above 1 2 pixel(s)")
+
+
+def test_relights_failure_lines_are_cut_like_error_lines(work, capsys):
+    """A failed frame's line quotes its paths: with a long folder name it reached 2,127
+    characters and more; every line relight prints is cut at MAX_LINE as error lines are."""
+    from clphong.core.errors import MAX_LINE
+
+    src, out = work
+    deep = src.joinpath(*["e" * 200] * 12)
+    deep.mkdir(parents=True)
+    shutil.copy(src / "gbuf.exr", deep / "seq.0001.exr")
+    (deep / "seq.0002.exr").write_bytes((src / "gbuf.exr").read_bytes()[:300])   # cut short
+    rc = cli(["relight", deep / "seq.####.exr", "--rig", src / "scene.toml", "-o", out / "o.####.exr"])
+    err = capsys.readouterr().err
+    assert rc == 1, err
+    lines = err.splitlines()
+    assert any("frame 2" in ln for ln in lines), err
+    assert max(len(ln) for ln in lines) <= MAX_LINE + len("… (99999 more characters)"), \
+        [len(ln) for ln in lines]
+    assert any(ln.endswith("more characters)") for ln in lines)
+
+
+def test_a_scene_saved_with_a_byte_order_mark_is_read(work, capsys):
+    """A scene saved with a UTF-8 byte-order mark got "invalid TOML: Invalid statement" at
+    1:1; it is read past, as the lights CSV's is."""
+    src, out = work
+    (src / "bom.toml").write_bytes(b"\xef\xbb\xbf" + SCENE.encode())
+    assert cli(render_argv(src, out, scene=src / "bom.toml")) == 0, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("op, white, needle", [
+    ("hable", "1e-300", "must map above 0, got W = 1e-300 for 'hable'"),
+    ("reinhard-extended", "1e-300", "must be at least 5.42e-20 (1/W² a float32), got 1e-300"),
+    ("reinhard-extended", "1e-21", "got 1e-21"),
+])
+def test_a_white_point_the_kernel_cannot_take_names_the_file_and_key(work, capsys, op, white, needle):
+    """render.white_point = 1e-300 with Hable was refused at the first frame by a message
+    naming neither the scene file nor the key."""
+    src, out = work
+    (src / "wp.toml").write_text(SCENE + f'\n[render]\ntonemap = "{op}"\nwhite_point = {white}\n')
+    line = fails(render_argv(src, out, scene=src / "wp.toml", extra=["--sdr", out / "o.png"]),
+                 capsys, src.parent, "wp.toml: render.white_point: ", needle)
+    assert "\n" not in line

@@ -24,6 +24,7 @@ from ..core.errors import (
     OutputError,
     OutputWarning,
     clean_line,
+    cut_line,
     printable,
 )
 from ..deliver.outputs import OutputOptions, OutputPaths, check_outputs, render_outputs
@@ -698,8 +699,12 @@ def cmd_relight(args) -> int:
     progress = not args.quiet and sys.stderr.isatty()
     result = run_batch(plan, specs, jobs=args.jobs, scheduler=args.scheduler, progress=progress)
     lines = result.summary()
-    for line in (lines if not args.quiet else lines[1:]):
-        print(f"clphong relight: {line}" if line is lines[0] else line, file=sys.stderr)
+    for i, line in enumerate(lines):
+        if i == 0 and args.quiet:
+            continue
+        # a failed frame's reason may quote a user's long format string: cut as error lines are
+        line = cut_line(printable(line))
+        print(f"clphong relight: {line}" if i == 0 else line, file=sys.stderr)
     if result.interrupted:
         return 128 + int(result.interrupted)
     return 1 if result.failed else 0

@@ -63,6 +63,13 @@ def printable(text: str) -> str:
                       for line in str(text).split("\n"))
 
 
+def cut_line(line: str, limit: int = MAX_LINE) -> str:
+    """``line`` cut to ``limit`` characters with ``… (N more characters)``, if longer."""
+    if len(line) > limit:
+        line = f"{line[:limit]}… ({len(line) - limit} more characters)"
+    return line
+
+
 def clean_line(text: str, limit: int = MAX_LINE) -> str:
     """``text`` as one safe line for a terminal: whitespace runs (newlines, tabs)
     become one space, every other control character (C0, DEL, C1: what lets a
@@ -74,8 +81,5 @@ def clean_line(text: str, limit: int = MAX_LINE) -> str:
         out.append("".join(ch if ch.isprintable() else
                            (f"\\x{ord(ch):02x}" if ord(ch) < 0x100 else f"\\u{ord(ch):04x}")
                            for ch in word))
-    line = " ".join(out)
-    if len(line) > limit:
-        cut = len(line) - limit
-        line = f"{line[:limit]}… ({cut} more characters)"
+    line = cut_line(" ".join(out), limit)
     return line

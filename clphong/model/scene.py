@@ -125,7 +125,7 @@ from ..core.floats import FLT_MAX, FLT_MIN, U
 from ..core.memory import format_size, require_memory
 from .light_table import VECTOR_COLUMNS, LightTable, column_of, read_light_table
 from .options import check_exposure
-from .tonemap import operator
+from .tonemap import operator, operator_params
 
 __all__ = [
     "Camera",
@@ -1260,6 +1260,11 @@ class _Parser:
             if not operator(op_name).uses_white:
                 self.warn("render.white_point", f"{op_name!r} has no white point; only "
                                                 "'reinhard-extended' and 'hable' use it")
+            try:
+                # here, naming the file and key, not at the first frame (1e-300 with Hable)
+                operator_params(op_name, white)
+            except ToneMapError as exc:
+                self.fail("render.white_point", exc.problem)
         names = {}
         for key, what in (("display", "display"), ("view", "view"), ("look", "look"),
                           ("albedo_space", "colour space")):
@@ -1855,7 +1860,9 @@ def load_scene(path: str | os.PathLike) -> Scene:
         raise SceneError(f"{source}: this is {image} image, not a scene file; give the scene "
                          ".toml first: clphong render SCENE.toml GBUFFER.exr ...")
     try:
-        text = raw.decode("utf-8")
+        # utf-8-sig: a byte-order mark (Windows editors write one) is read past, as the
+        # lights CSV's is; TOML itself has no place for it ("Invalid statement" at 1:1)
+        text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         line = raw.count(b"\n", 0, exc.start) + 1
         raise SceneError(f"{source}:{line}: invalid TOML: not UTF-8 (byte {exc.start}); "

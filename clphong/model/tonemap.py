@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.errors import ToneMapError
+from ..core.floats import FLT_MAX
 
 #: Hable's (Uncharted 2) filmic curve: its constants, the exposure bias applied
 #: before it and the default linear white point W (Hable 2010).
@@ -93,14 +94,26 @@ def operator_params(name: str, white: float | None = None) -> np.ndarray:
     if not op.uses_white:
         return p
     w = op.default_white if white is None else float(white)
+
+    def refuse(problem: str):
+        error = ToneMapError(f"white point of {op.name!r} {problem}")
+        error.problem = f"{problem} for {op.name!r}"   # without the subject, for messages naming it
+        raise error
+
     if not (math.isfinite(w) and w > 0):
-        raise ToneMapError(f"white point of {op.name!r} must be a finite number > 0, got {w!r}")
+        refuse(f"must be a finite number > 0, got {w!r}")
     if op.name == "reinhard-extended":
-        p[0] = 1.0 / (w * w)
+        ww = w * w
+        # the kernel takes 1/W² as a float32: W below ~5.4e-20 overflows it (1e-300: 1/0)
+        if not ww > 0 or 1.0 / ww > FLT_MAX:
+            refuse(f"must be at least {1 / math.sqrt(FLT_MAX):.3g} (1/W² a float32), got {w!r}")
+        p[0] = 1.0 / ww
     else:
         fw = hable_exact(w)
         if not fw > 0:
-            raise ToneMapError(f"white point of 'hable' must map above 0, got W = {w!r}")
+            refuse(f"must map above 0, got W = {w!r}")
+        if 1.0 / fw > FLT_MAX:
+            refuse(f"maps too close to 0 (1/f(W) must be a float32), got W = {w!r}")
         p[0] = 1.0 / fw
     return p
 
