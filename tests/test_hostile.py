@@ -678,6 +678,14 @@ def test_disk_full_while_writing_any_output_keeps_the_previous_one(work, capsys,
     ("SIGTERM", 143, "clphong: terminated (SIGTERM)"),
     ("SIGHUP", 129, "clphong: terminated (SIGHUP)"),
     ("SIGQUIT", 131, "clphong: terminated (SIGQUIT)"),
+    # round 3: these left .NAME.tmp-XXXX.exr behind (their default action ends the process)
+    ("SIGUSR1", 138, "clphong: terminated (SIGUSR1)"),
+    ("SIGUSR2", 140, "clphong: terminated (SIGUSR2)"),
+    ("SIGALRM", 142, "clphong: terminated (SIGALRM)"),
+    ("SIGVTALRM", 154, "clphong: terminated (SIGVTALRM)"),
+    ("SIGPROF", 155, "clphong: terminated (SIGPROF)"),
+    ("SIGXCPU", 152, "clphong: terminated (SIGXCPU)"),
+    ("SIGRTMIN", 128 + signal.SIGRTMIN, "clphong: terminated (SIGRTMIN"),
     ("ctrl-c", 130, "clphong: interrupted"),
 ])
 def test_stopped_while_writing_leaves_nothing(work, capsys, monkeypatch, how, code, text):
@@ -699,8 +707,11 @@ def test_stopped_while_writing_leaves_nothing(work, capsys, monkeypatch, how, co
     monkeypatch.setattr(output.oiio, "ImageOutput", Stopped)
     line = fails(render_argv(src, out), capsys, src.parent, code=code)
     assert line.startswith(text)
-    for name in ("SIGTERM", "SIGHUP", "SIGQUIT"):                   # restored after the command
-        assert signal.getsignal(getattr(signal, name)) is signal.SIG_DFL
+    from clphong.core.signals import TERMINATING
+
+    for name in TERMINATING + ("SIGRTMIN", "SIGRTMAX"):            # restored after the command
+        if hasattr(signal, name):
+            assert signal.getsignal(getattr(signal, name)) is signal.SIG_DFL, name
 
 
 def test_sigterm_stops_a_long_frame_within_a_second(tmp_path):

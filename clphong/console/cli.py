@@ -27,6 +27,7 @@ from ..core.errors import (
     cut_line,
     printable,
 )
+from ..core.signals import signal_name, terminating_signals
 from ..deliver.outputs import OutputOptions, OutputPaths, check_outputs, render_outputs
 from ..deliver.writers import (
     EXR_BASE_COMPRESSIONS,
@@ -921,7 +922,7 @@ def _main(argv: list[str] | None) -> int:
 
 
 class _Terminated(KeyboardInterrupt):
-    """A terminating signal (SIGTERM, SIGHUP, SIGQUIT), raised like Ctrl-C so that
+    """A terminating signal (SIGTERM, SIGHUP, SIGQUIT, ...), raised like Ctrl-C so that
     every cleanup (temporary outputs) runs; the CLI exits 128 + its number."""
 
     def __init__(self, signum: int = 15, name: str = "SIGTERM"):
@@ -929,16 +930,11 @@ class _Terminated(KeyboardInterrupt):
         self.signum, self.name = signum, name
 
 
-#: The catchable terminating signals turned into :class:`_Terminated` (SIGINT is
-#: Python's KeyboardInterrupt already; SIGPIPE is ignored by Python, so a closed
-#: output pipe is a BrokenPipeError, exit 141).
-TERMINATING_SIGNALS = ("SIGTERM", "SIGHUP", "SIGQUIT")
-
-
 @contextlib.contextmanager
 def _sigterm_as_interrupt():
-    """Turn SIGTERM, SIGHUP and SIGQUIT into :class:`_Terminated` while a command
-    runs (main thread only).
+    """Turn every catchable terminating signal (:func:`clphong.core.signals.terminating_signals`:
+    SIGTERM, SIGHUP, SIGQUIT, SIGUSR1/2, SIGALRM, SIGVTALRM, SIGPROF, ...) into
+    :class:`_Terminated` while a command runs (main thread only).
 
     Their default actions end the process at once (SIGQUIT with a core dump),
     which would leave a half-written temporary output (``.NAME.tmp-XXXX.exr``)
@@ -952,14 +948,12 @@ def _sigterm_as_interrupt():
         return
 
     def _raise(signum, frame):
-        raise _Terminated(signum, signal.Signals(signum).name)
+        raise _Terminated(signum, signal_name(signum))
 
     previous = {}
     try:
-        for name in TERMINATING_SIGNALS:
-            sig = getattr(signal, name, None)
-            if sig is not None:
-                previous[sig] = signal.signal(sig, _raise)
+        for sig in terminating_signals():
+            previous[sig] = signal.signal(sig, _raise)
     except (ValueError, OSError):          # no signals here (e.g. an embedded interpreter)
         for sig, old in previous.items():
             signal.signal(sig, old)

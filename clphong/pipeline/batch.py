@@ -69,6 +69,7 @@ from dataclasses import dataclass, field
 
 from ..core.errors import ClphongError
 from ..core.memory import ENV_VAR, memory_budget
+from ..core.signals import signal_name, terminating_signals
 from ..deliver.outputs import OutputPaths, check_extensions
 from ..io.atomic import remove_live_temporaries
 from .distributed import run_on_dask
@@ -463,7 +464,7 @@ class BatchResult:
             head += f"; removed {self.stale_removed} temporary file(s) of an interrupted run"
         lines = [head]
         if self.interrupted:
-            name = signal.Signals(self.interrupted).name
+            name = signal_name(self.interrupted)
             lines.append(f"interrupted by {name}: no partial files were left; rerun with "
                          "--skip-existing to finish")
         for frame, src, reason in self.retried:
@@ -496,14 +497,16 @@ MAX_FAILURES_LISTED = 20
 
 
 class _Signals:
-    """Turn SIGTERM (and SIGINT) into :class:`Interrupted` in the main thread while active."""
+    """Turn SIGINT and every catchable terminating signal (SIGTERM, SIGHUP, SIGUSR2, ...:
+    :func:`clphong.core.signals.terminating_signals`) into :class:`Interrupted` in the
+    main thread while active."""
 
     def __init__(self):
         self.old = {}
 
     def __enter__(self):
         if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
+            for sig in (signal.SIGINT, *terminating_signals()):
                 self.old[sig] = signal.signal(sig, self._raise)
         return self
 
@@ -694,7 +697,8 @@ def _worker_main(conn, specs, env: dict[str, str]) -> None:  # pragma: no cover 
     """
     for key, value in env.items():      # N workers share the machine: worker_environment
         os.environ.setdefault(key, value)
-    signal.signal(signal.SIGTERM, _Signals._raise)
+    for sig in terminating_signals():
+        signal.signal(sig, _Signals._raise)
     try:
         while True:
             try:
@@ -719,19 +723,20 @@ def _worker_main(conn, specs, env: dict[str, str]) -> None:  # pragma: no cover 
         sys.exit(128 + int(getattr(exc, "signum", signal.SIGINT)))
     finally:
         # Nothing is being written any more: a late SIGTERM may simply end the process.
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        for sig in terminating_signals():
+            signal.signal(sig, signal.SIG_DFL)
 
 
 def _death(exitcode: int | None) -> str:
     """How a worker process ended, for messages: 'killed by SIGKILL', 'SIGTERM, exit code 143'."""
     if exitcode is not None and exitcode < 0:
         try:
-            return f"killed by {signal.Signals(-exitcode).name}"
+            return f"killed by {signal_name(-exitcode)}"
         except ValueError:
             return f"killed by signal {-exitcode}"
     if exitcode is not None and exitcode > 128:
         try:
-            return f"{signal.Signals(exitcode - 128).name}, exit code {exitcode}"
+            return f"{signal_name(exitcode - 128)}, exit code {exitcode}"
         except ValueError:
             pass
     return f"exit code {exitcode}"

@@ -249,8 +249,9 @@ def _wait_for_outputs(proc, out, n, timeout=60):
 
 
 @pytest.mark.parametrize("sig, jobs", [(signal.SIGTERM, 1), (signal.SIGINT, 1), (signal.SIGTERM, 2),
-                                       (signal.SIGKILL, 1)],
-                         ids=["SIGTERM", "SIGINT", "SIGTERM-jobs2", "SIGKILL"])
+                                       (signal.SIGKILL, 1), (signal.SIGUSR2, 1), (signal.SIGALRM, 2)],
+                         ids=["SIGTERM", "SIGINT", "SIGTERM-jobs2", "SIGKILL", "SIGUSR2",
+                              "SIGALRM-jobs2"])
 def test_resume_after_killed_run(shot, tmp_path, sig, jobs, capsys):
     root, expected = shot
     out = tmp_path / "out"

@@ -1,0 +1,43 @@
+"""Which signals clphong turns into a clean stop (temporary outputs removed, exit 128 + N).
+
+Every signal whose default action ends the process and that a Python handler can
+safely take (signal(7)): without a handler it would end clphong in the middle of a
+write and leave the hidden temporary file behind. Not in the list, and why:
+
+* SIGKILL and SIGSTOP cannot be caught;
+* SIGINT is Python's KeyboardInterrupt already;
+* SIGPIPE and SIGXFSZ are ignored by Python, so a closed pipe or the file-size limit
+  is an error (BrokenPipeError, exit 141; EFBIG, a failed write) instead;
+* SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT, SIGTRAP and SIGSYS report a crash (or a
+  debugger) in the process itself, where no Python code can run safely. A crash
+  can leave a temporary file, which the next run of the same output removes.
+"""
+
+from __future__ import annotations
+
+import signal
+
+#: The asynchronous terminating signals by name (those this platform has are used).
+TERMINATING = ("SIGTERM", "SIGHUP", "SIGQUIT", "SIGUSR1", "SIGUSR2", "SIGALRM", "SIGVTALRM",
+               "SIGPROF", "SIGXCPU", "SIGIO", "SIGPWR", "SIGSTKFLT")
+
+
+def terminating_signals() -> list[int]:
+    """The signals of :data:`TERMINATING` on this platform, then the real-time signals
+    (SIGRTMIN..SIGRTMAX), whose default action also ends the process. Left out: a
+    signal ignored (SIG_IGN: ``nohup`` ignores SIGHUP, and it stays ignored) or
+    handled by C code (a library's own handler, which Python reports as None)."""
+    out = [getattr(signal, name) for name in TERMINATING if hasattr(signal, name)]
+    if hasattr(signal, "SIGRTMIN") and hasattr(signal, "SIGRTMAX"):
+        out += list(range(signal.SIGRTMIN, signal.SIGRTMAX + 1))
+    return [sig for sig in dict.fromkeys(out)
+            if signal.getsignal(sig) not in (None, signal.SIG_IGN)]
+
+
+def signal_name(signum: int) -> str:
+    """``SIGTERM``; ``SIGRTMIN+3`` for a real-time signal."""
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        rtmin = getattr(signal, "SIGRTMIN", None)
+        return f"SIGRTMIN+{signum - rtmin}" if rtmin is not None else f"signal {signum}"
