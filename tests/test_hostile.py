@@ -1488,3 +1488,46 @@ def test_a_white_point_the_kernel_cannot_take_names_the_file_and_key(work, capsy
     line = fails(render_argv(src, out, scene=src / "wp.toml", extra=["--sdr", out / "o.png"]),
                  capsys, src.parent, "wp.toml: render.white_point: ", needle)
     assert "\n" not in line
+
+
+def _relight_argv(src, out, template, rig=None):
+    return ["relight", src / "seq.####.exr", "--rig", rig or src / "scene.toml", "-o", template]
+
+
+@pytest.fixture
+def seq(work):
+    src, out = work
+    for f in (1, 2):
+        shutil.copy(src / "gbuf.exr", src / f"seq.{f:04d}.exr")
+    return src, out
+
+
+@pytest.mark.parametrize("template, needle", [
+    ("missing/../o.####.exr", "output folder DIR/out/missing/..: DIR/out/missing does not exist, "
+                              "so '..' after it cannot be resolved"),
+    ("new/sub/../o.####.exr", "DIR/out/new does not exist"),
+    ("afile/o.####.exr", "output folder DIR/out/afile: DIR/out/afile is a file, not a folder"),
+])
+def test_output_folders_are_checked_before_any_frame(seq, capsys, template, needle):
+    """`-o missing/../o.exr` passed the checks, shaded every frame, then failed with
+    "cannot replace the file: No such file or directory"; now one line before any frame."""
+    src, out = seq
+    (out / "afile").write_text("")
+    fails(_relight_argv(src, out, out / template), capsys, src.parent, needle.replace("DIR", str(src.parent)))
+    assert sorted(p.name for p in out.iterdir()) == ["afile"]
+
+
+def test_render_to_a_folder_through_a_missing_one_is_one_line(work, capsys):
+    src, out = work
+    fails(render_argv(src, out, output=out / "missing" / ".." / "o.exr"), capsys, src.parent,
+          "folder", "missing/.. does not exist")
+
+
+@pytest.mark.parametrize("name", ["../../x", "a/b", "..", ".", "a\x1bb", "tab\there"])
+def test_rig_names_are_one_printable_path_component(seq, capsys, name):
+    """A rig named ../../x made folders outside the output tree; names may not hold '/'
+    or control bytes either. Checked at the door, one line, nothing written."""
+    src, out = seq
+    argv = _relight_argv(src, out, out / "{rig}" / "o.####.exr", rig=f"{name}={src / 'scene.toml'}")
+    fails(argv, capsys, src.parent, "rig name", "must be one folder or file name of printable characters")
+    assert not list(out.iterdir()) and not (src.parent.parent / "x").exists()

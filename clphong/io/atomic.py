@@ -128,7 +128,9 @@ def check_output_path(path: str | os.PathLike, *, exr: bool = False) -> None:
         is created (:func:`atomic_path`).
     """
     path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
+    # the folder as the system resolves it, not normalised: "missing/.." is no folder to the
+    # kernel (it needs "missing"), though abspath() would make it the current one
+    folder = os.path.dirname(path) or os.curdir
     name = os.path.basename(path)
     if not name:
         raise OutputError(f"{path}: not a file name")
@@ -139,7 +141,7 @@ def check_output_path(path: str | os.PathLike, *, exr: bool = False) -> None:
     if not os.path.isdir(folder):
         # Name the first part of the folder's path that is missing or not a folder.
         part = folder
-        while not os.path.exists(part) and os.path.dirname(part) != part:
+        while not os.path.exists(part) and os.path.dirname(part) not in (part, ""):
             part = os.path.dirname(part)
         if os.path.exists(part) and not os.path.isdir(part):
             raise OutputError(f"{path}: {part} is a file, not a folder; choose another output folder")

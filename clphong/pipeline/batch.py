@@ -344,6 +344,8 @@ def plan_batch(sequence: str, rigs: Sequence[Rig], template: str | None = None, 
     """
     if not rigs:
         raise BatchError("no light rig given; pass at least one scene file with --rig")
+    for r in rigs:
+        check_rig_name(r.name)
     names = [r.name for r in rigs]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
@@ -390,7 +392,48 @@ def plan_batch(sequence: str, rigs: Sequence[Rig], template: str | None = None, 
             outs.append((rig.name, paths))
         if outs:
             plan.jobs.append(Job(frame, src, tuple(outs)))
+    for folder in sorted({os.path.dirname(p) for _, paths in
+                          ((r, ps) for job in plan.jobs for r, ps in job.outputs) for p in paths.files}):
+        check_output_folder(folder)
     return plan
+
+
+def check_rig_name(name: str) -> str:
+    """A rig name is one path component of printable characters: it names output folders
+    and files through ``{rig}`` (``../../x`` made folders outside the output tree)."""
+    bad = (not name or name in (".", "..") or "/" in name or os.sep in name
+           or (os.altsep is not None and os.altsep in name)
+           or not all(ch.isprintable() for ch in name))
+    if bad:
+        shown = name.encode("unicode_escape").decode("ascii")
+        if len(shown) > 200:
+            shown = shown[:200] + "…"
+        raise BatchError(f"rig name '{shown}': a rig name must be one folder or file name of "
+                         "printable characters (no '/', not '.' or '..'); name the rig with "
+                         "--rig NAME=SCENE.toml")
+    return name
+
+
+def check_output_folder(folder: str) -> None:
+    """Before any frame runs: ``folder`` (as written, not normalised) can be made and then
+    reached by the system. Relight makes missing output folders, but never one just to
+    step back out of it: ``missing/..`` passed every check and then failed every frame's
+    write ("No such file or directory"), because the system needs ``missing`` to exist
+    to resolve ``..``; and no part may be a regular file."""
+    parts = [p for p in folder.split(os.sep) if p]
+    path = os.sep if folder.startswith(os.sep) else ""
+    missing = None
+    for part in parts:
+        path = os.path.join(path, part) if path else part
+        if part == ".." and missing is not None:
+            raise BatchError(f"output folder {folder}: {missing} does not exist, so '..' after it "
+                             "cannot be resolved; write the folder without it, or create "
+                             f"{missing} first")
+        if missing is None and os.path.lexists(path) and not os.path.isdir(path):
+            raise BatchError(f"output folder {folder}: {path} is a file, not a folder; "
+                             "choose another output folder")
+        if missing is None and not os.path.lexists(path):
+            missing = path
 
 
 def stale_temporaries(path: str) -> list[str]:
