@@ -50,11 +50,11 @@ from ..model.scene import MAP_KEYS, load_scene
 from ..model.tonemap import OPERATORS
 from ..pipeline.batch import (
     Rig,
-    parse_frame_range,
     plan_batch,
     remove_stale_temporaries,
     run_batch,
 )
+from ..pipeline.frames import FrameRange
 from ..pipeline.relighter import (
     Relighter,
     RelighterSpec,
@@ -660,7 +660,7 @@ def cmd_relight(args) -> int:
     # environment maps resolved once here, not in every worker
     rigs = [type(r)(r.name, resolve_environment(r.scene, max_error=args.env_error).scene)
             for r in rigs]
-    frames = parse_frame_range(args.frames) if args.frames else None
+    frames = FrameRange.parse(args.frames) if args.frames else None    # never listed: 1-1000000000
     plan = plan_batch(args.sequence, rigs, args.output, sdr=args.sdr, hdr=args.hdr,
                       contact_sheet=args.contact_sheet, frames=frames,
                       skip_existing=args.skip_existing)
@@ -691,6 +691,8 @@ def cmd_relight(args) -> int:
                     print(f"write  frame {job.frame} [{rig}] {job.source} -> {path}{missing}")
         print(f"{plan.files} file(s) to write for {plan.outputs} frame(s) x rig(s), "
               f"{len(plan.skipped)} skipped", file=sys.stderr)
+        if plan.missing:
+            print(plan.missing_line(), file=sys.stderr)
         return 0
     channels = _hashable_channels(parse_channel_mapping(args.channels)) if args.channels else ()
     specs = {r.name: RelighterSpec(scene=r.scene, device=args.device, kernel=args.kernel,
@@ -706,9 +708,11 @@ def cmd_relight(args) -> int:
         # a failed frame's reason may quote a user's long format string: cut as error lines are
         line = cut_line(printable(line))
         print(f"clphong relight: {line}" if i == 0 else line, file=sys.stderr)
+    if plan.missing:
+        print(cut_line(printable(plan.missing_line())), file=sys.stderr)
     if result.interrupted:
         return 128 + int(result.interrupted)
-    return 1 if result.failed else 0
+    return 1 if result.failed or plan.missing else 0
 
 
 def cmd_inspect(args) -> int:

@@ -14,9 +14,11 @@ An input is a frame pattern or a folder:
   file(s), never a silent renumbering: give a pattern to pick one sequence;
 * a single file: a one-frame sequence.
 
-Without ``frames=`` the frames are those found on disk. With it (a range
-string such as ``1-240x2``, see :func:`parse_frame_range`) exactly those
-frames are relit, and a frame whose file is missing is reported as failed.
+Without ``frames=`` the frames are those found on disk. With it (a
+:class:`~clphong.pipeline.frames.FrameRange` such as ``1-240x2``) the frames on
+disk that are in the range are relit, and the range's frames without a file are
+counted (:attr:`BatchPlan.missing`; the CLI says how many and exits 1), never
+listed one by one: a range of 10⁹ frames costs what the files on disk cost.
 
 Outputs
 -------
@@ -73,6 +75,7 @@ from ..core.signals import signal_name, terminating_signals
 from ..deliver.outputs import OutputPaths, check_extensions
 from ..io.atomic import remove_live_temporaries
 from .distributed import run_on_dask
+from .frames import FrameRange, parse_frame_range
 from .jobs import (
     BatchError,
     Interrupted,
@@ -92,51 +95,6 @@ __all__ = ["BatchError", "Rig", "Job", "Outcome", "BatchPlan", "BatchResult", "I
 
 
 # --------------------------------------------------------------------------- frames and names
-
-
-_RANGE_ITEM = re.compile(r"^\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*(?:[x:]\s*(\d+)\s*)?)?$")
-
-
-def parse_frame_range(text: str) -> list[int]:
-    """Frames of a range string, in order, without duplicates.
-
-    Parameters
-    ----------
-    text : str
-        Comma-separated items: ``N``, ``A-B`` (inclusive) or ``A-BxS``
-        (every S-th frame from A up to B), e.g. ``"1-240x2"`` or
-        ``"1-10,20,30-40x5"``.
-
-    Raises
-    ------
-    BatchError
-        Naming the bad item: not a range, ``B < A`` or a step < 1.
-
-    Examples
-    --------
-    >>> parse_frame_range("1-9x4,20")
-    [1, 5, 9, 20]
-    """
-    frames: list[int] = []
-    seen: set[int] = set()
-    if not str(text).strip():
-        raise BatchError("frame range is empty; write e.g. 1-240 or 1-240x2")
-    for item in str(text).split(","):
-        m = _RANGE_ITEM.match(item)
-        if not m:
-            raise BatchError(f"frame range {text!r}: {item.strip()!r} is not N, A-B or A-BxSTEP")
-        a = int(m.group(1))
-        b = int(m.group(2)) if m.group(2) is not None else a
-        step = int(m.group(3)) if m.group(3) is not None else 1
-        if step < 1:
-            raise BatchError(f"frame range {text!r}: step in {item.strip()!r} must be >= 1")
-        if b < a:
-            raise BatchError(f"frame range {text!r}: {item.strip()!r} ends before it starts")
-        for f in range(a, b + 1, step):
-            if f not in seen:
-                seen.add(f)
-                frames.append(f)
-    return frames
 
 
 _HASHES = re.compile(r"#+")
@@ -183,6 +141,8 @@ def _pattern_of(folder: str, numbered) -> str:
     return os.path.join(folder, "NAME.####.exr")
 
 
+
+
 def expand_sequence(pattern: str, frames: Sequence[int] | None = None) -> list[tuple[int, str]]:
     """The (frame, path) pairs of a sequence (see the module docstring).
 
@@ -217,24 +177,19 @@ def expand_sequence(pattern: str, frames: Sequence[int] | None = None) -> list[t
                                  f"both frame {n} (two sequences in one folder?); give a pattern such as "
                                  f"{_pattern_of(pattern, [(n, f)])} to pick one")
             owner[n] = f
-        pairs = sorted((n, os.path.join(pattern, f)) for n, f in numbered)
-        if frames is not None:
-            wanted = set(frames)
-            pairs = [p for p in pairs if p[0] in wanted]
+        pairs = _in_range(sorted((n, os.path.join(pattern, f)) for n, f in numbered), frames)
         if not pairs:
             what = f" in frames {_short_frames(frames)}" if frames is not None else ""
             raise BatchError(f"{pattern}: no .exr files{what}")
         return pairs
     token = _frame_token(pattern)
     if token is None:
-        if frames is not None and list(frames) != [_split_stem(os.path.splitext(os.path.basename(pattern))[0])[1]]:
+        n = _split_stem(os.path.splitext(os.path.basename(pattern))[0])[1]
+        if frames is not None and not (n in _wanted(frames) and _range_size(frames) == 1):
             raise BatchError(f"{pattern}: a frame range needs a sequence pattern (P.####.exr, P.%04d.exr) "
                              "or a folder")
-        n = _split_stem(os.path.splitext(os.path.basename(pattern))[0])[1]
         return [(n if n is not None else 1, pattern)]
     prefix, suffix, pad = token
-    if frames is not None:
-        return [(f, f"{prefix}{_pad(f, pad)}{suffix}") for f in frames]
     regex = re.compile(re.escape(os.path.basename(prefix)) + r"(-?\d+)" + re.escape(suffix) + r"$")
     folder = os.path.dirname(prefix) or "."
     found = []
@@ -246,12 +201,34 @@ def expand_sequence(pattern: str, frames: Sequence[int] | None = None) -> list[t
         m = regex.match(fname)
         if m and _pad(int(m.group(1)), pad) == m.group(1):
             found.append((int(m.group(1)), os.path.join(os.path.dirname(prefix), fname)))
+    found = _in_range(sorted(found), frames)
     if not found:
-        raise BatchError(f"{pattern}: no files match the pattern")
-    return sorted(found)
+        what = f" in frames {_short_frames(frames)}" if frames is not None else ""
+        raise BatchError(f"{pattern}: no files match the pattern{what}")
+    return found
+
+
+def _wanted(frames):
+    """Something to test ``frame in`` against: a :class:`FrameRange` as it is (never listed)."""
+    return frames if isinstance(frames, FrameRange) else set(frames)
+
+
+def _range_size(frames) -> int:
+    return frames.count() if isinstance(frames, FrameRange) else len(set(frames))
+
+
+def _in_range(pairs, frames):
+    """The (frame, path) pairs found on disk whose frame is in ``frames`` (all if None):
+    time and memory go with the files, not with the range (10⁹ frames were listed)."""
+    if frames is None:
+        return pairs
+    wanted = _wanted(frames)
+    return [p for p in pairs if p[0] in wanted]
 
 
 def _short_frames(frames) -> str:
+    if isinstance(frames, FrameRange):
+        return frames.text
     frames = list(frames or [])
     return ", ".join(map(str, frames[:5])) + (", ..." if len(frames) > 5 else "")
 
@@ -302,6 +279,19 @@ class BatchPlan:
     jobs: list[Job]
     skipped: list[tuple[int, str, OutputPaths]] = field(default_factory=list)
     kept: list[tuple[int, str, str]] = field(default_factory=list)
+    #: Frames of ``frames=`` with no file on disk (counted, never listed), and the first few.
+    missing: int = 0
+    missing_first: list[int] = field(default_factory=list)
+    frames_text: str = ""
+
+    def missing_line(self) -> str:
+        """``3 frame(s) of --frames 1-10 have no file (first: 5, 6, 7)``, or ''."""
+        if not self.missing:
+            return ""
+        first = ", ".join(map(str, self.missing_first))
+        more = ", ..." if self.missing > len(self.missing_first) else ""
+        return (f"{self.missing} frame(s) of --frames {self.frames_text} have no file "
+                f"(first: {first}{more})")
 
     @property
     def outputs(self) -> int:
@@ -329,7 +319,9 @@ def plan_batch(sequence: str, rigs: Sequence[Rig], template: str | None = None, 
     sdr, hdr, contact_sheet : sequence of str
         Templates of the SDR (``.png``/``.tif``), HDR (``.png``/``.jxl``) and
         contact-sheet files of each frame and rig (a single string is one template).
-    frames : sequence of int, optional
+    frames : FrameRange or sequence of int, optional
+        The frames to relight among those on disk; those with no file are counted
+        in :attr:`BatchPlan.missing`.
     skip_existing : bool
         Skip a frame and rig whose files all exist; write only the missing
         files of one whose files partly exist.
@@ -364,6 +356,13 @@ def plan_batch(sequence: str, rigs: Sequence[Rig], template: str | None = None, 
     owner: dict[str, tuple[int, str]] = {}
     inputs = {os.path.abspath(p): f for f, p in pairs}
     plan = BatchPlan([])
+    if frames is not None:
+        plan.missing = _range_size(frames) - len(pairs)
+        if plan.missing:
+            present = [f for f, _ in pairs]
+            plan.missing_first = (frames.missing(present) if isinstance(frames, FrameRange)
+                                  else [f for f in dict.fromkeys(frames) if f not in set(present)][:5])
+        plan.frames_text = _short_frames(frames)
     for frame, src in pairs:
         outs = []
         for rig in rigs:

@@ -27,6 +27,7 @@ from clphong.pipeline.batch import (
     plan_batch,
     run_batch,
 )
+from clphong.pipeline.frames import FrameRange
 from clphong.pipeline.relighter import RelighterSpec
 
 H, W = 24, 32
@@ -110,10 +111,14 @@ def test_sequence_patterns_and_folder_agree(shot):
     b = expand_sequence(str(root / "seq" / "shot.%04d.exr"))
     c = expand_sequence(str(root / "seq"))
     assert a == b == c and [f for f, _ in a] == list(range(1, 25))
-    # '#' padding must match exactly: shot.01.exr is not frame 1 of shot.####.exr
-    assert [f for f, _ in expand_sequence(str(root / "seq" / "shot.##.exr"), [1])] == [1]
+    # '#' padding must match exactly: shot.0001.exr is not frame 1 of shot.##.exr
+    with pytest.raises(BatchError, match="no files match the pattern in frames 1"):
+        expand_sequence(str(root / "seq" / "shot.##.exr"), [1])
     with pytest.raises(BatchError, match="no files match"):
         expand_sequence(str(root / "seq" / "shot.##.exr"))
+    # a range keeps the frames on disk that are in it, never listing the range
+    rng = FrameRange.parse("3-1000000000x3")
+    assert [f for f, _ in expand_sequence(str(root / "seq" / "shot.####.exr"), rng)] == list(range(3, 25, 3))
 
 
 def test_folder_frames_are_numbered_by_their_own_names(shot, tmp_path, capsys):
@@ -978,3 +983,27 @@ def test_progress_bar_on_a_terminal_only_and_not_with_quiet(shot, tmp_path, caps
     shows_bar = "6/6" in err and "output/s" in err
     assert shows_bar == (tty and not quiet), err
     assert ("6 written" in err) == (not quiet), err
+
+
+def test_a_range_far_beyond_the_shot_answers_at_once_and_counts_the_missing(shot, tmp_path, capsys):
+    """relight --frames 1-1000000000 on a short shot was killed by the out-of-memory killer
+    after 100 s (1-1000000 took 1 GB and 100 s even with --dry-run): the frames on disk in
+    the range are relit, the rest counted in one line, exit 1, in well under a second of
+    planning."""
+    import time
+
+    root, expected = shot
+    out = tmp_path / "out"
+    args = ["relight", str(root / "seq" / "shot.####.exr"), "--rig", str(root / "key.toml"),
+            "-o", str(out / "{rig}.####.exr"), "--frames", "20-1000000000"]
+    t0 = time.perf_counter()
+    assert main(args + ["--dry-run"]) == 0
+    assert time.perf_counter() - t0 < 1.0
+    err = capsys.readouterr().err
+    assert "5 file(s) to write for 5 frame(s) x rig(s)" in err
+    assert "999999976 frame(s) of --frames 20-1000000000 have no file (first: 25, 26, 27, 28, 29, ...)" in err
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "5 written, 0 skipped (exist), 0 failed" in err and "999999976 frame(s)" in err
+    for f in range(20, 25):
+        assert np.array_equal(read_rgb(out / f"key.{f:04d}.exr"), expected[(f, "key")])
