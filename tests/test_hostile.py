@@ -1531,3 +1531,73 @@ def test_rig_names_are_one_printable_path_component(seq, capsys, name):
     argv = _relight_argv(src, out, out / "{rig}" / "o.####.exr", rig=f"{name}={src / 'scene.toml'}")
     fails(argv, capsys, src.parent, "rig name", "must be one folder or file name of printable characters")
     assert not list(out.iterdir()) and not (src.parent.parent / "x").exists()
+
+
+_SLOW_WRITER = """
+import sys, time
+from clphong.io import atomic
+real = atomic._write_in_strips
+def slow(out, spec, data):
+    sys.stderr.write("writing\\n"); sys.stderr.flush()
+    time.sleep(float(sys.argv[1]))
+    return real(out, spec, data)
+atomic._write_in_strips = slow
+from clphong.console.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def _until(cond, timeout=120.0):
+    import time
+
+    t0 = time.perf_counter()
+    while not cond():
+        assert time.perf_counter() - t0 < timeout, "timed out"
+        time.sleep(0.02)
+
+
+@pytest.mark.parametrize("command", ["render", "relight"])
+def test_a_second_run_never_removes_a_live_runs_temporary_file(work, command):
+    """Two real processes writing the same output: the second took the first's temporary
+    file for a leftover of an interrupted run and removed it; the first died with a
+    FileNotFoundError traceback and its frame was lost. Now a live writer's file is
+    locked and left alone: both runs end 0, with no traceback, and the last writer's
+    file stands whole (a valid EXR equal to what both shaded)."""
+    src, out = work
+    if command == "render":
+        argv = [str(a) for a in render_argv(src, out)]
+        target = out / "beauty.exr"
+    else:
+        shutil.copy(src / "gbuf.exr", src / "seq.0001.exr")
+        argv = ["relight", str(src / "seq.####.exr"), "--rig", str(src / "scene.toml"),
+                "-o", str(out / "{rig}.####.exr"), "--skip-existing"]
+        target = out / "scene.0001.exr"
+    first = subprocess.Popen([sys.executable, "-c", _SLOW_WRITER, "4", *argv],
+                             stderr=subprocess.PIPE, text=True)
+    _until(lambda: [p for p in out.iterdir() if ".tmp-" in p.name])     # the first is writing
+    second = subprocess.run([sys.executable, "-m", "clphong", *argv], capture_output=True,
+                            text=True, timeout=300)
+    assert second.returncode == 0, second.stderr
+    assert "removed" not in second.stderr            # nothing taken for a leftover
+    _, err = first.communicate(timeout=300)
+    assert first.returncode == 0, err
+    assert "Traceback" not in err and "Traceback" not in second.stderr
+    assert not [p for p in out.iterdir() if ".tmp-" in p.name]
+    rgba = oiio.ImageBuf(str(target)).get_pixels(oiio.FLOAT)
+    assert rgba is not None and np.isfinite(rgba).all()
+
+
+def test_a_leftover_of_a_killed_writer_is_still_removed(work, capsys):
+    """The lock is the proof: a writer killed with SIGKILL holds none, so the next run
+    removes its temporary file (with a warning), as before."""
+    src, out = work
+    proc = subprocess.Popen([sys.executable, "-c", _SLOW_WRITER, "60",
+                             *[str(a) for a in render_argv(src, out)]], stderr=subprocess.PIPE, text=True)
+    _until(lambda: [p for p in out.iterdir() if ".tmp-" in p.name])
+    proc.kill()
+    proc.wait(timeout=30)
+    assert [p for p in out.iterdir() if ".tmp-" in p.name]
+    assert cli(render_argv(src, out)) == 0
+    err = capsys.readouterr().err
+    assert "removed 1 temporary file(s) an interrupted earlier run left" in err, err
+    assert [p.name for p in out.iterdir()] == ["beauty.exr"]

@@ -40,7 +40,12 @@ import OpenImageIO as oiio
 
 from ..core.errors import OutputError, OutputWarning
 
-__all__ = ["atomic_path", "check_image_written", "remove_live_temporaries", "check_output_path",
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX: no locks, leftovers by name alone
+    fcntl = None
+
+__all__ = ["atomic_path", "check_image_written", "remove_live_temporaries", "writer_gone", "check_output_path",
            "write_image_atomically", "write_exr", "set_attribute", "PIXEL_TYPES", "check_pixel_type"]
 
 #: Pixel types accepted by :func:`write_exr` and ``write_gbuffer``.
@@ -435,19 +440,31 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     tmp = None
     for _ in range(100):
         candidate = os.path.join(folder, f".{stem}.tmp-{secrets.token_hex(4)}{ext}")
-        _LIVE[candidate] = me                 # before the file exists: see _LIVE
+        # Created as NAME.born and locked before it gets the temporary name, so that every
+        # file under that name is locked while its writer lives (writer_gone)
+        born = candidate + ".born"
+        _LIVE[candidate] = _LIVE[born] = me   # before the files exist: see _LIVE
         try:
-            fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            fd = os.open(born, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         except FileExistsError:
             # someone else's file: never ours to remove. (An interrupt between the
             # failed open and this pop would leave it registered: that needs a
             # 32-bit name collision as well, and is accepted.)
             _LIVE.pop(candidate, None)
+            _LIVE.pop(born, None)
             continue
         except OSError as exc:
             _LIVE.pop(candidate, None)
+            _LIVE.pop(born, None)
             raise OutputError(f"{path}: cannot write in folder {folder}: {exc.strerror or exc}") from exc
-        os.close(fd)
+        _lock(fd)          # held until the rename into place: proves that this writer lives
+        if not _name(born, candidate):
+            _remove_quietly(born)
+            os.close(fd)
+            _LIVE.pop(candidate, None)
+            _LIVE.pop(born, None)
+            continue
+        _LIVE.pop(born, None)
         tmp = candidate
         break
     if tmp is None:  # pragma: no cover - 100 collisions of 32 random bits
@@ -463,9 +480,58 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
             os.replace(tmp, path)
         except OSError as exc:
             _remove_quietly(tmp)
+            if isinstance(exc, FileNotFoundError) and not os.path.exists(tmp):
+                raise OutputError(f"{path}: the temporary file {os.path.basename(tmp)} was removed "
+                                  "by another program while it was written; nothing was "
+                                  "replaced, write it again") from exc
             raise OutputError(f"{path}: cannot replace the file: {exc.strerror or exc}") from exc
     finally:
         _LIVE.pop(tmp, None)
+        os.close(fd)       # releases the lock
+
+
+def _name(born: str, candidate: str) -> bool:
+    """Give the locked file ``born`` the name ``candidate``, only if no file has it (a hard
+    link, then the first name removed); False if one has. Where hard links are not
+    supported, a rename (a 32-bit name collision could then replace another's file)."""
+    try:
+        os.link(born, candidate)
+    except FileExistsError:
+        return False
+    except OSError:
+        os.replace(born, candidate)
+        return True
+    _remove_quietly(born)
+    return True
+
+
+def _lock(fd: int) -> None:
+    """An exclusive lock on the open temporary file (POSIX flock); the system drops it when
+    the writer's process ends, however it ends, so a leftover is one nobody locks."""
+    if fcntl is not None:
+        with contextlib.suppress(OSError):
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def writer_gone(tmp: str) -> bool:
+    """Whether the process that wrote temporary file ``tmp`` (:func:`atomic_path`) is gone,
+    so that the file is a leftover to remove: nobody holds its lock (a file gets its
+    temporary name only once locked). A second run to the same output removed a live
+    run's file as a leftover, and that run died with a traceback."""
+    if fcntl is None:                      # no locks: the old rule, every match is a leftover
+        return True
+    try:
+        fd = os.open(tmp, os.O_RDONLY)
+    except OSError:
+        return False                       # gone already, or not ours to read
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            return False                   # locked: its writer lives
+        return True
+    finally:
+        os.close(fd)                       # and with it the lock just taken
 
 
 def set_attribute(spec: oiio.ImageSpec, name: str, value: object) -> None:

@@ -73,7 +73,7 @@ from ..core.errors import ClphongError
 from ..core.memory import ENV_VAR, memory_budget
 from ..core.signals import signal_name, terminating_signals
 from ..deliver.outputs import OutputPaths, check_extensions
-from ..io.atomic import remove_live_temporaries
+from ..io.atomic import remove_live_temporaries, writer_gone
 from .distributed import run_on_dask
 from .frames import FrameRange, parse_frame_range
 from .jobs import (
@@ -445,10 +445,14 @@ def stale_temporaries(path: str) -> list[str]:
 
 
 def remove_stale_temporaries(files) -> list[str]:
-    """Remove :func:`stale_temporaries` of each of ``files``; the ones removed."""
+    """Remove :func:`stale_temporaries` of each of ``files`` whose writer is gone
+    (:func:`clphong.io.atomic.writer_gone`: a live run's file is locked, and left alone);
+    the ones removed."""
     removed = []
     for path in files:
         for tmp in stale_temporaries(path):
+            if not writer_gone(tmp):
+                continue
             try:
                 os.remove(tmp)
                 removed.append(tmp)

@@ -311,12 +311,12 @@ def test_interrupt_between_create_and_with_block_is_cleaned_up(tmp_path, monkeyp
     knows; another thread's write in flight is left alone."""
     import threading
 
-    real_close = os.close
+    real_name = output._name
     calls = []
 
-    def close_then_interrupt(fd):
-        real_close(fd)
-        calls.append(fd)
+    def name_then_interrupt(born, candidate):
+        ok = real_name(born, candidate)  # the locked file gets its temporary name
+        calls.append(candidate)
         raise KeyboardInterrupt          # as a signal handler would, right after the create
 
     other_ready, other_go = threading.Event(), threading.Event()
@@ -333,11 +333,11 @@ def test_interrupt_between_create_and_with_block_is_cleaned_up(tmp_path, monkeyp
     t = threading.Thread(target=other_writer)
     t.start()
     assert other_ready.wait(10)
-    monkeypatch.setattr(output.os, "close", close_then_interrupt)
+    monkeypatch.setattr(output, "_name", name_then_interrupt)
     with pytest.raises(KeyboardInterrupt):
         with atomic_path(tmp_path / "result.exr"):
             pass  # pragma: no cover - never entered
-    monkeypatch.setattr(output.os, "close", real_close)
+    monkeypatch.setattr(output, "_name", real_name)
     assert calls
     mine = [n for n in _listing(tmp_path) if n.startswith(".result.tmp-")]
     assert len(mine) == 1                # the window is real: the file exists, nothing removed it
