@@ -45,7 +45,7 @@ from ..io.envmap import resolve_environment
 from ..io.gbuffer import parse_channel_mapping, read_gbuffer
 from ..io.inspection import METRICS, DiffError, diff_images, format_report, inspect_file
 from ..model.environment import DEFAULT_ENV_ERROR, check_env_error
-from ..model.options import KERNELS, LANES, NONFINITE_POLICIES, PATHS, check_lanes
+from ..model.options import KERNELS, LANES, NONFINITE_POLICIES, PATHS, check_lanes, check_number
 from ..model.scene import MAP_KEYS, load_scene
 from ..model.tonemap import OPERATORS
 from ..pipeline.batch import (
@@ -210,6 +210,9 @@ def _add_relight_parser(sub):
                    help="no progress bar or totals (failures are still listed)")
     r.add_argument("--scheduler", metavar="ADDRESS",
                    help="run frames as tasks on this Dask distributed scheduler (tcp://host:8786)")
+    r.add_argument("--scheduler-timeout", type=float, default=20.0, metavar="S",
+                   help="seconds to connect to the scheduler and hear its handshake (default 20); "
+                        "then one line naming the address and the cause")
     r.add_argument("--half", action="store_true", help="write half-float instead of float32")
     _add_color_options(r, templates=True)
     _add_gbuffer_options(r, files=False)
@@ -651,6 +654,10 @@ def _rig(text: str):
 def cmd_relight(args) -> int:
     if args.jobs < 1:
         raise _Usage("--jobs must be >= 1")
+    try:
+        check_number(args.scheduler_timeout, "--scheduler-timeout")
+    except ValueError as exc:
+        raise _Usage(str(exc)) from None
     renderer_options = _renderer_options(args)       # bad values: once, before any frame
     templates = _output_paths(args, args.output)
     if not templates:
@@ -700,7 +707,8 @@ def cmd_relight(args) -> int:
                                    **renderer_options)
              for r in rigs}
     progress = not args.quiet and sys.stderr.isatty()
-    result = run_batch(plan, specs, jobs=args.jobs, scheduler=args.scheduler, progress=progress)
+    result = run_batch(plan, specs, jobs=args.jobs, scheduler=args.scheduler, progress=progress,
+                       scheduler_timeout=args.scheduler_timeout)
     lines = result.summary()
     for i, line in enumerate(lines):
         if i == 0 and args.quiet:

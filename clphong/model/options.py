@@ -140,6 +140,7 @@ NUMBERS: Mapping[str, tuple[float, bool]] = {
     "--reference-white": (0.0, False),   # divides the budget's units
     "--floor": (0.0, False),             # diff's max-rel denominator: inf made any image match
     "--peak": (0.0, False),              # diff's psnr peak: inf made any image match
+    "--scheduler-timeout": (0.0, False),  # seconds: a silent peer held relight forever
 }
 
 

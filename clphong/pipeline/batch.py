@@ -74,7 +74,7 @@ from ..core.memory import ENV_VAR, memory_budget
 from ..core.signals import signal_name, terminating_signals
 from ..deliver.outputs import OutputPaths, check_extensions
 from ..io.atomic import remove_live_temporaries, writer_gone
-from .distributed import run_on_dask
+from .distributed import CONNECT_TIMEOUT_S, run_on_dask
 from .frames import FrameRange, parse_frame_range
 from .jobs import (
     BatchError,
@@ -937,7 +937,7 @@ def _remove_temporaries(job: Job) -> int:
 
 def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | None = None,
               progress: bool = False, on_outcome: Callable[[Outcome], None] | None = None,
-              overlap: bool = True) -> BatchResult:
+              overlap: bool = True, scheduler_timeout: float = CONNECT_TIMEOUT_S) -> BatchResult:
     """Run a plan; never raises for a bad frame.
 
     Parameters
@@ -951,6 +951,8 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
     scheduler : str, optional
         Address of a Dask distributed scheduler (``tcp://host:8786``), or a
         ``distributed.Client``; frames then run as tasks on its workers.
+    scheduler_timeout : float
+        Seconds to connect to ``scheduler`` and hear its handshake (20).
     progress : bool
         Show a tqdm progress bar on stderr: outputs (frames × rigs) done, outputs/s and ETA.
     overlap : bool
@@ -989,7 +991,7 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
             if not plan.jobs:
                 pass
             elif scheduler is not None:
-                run_on_dask(plan.jobs, specs, scheduler, collect)
+                run_on_dask(plan.jobs, specs, scheduler, collect, timeout=scheduler_timeout)
             elif jobs <= 1:
                 _run_inline(plan.jobs, specs, collect, overlap=overlap)
             else:

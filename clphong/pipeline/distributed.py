@@ -33,7 +33,58 @@ class SchedulerError(ClphongError):
     """The Dask scheduler cannot be reached, or Dask is not installed."""
 
 
-def _client(scheduler):
+#: Seconds to connect to a scheduler and hear its handshake (``--scheduler-timeout``).
+CONNECT_TIMEOUT_S = 20.0
+
+
+def _probe(address: str, timeout: float) -> None:
+    """Connect to a ``tcp://`` scheduler address and wait for the first bytes of its
+    handshake (a Dask scheduler writes its own at once), all within ``timeout`` seconds.
+
+    Dask's own client waits without limit for a peer that accepts the connection and
+    never speaks, and reported an unroutable address as "out of memory" then a
+    traceback 40 s later: this check runs first, so each case is one line naming
+    the address and the cause. Other schemes (tls://, inproc://) are left to Dask."""
+    import socket
+    import time
+    from urllib.parse import urlsplit
+
+    if "://" in address and not address.startswith("tcp://"):
+        return
+    try:
+        parts = urlsplit(address if "://" in address else f"tcp://{address}")
+        host, port = parts.hostname, parts.port or 8786
+    except ValueError as exc:
+        raise SchedulerError(f"Dask scheduler address {address!r}: {exc}") from None
+    if not host:
+        raise SchedulerError(f"Dask scheduler address {address!r}: no host; write tcp://HOST:PORT")
+    deadline = time.monotonic() + timeout
+    try:
+        sock = socket.create_connection((host, port), timeout=timeout)
+    except socket.timeout:
+        raise SchedulerError(f"cannot connect to the Dask scheduler at {address}: no answer to the "
+                             f"connection in {timeout:g} s (an unroutable or filtered address?); "
+                             "check the address, or raise --scheduler-timeout") from None
+    except OSError as exc:
+        raise SchedulerError(f"cannot connect to the Dask scheduler at {address}: "
+                             f"{exc.strerror or exc}") from None
+    with sock:
+        sock.settimeout(max(deadline - time.monotonic(), 0.001))
+        try:
+            first = sock.recv(1)
+        except socket.timeout:
+            raise SchedulerError(f"the Dask scheduler at {address} accepted the connection but "
+                                 f"sent nothing in {timeout:g} s (not a Dask scheduler, or a hung "
+                                 "one); check the address, or raise --scheduler-timeout") from None
+        except OSError as exc:
+            raise SchedulerError(f"cannot connect to the Dask scheduler at {address}: "
+                                 f"{exc.strerror or exc}") from None
+    if not first:
+        raise SchedulerError(f"the Dask scheduler at {address} closed the connection without a "
+                             "handshake (not a Dask scheduler?)")
+
+
+def _client(scheduler, timeout: float = CONNECT_TIMEOUT_S):
     try:
         from distributed import Client
     except ImportError:
@@ -41,14 +92,16 @@ def _client(scheduler):
                              "(dask[distributed])") from None
     if not isinstance(scheduler, str):
         return scheduler, False                      # a Client the caller owns
+    _probe(scheduler, timeout)
     try:
-        return Client(scheduler, timeout="20s", set_as_default=False), True
+        return Client(scheduler, timeout=f"{timeout}s", set_as_default=False), True
     except (OSError, TimeoutError, ValueError) as exc:
         raise SchedulerError(f"cannot connect to the Dask scheduler at {scheduler}: "
                              f"{' '.join(str(exc).split())}") from None
 
 
-def run_on_dask(jobs: Sequence[Job], specs: dict, scheduler, on_outcomes: Callable[[list[Outcome]], None]) -> None:
+def run_on_dask(jobs: Sequence[Job], specs: dict, scheduler, on_outcomes: Callable[[list[Outcome]], None],
+                *, timeout: float = CONNECT_TIMEOUT_S) -> None:
     """Run every job as a task on a Dask cluster; report outcomes as tasks finish.
 
     Parameters
@@ -59,6 +112,9 @@ def run_on_dask(jobs: Sequence[Job], specs: dict, scheduler, on_outcomes: Callab
         Scheduler address (``tcp://host:8786``) or an existing client.
     on_outcomes : callable
         Called with the outcomes of each finished job.
+    timeout : float
+        Seconds to connect to the scheduler and hear its handshake; then a
+        :class:`SchedulerError` naming the address and the cause.
 
     Notes
     -----
@@ -66,7 +122,7 @@ def run_on_dask(jobs: Sequence[Job], specs: dict, scheduler, on_outcomes: Callab
     for its frame; the other tasks carry on. On an interrupt the pending
     tasks are cancelled and a client we opened is closed.
     """
-    client, owned = _client(scheduler)              # first: it explains a missing Dask
+    client, owned = _client(scheduler, timeout)     # first: it explains a missing Dask
     futures = {}
     try:
         from distributed import as_completed

@@ -128,3 +128,80 @@ def test_dask_workers_get_the_renderer_options(shot, tmp_path, capsys):  # noqa:
     assert seen and set(seen) == {(False, 0, 0.0, "error")}, state
     for f in range(1, 7):        # the pixels (the EXR header holds a time stamp)
         assert np.array_equal(*(read_rgb(d / f"key.{f:04d}.exr") for d in (out, local))), f
+
+
+def _loopback_server(behaviour):
+    """A server on 127.0.0.1 (never any other address) that accepts and then either stays
+    silent or closes at once; (address, stop)."""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    srv.settimeout(0.2)
+    stop = threading.Event()
+    held = []
+
+    def serve():
+        while not stop.is_set():
+            try:
+                conn, _ = srv.accept()
+            except OSError:
+                continue
+            if behaviour == "close":
+                conn.close()
+            else:
+                held.append(conn)                 # accepted, never a byte
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+
+    def close():
+        stop.set()
+        t.join(5)
+        for c in held:
+            c.close()
+        srv.close()
+
+    return f"tcp://127.0.0.1:{srv.getsockname()[1]}", close
+
+
+@pytest.mark.parametrize("behaviour, needle", [
+    ("silent", "accepted the connection but sent nothing in 1.5 s"),
+    ("close", "closed the connection without a handshake"),
+])
+def test_a_scheduler_that_does_not_answer_is_one_line_in_time(shot, tmp_path, capsys, behaviour,
+                                                             needle):  # noqa: F811
+    """A peer that accepts and never speaks held relight --scheduler for as long as it held
+    the connection (Dask's own client has no limit there). Now --scheduler-timeout bounds
+    it: one line naming the address and the cause, nothing after it, exit 1."""
+    import time
+
+    root, _ = shot
+    address, close = _loopback_server(behaviour)
+    try:
+        args = ["relight", str(root / "seq" / "shot.####.exr"), "--rig", str(root / "key.toml"),
+                "-o", str(tmp_path / "out" / "{rig}.####.exr"), "--scheduler", address,
+                "--scheduler-timeout", "1.5"]
+        t0 = time.perf_counter()
+        assert main(args) == 1
+        took = time.perf_counter() - t0
+    finally:
+        close()
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("clphong: error: ") and address in err, err
+    assert needle in err
+    assert took < 1.5 + 5.0                    # the timeout, and the plan's own second or so
+    assert not (tmp_path / "out").exists() or not list((tmp_path / "out").iterdir())
+
+
+def test_scheduler_timeout_is_checked_at_the_door(shot, tmp_path, capsys):  # noqa: F811
+    root, _ = shot
+    for bad in ("0", "-1", "nan", "inf"):
+        with pytest.raises(SystemExit) as ex:
+            main(["relight", str(root / "seq" / "shot.####.exr"), "--rig", str(root / "key.toml"),
+                  "-o", str(tmp_path / "o.####.exr"), "--scheduler", "tcp://127.0.0.1:1",
+                  "--scheduler-timeout", bad])
+        assert ex.value.code == 2
+        assert "--scheduler-timeout: expected a finite number > 0" in capsys.readouterr().err
