@@ -45,7 +45,8 @@ try:
 except ImportError:  # pragma: no cover - not POSIX: no locks, leftovers by name alone
     fcntl = None
 
-__all__ = ["atomic_path", "check_image_written", "remove_live_temporaries", "writer_gone", "check_output_path",
+__all__ = ["atomic_path", "check_image_written", "remove_live_temporaries", "writer_gone", "written_here",
+           "check_output_path",
            "write_image_atomically", "write_exr", "set_attribute", "PIXEL_TYPES", "check_pixel_type"]
 
 #: Pixel types accepted by :func:`write_exr` and ``write_gbuffer``.
@@ -511,6 +512,12 @@ def _lock(fd: int) -> None:
     if fcntl is not None:
         with contextlib.suppress(OSError):
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def written_here(tmp: str) -> bool:
+    """Whether ``tmp`` is a temporary file of a write in flight in this process (whose own
+    lock :func:`writer_gone` sees as another writer's)."""
+    return tmp in _LIVE
 
 
 def writer_gone(tmp: str) -> bool:

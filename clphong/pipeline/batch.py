@@ -73,7 +73,7 @@ from ..core.errors import ClphongError
 from ..core.memory import ENV_VAR, memory_budget
 from ..core.signals import signal_name, terminating_signals
 from ..deliver.outputs import OutputPaths, check_extensions
-from ..io.atomic import remove_live_temporaries, writer_gone
+from ..io.atomic import remove_live_temporaries, writer_gone, written_here
 from .distributed import CONNECT_TIMEOUT_S, run_on_dask
 from .frames import FrameRange, parse_frame_range
 from .jobs import (
@@ -444,14 +444,15 @@ def stale_temporaries(path: str) -> list[str]:
     return [p for p in glob.glob(pattern, include_hidden=True) if rx.match(os.path.basename(p))]
 
 
-def remove_stale_temporaries(files) -> list[str]:
+def remove_stale_temporaries(files, *, own: bool = False) -> list[str]:
     """Remove :func:`stale_temporaries` of each of ``files`` whose writer is gone
-    (:func:`clphong.io.atomic.writer_gone`: a live run's file is locked, and left alone);
-    the ones removed."""
+    (:func:`clphong.io.atomic.writer_gone`: a live run's file is locked, and left alone),
+    and with ``own`` those of this process's own writes in flight (a stopping batch
+    gives up on them); the ones removed."""
     removed = []
     for path in files:
         for tmp in stale_temporaries(path):
-            if not writer_gone(tmp):
+            if not (writer_gone(tmp) or (own and written_here(tmp))):
                 continue
             try:
                 os.remove(tmp)
@@ -717,7 +718,7 @@ def _stop_threads(threads, jobs: Sequence[Job], wait: float | None = None) -> No
                     again, deadline = exc, 0.0
     finally:
         for job in jobs:
-            _remove_temporaries(job)
+            _remove_temporaries(job, own=True)
     if again is not None:
         raise again
 
@@ -930,9 +931,10 @@ def _run_pool(jobs: Sequence[Job], specs: dict, n: int, on_outcomes: Callable,
             w.conn.close()
 
 
-def _remove_temporaries(job: Job) -> int:
-    """Remove the temporary files a killed run left for the outputs of ``job``; return how many."""
-    return len(remove_stale_temporaries(p for _, paths in job.outputs for p in paths.files))
+def _remove_temporaries(job: Job, *, own: bool = False) -> int:
+    """Remove the temporary files a killed run left for the outputs of ``job`` (with ``own``,
+    this process's own writes in flight too); return how many."""
+    return len(remove_stale_temporaries((p for _, paths in job.outputs for p in paths.files), own=own))
 
 
 def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | None = None,
