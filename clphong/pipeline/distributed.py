@@ -59,26 +59,22 @@ def _probe(address: str, timeout: float) -> None:
     if not host:
         raise SchedulerError(f"Dask scheduler address {address!r}: no host; write tcp://HOST:PORT")
     deadline = time.monotonic() + timeout
+    stage = "connect"
     try:
-        sock = socket.create_connection((host, port), timeout=timeout)
+        with socket.create_connection((host, port), timeout=timeout) as sock:
+            stage = "handshake"
+            sock.settimeout(max(deadline - time.monotonic(), 0.001))
+            first = sock.recv(1)
     except socket.timeout:
-        raise SchedulerError(f"cannot connect to the Dask scheduler at {address}: no answer to the "
-                             f"connection in {timeout:g} s (an unroutable or filtered address?); "
-                             "check the address, or raise --scheduler-timeout") from None
+        cause = (f"no answer to the connection in {timeout:g} s (an unroutable or filtered "
+                 "address?)" if stage == "connect" else
+                 f"it accepted the connection but sent nothing in {timeout:g} s (not a Dask "
+                 "scheduler, or a hung one)")
+        raise SchedulerError(f"cannot connect to the Dask scheduler at {address}: {cause}; check "
+                             "the address, or raise --scheduler-timeout") from None
     except OSError as exc:
         raise SchedulerError(f"cannot connect to the Dask scheduler at {address}: "
                              f"{exc.strerror or exc}") from None
-    with sock:
-        sock.settimeout(max(deadline - time.monotonic(), 0.001))
-        try:
-            first = sock.recv(1)
-        except socket.timeout:
-            raise SchedulerError(f"the Dask scheduler at {address} accepted the connection but "
-                                 f"sent nothing in {timeout:g} s (not a Dask scheduler, or a hung "
-                                 "one); check the address, or raise --scheduler-timeout") from None
-        except OSError as exc:
-            raise SchedulerError(f"cannot connect to the Dask scheduler at {address}: "
-                                 f"{exc.strerror or exc}") from None
     if not first:
         raise SchedulerError(f"the Dask scheduler at {address} closed the connection without a "
                              "handshake (not a Dask scheduler?)")

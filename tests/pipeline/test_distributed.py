@@ -168,7 +168,7 @@ def _loopback_server(behaviour):
 
 
 @pytest.mark.parametrize("behaviour, needle", [
-    ("silent", "accepted the connection but sent nothing in 1.5 s"),
+    ("silent", "it accepted the connection but sent nothing in 1.5 s"),
     ("close", "closed the connection without a handshake"),
 ])
 def test_a_scheduler_that_does_not_answer_is_one_line_in_time(shot, tmp_path, capsys, behaviour,
