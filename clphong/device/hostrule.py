@@ -79,7 +79,8 @@ class Host:
 
 def _cpuinfo_fields() -> dict[str, str]:
     try:
-        text = open("/proc/cpuinfo", encoding="utf-8", errors="replace").read(65536)
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            text = f.read(65536)
     except OSError:
         return {}
     out: dict[str, str] = {}

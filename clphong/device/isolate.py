@@ -18,6 +18,7 @@ from __future__ import annotations
 import atexit
 import json
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -102,6 +103,10 @@ def run_child(module: str, args: list[str], *, timeout: float, what: str) -> str
     return done.stdout
 
 
+#: A kernel variant compiles in 0.2-30 s; no answer in this long is a hung compiler.
+BUILD_TIMEOUT_S = 600.0
+
+
 class BuildChild:
     """One long-lived child compiling for one device; :meth:`build` is serialised."""
 
@@ -126,32 +131,54 @@ class BuildChild:
         """Compile ``entry_file`` with ``opts`` in the child, its binary written to ``out``.
         A build error raises :class:`DeviceError` with the compiler's first error line."""
         with self._lock:
-            proc = self._proc if self._proc is not None and self._proc.poll() is None else None
-            proc = proc or self._start()
+            if self._proc is not None and self._proc.poll() is not None:
+                self._reap()                   # a child that ended since the last build
+            proc = self._proc or self._start()
             try:
                 proc.stdin.write(json.dumps({"entry": entry_file, "opts": opts, "out": out}) + "\n")
                 proc.stdin.flush()
+                ready, _, _ = select.select([proc.stdout], [], [], BUILD_TIMEOUT_S)
+                if not ready:                  # a compiler that hangs: end it, say so
+                    proc.kill()
+                    self._reap()
+                    raise _crash(f"{what}: the compiler gave no answer in {BUILD_TIMEOUT_S:.0f} s",
+                                 None)
                 line = proc.stdout.readline()
             except (BrokenPipeError, OSError):
                 line = ""
             if not line:
-                rc = proc.wait()
-                self._err.seek(0)
-                stderr = self._err.read()
-                self._proc = None
+                rc, stderr = self._reap()
                 raise _crash(f"{what}: the compiler's process ended by {death(rc, stderr)}", rc)
             answer = json.loads(line)
             if answer.get("error"):
                 raise DeviceError(answer["error"])
 
-    def close(self) -> None:
+    def _reap(self) -> tuple[int, str]:
+        """Wait for the ended (or killed) child, close its pipes; (return code, its stderr)."""
         proc, self._proc = self._proc, None
-        if proc is not None and proc.poll() is None:
+        rc = proc.wait()
+        stderr = ""
+        for stream in (proc.stdin, proc.stdout):
             try:
-                proc.stdin.close()
-                proc.wait(timeout=5)
-            except (OSError, subprocess.TimeoutExpired):
-                proc.kill()
+                stream.close()
+            except OSError:
+                pass
+        if self._err is not None:
+            self._err.seek(0)
+            stderr = self._err.read()
+            self._err.close()
+            self._err = None
+        return rc, stderr
+
+    def close(self) -> None:
+        if self._proc is None:
+            return
+        try:
+            self._proc.stdin.close()           # the child's loop ends at end of input
+            self._proc.wait(timeout=5)
+        except (OSError, subprocess.TimeoutExpired):
+            self._proc.kill()
+        self._reap()
 
 
 _CHILDREN: dict[str, BuildChild] = {}

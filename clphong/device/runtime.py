@@ -793,10 +793,10 @@ def get_runtime(device: str | None = None, *, lanes: int | None = None) -> Runti
         return rt
 
 
-def describe_devices() -> list[dict]:
+def describe_devices() -> tuple[list[dict], str]:
     """For ``clphong devices``: per device, its selector, name, kind, compiler target,
     whether that matches the host, the width the rule and the self-test give (or why
-    none), and whether it is the default."""
+    none), and whether it is the default; and why the default is the default."""
     h = hostrule.host()
     try:
         default = get_runtime(None)

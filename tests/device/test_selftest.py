@@ -64,8 +64,11 @@ def aborting_compiler(tmp_path, monkeypatch):
     """))
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(tmp_path), *sys.path]))
     monkeypatch.setattr(isolate.BuildChild, "module", "abort_like_llvm")
-    monkeypatch.setattr(isolate, "_CHILDREN", {})
-    return tmp_path
+    children = {}
+    monkeypatch.setattr(isolate, "_CHILDREN", children)
+    yield tmp_path
+    for child in children.values():
+        child.close()
 
 
 def test_an_aborting_compiler_is_one_line_naming_the_variant(aborting_compiler):
