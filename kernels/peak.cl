@@ -16,24 +16,44 @@
 #error "CHAINS must be set by the host (clphong/device/peak.py)"
 #endif
 
-__kernel void fma_peak(__global float *restrict out, const uint iterations, const float b,
+/* PEAK_DOUBLE: the same chains in double, for the device's double-to-float rate
+ * (clphong/device/peak.py measure_fp64_ratio), which chooses what the shading plan
+ * computes in double; out then holds doubles. */
+#if PEAK_DOUBLE
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double peakS;
+#if LANES == 16
+typedef double16 peakL;
+#elif LANES == 8
+typedef double8 peakL;
+#elif LANES == 4
+typedef double4 peakL;
+#else
+typedef double peakL;
+#endif
+#else
+typedef float peakS;
+typedef floatL peakL;
+#endif
+
+__kernel void fma_peak(__global peakS *restrict out, const uint iterations, const float b,
                        const float c)
 {
     const size_t i = get_global_id(0);
-    const floatL bb = (floatL)(b), cc = (floatL)(c);
-    const float x = 0.001f * (float)i;
-    floatL a[CHAINS];
+    const peakL bb = (peakL)((peakS)b), cc = (peakL)((peakS)c);
+    const peakS x = (peakS)0.001f * (peakS)i;
+    peakL a[CHAINS];
 #pragma unroll
     for (int k = 0; k < CHAINS; ++k)
-        a[k] = (floatL)(x + (float)k);
+        a[k] = (peakL)(x + (peakS)k);
     for (uint n = 0; n < iterations; ++n) {
 #pragma unroll
         for (int k = 0; k < CHAINS; ++k)
             a[k] = MUL_ADD(a[k], bb, cc);
     }
-    floatL s = a[0];
+    peakL s = a[0];
 #pragma unroll
     for (int k = 1; k < CHAINS; ++k)
         s += a[k];
-    vstoreL(s, i, out);
+    ((__global peakL *)out)[i] = s;
 }

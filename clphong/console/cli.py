@@ -609,6 +609,8 @@ def cmd_plan(args) -> int:
     # (device, lane width, --path, --max-error).
     renderer = Renderer(scene, device=args.device, kernel=args.kernel, lanes=args.lanes, **opts)
     print(renderer.plan_for(maps))
+    print(f"device: {renderer.runtime.name}, {renderer.lanes} lane(s); "
+          f"{renderer.runtime.double_line()}")
     return 0
 
 
@@ -622,6 +624,8 @@ def cmd_devices(args) -> int:
             print(f"      compiler target {row['target']}; matches the host: {row['match']}")
         width = f"{row['width']} lane(s)" if row.get("width") else "no width"
         print(f"      {width}; self-test: {row['verdict']}")
+        if row.get("double"):
+            print(f"      {row['double']}")
         if "rule" in row:
             print(f"      rule: {row['rule']}")
     default = next((r for r in rows if r["default"]), None)

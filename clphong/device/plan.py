@@ -123,7 +123,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         integer power needs it.
     int_pow : bool or "float"
         True (default): raise a whole uniform exponent k ≤ ``INT_POW_MAX`` by
-        binary powering in double (SPEC_INT_POW) where ``has_fp64``; False:
+        binary powering in double (SPEC_INT_POW) where ``has_fp64`` (the device's
+        ``Runtime.fast_fp64``: double at a measured quarter of the float rate or more); False:
         always exp(k·log1p(−δ)) (to measure one against the other); "float":
         binary powering in float (POW_FP32, the "fast" path: float directions
         only, any device; relative error ~2k·u, docs/error-model.md).
@@ -244,7 +245,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
             else ("no specular term" if not specular
                   else "per-pixel shininess map: exp(k·log1p(−δ))" if "h" in maps
                   else f"{exponent} is not a whole number ≤ {INT_POW_MAX}: exp(k·log1p(−δ))" if not whole
-                  else "no fast double on this device (cl_khr_fp64 on a CPU): exp(k·log1p(−δ))" if not fp64
+                  else "no fast double on this device (cl_khr_fp64 at a measured quarter of the "
+                       "float rate or more): exp(k·log1p(−δ))" if not fp64
                   else "integer power turned off: exp(k·log1p(−δ))"))
         put("SPEC_K", int(k) if use else 0,
             f"the exponent K = {int(k)} compiled in: the binary powering unrolls, with no "

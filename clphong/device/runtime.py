@@ -42,6 +42,7 @@ from typing import Callable
 from ..core.errors import DeviceError, DeviceWarning
 from . import hostrule, platforms
 from .isolate import VariantCrash, build_child, in_child, intel_vectorizer_mode, run_child
+from .peak import FAST_FP64_RATIO
 
 # PoCL's CPU drivers install a SIGFPE handler (integer division by zero in a
 # kernel then gives an undefined value instead of killing the process), and to
@@ -316,6 +317,9 @@ class Runtime:
     choice: str = ""
     #: Defines added to every program (the self-test's test-only fault; else empty).
     extra_defines: dict = field(default_factory=dict)
+    #: The device's double-to-float FMA rate, measured by the self-test
+    #: (:func:`clphong.device.peak.measure_fp64_ratio`); None: not measured.
+    fp64_ratio: float | None = None
 
     @property
     def kind(self) -> str:
@@ -360,11 +364,29 @@ class Runtime:
 
     @property
     def fast_fp64(self) -> bool:
-        """Double precision at a useful speed: cl_khr_fp64 on a CPU device (half
-        float's vector rate). GPUs with fp64 often run it at 1/16–1/64 of float,
-        so double is used there only where accuracy needs it (directions), not
-        for speed (the integer specular power, ``plan.SPEC_INT_POW``)."""
-        return self.has_fp64 and bool(self.device.type & _cl().device_type.CPU)
+        """Double precision at a useful speed: cl_khr_fp64 at a measured double-to-float
+        rate of at least :data:`~clphong.device.peak.FAST_FP64_RATIO` (1/2 on CPUs and on
+        the H100/H200, A100 and MI300; 1/16-1/64 on consumer GPUs). Where the rate was
+        not measured, a CPU device with fp64. The plan then computes the sums, the integer
+        specular power and the weights in double (``plan.SPEC_INT_POW``, ``SUM_FP64``)."""
+        if not self.has_fp64:
+            return False
+        if self.fp64_ratio is None:
+            return bool(self.device.type & _cl().device_type.CPU)
+        return self.fp64_ratio >= FAST_FP64_RATIO
+
+    def double_line(self) -> str:
+        """What the device's double rate means for the shading plan, in one line."""
+        if not self.has_fp64:
+            return "no double precision (cl_khr_fp64): float directions, compensated float sums"
+        rate = ("not measured" if self.fp64_ratio is None
+                else f"{self.fp64_ratio:.2g} of the float rate (measured)")
+        if self.fast_fp64:
+            return (f"double at {rate}: the accurate path forms directions, weights, sums and the "
+                    "integer power in double (relative error target 5e-6)")
+        return (f"double at {rate}, under {FAST_FP64_RATIO:g}: the accurate path keeps double "
+                "directions only, with compensated float sums and weights; each pixel stays "
+                "within the error model's bound, but lights that cancel may miss the 5e-6 target")
 
     def check_width(self, lanes: int) -> None:
         """Refuse, in one line, a lane width the host rule leaves out on this device or
@@ -611,7 +633,7 @@ _RUNTIMES: dict[str | None, Runtime] = {}
 _RT_LOCK = threading.Lock()
 
 #: Bumped when the self-test changes what it checks: older verdicts are not reused.
-SELFTEST_VERSION = 1
+SELFTEST_VERSION = 2
 _VERDICTS: dict[Path, dict] = {}
 
 
@@ -690,6 +712,7 @@ def _configure(rt: Runtime, lanes: int | None) -> Runtime:
         verdict = verify(rt, width)
         if verdict["ok"]:
             rt.lanes = width
+            rt.fp64_ratio = verdict.get("fp64_ratio")
             rt.choice = (f"{width} lane(s), the host rule's best that passed the self-test "
                          f"(worst |err|/bound {verdict['worst']:.2g}); rule: {decision.why()}")
             return rt
@@ -827,7 +850,8 @@ def describe_devices() -> tuple[list[dict], str]:
                     chosen = rt if row["default"] else _configure(rt, None)
                 v = verify(chosen, chosen.lanes)
                 row.update(width=chosen.lanes,
-                           verdict=f"passed (worst |err|/bound {v['worst']:.2g})")
+                           verdict=f"passed (worst |err|/bound {v['worst']:.2g})",
+                           double=chosen.double_line())
         except DeviceError as exc:
             row.setdefault("width", None)
             row["verdict"] = "failed: " + str(exc).split("; choose another device")[0]

@@ -30,6 +30,7 @@ from ..core.errors import ClphongError, InputWarning
 from ..io.gbuffer import GBuffer
 from ..model.scene import parse_scene
 from ..reference import shading as reference
+from .peak import measure_fp64_ratio
 from .renderer import Renderer, prepare_frame
 from .runtime import get_runtime
 
@@ -89,9 +90,13 @@ def _scenes() -> dict:
 
 
 def check(device: str, lanes: int, *, fault: float = 0.0) -> dict:
-    """Shade the fixed frame on ``device`` ("P:D") at ``lanes`` on every path of
-    :data:`PATHS`; ``{"ok": bool, "worst": max |err|/bound, "detail": str}``."""
+    """Measure the device's double-to-float rate, then shade the fixed frame on ``device``
+    ("P:D") at ``lanes`` on every path of :data:`PATHS`; ``{"ok": bool, "worst": max
+    |err|/bound, "detail": str, "fp64_ratio": float}``."""
     rt = get_runtime(device, lanes=lanes)
+    # measured first: it chooses what the plan computes in double (Runtime.fast_fp64),
+    # so the variants checked here are the ones the parent will run
+    rt.fp64_ratio = measure_fp64_ratio(rt)
     if fault:
         rt.extra_defines = {"SELFTEST_FAULT": f"{float(fault)!r}f"}
     gb = _gbuffer()
@@ -118,7 +123,8 @@ def check(device: str, lanes: int, *, fault: float = 0.0) -> dict:
                 detail = (f"{name}, {path} path: pixel ({x}, {y}) channel {'RGB'[c]} "
                           f"{rgb[y, x, c]:.9g} against the reference's {ref[y, x, c]:.9g} "
                           f"(|err|/bound {here:.3g})")
-    return {"ok": bool(worst <= 1.0), "worst": worst, "detail": detail}
+    return {"ok": bool(worst <= 1.0), "worst": worst, "detail": detail,
+            "fp64_ratio": rt.fp64_ratio}
 
 
 def main(argv=None) -> int:

@@ -127,3 +127,31 @@ def test_run_child_reports_a_signal_and_a_timeout(aborting_compiler):
     with pytest.raises(isolate.VariantCrash, match="no answer in 1 s") as err:
         isolate.run_child("sleepy", [], timeout=1, what="x")
     assert err.value.transient
+
+
+def test_the_double_rate_is_measured_and_chooses_the_plan(device, monkeypatch):
+    """Issue 29: the plan's double forms follow the device's measured double-to-float
+    rate, not its type. A CPU measures about 1/2; the same device made to look like a
+    consumer GPU (1/32) gets float sums, weights and the exp form, still within the error
+    model's bound, and 'plan' says what that costs."""
+    from conftest import check_against_reference
+
+    from clphong.device.peak import FAST_FP64_RATIO, measure_fp64_ratio
+
+    rt = runtime.get_runtime(device)
+    ratio = measure_fp64_ratio(rt)
+    if rt.has_fp64:
+        assert 0.0 < ratio < 1.5
+        assert rt.fp64_ratio is not None and rt.fast_fp64 == (rt.fp64_ratio >= FAST_FP64_RATIO)
+    else:
+        assert ratio == 0.0 and not rt.fast_fp64
+    rng = np.random.default_rng(9)
+    scene = make_scene(random_lights(rng, 5, 2), h=32.0, model="blinn-phong")
+    gb = random_gbuffer(rng, 9, 11)
+    for slow, want in ((1 / 32, 0), (0.5, int(rt.has_fp64))):
+        monkeypatch.setattr(rt, "fp64_ratio", slow)
+        d = Renderer(scene, device=device).plan_for(()).defines
+        assert (d["SUM_FP64"], d["SPEC_INT_POW"], d["WEIGHTS_FP64"]) == (want, want, want), slow
+        check_against_reference(scene, gb, device=device)     # the bound holds either way
+        line = rt.double_line()
+        assert ("under 0.25" in line) == (slow < FAST_FP64_RATIO and rt.has_fp64), line

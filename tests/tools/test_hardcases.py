@@ -28,18 +28,6 @@ def test_there_are_at_least_30_cases_in_every_group():
                                         "sums", "outputs"}
 
 
-@pytest.mark.parametrize("hc", CASES, ids=[c.name for c in CASES])
-def test_hard_case(hc):
-    r = evaluate(hc)
-    assert r.max_err_over_bound <= 1.0, f"{hc.name}: |err|/bound = {r.max_err_over_bound:.3g}"
-    assert r.nonfinite_out == 0, f"{hc.name}: {r.nonfinite_out} non-finite output pixel(s)"
-    assert r.max_rel <= TARGET_REL, f"{hc.name}: max relative error {r.max_rel:.3g}"
-    if hc.finite_inputs:
-        assert not r.nonfinite_in
-    else:
-        assert r.nonfinite_in, "the case should hold non-finite inputs"
-
-
 #: Float weights form D = C·k_d and S = k_s·C_s in float; where lights cancel, that
 #: rounding is amplified by the cancellation (5e-5 relative measured), so this case
 #: is held to the bound only there (docs/error-model.md, "The hard-case suite").
@@ -47,8 +35,26 @@ FLOAT_WEIGHTS_CANCELLATION = {"negative-albedo-cancels"}
 
 
 @pytest.mark.parametrize("hc", CASES, ids=[c.name for c in CASES])
+def test_hard_case(hc):
+    """The default path on the default device: the bound, finite, and the 5e-6 target,
+    which the accurate path promises where double is fast (a measured quarter of the
+    float rate or more; on a slower one it is the float-weights plan below)."""
+    from clphong.device.runtime import get_runtime
+
+    r = evaluate(hc)
+    assert r.max_err_over_bound <= 1.0, f"{hc.name}: |err|/bound = {r.max_err_over_bound:.3g}"
+    assert r.nonfinite_out == 0, f"{hc.name}: {r.nonfinite_out} non-finite output pixel(s)"
+    if get_runtime().fast_fp64 or hc.name not in FLOAT_WEIGHTS_CANCELLATION:
+        assert r.max_rel <= TARGET_REL, f"{hc.name}: max relative error {r.max_rel:.3g}"
+    if hc.finite_inputs:
+        assert not r.nonfinite_in
+    else:
+        assert r.nonfinite_in, "the case should hold non-finite inputs"
+
+
+@pytest.mark.parametrize("hc", CASES, ids=[c.name for c in CASES])
 def test_hard_case_on_devices_without_fast_double(hc):
-    """What an fp64 device without fast double (a GPU) runs: double directions, float
+    """What an fp64 device without fast double (a consumer GPU) runs: double directions, float
     weights, a Neumaier sum and the exp/log1p power. The bound everywhere, no
     non-finite output, and the target except where float weights meet a cancellation."""
     r = evaluate(hc, compensated=True, int_pow=False)
