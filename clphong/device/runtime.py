@@ -267,6 +267,9 @@ def _choose(spec: str):
             f"device '{spec}': no such OpenCL device; available: " + "; ".join(list_devices())
             + "; " + _CHOICE_HINT
         )
+    for name, dev in _full_names():            # the exact full name (what children are given)
+        if spec == name:
+            return dev
     for _, _, plat, dev in devices:
         if platforms.matches(spec, plat.name, dev.name):
             return dev
@@ -274,11 +277,24 @@ def _choose(spec: str):
                       + "; " + _CHOICE_HINT)
 
 
+def _full_names() -> list[tuple[str, object]]:
+    """Each device's full name, ``PLATFORM / DEVICE``, with `` #N`` from the second
+    device of the same name on."""
+    out, seen = [], {}
+    for _, _, plat, dev in _all_devices():
+        name = f"{plat.name} / {dev.name.strip()}"
+        seen[name] = seen.get(name, 0) + 1
+        out.append((name if seen[name] == 1 else f"{name} #{seen[name]}", dev))
+    return out
+
+
 def _selector(device) -> str:
-    """The "P:D" indices of ``device`` in this process's platform list."""
-    for pi, di, _, dev in _all_devices():
+    """``device``'s full name (:func:`_full_names`): what a child process is told. Not the
+    "P:D" indices, which differ in a child if this process listed the platforms before
+    Intel's runtime was registered."""
+    for name, dev in _full_names():
         if dev == device:
-            return f"{pi}:{di}"
+            return name
     return "0:0"
 
 
@@ -341,7 +357,7 @@ class Runtime:
 
     @property
     def selector(self) -> str:
-        """This device as "P:D" indices (what a child process is given)."""
+        """This device's full name, ``PLATFORM / DEVICE`` (what a child process is given)."""
         return _selector(self.device)
 
     @property

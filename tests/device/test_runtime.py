@@ -204,3 +204,22 @@ def test_a_default_whose_compiler_dies_gives_way_to_the_next(fake_platforms, mon
     assert second.device is fake_platforms[1].get_devices()[1]          # PoCL's CPU device
     assert runtime.get_runtime() is second
     assert runtime.next_default(runtime.get_runtime("nvidia")) is None
+
+
+def test_children_are_told_the_device_by_its_full_name(fake_platforms, monkeypatch):
+    """A child process is given PLATFORM / DEVICE (with #N for a second device of the same
+    name), not "P:D": the indices differ in the child when this process listed the
+    platforms before Intel's pip runtime was registered."""
+    import pyopencl as cl
+
+    from clphong.device import runtime
+
+    twin = _FakePlatform("Portable Computing Language",
+                         [("pthread-AMD EPYC 9654", cl.device_type.CPU),
+                          ("pthread-AMD EPYC 9654", cl.device_type.CPU)])
+    monkeypatch.setattr(cl, "get_platforms", lambda: [twin])
+    first, second = twin.get_devices()
+    assert runtime._selector(first) == "Portable Computing Language / pthread-AMD EPYC 9654"
+    assert runtime._selector(second) == "Portable Computing Language / pthread-AMD EPYC 9654 #2"
+    assert runtime._choose(runtime._selector(second)) is second
+    assert runtime._choose(runtime._selector(first)) is first
