@@ -1,7 +1,7 @@
 """The package's layers: every module imports only its own layer and the layers below.
 
 Parsed from the source with :mod:`ast` (nothing is imported), so the check sees
-function-local imports too. The layers, lowest first (README "How it is built"):
+function-local imports too. The layers, lowest first (docs/architecture.md):
 
     core < model < io < color < reference < device < deliver < pipeline < tools < console
 

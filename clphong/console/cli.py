@@ -121,7 +121,7 @@ def _build_parser() -> argparse.ArgumentParser:
                     "material of SCENE.toml and write a scene-linear EXR (R, G, B, A = coverage, "
                     "RGB premultiplied, and the light-group and --aov layers), and display outputs.",
         epilog=RENDER_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    r.add_argument("scene", metavar="SCENE.toml", help="scene file (see README)")
+    r.add_argument("scene", metavar="SCENE.toml", help="scene file (see docs/lighting.md)")
     r.add_argument("gbuffer", metavar="GBUFFER.exr", nargs="?",
                    help="multichannel G-buffer EXR (omit when giving --position/--normal/--albedo)")
     _add_gbuffer_options(r)
@@ -277,7 +277,7 @@ def _env_error(text: str) -> float:
 ENV_ERROR_HELP = ("environment lights: each map becomes the fewest directional lights whose "
                   "estimated relative error against the exact sum over its texels is within "
                   f"REL on pixels >= 1e-3 of the maximum (default {DEFAULT_ENV_ERROR:g}); "
-                  "larger is faster (README, 'Environment light')")
+                  "larger is faster (docs/lighting.md, 'Environment light')")
 
 
 def _add_speed_options(p):
@@ -292,7 +292,7 @@ def _add_speed_options(p):
     p.add_argument("--no-light-tree", dest="light_tree", action="store_false",
                    help="with --max-error: no light-tree clusters, culling only (by default, "
                         "where culling keeps most lights, compact groups of point lights may "
-                        "shade as one representative within a proven share of EPS; README, "
+                        "shade as one representative within a proven share of EPS; docs/speed.md, "
                         "'Light tree')")
     p.add_argument("--path", choices=tuple(PATHS), default="accurate",
                    help="'accurate' (default: directions, weights and sums in double where the "

@@ -695,7 +695,7 @@ def spot_scale_offset(inner: float, outer: float) -> tuple[float, float]:
 
 
 #: The ratio of glTF's fade width to Cycles' in cos θ that minimises the largest
-#: difference between t² and Cycles' smoothstep: 0.107 (README "Spot lights").
+#: difference between t² and Cycles' smoothstep: 0.107 (docs/lighting.md, "Spot lights").
 BLENDER_SPOT_FIT = 1.255
 
 

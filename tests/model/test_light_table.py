@@ -551,10 +551,10 @@ def test_property_examples_reach_both_outcomes():
 
 
 def test_readme_example_is_a_valid_lights_file(tmp_path):
-    """README's lights-file example reads as the lights it shows."""
+    """docs/lighting.md's lights-file example reads as the lights it shows."""
     from pathlib import Path
 
-    text = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    text = (Path(__file__).resolve().parents[2] / "docs" / "lighting.md").read_text(encoding="utf-8")
     section = text[text.index("### Many lights: a lights file"):]
     body = re.search(r"\n```\n(type,.*?)```", section, re.S).group(1)
     lts = quiet(load_scene, scene_with(tmp_path, body)).lights
