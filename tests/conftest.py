@@ -150,7 +150,7 @@ def patch_everywhere(monkeypatch, module, name, replacement):
 #
 # In the style of PyOpenCL's ``pytest_generate_tests_for_pyopencl``: a test that takes a
 # ``device`` argument runs once per OpenCL device present, and gets a selector string
-# ("P:D", platform and device index) that clphong.device.runtime.get_runtime and
+# ("P:D", platform and device index) that clphong.device.selection.get_runtime and
 # Renderer(..., device=...) accept. Ids name the platform and device kind ("pocl-cpu").
 # With no device at all it is parametrised with one skipped case.
 
@@ -200,7 +200,7 @@ def opencl_devices():
 def _unusable(selector):
     """Why clphong refuses this device here (one line), or None."""
     from clphong.core.errors import DeviceError
-    from clphong.device.runtime import get_runtime
+    from clphong.device.selection import get_runtime
 
     try:
         get_runtime(selector)

@@ -31,7 +31,7 @@ import pytest
 from conftest import CATALOGUE, random_gbuffer
 
 from clphong.console.cli import main
-from clphong.device import runtime
+from clphong.device import runtime, selection
 from clphong.io.atomic import write_exr
 from clphong.io.gbuffer import write_gbuffer
 
@@ -757,7 +757,7 @@ def test_sigterm_stops_a_long_frame_within_a_second(tmp_path):
 @pytest.fixture
 def fresh_runtimes(monkeypatch):
     """No runtime cached in this process, so device selection runs again."""
-    monkeypatch.setattr(runtime, "_RUNTIMES", {})
+    monkeypatch.setattr(selection, "_RUNTIMES", {})
     monkeypatch.delenv("PYOPENCL_CTX", raising=False)
 
 

@@ -39,7 +39,7 @@ from ..device import runtime as _runtime
 from ..device.culling import BRUTE_ABOVE
 from ..device.renderer import Renderer
 from ..device.hostrule import host
-from ..device.runtime import describe_devices, get_runtime, list_devices
+from ..device.selection import describe_devices
 from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
 from ..io.envmap import resolve_environment
 from ..io.gbuffer import parse_channel_mapping, read_gbuffer

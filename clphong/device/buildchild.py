@@ -10,7 +10,7 @@ import json
 import sys
 
 from ..core.errors import DeviceError
-from .runtime import get_runtime
+from .selection import get_runtime
 
 
 def main(argv=None) -> int:

@@ -27,7 +27,8 @@ from ..model import tonemap
 from ..model.options import ENCODINGS, check_exposure
 from ..reference import tonemap as tonemap_reference
 from .frame import LOCAL_SIZE
-from .runtime import float4, get_runtime
+from .runtime import float4
+from .selection import get_runtime
 
 __all__ = ["DisplayTransform", "apply_display_transform", "display_program", "enqueue_display"]
 

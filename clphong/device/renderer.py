@@ -60,7 +60,8 @@ from .frame import (
 )
 from .plan import ShadingPlan, make_plan
 from .isolate import VariantCrash
-from .runtime import float4, get_runtime, next_default, verify
+from .runtime import float4
+from .selection import check_width, get_runtime, next_default, verify
 
 
 @dataclass(frozen=True)
@@ -202,7 +203,7 @@ class Renderer:
         elif lanes is None:
             lanes = self.runtime.lanes
         else:
-            self.runtime.check_width(check_lanes(lanes))
+            check_width(self.runtime, check_lanes(lanes))
         self.lanes = check_lanes(lanes)
         self.compensated = compensated
         self.max_error = check_budget(max_error, reference_white)   # absolute, or None

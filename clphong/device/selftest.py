@@ -32,7 +32,7 @@ from ..model.scene import parse_scene
 from ..reference import shading as reference
 from .peak import measure_fp64_ratio
 from .renderer import Renderer, prepare_frame
-from .runtime import get_runtime
+from .selection import get_runtime
 
 #: The paths checked at every width: the default and the fast one.
 PATHS = ("accurate", "fast")

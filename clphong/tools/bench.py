@@ -96,7 +96,7 @@ from ..device.culling import TILE, super_tiles
 from ..device.peak import measure_peak_gflops
 from ..device.plan import int_pow_multiplies
 from ..device.renderer import Renderer, prepare_frame
-from ..device.runtime import get_runtime
+from ..device.selection import get_runtime
 from ..io.atomic import atomic_path
 from ..io.envmap import directional_lights
 from ..io.gbuffer import GBuffer

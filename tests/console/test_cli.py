@@ -141,7 +141,7 @@ def test_plan_command_explains_the_variant(capsys):
     assert "-DMODEL_BLINN=1" in out and "-DCAMERA_ORTHO=1" in out and "-DBLINN_CONST_H=1" in out
     assert "-DMAP_KS=1" in out and "-DMAP_H=1" in out and "-DHAS_POINT=0" in out
     # the plan printed is the one 'render' compiles on this device
-    from clphong.device.runtime import get_runtime
+    from clphong.device.selection import get_runtime
     assert f"-DLANES={get_runtime().lanes} " in out
 
 

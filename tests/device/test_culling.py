@@ -272,7 +272,7 @@ def test_plan_says_why_culling_is_on():
 
 
 def test_second_render_builds_nothing(device):
-    from clphong.device.runtime import get_runtime
+    from clphong.device.selection import get_runtime
 
     rng = np.random.default_rng(2)
     gb = heightfield(rng, 16, 16)
@@ -350,7 +350,7 @@ def test_second_culled_render_process_rebuilds_nothing(tmp_path):
 
     from conftest import GBUFFERS
 
-    from clphong.device.runtime import get_runtime
+    from clphong.device.selection import get_runtime
 
     cache = tmp_path / "pocl-cache"
     env = dict(os.environ, POCL_CACHE_DIR=str(cache), CLPHONG_CACHE_DIR=str(tmp_path / "clphong"))

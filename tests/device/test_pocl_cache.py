@@ -26,7 +26,7 @@ LIMIT_KIB = 1000          # ulimit -f 1000 (the spheres output is 0.66 MB)
 
 @pytest.fixture(scope="module", autouse=True)
 def _pocl_only():
-    from clphong.device.runtime import get_runtime
+    from clphong.device.selection import get_runtime
 
     if not get_runtime().is_pocl:
         pytest.skip("PoCL's kernel cache: the default device is not PoCL's")
@@ -159,9 +159,9 @@ def test_notice_on_tty_writes_only_to_a_terminal():
 def test_the_notice_comes_from_a_compile_not_from_a_cache(monkeypatch, tmp_path):
     """In process: a compile calls the hook; the same program again (in-process
     cache) and the same program from clphong's binary do not."""
-    from clphong.device import runtime
+    from clphong.device import runtime, selection
 
-    rt = runtime.get_runtime()
+    rt = selection.get_runtime()
     said = []
     monkeypatch.setattr(runtime, "compile_notice", said.append)
     monkeypatch.setattr(runtime, "COMPILE_NOTICE_AFTER_S", 0.0)
@@ -190,9 +190,9 @@ def test_a_full_or_unwritable_cache_folder_is_named_with_the_remedy(monkeypatch,
     import pyopencl as cl
 
     from clphong.core.errors import DeviceError
-    from clphong.device import runtime
+    from clphong.device import runtime, selection
 
-    rt = runtime.get_runtime()
+    rt = selection.get_runtime()
     if not rt.is_pocl:
         pytest.skip("PoCL's cache only")
     monkeypatch.setenv("POCL_CACHE_DIR", str(tmp_path / "cache"))

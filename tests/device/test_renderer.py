@@ -65,7 +65,7 @@ def test_every_lane_width_matches_reference(lanes, fp64, device):
 
 @pytest.mark.parametrize("compensated", [False, True, None], ids=["naive", "neumaier", "default"])
 def test_many_lights_with_and_without_compensation(compensated, device):
-    from clphong.device.runtime import get_runtime
+    from clphong.device.selection import get_runtime
 
     rng = np.random.default_rng(5)
     scene = make_scene(random_lights(rng, 300, 2), h=16.0)
@@ -221,7 +221,7 @@ def test_integer_power_bound_is_tighter_than_the_exp_form(device):
     4u·|k·log1p(−δ)| rounding, so it is never looser (docs/error-model.md). With
     double weights the exp form runs in double, and both are a few 2⁻⁵³·k."""
     from clphong.device.renderer import prepare_frame
-    from clphong.device.runtime import get_runtime
+    from clphong.device.selection import get_runtime
 
     if not get_runtime(device).fast_fp64:
         pytest.skip("no fast double on this device: the integer power is not used, both forms "
@@ -429,7 +429,8 @@ def _rsqrt_dir_on_device(x, ctype, options, device=None, fn="rsqrt_dir", lanes=1
     portable one)."""
     import pyopencl as cl
 
-    from clphong.device.runtime import get_runtime, kernel_dir
+    from clphong.device.runtime import kernel_dir
+    from clphong.device.selection import get_runtime
 
     rt = get_runtime(device)
     n = len(x)
@@ -460,7 +461,7 @@ def _guess_option(guess):
     """-DRSQRT_GUESS_KIND: 0 the portable first guess, 1 AVX's 12-bit vrsqrtps (the
     AVX2 machines' path, tested on any AVX CPU); None: the target's own choice."""
     if guess == 1:
-        from clphong.device.runtime import get_runtime
+        from clphong.device.selection import get_runtime
 
         if "x86" not in get_runtime().device.version or "avx" not in _cpu_flags():
             pytest.skip("not an x86 CPU device with AVX")
@@ -480,7 +481,7 @@ def test_inline_double_rsqrt_is_within_three_ulp(device, lanes):
     ≤ 3·2⁻⁵³ relative over 1e-90 .. 1e90 (its comment states 2.44·2⁻⁵³ measured in
     numpy; the error model needs only 2⁻⁴⁷). Three Newton steps instead of four
     would give 3e-11 and fail."""
-    from clphong.device.runtime import get_runtime
+    from clphong.device.selection import get_runtime
 
     if not get_runtime(device=device).has_fp64:
         pytest.skip("device without cl_khr_fp64")

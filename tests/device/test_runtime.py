@@ -13,7 +13,7 @@ ZEN3 = hostrule.Host("zen3", "AuthenticAMD", 25, 1, frozenset({"avx2", "fma"}))
 
 
 def test_programs_are_built_once_per_variant(monkeypatch):
-    from clphong.device.runtime import get_runtime
+    from clphong.device.selection import get_runtime
 
     rt = get_runtime()
     monkeypatch.setattr(rt, "_programs", {})     # start from an empty cache; restored afterwards
@@ -65,7 +65,7 @@ def fake_platforms(monkeypatch):
     queues are stand-ins, and no runtime is cached."""
     import pyopencl as cl
 
-    from clphong.device import runtime
+    from clphong.device import selection
 
     cpu, gpu = cl.device_type.CPU, cl.device_type.GPU
     platforms = [_FakePlatform("NVIDIA CUDA", [("NVIDIA H100 80GB HBM3", gpu)]),
@@ -74,10 +74,10 @@ def fake_platforms(monkeypatch):
     monkeypatch.setattr(cl, "get_platforms", lambda: platforms)
     monkeypatch.setattr(cl, "Context", _FakeContext)
     monkeypatch.setattr(cl, "CommandQueue", lambda ctx, properties=None: ("queue", ctx))
-    monkeypatch.setattr(runtime, "_RUNTIMES", {})
+    monkeypatch.setattr(selection, "_RUNTIMES", {})
     # every width passes its self-test on a Zen 3 host (the rule's own table is
     # tested in test_hostrule.py, the self-test in test_selftest.py)
-    monkeypatch.setattr(runtime, "verify", lambda rt, width: {"ok": True, "worst": 0.0, "detail": ""})
+    monkeypatch.setattr(selection, "verify", lambda rt, width: {"ok": True, "worst": 0.0, "detail": ""})
     monkeypatch.setattr(hostrule, "host", lambda: ZEN3)
     monkeypatch.delenv("PYOPENCL_CTX", raising=False)
     monkeypatch.delenv("PYOPENCL_TEST", raising=False)
@@ -87,18 +87,18 @@ def fake_platforms(monkeypatch):
 def test_default_device_is_pocl_cpu_even_when_listed_last(fake_platforms, monkeypatch):
     """The module docstring's order: --device, then PYOPENCL_CTX, then the preferred CPU
     device, here PoCL's (not the first platform's first device, nor PoCL's first device)."""
-    from clphong.device import runtime
+    from clphong.device import selection
 
     nvidia, = fake_platforms[0].get_devices()
     pocl_gpu, pocl_cpu = fake_platforms[1].get_devices()
 
     def chosen(device=None):
-        rt = runtime.get_runtime(device)
+        rt = selection.get_runtime(device)
         assert rt.context.devices == [rt.device]
         return rt.device
 
     assert chosen() is pocl_cpu
-    assert runtime.get_runtime().name == "Portable Computing Language / pthread-AMD EPYC 9654"
+    assert selection.get_runtime().name == "Portable Computing Language / pthread-AMD EPYC 9654"
     assert chosen("0:0") is nvidia and chosen("1") is pocl_gpu and chosen("1:1") is pocl_cpu
     assert chosen("nvidia") is nvidia and chosen("pthread") is pocl_cpu
     monkeypatch.setenv("PYOPENCL_CTX", "0")
@@ -113,10 +113,10 @@ def test_default_device_is_pocl_cpu_even_when_listed_last(fake_platforms, monkey
 def test_default_device_without_a_cpu_is_the_first(fake_platforms, monkeypatch):
     import pyopencl as cl
 
-    from clphong.device import runtime
+    from clphong.device import selection
 
     monkeypatch.setattr(cl, "get_platforms", lambda: fake_platforms[:1])
-    assert runtime.get_runtime().device is fake_platforms[0].get_devices()[0]
+    assert selection.get_runtime().device is fake_platforms[0].get_devices()[0]
 
 
 def test_default_prefers_intels_cpu_runtime_and_pocl_matches_its_alias(fake_platforms, monkeypatch):
@@ -124,29 +124,29 @@ def test_default_prefers_intels_cpu_runtime_and_pocl_matches_its_alias(fake_plat
     and "intel" name their platforms though neither name holds the word."""
     import pyopencl as cl
 
-    from clphong.device import runtime
+    from clphong.device import selection
 
     intel = _FakePlatform("Intel(R) OpenCL", [("AMD EPYC 9654", cl.device_type.CPU)])
     monkeypatch.setattr(cl, "get_platforms", lambda: fake_platforms + [intel])
-    rt = runtime.get_runtime()
+    rt = selection.get_runtime()
     assert rt.device is intel.get_devices()[0] and rt.lanes == 16
-    assert runtime.get_runtime("pocl").device is fake_platforms[1].get_devices()[0]
-    assert runtime.get_runtime("intel").device is intel.get_devices()[0]
+    assert selection.get_runtime("pocl").device is fake_platforms[1].get_devices()[0]
+    assert selection.get_runtime("intel").device is intel.get_devices()[0]
 
 
 def test_a_width_that_fails_its_self_test_falls_back_with_a_warning(fake_platforms, monkeypatch):
     from clphong.core.errors import DeviceError, DeviceWarning
-    from clphong.device import runtime
+    from clphong.device import selection
 
-    monkeypatch.setattr(runtime, "verify", lambda rt, width: {
+    monkeypatch.setattr(selection, "verify", lambda rt, width: {
         "ok": width == 4, "worst": 0.5 if width == 4 else 7.0, "detail": "blinn-many: pixel (3, 1)"})
     with pytest.warns(DeviceWarning, match=r"at 16 lane\(s\) failed its self-test .*trying 8"):
-        rt = runtime.get_runtime("1:1")
+        rt = selection.get_runtime("1:1")
     assert rt.lanes == 4
-    monkeypatch.setattr(runtime, "_RUNTIMES", {})
-    monkeypatch.setattr(runtime, "verify", lambda rt, width: {"ok": False, "worst": 9.0, "detail": "x"})
+    monkeypatch.setattr(selection, "_RUNTIMES", {})
+    monkeypatch.setattr(selection, "verify", lambda rt, width: {"ok": False, "worst": 9.0, "detail": "x"})
     with pytest.warns(DeviceWarning), pytest.raises(DeviceError, match="passed its self-test at no lane width"):
-        runtime.get_runtime("1:1")
+        selection.get_runtime("1:1")
 
 
 def test_no_usable_cpu_device_is_one_line_naming_the_rule(fake_platforms, monkeypatch):
@@ -155,7 +155,7 @@ def test_no_usable_cpu_device_is_one_line_naming_the_rule(fake_platforms, monkey
     import pyopencl as cl
 
     from clphong.core.errors import DeviceError
-    from clphong.device import runtime
+    from clphong.device import selection
 
     zen5 = hostrule.Host("x86_64_v4", "AuthenticAMD", 26, 2, frozenset({"avx2", "avx512f"}))
     monkeypatch.setattr(hostrule, "host", lambda: zen5)
@@ -166,26 +166,26 @@ def test_no_usable_cpu_device_is_one_line_naming_the_rule(fake_platforms, monkey
     cpu_only.get_devices()[0].version = pocl.get_devices()[0].version
     monkeypatch.setattr(cl, "get_platforms", lambda: [cpu_only])
     with pytest.raises(DeviceError) as err:
-        runtime.get_runtime()
+        selection.get_runtime()
     msg = str(err.value)
     assert "\n" not in msg and "generic" in msg and 'pip install "clphong[intel]"' in msg
     with pytest.raises(DeviceError, match="cannot be used on this CPU"):
-        runtime.get_runtime("pocl")
+        selection.get_runtime("pocl")
 
 
 def test_an_unsafe_lanes_value_is_refused_in_one_line(fake_platforms, monkeypatch):
     """Zen 4 with PoCL 3.0 (target znver3, AVX-512 host): 16 and 8 lanes are refused."""
     from clphong.core.errors import DeviceError
-    from clphong.device import runtime
+    from clphong.device import selection
 
     zen4 = hostrule.Host("zen4", "AuthenticAMD", 25, 17, frozenset({"avx2", "avx512f"}))
     monkeypatch.setattr(hostrule, "host", lambda: zen4)
-    rt = runtime.get_runtime("1:1")
+    rt = selection.get_runtime("1:1")
     assert rt.lanes == 4
     for lanes in (16, 8):
         with pytest.raises(DeviceError, match=rf"--lanes {lanes} is not safe on .*use --lanes 4 or 1"):
-            rt.check_width(lanes)
-    rt.check_width(1)
+            selection.check_width(rt, lanes)
+    selection.check_width(rt, 1)
 
 
 def test_a_default_whose_compiler_dies_gives_way_to_the_next(fake_platforms, monkeypatch):
@@ -193,17 +193,17 @@ def test_a_default_whose_compiler_dies_gives_way_to_the_next(fake_platforms, mon
     for the next candidate; a device the user chose is not the default to replace."""
     import pyopencl as cl
 
-    from clphong.device import runtime
+    from clphong.device import selection
 
     intel = _FakePlatform("Intel(R) OpenCL", [("AMD EPYC 9654", cl.device_type.CPU)])
     monkeypatch.setattr(cl, "get_platforms", lambda: fake_platforms + [intel])
-    monkeypatch.setattr(runtime, "_CRASHED", [])
-    first = runtime.get_runtime()
+    monkeypatch.setattr(selection, "_CRASHED", [])
+    first = selection.get_runtime()
     assert first.device is intel.get_devices()[0]
-    second = runtime.next_default(first)
+    second = selection.next_default(first)
     assert second.device is fake_platforms[1].get_devices()[1]          # PoCL's CPU device
-    assert runtime.get_runtime() is second
-    assert runtime.next_default(runtime.get_runtime("nvidia")) is None
+    assert selection.get_runtime() is second
+    assert selection.next_default(selection.get_runtime("nvidia")) is None
 
 
 def test_children_are_told_the_device_by_its_full_name(fake_platforms, monkeypatch):
@@ -212,7 +212,7 @@ def test_children_are_told_the_device_by_its_full_name(fake_platforms, monkeypat
     platforms before Intel's pip runtime was registered."""
     import pyopencl as cl
 
-    from clphong.device import runtime
+    from clphong.device import runtime, selection
 
     twin = _FakePlatform("Portable Computing Language",
                          [("pthread-AMD EPYC 9654", cl.device_type.CPU),
@@ -221,5 +221,5 @@ def test_children_are_told_the_device_by_its_full_name(fake_platforms, monkeypat
     first, second = twin.get_devices()
     assert runtime._selector(first) == "Portable Computing Language / pthread-AMD EPYC 9654"
     assert runtime._selector(second) == "Portable Computing Language / pthread-AMD EPYC 9654 #2"
-    assert runtime._choose(runtime._selector(second)) is second
-    assert runtime._choose(runtime._selector(first)) is first
+    assert selection._choose(runtime._selector(second)) is second
+    assert selection._choose(runtime._selector(first)) is first

@@ -15,12 +15,12 @@ import pytest
 from conftest import make_scene, random_gbuffer, random_lights
 
 from clphong.core.errors import DeviceError, DeviceWarning
-from clphong.device import isolate, runtime, selftest
+from clphong.device import isolate, selection, selftest
 from clphong.device.renderer import Renderer
 
 
 def test_the_self_test_passes_at_the_chosen_width(device):
-    rt = runtime.get_runtime(device)
+    rt = selection.get_runtime(device)
     verdict = selftest.check(device, rt.lanes)
     assert verdict["ok"], verdict["detail"]
     assert 0.0 <= verdict["worst"] <= 1.0
@@ -30,7 +30,7 @@ def test_the_self_test_passes_at_the_chosen_width(device):
 def test_one_wrong_lane_is_caught(device, fault, monkeypatch):
     """The last lane of each work-item scaled by 1 + fault (kernels/shade.cl SELFTEST_FAULT):
     a relative error of 3e-5 is several times the accurate path's bound, and caught."""
-    rt = runtime.get_runtime(device)
+    rt = selection.get_runtime(device)
     monkeypatch.setattr(rt, "extra_defines", {})      # check() sets it; restored afterwards
     verdict = selftest.check(device, rt.lanes, fault=fault)
     assert not verdict["ok"]
@@ -42,11 +42,11 @@ def test_a_wrong_variant_is_never_used(device, tmp_path, monkeypatch):
     is refused in one line after a warning per width, and nothing renders."""
     monkeypatch.setenv("CLPHONG_CACHE_DIR", str(tmp_path))
     monkeypatch.setenv(selftest.FAULT_ENV, "1e-3")
-    monkeypatch.setattr(runtime, "_RUNTIMES", {})
-    monkeypatch.setattr(runtime, "_VERDICTS", {})
+    monkeypatch.setattr(selection, "_RUNTIMES", {})
+    monkeypatch.setattr(selection, "_VERDICTS", {})
     with pytest.warns(DeviceWarning, match="failed its self-test"):
         with pytest.raises(DeviceError, match="passed its self-test at no lane width") as err:
-            runtime.get_runtime(device)
+            selection.get_runtime(device)
     assert "\n" not in str(err.value)
     # the verdicts were kept: a second process would not run the child again
     assert list(tmp_path.glob("selftest/*.json"))
@@ -86,7 +86,7 @@ def test_an_aborting_compiler_moves_the_renderer_to_a_narrower_width(device, abo
                                                                       monkeypatch):
     """At construction a crash at the chosen width warns and retries one width down (the
     fake child aborts once; the narrower variant compiles in a real child)."""
-    rt = runtime.get_runtime(device)
+    rt = selection.get_runtime(device)
     if len(rt.decision.widths) < 2:
         pytest.skip(f"{rt.name} has one width only")
     monkeypatch.setattr(rt, "_programs", {})
@@ -112,7 +112,7 @@ def test_an_aborting_compiler_moves_the_renderer_to_a_narrower_width(device, abo
 
 
 def test_a_pinned_width_is_not_changed_behind_the_users_back(device, aborting_compiler, monkeypatch):
-    rt = runtime.get_runtime(device)
+    rt = selection.get_runtime(device)
     monkeypatch.setattr(rt, "_programs", {})
     monkeypatch.setattr(rt, "_binary_path", lambda *a: None)
     rng = np.random.default_rng(4)
@@ -138,7 +138,7 @@ def test_the_double_rate_is_measured_and_chooses_the_plan(device, monkeypatch):
 
     from clphong.device.peak import FAST_FP64_RATIO, measure_fp64_ratio
 
-    rt = runtime.get_runtime(device)
+    rt = selection.get_runtime(device)
     ratio = measure_fp64_ratio(rt)
     if rt.has_fp64:
         assert 0.0 < ratio < 1.5

@@ -21,7 +21,7 @@ needs_dask = pytest.mark.skipif(distributed is None, reason="needs dask[distribu
 
 def _worker_state():
     """On a worker: (relighters cached, programs built, rigs) of this process."""
-    from clphong.device.runtime import _RUNTIMES
+    from clphong.device.selection import _RUNTIMES
     from clphong.pipeline.relighter import _CACHE
 
     relighters = [v for k, v in _CACHE.items() if k != "__lock__"]

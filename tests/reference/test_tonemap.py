@@ -265,7 +265,7 @@ def test_display_changes_never_rebuild_the_shading_kernel(kernel, device):
     from conftest import make_scene, random_gbuffer, random_lights
 
     from clphong.device.renderer import Renderer
-    from clphong.device.runtime import get_runtime
+    from clphong.device.selection import get_runtime
 
     rng = np.random.default_rng(5)
     scene = make_scene(random_lights(rng, 3, 1))

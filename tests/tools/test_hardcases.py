@@ -39,7 +39,7 @@ def test_hard_case(hc):
     """The default path on the default device: the bound, finite, and the 5e-6 target,
     which the accurate path promises where double is fast (a measured quarter of the
     float rate or more; on a slower one it is the float-weights plan below)."""
-    from clphong.device.runtime import get_runtime
+    from clphong.device.selection import get_runtime
 
     r = evaluate(hc)
     assert r.max_err_over_bound <= 1.0, f"{hc.name}: |err|/bound = {r.max_err_over_bound:.3g}"
