@@ -813,11 +813,16 @@ def test_a_build_error_in_the_compiling_child_is_its_one_line(work, capsys, monk
         "error: expected identifier'}), flush=True)\n")
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(tmp_path), *sys.path]))
     monkeypatch.setattr(isolate.BuildChild, "module", "refusing_child")
-    monkeypatch.setattr(isolate, "_CHILDREN", {})
+    children = {}
+    monkeypatch.setattr(isolate, "_CHILDREN", children)
     monkeypatch.setattr(runtime.Runtime, "_binary_path", lambda *a: None)
     src, out = work
-    fails(render_argv(src, out), capsys, src.parent, "kernels/shade.cl failed to build on X",
-          "expected identifier")
+    try:
+        fails(render_argv(src, out), capsys, src.parent, "kernels/shade.cl failed to build on X",
+              "expected identifier")
+    finally:
+        for child in children.values():
+            child.close()
 
 
 def test_pyopencl_ctx_names_no_device(work, capsys, monkeypatch, fresh_runtimes):

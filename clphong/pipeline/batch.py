@@ -55,13 +55,10 @@ the others complete, and :attr:`BatchResult.failed` lists them.
 from __future__ import annotations
 
 import collections
-import glob
 import os
 import queue
-import re
 import signal
 import statistics
-import string
 import sys
 import threading
 import time
@@ -73,9 +70,23 @@ from ..core.errors import ClphongError
 from ..core.memory import ENV_VAR, memory_budget
 from ..core.signals import signal_name, terminating_signals
 from ..deliver.outputs import OutputPaths, check_extensions
-from ..io.atomic import remove_live_temporaries, writer_gone, written_here
+from ..io.atomic import remove_live_temporaries
 from .distributed import CONNECT_TIMEOUT_S, run_on_dask
-from .frames import FrameRange, parse_frame_range
+from .frames import (
+    FrameRange,
+    _range_size,
+    _short_frames,
+    _check_template,
+    expand_sequence,
+    format_output,
+    parse_frame_range,
+)
+from .paths import (
+    check_output_folder,
+    check_rig_name,
+    remove_stale_temporaries,
+    stale_temporaries,
+)
 from .jobs import (
     BatchError,
     Interrupted,
@@ -92,177 +103,6 @@ from .relighter import cached_relighter
 __all__ = ["BatchError", "Rig", "Job", "Outcome", "BatchPlan", "BatchResult", "Interrupted",
            "parse_frame_range", "expand_sequence", "format_output", "plan_batch", "run_batch",
            "relight_job", "stale_temporaries", "remove_stale_temporaries", "failed_outcomes"]
-
-
-# --------------------------------------------------------------------------- frames and names
-
-
-_HASHES = re.compile(r"#+")
-_PRINTF = re.compile(r"%(0?)(\d*)d")
-
-
-def _frame_token(pattern: str) -> tuple[str, str, int] | None:
-    """(prefix, suffix, padding) of the one frame token of a file pattern, or None."""
-    base = os.path.basename(pattern)
-    hashes = list(_HASHES.finditer(base))
-    printf = list(_PRINTF.finditer(base))
-    if len(hashes) + len(printf) > 1:
-        raise BatchError(f"{pattern}: more than one frame token (#### or %04d); use exactly one")
-    if not hashes and not printf:
-        return None
-    m = (hashes or printf)[0]
-    pad = len(m.group(0)) if hashes else (int(m.group(2)) if m.group(2) else 1)
-    folder = pattern[: len(pattern) - len(base)]
-    return folder + base[: m.start()], base[m.end():], pad
-
-
-def _pad(frame: int, pad: int) -> str:
-    return f"{frame:0{pad}d}" if frame >= 0 else f"-{-frame:0{pad}d}"
-
-
-_TRAILING_NUMBER = re.compile(r"^(.*?)(\d+)$")
-
-
-def _split_stem(stem: str) -> tuple[str, int | None]:
-    """('shot', 12) for 'shot.0012' / 'shot_0012'; (stem, None) without a number."""
-    m = _TRAILING_NUMBER.match(stem)
-    if not m:
-        return stem, None
-    return m.group(1).rstrip("._-") or m.group(1), int(m.group(2))
-
-
-def _pattern_of(folder: str, numbered) -> str:
-    """``folder/gbuf.####.exr`` from the first numbered file name of ``numbered`` (for messages)."""
-    for n, f in numbered:
-        if n is not None:
-            stem, ext = os.path.splitext(f)
-            m = _TRAILING_NUMBER.match(stem)
-            return os.path.join(folder, m.group(1) + "#" * len(m.group(2)) + ext)
-    return os.path.join(folder, "NAME.####.exr")
-
-
-
-
-def expand_sequence(pattern: str, frames: Sequence[int] | None = None) -> list[tuple[int, str]]:
-    """The (frame, path) pairs of a sequence (see the module docstring).
-
-    A folder's frames are numbered by the digits at the end of each file's
-    own stem, so ``--frames`` means the same frames for a folder as for its
-    ``P.####.exr`` pattern. A folder is refused (rather than renumbered, or
-    partly skipped) when one of its EXRs has no frame number or two have the
-    same one: a stray file there is either a misnamed frame or not part of
-    the shot, which only the user can tell.
-
-    Raises
-    ------
-    BatchError
-        No frames found; a pattern without a frame token given ``frames``; a
-        folder with an un-numbered EXR (the message names it) or with two
-        EXRs of one frame number (it names both).
-    """
-    pattern = os.fspath(pattern)
-    if os.path.isdir(pattern):
-        files = [f for f in sorted(os.listdir(pattern))
-                 if f.lower().endswith(".exr") and not f.startswith(".")
-                 and os.path.isfile(os.path.join(pattern, f))]
-        numbered = [(_split_stem(os.path.splitext(f)[0])[1], f) for f in files]
-        owner: dict[int, str] = {}
-        for n, f in numbered:
-            if n is None:
-                raise BatchError(f"{os.path.join(pattern, f)}: no frame number at the end of its name, and "
-                                 "every .exr in a sequence folder is a frame; move it out, or give a "
-                                 f"pattern such as {_pattern_of(pattern, numbered)}")
-            if n in owner:
-                raise BatchError(f"{os.path.join(pattern, owner[n])} and {os.path.join(pattern, f)} are "
-                                 f"both frame {n} (two sequences in one folder?); give a pattern such as "
-                                 f"{_pattern_of(pattern, [(n, f)])} to pick one")
-            owner[n] = f
-        pairs = _in_range(sorted((n, os.path.join(pattern, f)) for n, f in numbered), frames)
-        if not pairs:
-            what = f" in frames {_short_frames(frames)}" if frames is not None else ""
-            raise BatchError(f"{pattern}: no .exr files{what}")
-        return pairs
-    token = _frame_token(pattern)
-    if token is None:
-        n = _split_stem(os.path.splitext(os.path.basename(pattern))[0])[1]
-        if frames is not None and not (n in _wanted(frames) and _range_size(frames) == 1):
-            raise BatchError(f"{pattern}: a frame range needs a sequence pattern (P.####.exr, P.%04d.exr) "
-                             "or a folder")
-        return [(n if n is not None else 1, pattern)]
-    prefix, suffix, pad = token
-    regex = re.compile(re.escape(os.path.basename(prefix)) + r"(-?\d+)" + re.escape(suffix) + r"$")
-    folder = os.path.dirname(prefix) or "."
-    found = []
-    try:
-        names = os.listdir(folder)
-    except OSError as exc:
-        raise BatchError(f"{pattern}: cannot list folder {folder}: {exc.strerror or exc}") from None
-    for fname in names:
-        m = regex.match(fname)
-        if m and _pad(int(m.group(1)), pad) == m.group(1):
-            found.append((int(m.group(1)), os.path.join(os.path.dirname(prefix), fname)))
-    found = _in_range(sorted(found), frames)
-    if not found:
-        what = f" in frames {_short_frames(frames)}" if frames is not None else ""
-        raise BatchError(f"{pattern}: no files match the pattern{what}")
-    return found
-
-
-def _wanted(frames):
-    """Something to test ``frame in`` against: a :class:`FrameRange` as it is (never listed)."""
-    return frames if isinstance(frames, FrameRange) else set(frames)
-
-
-def _range_size(frames) -> int:
-    return frames.count() if isinstance(frames, FrameRange) else len(set(frames))
-
-
-def _in_range(pairs, frames):
-    """The (frame, path) pairs found on disk whose frame is in ``frames`` (all if None):
-    time and memory go with the files, not with the range (10⁹ frames were listed)."""
-    if frames is None:
-        return pairs
-    wanted = _wanted(frames)
-    return [p for p in pairs if p[0] in wanted]
-
-
-def _short_frames(frames) -> str:
-    if isinstance(frames, FrameRange):
-        return frames.text
-    frames = list(frames or [])
-    return ", ".join(map(str, frames[:5])) + (", ..." if len(frames) > 5 else "")
-
-
-_FIELDS = ("frame", "rig", "stem", "name")
-
-
-def _check_template(template: str) -> None:
-    try:
-        parsed = list(string.Formatter().parse(template))
-    except ValueError as exc:
-        raise BatchError(f"output template {template!r}: {exc}") from None
-    for _, fld, _, _ in parsed:
-        if fld is not None and fld not in _FIELDS:
-            raise BatchError(f"output template {template!r}: unknown field {{{fld}}}; "
-                             f"use {', '.join('{' + f + '}' for f in _FIELDS)}")
-
-
-def format_output(template: str, *, frame: int, rig: str, source: str) -> str:
-    """The output path of one frame and rig.
-
-    Examples
-    --------
-    >>> format_output("out/{rig}/{name}.####.exr", frame=7, rig="key", source="in/shot.0007.exr")
-    'out/key/shot.0007.exr'
-    """
-    stem = os.path.splitext(os.path.basename(source))[0]
-    name = _split_stem(stem)[0]
-    text = _HASHES.sub(lambda m: _pad(frame, len(m.group(0))), template)
-    text = _PRINTF.sub(lambda m: _pad(frame, int(m.group(2)) if m.group(2) else 1), text)
-    try:
-        return text.format(frame=frame, rig=rig, stem=stem, name=name)
-    except (ValueError, KeyError, IndexError) as exc:
-        raise BatchError(f"output template {template!r}: {exc}") from None
 
 
 # --------------------------------------------------------------------------- plan
@@ -395,71 +235,6 @@ def plan_batch(sequence: str, rigs: Sequence[Rig], template: str | None = None, 
                           ((r, ps) for job in plan.jobs for r, ps in job.outputs) for p in paths.files}):
         check_output_folder(folder)
     return plan
-
-
-def check_rig_name(name: str) -> str:
-    """A rig name is one path component of printable characters: it names output folders
-    and files through ``{rig}`` (``../../x`` made folders outside the output tree)."""
-    bad = (not name or name in (".", "..") or "/" in name or os.sep in name
-           or (os.altsep is not None and os.altsep in name)
-           or not all(ch.isprintable() for ch in name))
-    if bad:
-        shown = name.encode("unicode_escape").decode("ascii")
-        if len(shown) > 200:
-            shown = shown[:200] + "…"
-        raise BatchError(f"rig name '{shown}': a rig name must be one folder or file name of "
-                         "printable characters (no '/', not '.' or '..'); name the rig with "
-                         "--rig NAME=SCENE.toml")
-    return name
-
-
-def check_output_folder(folder: str) -> None:
-    """Before any frame runs: ``folder`` (as written, not normalised) can be made and then
-    reached by the system. Relight makes missing output folders, but never one just to
-    step back out of it: ``missing/..`` passed every check and then failed every frame's
-    write ("No such file or directory"), because the system needs ``missing`` to exist
-    to resolve ``..``; and no part may be a regular file."""
-    parts = [p for p in folder.split(os.sep) if p]
-    path = os.sep if folder.startswith(os.sep) else ""
-    missing = None
-    for part in parts:
-        path = os.path.join(path, part) if path else part
-        if part == ".." and missing is not None:
-            raise BatchError(f"output folder {folder}: {missing} does not exist, so '..' after it "
-                             "cannot be resolved; write the folder without it, or create "
-                             f"{missing} first")
-        if missing is None and os.path.lexists(path) and not os.path.isdir(path):
-            raise BatchError(f"output folder {folder}: {path} is a file, not a folder; "
-                             "choose another output folder")
-        if missing is None and not os.path.lexists(path):
-            missing = path
-
-
-def stale_temporaries(path: str) -> list[str]:
-    """Temporary files that :func:`clphong.io.atomic.atomic_path` left for ``path`` (a killed run)."""
-    folder = os.path.dirname(os.path.abspath(path))
-    stem, ext = os.path.splitext(os.path.basename(path))
-    rx = re.compile(r"^\." + re.escape(stem) + r"\.tmp-[0-9a-f]{8}" + re.escape(ext) + r"$")
-    pattern = os.path.join(glob.escape(folder), "." + glob.escape(stem) + ".tmp-*" + glob.escape(ext))
-    return [p for p in glob.glob(pattern, include_hidden=True) if rx.match(os.path.basename(p))]
-
-
-def remove_stale_temporaries(files, *, own: bool = False) -> list[str]:
-    """Remove :func:`stale_temporaries` of each of ``files`` whose writer is gone
-    (:func:`clphong.io.atomic.writer_gone`: a live run's file is locked, and left alone),
-    and with ``own`` those of this process's own writes in flight (a stopping batch
-    gives up on them); the ones removed."""
-    removed = []
-    for path in files:
-        for tmp in stale_temporaries(path):
-            if not (writer_gone(tmp) or (own and written_here(tmp))):
-                continue
-            try:
-                os.remove(tmp)
-                removed.append(tmp)
-            except OSError:
-                pass
-    return removed
 
 
 # --------------------------------------------------------------------------- running

@@ -1,4 +1,6 @@
-"""Frame ranges (``--frames 1-240x2,300``) held as their items, never as a list of numbers.
+"""Frame ranges, sequences on disk, and the names of a batch's outputs.
+
+Frame ranges (``--frames 1-240x2,300``) are held as their items, never as a list of numbers.
 
 ``relight --frames 1-1000000000`` on a four-frame shot built a list of 10⁹ frames
 and was killed by the out-of-memory killer. A :class:`FrameRange` keeps the items
@@ -12,8 +14,10 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import re
-from collections.abc import Iterable, Iterator
+import string
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
 from .jobs import BatchError
@@ -128,3 +132,174 @@ def parse_frame_range(text: str) -> list[int]:
     [1, 5, 9, 20]
     """
     return list(FrameRange.parse(text))
+
+
+# --------------------------------------------------------------------------- sequences and names
+
+
+_HASHES = re.compile(r"#+")
+_PRINTF = re.compile(r"%(0?)(\d*)d")
+
+
+def _frame_token(pattern: str) -> tuple[str, str, int] | None:
+    """(prefix, suffix, padding) of the one frame token of a file pattern, or None."""
+    base = os.path.basename(pattern)
+    hashes = list(_HASHES.finditer(base))
+    printf = list(_PRINTF.finditer(base))
+    if len(hashes) + len(printf) > 1:
+        raise BatchError(f"{pattern}: more than one frame token (#### or %04d); use exactly one")
+    if not hashes and not printf:
+        return None
+    m = (hashes or printf)[0]
+    pad = len(m.group(0)) if hashes else (int(m.group(2)) if m.group(2) else 1)
+    folder = pattern[: len(pattern) - len(base)]
+    return folder + base[: m.start()], base[m.end():], pad
+
+
+def _pad(frame: int, pad: int) -> str:
+    return f"{frame:0{pad}d}" if frame >= 0 else f"-{-frame:0{pad}d}"
+
+
+_TRAILING_NUMBER = re.compile(r"^(.*?)(\d+)$")
+
+
+def _split_stem(stem: str) -> tuple[str, int | None]:
+    """('shot', 12) for 'shot.0012' / 'shot_0012'; (stem, None) without a number."""
+    m = _TRAILING_NUMBER.match(stem)
+    if not m:
+        return stem, None
+    return m.group(1).rstrip("._-") or m.group(1), int(m.group(2))
+
+
+def _pattern_of(folder: str, numbered) -> str:
+    """``folder/gbuf.####.exr`` from the first numbered file name of ``numbered`` (for messages)."""
+    for n, f in numbered:
+        if n is not None:
+            stem, ext = os.path.splitext(f)
+            m = _TRAILING_NUMBER.match(stem)
+            return os.path.join(folder, m.group(1) + "#" * len(m.group(2)) + ext)
+    return os.path.join(folder, "NAME.####.exr")
+
+
+
+
+def expand_sequence(pattern: str, frames: Sequence[int] | None = None) -> list[tuple[int, str]]:
+    """The (frame, path) pairs of a sequence (see the module docstring).
+
+    A folder's frames are numbered by the digits at the end of each file's
+    own stem, so ``--frames`` means the same frames for a folder as for its
+    ``P.####.exr`` pattern. A folder is refused (rather than renumbered, or
+    partly skipped) when one of its EXRs has no frame number or two have the
+    same one: a stray file there is either a misnamed frame or not part of
+    the shot, which only the user can tell.
+
+    Raises
+    ------
+    BatchError
+        No frames found; a pattern without a frame token given ``frames``; a
+        folder with an un-numbered EXR (the message names it) or with two
+        EXRs of one frame number (it names both).
+    """
+    pattern = os.fspath(pattern)
+    if os.path.isdir(pattern):
+        files = [f for f in sorted(os.listdir(pattern))
+                 if f.lower().endswith(".exr") and not f.startswith(".")
+                 and os.path.isfile(os.path.join(pattern, f))]
+        numbered = [(_split_stem(os.path.splitext(f)[0])[1], f) for f in files]
+        owner: dict[int, str] = {}
+        for n, f in numbered:
+            if n is None:
+                raise BatchError(f"{os.path.join(pattern, f)}: no frame number at the end of its name, and "
+                                 "every .exr in a sequence folder is a frame; move it out, or give a "
+                                 f"pattern such as {_pattern_of(pattern, numbered)}")
+            if n in owner:
+                raise BatchError(f"{os.path.join(pattern, owner[n])} and {os.path.join(pattern, f)} are "
+                                 f"both frame {n} (two sequences in one folder?); give a pattern such as "
+                                 f"{_pattern_of(pattern, [(n, f)])} to pick one")
+            owner[n] = f
+        pairs = _in_range(sorted((n, os.path.join(pattern, f)) for n, f in numbered), frames)
+        if not pairs:
+            what = f" in frames {_short_frames(frames)}" if frames is not None else ""
+            raise BatchError(f"{pattern}: no .exr files{what}")
+        return pairs
+    token = _frame_token(pattern)
+    if token is None:
+        n = _split_stem(os.path.splitext(os.path.basename(pattern))[0])[1]
+        if frames is not None and not (n in _wanted(frames) and _range_size(frames) == 1):
+            raise BatchError(f"{pattern}: a frame range needs a sequence pattern (P.####.exr, P.%04d.exr) "
+                             "or a folder")
+        return [(n if n is not None else 1, pattern)]
+    prefix, suffix, pad = token
+    regex = re.compile(re.escape(os.path.basename(prefix)) + r"(-?\d+)" + re.escape(suffix) + r"$")
+    folder = os.path.dirname(prefix) or "."
+    found = []
+    try:
+        names = os.listdir(folder)
+    except OSError as exc:
+        raise BatchError(f"{pattern}: cannot list folder {folder}: {exc.strerror or exc}") from None
+    for fname in names:
+        m = regex.match(fname)
+        if m and _pad(int(m.group(1)), pad) == m.group(1):
+            found.append((int(m.group(1)), os.path.join(os.path.dirname(prefix), fname)))
+    found = _in_range(sorted(found), frames)
+    if not found:
+        what = f" in frames {_short_frames(frames)}" if frames is not None else ""
+        raise BatchError(f"{pattern}: no files match the pattern{what}")
+    return found
+
+
+def _wanted(frames):
+    """Something to test ``frame in`` against: a :class:`FrameRange` as it is (never listed)."""
+    return frames if isinstance(frames, FrameRange) else set(frames)
+
+
+def _range_size(frames) -> int:
+    return frames.count() if isinstance(frames, FrameRange) else len(set(frames))
+
+
+def _in_range(pairs, frames):
+    """The (frame, path) pairs found on disk whose frame is in ``frames`` (all if None):
+    time and memory go with the files, not with the range (10⁹ frames were listed)."""
+    if frames is None:
+        return pairs
+    wanted = _wanted(frames)
+    return [p for p in pairs if p[0] in wanted]
+
+
+def _short_frames(frames) -> str:
+    if isinstance(frames, FrameRange):
+        return frames.text
+    frames = list(frames or [])
+    return ", ".join(map(str, frames[:5])) + (", ..." if len(frames) > 5 else "")
+
+
+_FIELDS = ("frame", "rig", "stem", "name")
+
+
+def _check_template(template: str) -> None:
+    try:
+        parsed = list(string.Formatter().parse(template))
+    except ValueError as exc:
+        raise BatchError(f"output template {template!r}: {exc}") from None
+    for _, fld, _, _ in parsed:
+        if fld is not None and fld not in _FIELDS:
+            raise BatchError(f"output template {template!r}: unknown field {{{fld}}}; "
+                             f"use {', '.join('{' + f + '}' for f in _FIELDS)}")
+
+
+def format_output(template: str, *, frame: int, rig: str, source: str) -> str:
+    """The output path of one frame and rig.
+
+    Examples
+    --------
+    >>> format_output("out/{rig}/{name}.####.exr", frame=7, rig="key", source="in/shot.0007.exr")
+    'out/key/shot.0007.exr'
+    """
+    stem = os.path.splitext(os.path.basename(source))[0]
+    name = _split_stem(stem)[0]
+    text = _HASHES.sub(lambda m: _pad(frame, len(m.group(0))), template)
+    text = _PRINTF.sub(lambda m: _pad(frame, int(m.group(2)) if m.group(2) else 1), text)
+    try:
+        return text.format(frame=frame, rig=rig, stem=stem, name=name)
+    except (ValueError, KeyError, IndexError) as exc:
+        raise BatchError(f"output template {template!r}: {exc}") from None

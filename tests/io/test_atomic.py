@@ -315,7 +315,7 @@ def test_interrupt_between_create_and_with_block_is_cleaned_up(tmp_path, monkeyp
     calls = []
 
     def name_then_interrupt(born, candidate):
-        ok = real_name(born, candidate)  # the locked file gets its temporary name
+        real_name(born, candidate)       # the locked file gets its temporary name
         calls.append(candidate)
         raise KeyboardInterrupt          # as a signal handler would, right after the create
 

@@ -171,8 +171,8 @@ def _loopback_server(behaviour):
     ("silent", "it accepted the connection but sent nothing in 1.5 s"),
     ("close", "closed the connection without a handshake"),
 ])
-def test_a_scheduler_that_does_not_answer_is_one_line_in_time(shot, tmp_path, capsys, behaviour,
-                                                             needle):  # noqa: F811
+def test_a_scheduler_that_does_not_answer_is_one_line_in_time(shot, tmp_path, capsys,  # noqa: F811
+                                                             behaviour, needle):
     """A peer that accepts and never speaks held relight --scheduler for as long as it held
     the connection (Dask's own client has no limit there). Now --scheduler-timeout bounds
     it: one line naming the address and the cause, nothing after it, exit 1."""
