@@ -15,7 +15,9 @@ write and leave the hidden temporary file behind. Not in the list, and why:
 
 from __future__ import annotations
 
+import contextlib
 import signal
+import threading
 
 #: The asynchronous terminating signals by name (those this platform has are used).
 TERMINATING = ("SIGTERM", "SIGHUP", "SIGQUIT", "SIGUSR1", "SIGUSR2", "SIGALRM", "SIGVTALRM",
@@ -41,3 +43,44 @@ def signal_name(signum: int) -> str:
     except ValueError:
         rtmin = getattr(signal, "SIGRTMIN", None)
         return f"SIGRTMIN+{signum - rtmin}" if rtmin is not None else f"signal {signum}"
+
+
+class Terminated(KeyboardInterrupt):
+    """A terminating signal (SIGTERM, SIGHUP, SIGQUIT, ...), raised like Ctrl-C so that
+    every cleanup (temporary outputs) runs; the CLI exits 128 + its number."""
+
+    def __init__(self, signum: int = 15, name: str = "SIGTERM"):
+        super().__init__(name)
+        self.signum, self.name = signum, name
+
+
+@contextlib.contextmanager
+def signals_as_interrupt():
+    """Turn every catchable terminating signal (:func:`terminating_signals`) into
+    :class:`Terminated` while the block runs (main thread only; elsewhere nothing).
+
+    Their default actions end the process at once (SIGQUIT with a core dump),
+    which would leave a half-written temporary output (``.NAME.tmp-XXXX.exr``)
+    behind.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _raise(signum, frame):
+        raise Terminated(signum, signal_name(signum))
+
+    previous = {}
+    try:
+        for sig in terminating_signals():
+            previous[sig] = signal.signal(sig, _raise)
+    except (ValueError, OSError):          # no signals here (e.g. an embedded interpreter)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+        yield
+        return
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
