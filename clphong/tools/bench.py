@@ -90,29 +90,39 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
-from ..device.culling import TILE, super_tiles
 from ..device.peak import measure_peak_gflops
 from ..device.plan import int_pow_multiplies
 from ..device.renderer import Renderer, prepare_frame
 from ..device.selection import get_runtime
 from ..io.atomic import atomic_path
-from ..io.envmap import directional_lights
-from ..io.gbuffer import GBuffer
-from ..model.environment import (
-    DEFAULT_ENV_ERROR,
-    FLOOR,
-    LightTree,
-    environment_lights,
-    texel_lights,
+from . import numba_peer
+from .bench_rows import (
+    ENV_ERRORS,
+    TREE_CASES,
+    environment_summary_lines,
+    environment_table,
+    run_environment,
+    run_tree,
+    summarise_environment,
+    tree_table,
 )
-from ..model.light_tree import build_light_tree
-from ..model.scene import Camera, Light, Material, Scene
-from ..reference import environment as env_reference
-from ..reference import shading as reference
-from . import numba_peer, samples
+from .bench_scenes import (
+    SEED,
+    _crop_rows,
+    _time_slots,
+    bench_gbuffer,
+    bench_scene,
+    make_oracle,
+    numpy_shade,
+    shaded_pixels,
+)
 
+
+__all__ = ["BenchConfig", "run_bench", "summarise", "summary_lines", "table", "save_report",
+           "plot_pareto", "check_paths", "missing_bench_modules", "flops_per_ple", "PATHS",
+           "ENV_ERRORS", "TREE_CASES", "SEED", "bench_gbuffer", "bench_scene", "numpy_shade",
+           "shaded_pixels"]
 #: Flops per pixel-light evaluation of a point light with attenuation, by part,
 #: counted on kernels/lights.cl + brdf.cl (shade_obvious.cl for the naive
 #: forms) as written. Comparisons, selects and float/double conversions are
@@ -195,247 +205,9 @@ def check_paths(paths) -> tuple:
 
 
 DEFAULT_BUDGETS = (0.0, 1e-4, 1e-3, 1e-2)
-SEED = 2026
 #: The obvious kernel runs at a few MPLE/s: above this many lights even a 4-row
 #: crop takes minutes a frame, so it is skipped (and says so).
 OBVIOUS_MAX_LIGHTS = 4096
-
-
-# ------------------------------------------------------------------------------ scenes
-
-def bench_gbuffer(width: int, height: int, rows: int | None = None):
-    """The benchmark G-buffer (see the module docstring); ``rows``: only the top rows."""
-    h = height if rows is None else min(rows, height)
-    x = np.linspace(-8.0, 8.0, width)
-    y = np.linspace(4.5, -4.5, height)[:h]
-    X, Y = np.meshgrid(x, y)
-    Z = 0.05 * np.sin(1.3 * X) * np.cos(1.7 * Y) + 0.03 * np.sin(3.1 * X + 1.0)
-    dzdx = 0.05 * 1.3 * np.cos(1.3 * X) * np.cos(1.7 * Y) + 0.03 * 3.1 * np.cos(3.1 * X + 1.0)
-    dzdy = -0.05 * 1.7 * np.sin(1.3 * X) * np.sin(1.7 * Y)
-    P = np.stack([X, Y, Z], -1)
-    N = np.stack([-dzdx, -dzdy, np.ones_like(Z)], -1)
-    C = np.stack([0.45 + 0.35 * np.sin(0.7 * X), 0.5 + 0.3 * np.cos(0.9 * Y),
-                  0.4 + 0.3 * np.sin(0.5 * (X + Y))], -1)
-    cov = np.ones(Z.shape, np.float32)
-    cov[(X < -8 + 16 * 0.2) & (Y > 4.5 - 9 * 0.2)] = 0.0      # a 4 % background corner
-    return GBuffer(position=P.astype(np.float32), normal=N.astype(np.float32),
-                   albedo=C.astype(np.float32), coverage=cov, maps={})
-
-
-#: Light groups of the ``clusters`` bench scene.
-CLUSTERS = 64
-
-
-def bench_scene(kind: str, n_lights: int):
-    """The ``wide`` or ``small`` scene with ``n_lights`` point lights (seeded)."""
-    rng = np.random.default_rng(SEED + n_lights)
-    lights = [Light(type="ambient", color=(1.0, 1.0, 1.0), intensity=0.3)]
-    x = rng.uniform(-8, 8, n_lights)
-    y = rng.uniform(-4.5, 4.5, n_lights)
-    colors = rng.uniform(0.3, 1.0, (n_lights, 3))
-    if kind == "wide":
-        z = rng.uniform(0.5, 3.0, n_lights)
-        att, intensity, k_s = (1.0, 0.1, 0.05), 3.0 * min(1.0, 16.0 / n_lights), 0.2
-    elif kind == "small":
-        z = rng.uniform(0.01, 0.05, n_lights)
-        att, intensity, k_s = (1.0, 0.0, 1.0e6), 2.0, 0.02
-    elif kind == "clusters":
-        # CLUSTERS compact groups (Gaussian, σ = 0.1) 8–12 units above the surface:
-        # chandeliers or LED panels, far from the pixels for their size
-        centres = np.column_stack([rng.uniform(-8, 8, CLUSTERS), rng.uniform(-4.5, 4.5, CLUSTERS),
-                                   rng.uniform(8.0, 12.0, CLUSTERS)])
-        which = np.arange(n_lights) % CLUSTERS
-        x, y, z = (centres[which] + rng.normal(0.0, 0.1, (n_lights, 3))).T
-        colors = rng.uniform(0.3, 1.0, (CLUSTERS, 3))[which]     # one colour a cluster
-        att, intensity, k_s = (1.0, 0.0, 0.01), 40.0 / n_lights, 0.2
-    else:
-        raise ValueError(f"scene kind must be 'wide', 'small' or 'clusters', not {kind!r}")
-    for j in range(n_lights):
-        lights.append(Light(type="point", color=tuple(colors[j]), intensity=intensity,
-                            position=(float(x[j]), float(y[j]), float(z[j])), attenuation=att))
-    return Scene(camera=Camera(type="perspective", position=(0.0, -4.0, 10.0)),
-                 material=Material(model="blinn-phong", k_a=0.1, k_d=0.7, k_s=k_s, h=32.0),
-                 lights=tuple(lights), source=f"bench:{kind}:{n_lights}")
-
-
-# ------------------------------------------------------------------------------- numpy
-
-def _dot3(ax, ay, az, bx, by, bz, out, tmp):
-    """out = a·b over SoA planes, in place (``tmp``: a scratch plane)."""
-    np.multiply(ax, bx, out=out)
-    np.multiply(ay, by, out=tmp)
-    out += tmp
-    np.multiply(az, bz, out=tmp)
-    out += tmp
-    return out
-
-
-def numpy_shade(scene, gbuffer) -> np.ndarray:
-    """The same shading in plain numpy float32, as its best numpy user writes it:
-    SoA planes (one contiguous float32 array per coordinate), every operation in
-    place into preallocated buffers (``out=``), a loop over the lights, and
-    binary powering for the whole exponent (``np.power`` with a float exponent
-    ran 5× slower, and the (3, P) arrays with ``.sum(axis=0)`` of the first
-    version another 2×: 4.2 against 23.7 MPLE/s on 1/8 of the frame).
-
-    Blinn-Phong ``max(n·h, 0)^k``, point lights with attenuation, ambient, on the
-    shaded pixels only (unit normals and view directions from float64, as the
-    kernel's inputs); background pixels take the background value.
-    """
-    f = np.float32
-    H, W = gbuffer.shape
-    bg = gbuffer.background_mask().reshape(-1)
-    fg = ~bg                                   # shade only the shaded pixels, as the kernel does
-    P = gbuffer.position.reshape(-1, 3)[fg].astype(np.float64)
-    N = gbuffer.normal.reshape(-1, 3)[fg].astype(np.float64)
-    N /= np.sqrt((N * N).sum(axis=1))[:, None]
-    Cd = gbuffer.albedo.reshape(-1, 3)[fg].astype(np.float64)
-    m = scene.material
-    V = np.asarray(scene.camera.position, np.float64) - P
-    V /= np.sqrt((V * V).sum(axis=1))[:, None]
-    px, py, pz = (np.ascontiguousarray(P[:, i], f) for i in range(3))
-    nx, ny, nz = (np.ascontiguousarray(N[:, i], f) for i in range(3))
-    vx, vy, vz = (np.ascontiguousarray(V[:, i], f) for i in range(3))
-    D = [np.ascontiguousarray(Cd[:, i] * m.k_d, f) for i in range(3)]
-    S = [f(x * m.k_s) for x in m.specular_color]
-    amb = sum((np.asarray(lt.radiance, np.float64) for lt in scene.lights_of("ambient")),
-              np.zeros(3))
-    E = [np.ascontiguousarray(Cd[:, i] * amb[i] * m.k_a, f) for i in range(3)]
-    K = m.exponent
-    whole = float(K).is_integer()
-    n = len(px)
-    dx, dy, dz, d2, t, inv, NoL, hx, hy, hz, c, s, att, wd, ws = (np.empty(n, f) for _ in range(15))
-    for lt in scene.lights_of("point"):
-        Lx, Ly, Lz = (f(v) for v in lt.position)
-        np.subtract(Lx, px, out=dx)
-        np.subtract(Ly, py, out=dy)
-        np.subtract(Lz, pz, out=dz)
-        _dot3(dx, dy, dz, dx, dy, dz, d2, t)
-        np.sqrt(d2, out=t)                                   # d
-        np.divide(f(1), t, out=inv)
-        dx *= inv                                            # l
-        dy *= inv
-        dz *= inv
-        _dot3(nx, ny, nz, dx, dy, dz, NoL, wd)
-        np.add(dx, vx, out=hx)                               # l + v
-        np.add(dy, vy, out=hy)
-        np.add(dz, vz, out=hz)
-        _dot3(hx, hy, hz, hx, hy, hz, c, wd)
-        np.sqrt(c, out=c)
-        _dot3(nx, ny, nz, hx, hy, hz, s, wd)
-        np.divide(s, c, out=c)                               # n·h
-        np.maximum(c, f(0), out=c)
-        if whole:                                            # c^K by binary powering
-            s.fill(1)
-            e = int(K)
-            while e:
-                if e & 1:
-                    s *= c
-                e >>= 1
-                if e:
-                    np.multiply(c, c, out=c)
-        else:
-            np.power(c, f(K), out=s)
-        c0, c1, c2 = (f(v) for v in lt.attenuation)
-        np.multiply(t, c2, out=att)                          # 1/(c0 + c1·d + c2·d²)
-        att += c1
-        att *= t
-        att += c0
-        np.divide(f(1), att, out=att)
-        np.maximum(NoL, f(0), out=wd)
-        wd *= att
-        np.multiply(s, att, out=ws)
-        ws[NoL <= 0] = 0
-        for ch in range(3):
-            np.multiply(D[ch], wd, out=t)
-            t += S[ch] * ws
-            t *= f(lt.radiance[ch])
-            E[ch] += t
-    out = np.empty((H * W, 3), f)
-    out[bg] = np.asarray(scene.background, f)
-    out[fg] = np.stack(E, axis=1)
-    return out.reshape(H, W, 3)
-
-
-# ------------------------------------------------------------------------------- errors
-
-def shaded_pixels(gbuffer) -> int:
-    """How many pixels of ``gbuffer`` are shaded (not background)."""
-    return int(np.count_nonzero(~gbuffer.background_mask()))
-
-
-def sample_pixels(gbuffer, n: int, seed: int = SEED) -> np.ndarray:
-    """Flat indices of ``n`` shaded pixels, seeded (all of them if fewer)."""
-    fg = np.flatnonzero(~gbuffer.background_mask().reshape(-1))
-    if n >= len(fg):
-        return fg
-    return np.sort(np.random.default_rng(seed).choice(fg, n, replace=False))
-
-
-def sub_gbuffer(gbuffer, idx):
-    """The pixels ``idx`` (flat indices) as a 1 × len(idx) G-buffer."""
-    def take(a):
-        a = np.asarray(a)
-        h, w = gbuffer.shape
-        flat = a.reshape(h * w, -1)[idx]
-        return flat.reshape((1, len(idx)) + a.shape[2:])
-
-    return GBuffer(position=take(gbuffer.position), normal=take(gbuffer.normal),
-                   albedo=take(gbuffer.albedo),
-                   coverage=None if gbuffer.coverage is None else take(gbuffer.coverage),
-                   maps={k: take(v) for k, v in gbuffer.maps.items()})
-
-
-@dataclass
-class Oracle:
-    """The float64 reference on a pixel sample, and the terminator band there."""
-
-    idx: np.ndarray
-    ref: np.ndarray           # (M, 3)
-    band: np.ndarray          # (M,) bool
-
-    def errors(self, rgb: np.ndarray) -> dict:
-        got = rgb.reshape(-1, 3)[self.idx].astype(np.float64)
-        err = np.abs(got - self.ref)
-        big = self.ref >= 1e-6 * max(float(self.ref.max(initial=0.0)), 1e-300)
-        rel = np.where(big, err / np.where(big, self.ref, 1.0), 0.0)
-        inside = rel[~self.band][big[~self.band]]
-        band = rel[self.band][big[self.band]]
-        return {
-            "max_rel": float(inside.max(initial=0.0)),
-            "mean_rel": float(inside.mean()) if inside.size else 0.0,
-            "max_abs": float(err.max(initial=0.0)),
-            "band_pixels": int(self.band.sum()),
-            "band_max_rel": float(band.max(initial=0.0)),
-            "sampled_pixels": int(len(self.idx)),
-        }
-
-
-def make_oracle(scene, gbuffer, frame, n_pixels: int) -> Oracle:
-    idx = sample_pixels(gbuffer, n_pixels)
-    sub = sub_gbuffer(gbuffer, idx)
-    ref = reference.shade(scene, sub).reshape(-1, 3)
-    _, band = reference.error_bound(scene, sub, origin=frame.origin)
-    return Oracle(idx=idx, ref=ref, band=band.reshape(-1))
-
-
-# --------------------------------------------------------------------------------- timing
-
-def time_frame(renderer, gbuffer, frame):
-    """One frame: (seconds of shading + culling, of culling alone, the RenderResult):
-    device time of the kernels, plus the host's light-tree cut where one ran."""
-    result = renderer.shade(frame)
-    c = result.cull.seconds + result.cull.tree_seconds if result.cull is not None else 0.0
-    return result.stats.kernel_seconds + c, c, result
-
-
-def _time_slots(slots, *, keep: bool) -> None:
-    """One frame of each slot in turn (its ``result``); ``keep``: record its times."""
-    for slot in slots:
-        t, c, slot["result"] = time_frame(slot["r"], slot["gb"], slot["frame"])
-        if keep:
-            slot["times"].append(t)
-            slot["cull"].append(c)
 
 
 # --------------------------------------------------------------------------------- the run
@@ -469,11 +241,6 @@ class BenchConfig:
                     env_pixels=500, tree_cases=(("clusters", 1024, 3e-2),))
         base.update(kw)
         return cls(**base)
-
-
-def _crop_rows(width: int, height: int, n: int, pairs: float, least: int = 4) -> int:
-    rows = int(pairs // max(width * n, 1))
-    return max(min(least, height), min(height, rows))
 
 
 def numpy_crop(width: int, height: int, n: int, pairs: float) -> tuple[int, int]:
@@ -836,263 +603,3 @@ def table(report: dict) -> str:
 # The environment rows: the sample sky as directional lights (clphong.model.environment)
 # on the bench G-buffer, timed against 256 point lights brute force and held to the
 # exact texel sum (clphong.reference.environment). Everything of the rows is here.
-
-#: The environment rows of ``clphong bench`` (``--env-error``): the issue's 1e-3, and 1e-2.
-ENV_ERRORS = (DEFAULT_ENV_ERROR, 1e-2)
-
-
-def environment_scene(lights=()) -> Scene:
-    """The bench camera and material with ``lights`` only (no ambient light)."""
-    base = bench_scene("wide", 1)
-    return Scene(camera=base.camera, material=base.material, lights=tuple(lights),
-                 source="bench:environment")
-
-
-def _first_n_for(target, exact, D_part, S_part, tree, base_lights):
-    """The fewest leaves of ``tree`` within ``target`` on these pixels (geometric steps
-    of ~6 %), with the terms' rows of each count from ``base_lights(n)``."""
-    def err(n):
-        d, sp = base_lights(n)
-        return _env_rel(d + sp, exact)
-    lo, hi = 0, 16
-    while err(hi) > target:
-        if hi >= tree.height * tree.width:
-            return None
-        lo, hi = hi, min(2 * hi, tree.height * tree.width)
-    while lo and hi > lo * 1.0625 and hi - lo > 1:
-        mid = int(round(math.sqrt(lo * hi)))
-        lo, hi = (lo, mid) if err(mid) <= target else (mid, hi)
-    return hi
-
-
-def _env_rel(value, exact):
-    """max |value − exact|/exact over the channels ≥ FLOOR (1e-3) of the sample's maximum."""
-    top = float(exact.max(initial=0.0))
-    big = exact >= FLOOR * top
-    return float((np.abs(value - exact)[big] / exact[big]).max(initial=0.0))
-
-
-def run_environment(cfg: BenchConfig, full, runs, log) -> list[dict]:
-    """The environment rows of the report (module docstring)."""
-    H, W = full.shape
-    mw, mh = cfg.env_size
-    L = samples.sky_envmap(mw, mh)
-    base = environment_scene()
-    material = base.material
-    # the exact texel sum on a seeded pixel sample, each term apart (computed once)
-    idx = sample_pixels(full, cfg.env_pixels)
-    sub = sub_gbuffer(full, idx)
-    t0 = time.perf_counter()
-    l_all, E_all = texel_lights(L)
-    keep = E_all.max(axis=1) > 0
-    ex_d, ex_s = env_reference.texel_terms(base, sub, l_all[keep], E_all[keep])
-    exact = ex_d + ex_s
-    t_exact = time.perf_counter() - t0
-    log(f"environment: exact texel sum of {mw}x{mh} texels on {len(idx)} pixels in {t_exact:.1f} s")
-    tree = LightTree(*(a.reshape(mh, mw, 3) for a in (E_all, l_all)))
-
-    def terms_of(n):
-        return env_reference.texel_terms(base, sub, *tree.lights(n))
-
-    # 256 point lights brute force, timed here in turns with the environment frames (so
-    # that other tenants' load falls on both alike); the wide scene's run, if any, beside it
-    p256 = next((r for r in runs if r["scene"] == "wide" and r["lights"] == 256
-                 and r["path"] == "accurate" and r["max_error"] is None), None)
-    slots = []
-    for target in cfg.env_errors:
-        conv = environment_lights(L, material, max_error=target)
-        scene = environment_scene(directional_lights(conv))
-        n = len(scene.lights)
-        rows = _crop_rows(W, H, max(n, 1), cfg.crop_pairs)
-        gb = full if rows == H else bench_gbuffer(W, H, rows)
-        r = Renderer(scene, device=cfg.device)
-        slots.append({"target": target, "conv": conv, "scene": scene, "rows": rows, "gb": gb,
-                      "r": r, "frame": prepare_frame(gb, lanes=max(r.lanes, 1)), "times": []})
-    sc = bench_scene("wide", 256)
-    rows = _crop_rows(W, H, 256, cfg.crop_pairs)
-    gb = full if rows == H else bench_gbuffer(W, H, rows)
-    r = Renderer(sc, device=cfg.device)
-    slots.append({"target": None, "rows": rows, "gb": gb, "r": r,
-                  "frame": prepare_frame(gb, lanes=max(r.lanes, 1)), "times": []})
-    for round_ in range(cfg.warmup + cfg.repeats):
-        for slot in slots:
-            t, _, _ = time_frame(slot["r"], slot["gb"], slot["frame"])
-            if round_ >= cfg.warmup:
-                slot["times"].append(t)
-    shaded_full = shaded_pixels(full)
-
-    def per_frame(slot):
-        return statistics.median(slot["times"]) * 1e3 * shaded_full / shaded_pixels(slot["gb"])
-
-    p256_ms = per_frame(slots[-1])
-    p256_wide = p256["ms_per_frame"] if p256 is not None else None
-    out = []
-    for slot in slots:
-        if slot["target"] is None:
-            continue
-        conv, target = slot["conv"], slot["target"]
-        got = slot["r"].render(sub).image.reshape(-1, 3).astype(np.float64)
-        d, sp = env_reference.texel_terms(base, sub, conv.l, conv.radiance)
-        top = float(exact.max(initial=0.0))
-        big = exact >= FLOOR * top
-        rel = np.abs(got - exact)[big] / exact[big]
-        ms = per_frame(slot)
-        entry = {
-            "scene": "environment", "size": [W, H], "map": [mw, mh], "texels": conv.texels,
-            "env_error": target, "lights": conv.count, "estimated_error": conv.estimated_error,
-            "estimate_met": conv.met, "probes": conv.probes, "conversion_s": conv.seconds,
-            "crop_rows": slot["rows"], "extrapolated": slot["rows"] != H,
-            "ms_per_frame": ms, "times_ms": [t * 1e3 for t in slot["times"]],
-            "point256_ms_per_frame": p256_ms, "point256_wide_run_ms_per_frame": p256_wide,
-            "time_ratio_256_point": ms / p256_ms,
-            "error": {
-                "max_rel": float(rel.max(initial=0.0)),
-                "mean_rel": float(rel.mean()) if rel.size else 0.0,
-                "floor": FLOOR, "sampled_pixels": int(len(idx)), "exact_seconds": t_exact,
-                # each term's error as a share of the pixel (float64 model sums, no kernel)
-                "diffuse_max_rel": _env_rel(d + ex_s, exact),
-                "specular_max_rel": _env_rel(ex_d + sp, exact),
-                "model_max_rel": _env_rel(d + sp, exact),
-            },
-            "lights_for_target_on_sample": _first_n_for(target, exact, ex_d, ex_s, tree, terms_of),
-        }
-        out.append(entry)
-        e = entry["error"]
-        log(f"environment     eps={target:<6g} {conv.count:6d} lights (est {conv.estimated_error:.2e}, "
-            f"{conv.seconds:.1f} s) {ms:10.1f} ms/frame x{entry['time_ratio_256_point']:.2f} of 256 "
-            f"point lights  max rel {e['max_rel']:.2e} (diffuse {e['diffuse_max_rel']:.2e}, "
-            f"specular {e['specular_max_rel']:.2e}); {entry['lights_for_target_on_sample']} lights "
-            f"would do on these pixels")
-    return out
-
-
-#: The light-tree rows of ``clphong bench`` (``--tree``): (scene, N, ε).
-TREE_CASES = (("wide", 4096, 1e-3), ("wide", 4096, 1e-2), ("clusters", 4096, 1e-3),
-              ("clusters", 4096, 1e-2), ("clusters", 65536, 1e-2), ("clusters", 65536, 1e-3))
-
-
-def run_tree(cfg: BenchConfig, full, log) -> list[dict]:
-    """The light-tree rows (module docstring): per (scene, N, ε), brute force, culling
-    alone and culling with the tree's clusters, timed in turns on the same crop."""
-    H, W = full.shape
-    out = []
-    for kind, n, eps in cfg.tree_cases:
-        scene = bench_scene(kind, n)
-        t0 = time.perf_counter()
-        built = build_light_tree(scene.light_arrays)
-        build_s = time.perf_counter() - t0
-        # whole rows of super-tiles (the cut's unit), about crop_pairs pairs
-        slots = []
-        for label, opts in (("brute", dict(max_error=None)),
-                            ("culling", dict(max_error=eps, light_tree=False)),
-                            ("tree", dict(max_error=eps))):
-            r = Renderer(scene, device=cfg.device, **opts)
-            band = super_tiles(max(r.lanes, 1)) * TILE
-            rows = min(H, band * max(1, round(_crop_rows(W, H, n, cfg.crop_pairs) / band)))
-            gb = full if rows == H else bench_gbuffer(W, H, rows)
-            slots.append({"label": label, "r": r, "rows": rows, "gb": gb, "times": [], "cull": [],
-                          "frame": prepare_frame(gb, lanes=max(r.lanes, 1))})
-        for round_ in range(cfg.warmup + cfg.repeats):
-            _time_slots(slots, keep=round_ >= cfg.warmup)
-        shaded_full = shaded_pixels(full)
-        rows = slots[0]["rows"]
-        oracle = make_oracle(scene, slots[0]["gb"], slots[0]["frame"],
-                             max(500, int(cfg.error_pairs // max(n, 1))))
-        row = {"scene": kind, "size": [W, H], "lights": n, "max_error": eps, "crop_rows": rows,
-               "extrapolated": rows != H, "tree_nodes": built.n_nodes if built else 0,
-               "tree_lights": built.clusterable if built else 0, "tree_build_s": build_s}
-        for slot in slots:
-            res = slot["result"]
-            c = res.cull
-            ms = statistics.median(slot["times"]) * 1e3 * shaded_full / shaded_pixels(slot["gb"])
-            row[slot["label"]] = {
-                "ms_per_frame": ms, "times_ms": [t * 1e3 for t in slot["times"]],
-                "cull_ms": statistics.median(slot["cull"]) * 1e3 * shaded_full
-                / shaded_pixels(slot["gb"]),
-                "kept_fraction": None if c is None else c.kept_fraction,
-                "brute_fallback": None if c is None else c.brute,
-                "clusters": 0 if c is None else c.clusters,
-                "covered": 0 if c is None else c.covered,
-                "cut_ms": 0.0 if c is None else c.tree_seconds * 1e3 * shaded_full
-                / shaded_pixels(slot["gb"]),
-                "max_abs_error": oracle.errors(res.image)["max_abs"],
-            }
-        b = row["brute"]["ms_per_frame"]
-        for label in ("culling", "tree"):
-            x = row[label]
-            x["speedup"] = b / x["ms_per_frame"]
-            x["within_budget"] = x["max_abs_error"] <= eps
-        out.append(row)
-        t, cu = row["tree"], row["culling"]
-        log(f"tree {kind:8s} N={n:<6d} eps={eps:<6g} brute {b:9.1f} ms  culling {cu['ms_per_frame']:9.1f} "
-            f"ms (x{cu['speedup']:.2f}, kept {cu['kept_fraction'] or 0:.3f})  tree "
-            f"{t['ms_per_frame']:9.1f} ms (x{t['speedup']:.2f}, kept {t['kept_fraction'] or 0:.3f}, "
-            f"{t['clusters']} clusters, cut {t['cut_ms']:.0f} ms)  max abs {t['max_abs_error']:.2e}"
-            f"  tree {row['tree_nodes']} nodes in {build_s:.2f} s")
-    return out
-
-
-def tree_table(rows: list[dict]) -> list[str]:
-    if not rows:
-        return []
-    lines = [f"{'tree':9s} {'N':>6s} {'eps':>6s} {'brute ms':>10s} {'cull ms':>10s} {'x':>6s} "
-             f"{'tree ms':>10s} {'x':>6s} {'kept':>6s} {'clusters':>9s} {'cut ms':>7s} "
-             f"{'max abs':>9s} {'nodes':>6s} {'build s':>7s}"]
-    for r in rows:
-        c, t = r["culling"], r["tree"]
-        lines.append(f"{r['scene']:9s} {r['lights']:6d} {r['max_error']:6.0e} "
-                     f"{r['brute']['ms_per_frame']:10.1f}{'*' if r['extrapolated'] else ' '}"
-                     f"{c['ms_per_frame']:9.1f} {c['speedup']:6.2f} {t['ms_per_frame']:10.1f} "
-                     f"{t['speedup']:6.2f} {t['kept_fraction'] or 0:6.3f} {t['clusters']:9d} "
-                     f"{t['cut_ms']:7.0f} {t['max_abs_error']:9.2e} {r['tree_nodes']:6d} "
-                     f"{r['tree_build_s']:7.2f}")
-    lines.append("tree: ms per frame (brute force, culling alone, culling with the light tree's "
-                 "clusters; * from a crop of whole super-tile rows), speed-ups over brute force, "
-                 "the tree run's kept share, clusters over the super-tiles, host cut (per frame), max abs error "
-                 "against the float64 reference (within eps: the budget held), the tree's size and "
-                 "build time")
-    return lines
-
-
-def summarise_environment(rows: list[dict]) -> dict:
-    """The issue-16 targets: the 1e-3 row's error and its time against 256 point lights."""
-    row = next((r for r in rows if r["env_error"] == DEFAULT_ENV_ERROR), None)
-    if row is None:
-        return {}
-    return {"env_lights": row["lights"], "env_max_rel": row["error"]["max_rel"],
-            "env_time_ratio_256_point": row["time_ratio_256_point"],
-            "env_lights_for_target_on_sample": row["lights_for_target_on_sample"],
-            "target_env_error_met": row["error"]["max_rel"] <= DEFAULT_ENV_ERROR,
-            "target_env_time_met": row["time_ratio_256_point"] <= 1.0}
-
-
-def environment_summary_lines(summary: dict) -> list[str]:
-    if "env_lights" not in summary:
-        return []
-    def met(ok):
-        return "met" if ok else "not met"
-    need = summary["env_lights_for_target_on_sample"]
-    return [f"issue-16 targets: environment at {DEFAULT_ENV_ERROR:g}: error "
-            f"{met(summary['target_env_error_met'])} (max rel {summary['env_max_rel']:.2e}); time "
-            f"within 256 point lights brute force {met(summary['target_env_time_met'])} "
-            f"({summary['env_time_ratio_256_point']:.3g}x, {summary['env_lights']} lights; "
-            f"{need} would meet it on the sampled pixels)"]
-
-
-def environment_table(rows: list[dict]) -> list[str]:
-    if not rows:
-        return []
-    lines = [f"{'environment':12s} {'eps':>7s} {'lights':>7s} {'est':>9s} {'conv s':>7s} "
-             f"{'ms/frame':>10s} {'x256pt':>7s} {'max rel':>9s} {'diffuse':>9s} {'specular':>9s} "
-             f"{'pixels':>6s} {'enough':>7s}"]
-    for r in rows:
-        e = r["error"]
-        lines.append(f"{'x'.join(map(str, r['map'])):12s} {r['env_error']:7.0e} {r['lights']:7d} "
-                     f"{r['estimated_error']:9.2e} {r['conversion_s']:7.1f} {r['ms_per_frame']:10.1f}"
-                     f"{'*' if r['extrapolated'] else ' '}{r['time_ratio_256_point']:7.2f} "
-                     f"{e['max_rel']:9.2e} {e['diffuse_max_rel']:9.2e} {e['specular_max_rel']:9.2e} "
-                     f"{e['sampled_pixels']:6d} {r['lights_for_target_on_sample'] or 0:7d}")
-    lines.append("environment: max rel against the exact float64 texel sum on the sampled pixels "
-                 ">= 1e-3 of their maximum; diffuse/specular: each term's approximation alone; "
-                 "enough: the fewest lights of the same tree within eps on those pixels")
-    return lines

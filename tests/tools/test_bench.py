@@ -171,8 +171,11 @@ def test_runs_of_a_case_take_turns(monkeypatch):
     """Paths and budgets of one (scene, N) are timed round-robin, one frame each per
     round, so a burst of load from another tenant falls on all of them alike."""
     calls = []
-    real = bench.time_frame
-    monkeypatch.setattr(bench, "time_frame", lambda r, gb, frame: calls.append(id(r)) or real(r, gb, frame))
+    from clphong.tools import bench_scenes
+
+    real = bench_scenes.time_frame          # what the slots call, turn by turn
+    monkeypatch.setattr(bench_scenes, "time_frame",
+                        lambda r, gb, frame: calls.append(id(r)) or real(r, gb, frame))
     cfg = bench.BenchConfig(sizes=((32, 16),), lights=(2,), small_lights=(), paths=("accurate", "float"),
                             budgets=(0.0,), repeats=3, warmup=1, crop_pairs=1e9, error_pairs=1e5,
                             numpy_pairs=1e9)
