@@ -37,8 +37,8 @@ from ..deliver.writers import (
 )
 from ..device import runtime as _runtime
 from ..device.culling import BRUTE_ABOVE
-from ..device.renderer import Renderer
 from ..device.hostrule import host
+from ..device.renderer import Renderer
 from ..device.selection import describe_devices
 from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
 from ..io.envmap import resolve_environment

@@ -58,8 +58,8 @@ from .frame import (
     prepare_frame,
     shading_records,
 )
-from .plan import ShadingPlan, make_plan
 from .isolate import VariantCrash
+from .plan import ShadingPlan, make_plan
 from .runtime import float4
 from .selection import check_width, get_runtime, next_default, verify
 

@@ -34,7 +34,7 @@ from ..core.geometry import view_vector
 from ..core.memory import require_memory
 from ..model.environment import DEFAULT_ENV_ERROR, EnvironmentLights, environment_lights
 from ..model.scene import Light, Scene, SceneWarning
-from .gbuffer import oiio_message
+from .exrfile import oiio_message
 
 __all__ = ["read_envmap", "resolve_environment", "ResolvedScene", "ENV_BYTES_PER_TEXEL",
            "ENV_FIXED_BYTES", "environment_key", "directional_lights"]

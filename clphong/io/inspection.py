@@ -47,7 +47,8 @@ from ..core.errors import ClphongError, GBufferError, OutputError
 from ..model.options import check_number
 from .atomic import _one_line, atomic_path, check_image_written, same_file, write_exr
 from .camera import WORLD_TO_CAMERA, eye_from_matrix, world_to_camera
-from .gbuffer import open_image, read_gbuffer
+from .exrfile import open_image
+from .gbuffer import read_gbuffer
 
 __all__ = ["inspect_file", "format_report", "diff_images", "DiffResult", "DiffError", "METRICS"]
 

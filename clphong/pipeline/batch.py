@@ -74,18 +74,12 @@ from ..io.atomic import remove_live_temporaries
 from .distributed import CONNECT_TIMEOUT_S, run_on_dask
 from .frames import (
     FrameRange,
+    _check_template,
     _range_size,
     _short_frames,
-    _check_template,
     expand_sequence,
     format_output,
     parse_frame_range,
-)
-from .paths import (
-    check_output_folder,
-    check_rig_name,
-    remove_stale_temporaries,
-    stale_temporaries,
 )
 from .jobs import (
     BatchError,
@@ -97,6 +91,12 @@ from .jobs import (
     load_job,
     relight_job,
     shade_job,
+)
+from .paths import (
+    check_output_folder,
+    check_rig_name,
+    remove_stale_temporaries,
+    stale_temporaries,
 )
 from .relighter import cached_relighter
 

@@ -90,7 +90,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-
 from ..device.peak import measure_peak_gflops
 from ..device.plan import int_pow_multiplies
 from ..device.renderer import Renderer, prepare_frame
@@ -117,7 +116,6 @@ from .bench_scenes import (
     numpy_shade,
     shaded_pixels,
 )
-
 
 __all__ = ["BenchConfig", "run_bench", "summarise", "summary_lines", "table", "save_report",
            "plot_pareto", "check_paths", "missing_bench_modules", "flops_per_ple", "PATHS",

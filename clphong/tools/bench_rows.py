@@ -34,7 +34,6 @@ from .bench_scenes import (
     time_frame,
 )
 
-
 #: The environment rows of ``clphong bench`` (``--env-error``): the issue's 1e-3, and 1e-2.
 ENV_ERRORS = (DEFAULT_ENV_ERROR, 1e-2)
 

@@ -11,7 +11,6 @@ from ..io.gbuffer import GBuffer
 from ..model.scene import Camera, Light, Material, Scene
 from ..reference import shading as reference
 
-
 #: Seed of every random choice in the bench (scenes, sampled pixels).
 SEED = 2026
 
