@@ -640,7 +640,7 @@ def test_fuzzing_dictionary_has_every_scene_key():
     import ast
     from pathlib import Path
 
-    from clphong.model import scene
+    from clphong.model import scene, scene_types
 
     lines = (Path(__file__).resolve().parent.parent / "scene.dict").read_text(encoding="ascii").splitlines()
     entries = set()
@@ -648,8 +648,8 @@ def test_fuzzing_dictionary_has_every_scene_key():
         if ln.strip() and not ln.startswith("#"):
             assert re.fullmatch(r'"(?:[^"\\]|\\.)*"', ln), ln
             entries.add(ast.literal_eval(ln))
-    keys = {*scene._TOP_KEYS, *scene._CAMERA_ALL, *scene._MATERIAL_KEYS, *scene._RENDER_KEYS,
-            *scene._LIGHT_ALL}
+    keys = {*scene_types._TOP_KEYS, *scene_types._CAMERA_ALL, *scene_types._MATERIAL_KEYS,
+            *scene_types._RENDER_KEYS, *scene_types._LIGHT_ALL}
     assert keys <= entries
     assert {"[camera]", "[material]", "[render]", "[[light]]"} <= entries
     assert {f'"{v}"' for v in (*scene.LIGHT_TYPES, *scene.CAMERA_TYPES, *scene.MATERIAL_MODELS)} <= entries
