@@ -24,6 +24,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 from ..core.errors import ClphongError
+from ..model.options import check_number
 from .jobs import Job, Outcome, failed_outcomes, relight_job
 
 __all__ = ["run_on_dask", "SchedulerError"]
@@ -118,6 +119,7 @@ def run_on_dask(jobs: Sequence[Job], specs: dict, scheduler, on_outcomes: Callab
     for its frame; the other tasks carry on. On an interrupt the pending
     tasks are cancelled and a client we opened is closed.
     """
+    timeout = check_number(timeout, "--scheduler-timeout", SchedulerError)   # as the CLI says it
     client, owned = _client(scheduler, timeout)     # first: it explains a missing Dask
     futures = {}
     try:

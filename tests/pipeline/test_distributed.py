@@ -205,3 +205,11 @@ def test_scheduler_timeout_is_checked_at_the_door(shot, tmp_path, capsys):  # no
                   "--scheduler-timeout", bad])
         assert ex.value.code == 2
         assert "--scheduler-timeout: expected a finite number > 0" in capsys.readouterr().err
+
+
+def test_the_api_refuses_a_bad_timeout_with_the_clis_words():
+    from clphong.pipeline.distributed import SchedulerError, run_on_dask
+
+    for bad in (float("nan"), 0.0, -1.0, float("inf")):
+        with pytest.raises(SchedulerError, match="--scheduler-timeout: expected a finite number > 0"):
+            run_on_dask([], {}, "tcp://127.0.0.1:1", lambda outs: None, timeout=bad)
