@@ -170,7 +170,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         r.append((name, why))
 
     if kernel == "lanes":
-        put("LANES", lanes, "explicit SIMD lanes across pixels (PoCL vectorises no per-pixel light loop by itself)")
+        put("LANES", lanes, "explicit SIMD lanes across pixels, the widest the host rule allows "
+            "and the self-test passed on this device (docs/platforms.md)")
     put("MODEL_BLINN", blinn, f"material.model = {m.model!r}")
     put("HAS_POINT", n_point > 0, f"{n_point} point light(s)")
     put("HAS_SPOT", n_spot > 0, f"{n_spot} of them spot light(s): the falloff times the cone "

@@ -47,8 +47,8 @@ _INSTALL_HINT = (
 _CHOICE_HINT = (
     "give --device as 'P:D' indices or a name substring of one of these (see 'clphong devices'), "
     "or set the PYOPENCL_CTX environment variable (e.g. PYOPENCL_CTX=0:0); a device that is "
-    "not listed needs its vendor's OpenCL driver (ICD); the CPU device comes with PoCL: "
-    "pip install \"pyopencl[pocl]\""
+    "not listed needs its vendor's OpenCL driver (ICD); the CPU devices come with PoCL "
+    "(pip install \"pyopencl[pocl]\") and Intel's CPU runtime (pip install \"clphong[intel]\")"
 )
 
 

@@ -163,7 +163,7 @@ def _configure(rt: Runtime, lanes: int | None) -> Runtime:
     h = hostrule.host()
     if decision.refused:
         raise DeviceError(f"{rt.name} cannot be used on this CPU, {h.label}: {decision.why()}; "
-                          f"{_OTHER_DEVICE_HINT}")
+                          f"{_other_device_hint()}")
     for i, width in enumerate(decision.widths):
         verdict = verify(rt, width)
         if verdict["ok"]:
@@ -177,11 +177,17 @@ def _configure(rt: Runtime, lanes: int | None) -> Runtime:
             f"{rt.name} at {width} lane(s) failed its self-test ({verdict['detail']}); "
             + (f"trying {rest[0]} lane(s)" if rest else "not using this device")))
     raise DeviceError(f"{rt.name} passed its self-test at no lane width the host rule allows "
-                      f"({', '.join(map(str, decision.widths))}); {_OTHER_DEVICE_HINT}")
+                      f"({', '.join(map(str, decision.widths))}); {_other_device_hint()}")
 
 
-_OTHER_DEVICE_HINT = ("choose another device with --device (see 'clphong devices'), or install "
-                      "Intel's CPU runtime: pip install \"clphong[intel]\"")
+def _other_device_hint() -> str:
+    """What to do when a device is refused: another device, or Intel's runtime if it is
+    not installed (naming the install to someone who has it only confuses)."""
+    if platforms.intel_cpu_runtime() is not None:
+        return ("choose another device with --device (see 'clphong devices'), e.g. --device "
+                "intel")
+    return ("choose another device with --device (see 'clphong devices'), or install Intel's "
+            "CPU runtime: pip install \"clphong[intel]\"")
 
 
 def _open(dev) -> Runtime:

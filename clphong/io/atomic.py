@@ -143,7 +143,10 @@ def check_output_path(path: str | os.PathLike, *, exr: bool = False) -> None:
     if os.path.isdir(path):
         raise OutputError(f"{path}: is a directory; give a file name")
     if exr and os.path.splitext(name)[1].lower() != ".exr":
-        raise OutputError(f"{path}: output files are OpenEXR; give a name ending in .exr")
+        display = os.path.splitext(name)[1].lower() in (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".jxl")
+        raise OutputError(f"{path}: output files are OpenEXR; give a name ending in .exr"
+                          + ("; for a display image use --sdr (PNG, TIFF, JPEG) or --hdr (PNG, "
+                             "JPEG XL)" if display else ""))
     if not os.path.isdir(folder):
         # Name the first part of the folder's path that is missing or not a folder.
         part = folder
