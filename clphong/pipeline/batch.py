@@ -73,8 +73,8 @@ from ..deliver.outputs import OutputPaths, check_extensions
 from ..io.atomic import remove_live_temporaries
 from .distributed import CONNECT_TIMEOUT_S, run_on_dask
 from .frames import (
-    FrameRange,
     _check_template,
+    _first_missing,
     _range_size,
     _short_frames,
     expand_sequence,
@@ -199,9 +199,7 @@ def plan_batch(sequence: str, rigs: Sequence[Rig], template: str | None = None, 
     if frames is not None:
         plan.missing = _range_size(frames) - len(pairs)
         if plan.missing:
-            present = [f for f, _ in pairs]
-            plan.missing_first = (frames.missing(present) if isinstance(frames, FrameRange)
-                                  else [f for f in dict.fromkeys(frames) if f not in set(present)][:5])
+            plan.missing_first = _first_missing(frames, [f for f, _ in pairs])
         plan.frames_text = _short_frames(frames)
     for frame, src in pairs:
         outs = []

@@ -257,6 +257,15 @@ def _range_size(frames) -> int:
     return frames.count() if isinstance(frames, FrameRange) else len(set(frames))
 
 
+def _first_missing(frames, present, limit: int = 5) -> list[int]:
+    """The first ``limit`` frames of ``frames`` (a FrameRange or a sequence), in order,
+    that are not in ``present``."""
+    if isinstance(frames, FrameRange):
+        return frames.missing(present, limit)
+    have = set(present)
+    return list(itertools.islice((f for f in dict.fromkeys(frames) if f not in have), limit))
+
+
 def _in_range(pairs, frames):
     """The (frame, path) pairs found on disk whose frame is in ``frames`` (all if None):
     time and memory go with the files, not with the range (10⁹ frames were listed)."""
