@@ -33,6 +33,29 @@
 #include "lights.h"
 #include "shade_args.h"
 
+/* LIGHT_TILE (set by the plan, clphong/device/plan.py): 0, each work-item reads the
+ * light records from global memory (CPUs: the records of one light are the same
+ * for every lane and stay in L1); T > 0, the work-group stages T lights at a time
+ * through local memory, every work-item loading a share, as n-body codes do (GPUs:
+ * one global read per light per work-group instead of per work-item). The sum's
+ * order and every operation are the same: the pixels are bit-identical. The
+ * culled loop (CULLING) reads its per-tile lists as before. */
+#ifndef LIGHT_TILE
+#error "LIGHT_TILE must be set by the shading plan (clphong/device/plan.py)"
+#endif
+/* LIGHT_TILE: the staged records, F float4s (pointrec_t) each, then the light loop
+   over the tile; every work-item of the group runs the loads and both barriers, a
+   work-item of background pixels only skips the shading. */
+#define STAGE(tile, src, F, begin, end, body) \
+    for (uint t0_ = (begin); t0_ < (end); t0_ += LIGHT_TILE) { \
+        const uint n_ = min((uint)LIGHT_TILE, (end) - t0_); \
+        barrier(CLK_LOCAL_MEM_FENCE); \
+        for (uint q_ = (uint)get_local_id(0); q_ < n_ * (F); q_ += (uint)get_local_size(0)) \
+            (tile)[q_] = (src)[(size_t)t0_ * (F) + q_]; \
+        barrier(CLK_LOCAL_MEM_FENCE); \
+        for (uint jj_ = 0; jj_ < (lit ? n_ : 0u); ++jj_) { body(tile + (F) * jj_) } \
+    }
+
 /* Add x to the running sum s (POCL-NOTES "Light sums"). SUM_FP64: s is double,
  * so N float terms err by ≤ N·2⁻⁵³ of Σ|x| before the one final rounding to
  * float (c is unused); it ran 4 % (fp64 directions) to 9 % (float directions)
@@ -93,6 +116,12 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
     const size_t i = get_global_id(0) + item0;   /* pieces: item0 instead of a global offset,
                                                     whose work-group function PoCL 3.0 does not
                                                     specialise (1.12x slower at 1080p x 256) */
+#if LIGHT_TILE && HAS_POINT && !CULLING
+    __local pointrec_t point_tile[LIGHT_TILE * POINT_LIGHT_FLOAT4S];
+#endif
+#if LIGHT_TILE && HAS_DIRECTIONAL
+    __local float4 directional_tile[LIGHT_TILE * DIRECTIONAL_LIGHT_FLOAT4S];
+#endif
     pixel_t p;
     p.px = TO_DIR(vloadL(i, gbuf + 0 * stride)) - (dirS)origin.x;
     p.py = TO_DIR(vloadL(i, gbuf + 1 * stride)) - (dirS)origin.y;
@@ -282,36 +311,45 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
         floatL gcr = (floatL)(0.0f), gcg = (floatL)(0.0f), gcb = (floatL)(0.0f);
 #endif
 #if HAS_DIRECTIONAL
-        for (uint j = (lit ? d_begin : d_end); j < d_end; ++j) {
-            __global const float4 *rec = directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * j;
-            const float4 L = rec[1], L_lo = rec[5];   /* radiance, as hi + lo */
-            const weights_t w = shade_directional_light(&p, rec[0], rec[3], rec[2], rec[4]);
-            ADD_LIGHT(W_HI_LO(L.x, L_lo.x), W_HI_LO(L.y, L_lo.y), W_HI_LO(L.z, L_lo.z), w);
-        }
+/* one directional light's record (6 float4s) into the sums */
+#define DIRECTIONAL_BODY(rec) { \
+            const float4 L = (rec)[1], L_lo = (rec)[5];   /* radiance, as hi + lo */ \
+            const weights_t w = shade_directional_light(&p, (rec)[0], (rec)[3], (rec)[2], (rec)[4]); \
+            ADD_LIGHT(W_HI_LO(L.x, L_lo.x), W_HI_LO(L.y, L_lo.y), W_HI_LO(L.z, L_lo.z), w); }
+#if LIGHT_TILE
+        STAGE(directional_tile, directional_lights, DIRECTIONAL_LIGHT_FLOAT4S, d_begin, d_end,
+              DIRECTIONAL_BODY)
+#else
+        for (uint j = (lit ? d_begin : d_end); j < d_end; ++j)
+            DIRECTIONAL_BODY(directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * j)
+#endif
 #endif
 #if HAS_POINT
+/* one point light's record (POINT_LIGHT_FLOAT4S pointrec_t's) into the sums */
+#if HAS_SPOT
+#define POINT_WEIGHTS(rec) shade_point_light(&p, X.x, X.y, X.z, X.w, L.w, Q.x, L.x, L.y, L.z, \
+            Q.y, Q.z, Q.w, (rec)[3].x, (rec)[3].y, &ar, &ag, &ab)   /* rec[3]: the cone's s, o */
+#else
+#define POINT_WEIGHTS(rec) shade_point_light(&p, X.x, X.y, X.z, X.w, L.w, Q.x, L.x, L.y, L.z, \
+            &ar, &ag, &ab)
+#endif
+#define POINT_BODY(rec) { \
+            const pointrec_t X = (rec)[0];   /* position, c0 */ \
+            const pointrec_t L = (rec)[1];   /* radiance, c1 */ \
+            const pointrec_t Q = (rec)[2];   /* c2, a spot's axis */ \
+            wL ar, ag, ab;                   /* radiance × attenuation(d) (× the cone) */ \
+            const weights_t w = POINT_WEIGHTS(rec); \
+            ADD_LIGHT(ar, ag, ab, w); }
 #if CULLING
         /* this group's part of the tile's list: its entries below p_end */
-        for (; m < range.x + range.y && (!N_GROUPS || tile_lights[m] < p_end); ++m) {
-            const uint j = tile_lights[m];
+        for (; m < range.x + range.y && (!N_GROUPS || tile_lights[m] < p_end); ++m)
+            POINT_BODY(point_lights + POINT_LIGHT_FLOAT4S * tile_lights[m])
+#elif LIGHT_TILE
+        STAGE(point_tile, point_lights, POINT_LIGHT_FLOAT4S, p_begin, p_end, POINT_BODY)
 #else
-        for (uint j = (lit ? p_begin : p_end); j < p_end; ++j) {
+        for (uint j = (lit ? p_begin : p_end); j < p_end; ++j)
+            POINT_BODY(point_lights + POINT_LIGHT_FLOAT4S * j)
 #endif
-            __global const pointrec_t *rec = point_lights + POINT_LIGHT_FLOAT4S * j;
-            const pointrec_t X = rec[0];   /* position, c0 */
-            const pointrec_t L = rec[1];   /* radiance, c1 */
-            const pointrec_t Q = rec[2];   /* c2, a spot's axis */
-            wL ar, ag, ab;                 /* radiance × attenuation(d) (× the cone) */
-#if HAS_SPOT
-            const pointrec_t K = rec[3];   /* the cone's s, o */
-            const weights_t w = shade_point_light(&p, X.x, X.y, X.z, X.w, L.w, Q.x, L.x, L.y, L.z,
-                                                  Q.y, Q.z, Q.w, K.x, K.y, &ar, &ag, &ab);
-#else
-            const weights_t w = shade_point_light(&p, X.x, X.y, X.z, X.w, L.w, Q.x, L.x, L.y, L.z,
-                                                  &ar, &ag, &ab);
-#endif
-            ADD_LIGHT(ar, ag, ab, w);
-        }
 #endif
 #if N_GROUPS
         /* group g: α·E_g (0 on background pixels) */

@@ -714,6 +714,29 @@ def test_stopped_while_writing_leaves_nothing(work, capsys, monkeypatch, how, co
             assert signal.getsignal(getattr(signal, name)) is signal.SIG_DFL, name
 
 
+def _slow_enough_device(pairs: float, seconds: float) -> str:
+    """The default device if it shades ``pairs`` pixel-light pairs in at least ``seconds``
+    at its measured rate (the self-test's calibration frame), else the first device that
+    does (a CPU beside a GPU); the test skips where none does (an H200 alone shades the
+    frame below in about a tenth of a second)."""
+    from clphong.core.errors import DeviceError
+    from clphong.device.runtime import _full_names
+
+    default = selection.get_runtime()
+    others = []
+    for name, _ in _full_names():
+        try:
+            others.append(selection.get_runtime(name))
+        except DeviceError:
+            continue
+    for rt in [default] + others:
+        if rt.pair_rate is None or pairs / rt.pair_rate >= seconds:
+            return rt.selector
+    pytest.skip(f"every device here shades the frame in under {seconds:g} s "
+                f"({default.name}: {pairs / default.pair_rate:.2g} s): it ends before a signal "
+                "can reach it mid-frame; the pieces' size is tested in tests/device/test_renderer.py")
+
+
 def test_sigterm_stops_a_long_frame_within_a_second(tmp_path):
     """A frame whose shading takes many seconds (1024x768, 4096 lights) is shaded in
     pieces (clphong.device.renderer.launch_pieces): SIGTERM, sent while the kernel
@@ -726,17 +749,19 @@ def test_sigterm_stops_a_long_frame_within_a_second(tmp_path):
     from clphong.tools.bench import bench_gbuffer, bench_scene
     from clphong.tools.commands import scene_toml
 
+    device = _slow_enough_device(1024 * 768 * 16384, seconds=8.0)
     gb = bench_gbuffer(1024, 768)
     write_gbuffer(tmp_path / "g.exr", gb.position, gb.normal, gb.albedo, coverage=gb.coverage)
     # 16,384 lights: Intel's CPU runtime at 16 lanes shaded 4,096 in under 4 s (Zen 5)
     (tmp_path / "s.toml").write_text(scene_toml(bench_scene("wide", 16384)))
     out = tmp_path / "o.exr"
     cmd = [sys.executable, "-m", "clphong.console.cli", "render", str(tmp_path / "s.toml"),
-           str(tmp_path / "g.exr"), "-o", str(out), "--stats"]
+           str(tmp_path / "g.exr"), "-o", str(out), "--stats", "--device", device]
     # warm the kernel cache first (a cold build would be timed otherwise)
     subprocess.run([sys.executable, "-c", "from clphong.tools.bench import bench_scene, bench_gbuffer;"
                     "from clphong.device.renderer import Renderer;"
-                    "Renderer(bench_scene('wide', 16384)).render(bench_gbuffer(64, 16))"], check=True)
+                    f"Renderer(bench_scene('wide', 16384), device={device!r})"
+                    ".render(bench_gbuffer(64, 16))"], check=True)
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
     time.sleep(4.0)          # start-up, reading, the first pieces
     assert proc.poll() is None, "the frame finished before the signal: make it longer"

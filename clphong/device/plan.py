@@ -96,7 +96,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
               compensated: bool | None = None, fp64_directions: bool = False,
               max_error: float | None = None, has_fp64: bool | None = None,
               int_pow: bool | str = True, coverage: bool = False, groups: Sequence[str] = (),
-              aovs: Sequence[str] = ()) -> ShadingPlan:
+              aovs: Sequence[str] = (), light_tile: int = 0) -> ShadingPlan:
     """Choose the kernel variant for ``scene`` and the material ``maps`` present.
 
     Parameters
@@ -139,6 +139,11 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         Light-group layers, in the order of the output planes (N_GROUPS).
     aovs : sequence of {"diffuse", "specular"}
         Component layers (AOV_DIFFUSE, AOV_SPECULAR).
+    light_tile : int
+        Lane kernel: 0, every work-item reads the light records itself (CPUs); T > 0,
+        the work-group stages T records at a time through local memory (LIGHT_TILE,
+        GPUs: ``Runtime.light_tile``); T must be the launch's work-group size
+        (``frame.LOCAL_SIZE``). Bit-identical results either way.
 
     The display output is not part of the plan: kernels/tonemap_apply.cl runs
     on the stored planes (clphong.device.display), so the shading kernel never
@@ -225,6 +230,12 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
                   else "no --max-error budget: every light shades every pixel"))
         if culling:
             put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel culling tiles (clphong.device.culling.TILE)")
+        staged = light_tile and (n_dir > 0 or (n_point > 0 and not culling))
+        put("LIGHT_TILE", light_tile if staged else 0,
+            f"the work-group stages {light_tile} light records at a time through local memory "
+            "(a GPU: one global read per light per work-group)" if staged
+            else "each work-item reads the light records (a CPU: they stay in its L1)"
+            if not light_tile else "no light loop to stage (the culled loop reads its lists)")
         put("DIRECTIONS_FP64", fp64_directions,
             "directions, n·l and δ in double: relative error a few u at grazing light and "
             "any shininess (docs/error-model.md)" if fp64_directions

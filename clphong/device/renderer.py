@@ -162,6 +162,11 @@ class Renderer:
         form's error bound); False: always exp(k·log1p(−δ)); "float": binary
         powering in float on any device, with float directions (implied; the
         "fast" path, relative error ~2k·u). See :func:`clphong.device.plan.make_plan`.
+    light_tile : bool, optional
+        Stage the light records through local memory, a work-group's worth at a time
+        (the plan's LIGHT_TILE): by default where the device is a GPU
+        (:attr:`clphong.device.runtime.Runtime.light_tile`); True or False to force it
+        (the pixels are bit-identical either way).
 
     The attributes ``max_error`` (the *absolute* budget
     ``max_error·reference_white``, or None), ``fp64_directions`` and
@@ -178,7 +183,7 @@ class Renderer:
                  max_error: float | None = None, reference_white: float = 1.0,
                  int_pow: bool | str | None = None, path: str | None = None,
                  aovs: Sequence[str] = (), straight_alpha: bool = False,
-                 light_tree: bool = True):
+                 light_tree: bool = True, light_tile: bool | None = None):
         self.scene = scene
         self.use_tree = bool(light_tree)
         self.groups, self.aovs = check_layers(scene, aovs or scene.aovs)
@@ -205,6 +210,7 @@ class Renderer:
         else:
             check_width(self.runtime, check_lanes(lanes))
         self.lanes = check_lanes(lanes)
+        self._light_tile = light_tile
         self.compensated = compensated
         self.max_error = check_budget(max_error, reference_white)   # absolute, or None
         self.reference_white = float(reference_white)
@@ -280,6 +286,13 @@ class Renderer:
             return "float" if not self.fp64_directions else None
         return None
 
+    @property
+    def light_tile(self) -> int:
+        """Light records staged through local memory per step (0: none): the work-group
+        size where the device stages them (or ``light_tile=True`` asked for it)."""
+        staged = self.runtime.light_tile if self._light_tile is None else self._light_tile
+        return LOCAL_SIZE if staged else 0
+
     def plan_for(self, map_names, *, culling: bool = True) -> ShadingPlan:
         """The plan for frames with these material maps (its program built and cached);
         ``culling=False``: the same variant without culling (the brute-force fallback)."""
@@ -291,7 +304,8 @@ class Renderer:
                          compensated=self.compensated, fp64_directions=self.fp64_directions,
                          max_error=self.max_error if culling else None,
                          has_fp64=self.runtime.fast_fp64, int_pow=self.int_pow,
-                         coverage=coverage, groups=self.scene.light_groups, aovs=self.aovs)
+                         coverage=coverage, groups=self.scene.light_groups, aovs=self.aovs,
+                         light_tile=self.light_tile if self.kernel_kind == "lanes" else 0)
         return plan, self.runtime.program(plan.entry_file, plan.defines)
 
     # ------------------------------------------------------------------ a whole frame
@@ -502,7 +516,9 @@ class Renderer:
             items = frame.stride // self.lanes
             lights_per_item = max(plan.n_point + plan.n_directional, 1) * self.lanes
             events = []
-            for start, count in launch_pieces(items, lights_per_item, self.kernel_kind):
+            for start, count in launch_pieces(items, lights_per_item, self.kernel_kind,
+                                              rate=self.runtime.pair_rate,
+                                              least=self.runtime.fill_items):
                 # one piece at a time: a signal (SIGTERM, Ctrl-C) is handled between
                 # pieces, at most PIECE_SECONDS late, and nothing is left queued
                 kern.set_arg(ITEM0_ARG, np.uint32(start))
@@ -539,23 +555,38 @@ class Renderer:
 #: A launch is split into pieces of about this long (at a pessimistic rate), so
 #: that a signal takes effect soon even in a long frame (SIGTERM within 1 s).
 PIECE_SECONDS = 0.25
-#: Pixel-light pairs a second the pieces are sized for: below the lane kernel's
-#: rate on 2 loaded cores (0.15-0.8 GPLE/s measured), the obvious kernel's own;
-#: a 1080p frame at 256 lights is 6 pieces of about 0.1 s (the pieces cost
-#: nothing measurable: work-item ids continue through ``item0``, not a global
-#: offset, which PoCL 3.0 runs through a slower, unspecialised function).
+#: Pixel-light pairs a second the pieces are sized for where the device's rate was not
+#: measured: below the lane kernel's rate on 2 loaded cores (0.15-0.8 GPLE/s measured),
+#: the obvious kernel's own; a 1080p frame at 256 lights is 6 pieces of about 0.1 s
+#: (the pieces cost nothing measurable: work-item ids continue through ``item0``, not a
+#: global offset, which PoCL 3.0 runs through a slower, unspecialised function).
 PIECE_RATE = {"lanes": 2e8, "obvious": 3e6}
+#: A measured rate (the calibration frame's, ``Runtime.pair_rate``) is divided by this
+#: before sizing the pieces: a scene with spots, maps, groups or layers runs slower than
+#: the calibration frame (at most ~2x on the bench's scenes).
+RATE_MARGIN = 4.0
 
 
 #: Index of shade.cl's ``item0`` argument (include/shade_args.h).
 ITEM0_ARG = 4
 
 
-def launch_pieces(items: int, pairs_per_item: int, kernel: str = "lanes") -> list[tuple[int, int]]:
+def launch_pieces(items: int, pairs_per_item: int, kernel: str = "lanes", *,
+                  rate: float | None = None, least: int = 0) -> list[tuple[int, int]]:
     """(first work-item, count) of each piece of a launch of ``items`` work-items
-    (a multiple of LOCAL_SIZE), each of about PIECE_SECONDS at PIECE_RATE, in
-    whole work-groups; one piece when the launch is short."""
-    per = PIECE_RATE.get(kernel, PIECE_RATE["lanes"]) * PIECE_SECONDS / max(pairs_per_item, 1)
+    (a multiple of LOCAL_SIZE), each of about PIECE_SECONDS, in whole work-groups; one
+    piece when the launch is short.
+
+    ``rate``: the device's measured pairs a second (lane kernel only; divided by
+    RATE_MARGIN), else PIECE_RATE's; ``least``: work-items a piece holds at least, enough
+    to fill the device (a GPU at 65,536 lights would otherwise get pieces of a few
+    work-groups, and run at a few per cent of its speed).
+    """
+    if rate is not None and rate > 0 and kernel == "lanes":
+        per_second = rate / RATE_MARGIN
+    else:
+        per_second = PIECE_RATE.get(kernel, PIECE_RATE["lanes"])
+    per = max(per_second * PIECE_SECONDS / max(pairs_per_item, 1), least)
     size = max(LOCAL_SIZE, int(per) // LOCAL_SIZE * LOCAL_SIZE)
     return [(s, min(size, items - s)) for s in range(0, items, size)]
 

@@ -113,6 +113,11 @@ def _sources_digest(folder: Path) -> str:
     return digest
 
 
+#: Work-groups per compute unit that a launch piece fills at least (Runtime.fill_items):
+#: 32 groups of 64 is an NVIDIA multiprocessor's 2,048 resident work-items.
+FILL_GROUPS = 32
+
+
 #: Free space below which PoCL's cache folder is taken for full (a compile writes ~1.1 MB).
 CACHE_MIN_FREE = 4 << 20
 
@@ -284,6 +289,9 @@ class Runtime:
     #: The device's double-to-float FMA rate, measured by the self-test
     #: (:func:`clphong.device.peak.measure_fp64_ratio`); None: not measured.
     fp64_ratio: float | None = None
+    #: Pixel-light pairs a second on the calibration frame, measured with the self-test
+    #: (:func:`clphong.device.selftest.calibrate`); None: not measured.
+    pair_rate: float | None = None
 
     @property
     def kind(self) -> str:
@@ -325,6 +333,21 @@ class Runtime:
         """Whether the device computes in double (cl_khr_fp64)."""
         return "cl_khr_fp64" in self.device.extensions.split() or bool(
             getattr(self.device, "double_fp_config", 0))
+
+    @property
+    def fill_items(self) -> int:
+        """Work-items that keep every compute unit busy, FILL_GROUPS work-groups of
+        ``frame.LOCAL_SIZE`` per compute unit (two on a CPU, whose compute unit is a core
+        that runs one work-group at a time): a launch piece holds at least this many."""
+        per_unit = 2 if self.device.type & _cl().device_type.CPU else FILL_GROUPS
+        return int(self.device.max_compute_units) * per_unit * 64
+
+    @property
+    def light_tile(self) -> bool:
+        """Whether the shading kernel stages the light records through local memory
+        (``plan.LIGHT_TILE``): on a GPU, where a work-group's work-items would each read
+        every record from global memory; not on a CPU, whose L1 holds them."""
+        return not self.device.type & _cl().device_type.CPU
 
     @property
     def fast_fp64(self) -> bool:

@@ -7,9 +7,12 @@ Device choice, in order:
    (``"0"``, ``"0:1"``) or as a case-insensitive substring of a platform or
    device name (``"pocl"``, ``"intel"``, ``"nvidia"``);
 2. the ``PYOPENCL_CTX`` environment variable, as PyOpenCL reads it;
-3. the first CPU device, in the order of :data:`clphong.device.platforms.PREFERENCE`
-   (Intel's CPU runtime, then PoCL), whose width from the host rule
-   (:mod:`clphong.device.hostrule`) passes the self-test; then any other device.
+3. of the devices whose width from the host rule (:mod:`clphong.device.hostrule`)
+   passes the self-test, the fastest on a small calibration frame
+   (:func:`clphong.device.selftest.calibrate`, measured with the self-test and cached
+   with it): a GPU over the CPU where it is faster; among equals, the first CPU device
+   in the order of :data:`clphong.device.platforms.PREFERENCE` (Intel's CPU runtime,
+   then PoCL), then the others.
 
 Whatever chose the device, its lane width comes from the host rule and is
 self-tested (:mod:`clphong.device.selftest`, in a child process) before the first
@@ -89,7 +92,7 @@ _RUNTIMES: dict[str | None, Runtime] = {}
 _RT_LOCK = threading.Lock()
 
 #: Bumped when the self-test changes what it checks: older verdicts are not reused.
-SELFTEST_VERSION = 2
+SELFTEST_VERSION = 3
 _VERDICTS: dict[Path, dict] = {}
 
 
@@ -169,6 +172,7 @@ def _configure(rt: Runtime, lanes: int | None) -> Runtime:
         if verdict["ok"]:
             rt.lanes = width
             rt.fp64_ratio = verdict.get("fp64_ratio")
+            rt.pair_rate = verdict.get("pair_rate")
             rt.choice = (f"{width} lane(s), the host rule's best that passed the self-test "
                          f"(worst |err|/bound {verdict['worst']:.2g}); rule: {decision.why()}")
             return rt
@@ -218,22 +222,36 @@ def next_default(rt: Runtime) -> Runtime | None:
 
 
 def _default_runtime() -> Runtime:
-    """The first device of :func:`_candidates` that the host rule allows and whose
-    self-test passes at some width (none whose compiler died: :func:`next_default`)."""
-    reasons = []
+    """Of the devices of :func:`_candidates` that the host rule allows and whose self-test
+    passes at some width (none whose compiler died: :func:`next_default`), the one with
+    the highest measured rate on the calibration frame (``Runtime.pair_rate``); the
+    first in candidate order where rates tie or were not measured."""
+    reasons, passed = [], []
     for dev in _candidates():
         if any(dev == crashed for crashed in _CRASHED):
             continue
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", DeviceWarning)   # each device is said below
-                return _configure(_open(dev), None)
+                passed.append(_configure(_open(dev), None))
         except DeviceError as exc:
             reasons.append(str(exc).split("; choose another device")[0])
+    if passed:
+        best = max(passed, key=lambda rt: rt.pair_rate or 0.0)    # max keeps the first of ties
+        if len(passed) > 1:
+            rates = ", ".join(f"{rt.name} {_rate(rt)}" for rt in passed)
+            best.choice = (f"the fastest of {len(passed)} devices that passed their self-tests "
+                           f"on the calibration frame ({rates}); {best.choice}")
+        return best
     if not reasons:
         raise DeviceError(f"no OpenCL device found; {_INSTALL_HINT}")
     raise DeviceError("no OpenCL device renders right on this CPU: " + "; ".join(reasons)
                       + "; install Intel's CPU runtime: pip install \"clphong[intel]\"")
+
+
+def _rate(rt: Runtime) -> str:
+    """A device's calibration rate for messages: "1.2 GPLE/s" (pixel-light pairs)."""
+    return "rate not measured" if rt.pair_rate is None else f"{rt.pair_rate / 1e9:.3g} GPLE/s"
 
 
 def get_runtime(device: str | None = None, *, lanes: int | None = None) -> Runtime:
@@ -312,7 +330,8 @@ def describe_devices() -> tuple[list[dict], str]:
                     chosen = rt if row["default"] else _configure(rt, None)
                 v = verify(chosen, chosen.lanes)
                 row.update(width=chosen.lanes,
-                           verdict=f"passed (worst |err|/bound {v['worst']:.2g})",
+                           verdict=f"passed (worst |err|/bound {v['worst']:.2g}); "
+                                   f"calibration frame {_rate(chosen)}",
                            double=chosen.double_line())
         except DeviceError as exc:
             row.setdefault("width", None)

@@ -81,6 +81,8 @@ a tiny run produces a well-formed report.
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import math
 import os
@@ -203,6 +205,15 @@ def check_paths(paths) -> tuple:
 
 
 DEFAULT_BUDGETS = (0.0, 1e-4, 1e-3, 1e-2)
+#: The numba peer's crop, pixel-light pairs (and the least crop of the OpenCL runs): ~45 ms
+#: on 16 cores, well past its per-call overhead.
+PEER_PAIRS = 1.5e8
+#: Seconds of the device's measured rate (Runtime.pair_rate) that a brute-force crop holds
+#: by default: on a GPU 1.5e8 pairs are a few work-groups a row at 65,536 lights, and time
+#: the launch, not the shading.
+CROP_SECONDS = 0.1
+
+
 #: The obvious kernel runs at a few MPLE/s: above this many lights even a 4-row
 #: crop takes minutes a frame, so it is skipped (and says so).
 OBVIOUS_MAX_LIGHTS = 4096
@@ -218,7 +229,9 @@ class BenchConfig:
     budgets: tuple = DEFAULT_BUDGETS
     repeats: int = 5
     warmup: int = 1
-    crop_pairs: float = 1.5e8     # brute force: crop to about this many pixel-light pairs
+    crop_pairs: float | None = None   # brute force: crop to about this many pixel-light pairs
+                                      # (None: CROP_SECONDS of the device's measured rate, at
+                                      # least PEER_PAIRS)
     error_pairs: float = 3e7      # reference: sample about this many pixel-light pairs
     numpy_pairs: float = 6.7e7    # numpy: about this many pixel-light pairs (at least 1/8 of the frame)
     numba: bool = True            # the numba peer, where numba is installed
@@ -264,6 +277,9 @@ def run_bench(cfg: BenchConfig) -> dict:
     """Run the benchmark; return the report (a JSON-serialisable dict)."""
     log = cfg.log or (lambda msg: None)
     rt = get_runtime(cfg.device)
+    peer_pairs = cfg.crop_pairs or PEER_PAIRS
+    if cfg.crop_pairs is None:
+        cfg = dataclasses.replace(cfg, crop_pairs=max(PEER_PAIRS, CROP_SECONDS * (rt.pair_rate or 0.0)))
     shapes: dict = {}
     peak = measure_peak_gflops(rt, detail=shapes)
     use_numba = cfg.numba and numba_peer.available()
@@ -346,7 +362,7 @@ def run_bench(cfg: BenchConfig) -> dict:
                 crop, np_times = bench_gbuffer(W, H, np_rows), []
                 np_scene = bench_scene(kind, n) if np_lights == n else _first_lights(scene, np_lights)
                 if use_numba:       # the numba peer on the accurate path's crop: identical inputs
-                    peer_rows = _crop_rows(W, H, n, cfg.crop_pairs)
+                    peer_rows = _crop_rows(W, H, n, peer_pairs)
                     peer_gb = full if peer_rows == H else bench_gbuffer(W, H, peer_rows)
                     peer, peer_times = numba_peer.NumbaPeer(scene, peer_gb), []
             for round_ in range(cfg.warmup + cfg.repeats):

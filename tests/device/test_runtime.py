@@ -110,6 +110,34 @@ def test_default_device_is_pocl_cpu_even_when_listed_last(fake_platforms, monkey
     assert chosen() is pocl_cpu                           # cached, still the default
 
 
+@pytest.mark.parametrize("gpu_rate, winner", [(9e10, "gpu"), (4e8, "cpu")])
+def test_default_device_is_the_fastest_that_passes(gpu_rate, winner, fake_platforms, monkeypatch):
+    """Issue 29: with a GPU and a CPU platform both present, the default is the device
+    whose self-test passes and whose calibration frame ran faster (the verdict's
+    pair_rate); the choice says so, with each rate. --device still wins."""
+    import pyopencl as cl
+
+    from clphong.device import selection
+
+    nvidia, = fake_platforms[0].get_devices()
+    pocl_gpu, pocl_cpu = fake_platforms[1].get_devices()
+    rates = {nvidia.name: gpu_rate, pocl_gpu.name: gpu_rate / 3, pocl_cpu.name: 1.2e9}
+    monkeypatch.setattr(selection, "verify", lambda rt, width: {
+        "ok": True, "worst": 0.0, "detail": "", "pair_rate": rates[rt.device.name]})
+    rt = selection.get_runtime()
+    assert rt.device is (nvidia if winner == "gpu" else pocl_cpu)
+    assert rt.pair_rate == rates[rt.device.name]
+    assert rt.choice.startswith("the fastest of 3 devices that passed their self-tests")
+    assert "1.2 GPLE/s" in rt.choice and f"{gpu_rate / 1e9:.3g} GPLE/s" in rt.choice
+    assert selection.get_runtime("pthread").device is pocl_cpu
+    # a device that fails its self-test is not chosen, however fast
+    monkeypatch.setattr(selection, "_RUNTIMES", {})
+    monkeypatch.setattr(selection, "verify", lambda rt, width: {
+        "ok": rt.device is not nvidia, "worst": 0.0, "detail": "x",
+        "pair_rate": rates[rt.device.name]})
+    assert selection.get_runtime().device is (pocl_gpu if winner == "gpu" else pocl_cpu)
+
+
 def test_default_device_without_a_cpu_is_the_first(fake_platforms, monkeypatch):
     import pyopencl as cl
 
