@@ -102,6 +102,19 @@ def random_lights(rng, n_point=3, n_dir=1, n_amb=1):
     return lights
 
 
+def skip_unless_lanes(lanes, device=None):
+    """Skip where the host rule does not give ``device`` (None: the default) ``lanes`` lanes:
+    a GPU runs one pixel a work-item, and refuses other widths in one line (tested in
+    tests/device/test_runtime.py); None, the device's own width, always runs."""
+    from clphong.device.selection import get_runtime
+
+    rt = get_runtime(device)
+    widths = rt.decision.widths
+    if lanes is not None and lanes not in widths:
+        pytest.skip(f"{rt.name} takes {' or '.join(map(str, widths))} lane(s) only: "
+                    f"{rt.decision.why()}")
+
+
 def check_against_reference(scene, gbuffer, *, kernel="lanes", lanes=None, compensated=None,
                             fp64_directions=None, int_pow=None, device=None, path=None):
     """Render, compare with the float64 reference, assert |err| ≤ the error bound.
@@ -113,6 +126,7 @@ def check_against_reference(scene, gbuffer, *, kernel="lanes", lanes=None, compe
     from clphong.device.renderer import Renderer, prepare_frame
     from clphong.reference import shading as reference
 
+    skip_unless_lanes(lanes, device)
     r = Renderer(scene, kernel=kernel, lanes=lanes, compensated=compensated,
                  fp64_directions=fp64_directions, int_pow=int_pow, device=device, path=path)
     frame = prepare_frame(gbuffer, lanes=r.lanes)

@@ -703,15 +703,17 @@ def test_stopped_while_writing_leaves_nothing(work, capsys, monkeypatch, how, co
                 raise KeyboardInterrupt
             return True
 
+    from clphong.core.signals import TERMINATING
+
+    names = [n for n in TERMINATING + ("SIGRTMIN", "SIGRTMAX") if hasattr(signal, n)]
+    # as they were before the command (SIG_DFL, or a test runner's own: pytest-timeout's SIGALRM)
+    before = {n: signal.getsignal(getattr(signal, n)) for n in names}
     src, out = work
     monkeypatch.setattr(output.oiio, "ImageOutput", Stopped)
     line = fails(render_argv(src, out), capsys, src.parent, code=code)
     assert line.startswith(text)
-    from clphong.core.signals import TERMINATING
-
-    for name in TERMINATING + ("SIGRTMIN", "SIGRTMAX"):            # restored after the command
-        if hasattr(signal, name):
-            assert signal.getsignal(getattr(signal, name)) is signal.SIG_DFL, name
+    for name in names:                                              # restored after the command
+        assert signal.getsignal(getattr(signal, name)) is before[name], name
 
 
 def _slow_enough_device(pairs: float, seconds: float) -> str:

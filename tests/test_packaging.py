@@ -18,7 +18,23 @@ PROBE = (
 )
 
 
+def _offline_build() -> list[str]:
+    """``--no-build-isolation`` where this environment can build clphong itself (setuptools
+    68 or later, and wheel): pip then fetches no build dependencies, which a machine with no
+    package index (the GPU machine) cannot; elsewhere pip's isolated build, as a user's."""
+    try:
+        from importlib.metadata import version
+
+        major = int(version("setuptools").split(".")[0])
+        version("wheel")
+    except Exception:     # not installed, or an odd version string
+        return []
+    return ["--no-build-isolation"] if major >= 68 else []
+
+
 def _pip(*args, cwd=None):
+    if args[0] in ("wheel", "install"):
+        args = (args[0], *_offline_build(), *args[1:])
     r = subprocess.run([sys.executable, "-m", "pip", *args], capture_output=True, text=True,
                        cwd=cwd, timeout=600)
     if r.returncode != 0:

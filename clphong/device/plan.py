@@ -142,8 +142,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     light_tile : int
         Lane kernel: 0, every work-item reads the light records itself (CPUs); T > 0,
         the work-group stages T records at a time through local memory (LIGHT_TILE,
-        GPUs: ``Runtime.light_tile``); T must be the launch's work-group size
-        (``frame.LOCAL_SIZE``). Bit-identical results either way.
+        GPUs: ``Runtime.light_tile``), any T with any work-group size (each work-item
+        loads every work-group-size-th float4). Bit-identical results either way.
 
     The display output is not part of the plan: kernels/tonemap_apply.cl runs
     on the stored planes (clphong.device.display), so the shading kernel never

@@ -162,11 +162,11 @@ class Renderer:
         form's error bound); False: always exp(k·log1p(−δ)); "float": binary
         powering in float on any device, with float directions (implied; the
         "fast" path, relative error ~2k·u). See :func:`clphong.device.plan.make_plan`.
-    light_tile : bool, optional
+    light_tile : bool or int, optional
         Stage the light records through local memory, a work-group's worth at a time
         (the plan's LIGHT_TILE): by default where the device is a GPU
-        (:attr:`clphong.device.runtime.Runtime.light_tile`); True or False to force it
-        (the pixels are bit-identical either way).
+        (:attr:`clphong.device.runtime.Runtime.light_tile`); True or False to force it,
+        or a number of lights a step (the pixels are bit-identical either way).
 
     The attributes ``max_error`` (the *absolute* budget
     ``max_error·reference_white``, or None), ``fp64_directions`` and
@@ -291,7 +291,9 @@ class Renderer:
         """Light records staged through local memory per step (0: none): the work-group
         size where the device stages them (or ``light_tile=True`` asked for it)."""
         staged = self.runtime.light_tile if self._light_tile is None else self._light_tile
-        return LOCAL_SIZE if staged else 0
+        if staged is True or (staged and not isinstance(staged, int)):
+            return LOCAL_SIZE
+        return int(staged) if staged else 0
 
     def plan_for(self, map_names, *, culling: bool = True) -> ShadingPlan:
         """The plan for frames with these material maps (its program built and cached);
@@ -445,6 +447,8 @@ class Renderer:
         lists are read in group order, do not take clusters yet)."""
         if not self.use_tree or plan.defines.get("N_GROUPS") or plan.n_spot == plan.n_point:
             return None
+        if not tree_can_pay(self.runtime.pair_rate, frame.shape[0] * frame.shape[1] * plan.n_point):
+            return None
         spec = SpecularModel.of_scene(self.scene, lights.eye,
                                       shininess_map="h" in frame.map_names)
         return TreeInput(tree=self.light_tree, spec=spec, point64=lights.point64)
@@ -565,6 +569,21 @@ PIECE_RATE = {"lanes": 2e8, "obvious": 3e6}
 #: before sizing the pieces: a scene with spots, maps, groups or layers runs slower than
 #: the calibration frame (at most ~2x on the bench's scenes).
 RATE_MARGIN = 4.0
+
+
+#: The light tree's cut runs on the host's cores (clphong/model/light_tree.py): 0.5 s for
+#: the wide scene's 1080p frame at 4,096 lights on 16 cores, 12 s for 65,536 clustered
+#: lights, measured beside an H200 that shades either frame brute force in 0.05-0.8 s. On a
+#: device this much faster than a CPU (measured pixel-light pairs a second) the cut is
+#: tried only where brute force would take TREE_MIN_SECONDS or more.
+TREE_DEVICE_RATE = 1e10
+TREE_MIN_SECONDS = 2.0
+
+
+def tree_can_pay(rate: float | None, pairs: float) -> bool:
+    """Whether the host's light-tree cut may be tried for a frame of ``pairs`` pixel-light
+    pairs on a device shading ``rate`` pairs a second (None: not measured, a CPU's rate)."""
+    return rate is None or rate < TREE_DEVICE_RATE or pairs / rate >= TREE_MIN_SECONDS
 
 
 #: Index of shade.cl's ``item0`` argument (include/shade_args.h).

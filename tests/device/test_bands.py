@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import make_gbuffer, make_scene
+from conftest import make_gbuffer, make_scene, skip_unless_lanes
 
 from clphong.device.bands import band_align
 from clphong.device.culling import TILE, super_tiles
@@ -49,6 +49,7 @@ def test_band_align_is_the_culling_super_tile_edge():
 def test_culled_frame_in_bands_equals_one_launch(lanes, rows, device):
     """Bit-identical (np.array_equal) to the whole-frame launch, bands asked for at odd
     multiples of 128 rows; tolerance: none."""
+    skip_unless_lanes(lanes, device)
     rng = np.random.default_rng(3)
     gb = _tall_frame(rng)
     r = Renderer(make_scene(_lights(rng), model="blinn-phong", h=30.0), lanes=lanes,

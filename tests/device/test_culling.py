@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import heightfield, make_gbuffer, make_scene, point_lights
+from conftest import heightfield, make_gbuffer, make_scene, point_lights, skip_unless_lanes
 
 from clphong.core.floats import U
 from clphong.device import culling
@@ -224,6 +224,7 @@ def test_spot_cones_cull_the_tiles_they_miss(eps):
 @pytest.mark.parametrize("lanes", [1, 4])
 def test_other_lane_widths_and_odd_sizes(lanes, device):
     """Work-items that wrap onto the next row are bounded with the tile that shades them."""
+    skip_unless_lanes(lanes, device)
     rng = np.random.default_rng(5)
     gb = heightfield(rng, 23, 35)
     scene = make_scene(point_lights(rng, 50), model="phong", h=10.0)

@@ -68,6 +68,10 @@ def test_staged_lights_are_bit_identical_and_within_the_bound(case, path, device
     assert np.array_equal(plain.image, staged.image)
     for name in plain.layers:
         assert np.array_equal(plain.layers[name], staged.layers[name]), name
+    # a tile larger or smaller than the work-group: each work-item loads several, or none
+    for tile in (3 * LOCAL_SIZE, 24):
+        other = Renderer(scene, light_tile=tile, **kw).render(gb)
+        assert other.plan.defines["LIGHT_TILE"] == tile and np.array_equal(other.image, plain.image)
     bound, _ = reference.error_bound(scene, gb, origin=None if staged.plan.defines.get(
         "DIRECTIONS_FP64") else _origin(gb, staged), plan=staged.plan)
     if max_error is None:         # culling adds its budget: the bound above is brute force's

@@ -568,6 +568,38 @@ def test_launch_pieces_cover_the_launch_in_whole_work_groups():
     assert all(s % LOCAL_SIZE == 0 for s, _ in pieces)
 
 
+def test_launch_pieces_follow_the_measured_rate_and_fill_the_device():
+    """Issue 29: with a measured rate the pieces last about PIECE_SECONDS at a quarter of
+    it (RATE_MARGIN); never fewer work-items than fill the device (a GPU at 65,536 lights
+    got pieces of 12 work-groups, and ran at a few per cent of its speed)."""
+    from clphong.device.frame import LOCAL_SIZE
+    from clphong.device.renderer import PIECE_SECONDS, RATE_MARGIN, launch_pieces
+
+    items, per_item = 2_073_600, 65536           # 1080p at 1 lane, 65,536 lights
+    rate = 1.3e11                                # an H200's calibration frame
+    pieces = launch_pieces(items, per_item, rate=rate)
+    size = pieces[0][1]
+    assert size == int(rate / RATE_MARGIN * PIECE_SECONDS / per_item) // LOCAL_SIZE * LOCAL_SIZE
+    assert sum(c for _, c in pieces) == items and all(s % LOCAL_SIZE == 0 for s, _ in pieces)
+    fill = 132 * 32 * 64                         # 132 multiprocessors x 32 groups of 64
+    filled = launch_pieces(items, per_item, rate=1e9, least=fill)
+    assert filled[0][1] == fill and len(filled) == -(-items // fill)
+    # the obvious kernel keeps its own rate: the lane kernel's measured rate is not its own
+    assert launch_pieces(items, 256, "obvious", rate=rate) == launch_pieces(items, 256, "obvious")
+
+
+def test_the_light_tree_is_tried_only_where_it_can_pay():
+    """The host's cut (0.5-12 s on 16 cores) is not tried on a device that shades the
+    frame brute force in well under TREE_MIN_SECONDS; on a CPU's rate, or unmeasured, it is."""
+    from clphong.device.renderer import TREE_DEVICE_RATE, TREE_MIN_SECONDS, tree_can_pay
+
+    frame = 1920 * 1080 * 4096
+    assert tree_can_pay(None, frame) and tree_can_pay(1.2e9, frame)
+    assert not tree_can_pay(1.3e11, frame)                       # an H200: 0.07 s brute force
+    assert tree_can_pay(TREE_DEVICE_RATE, TREE_MIN_SECONDS * TREE_DEVICE_RATE)
+    assert not tree_can_pay(TREE_DEVICE_RATE, TREE_MIN_SECONDS * TREE_DEVICE_RATE * 0.99)
+
+
 @pytest.mark.parametrize("opts", [dict(), dict(path="fast"), dict(kernel="obvious"),
                                   dict(max_error=1e-3)])
 def test_a_launch_in_pieces_is_bit_identical(opts, monkeypatch, device):

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import check_against_reference, heightfield, make_scene
+from conftest import check_against_reference, heightfield, make_scene, skip_unless_lanes
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
@@ -68,6 +68,7 @@ def _scene(rng, model="blinn-phong", n=12, groups=False):
                          ids=["default", "fp32", "lanes1", "lanes4", "obvious"])
 @pytest.mark.parametrize("model", ["phong", "blinn-phong"])
 def test_spots_within_the_error_bound(kw, model):
+    skip_unless_lanes(kw.get("lanes"))
     rng = np.random.default_rng(2)
     gb = heightfield(rng)
     scene = _scene(rng, model)
