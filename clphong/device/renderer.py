@@ -162,6 +162,10 @@ class Renderer:
         form's error bound); False: always exp(k·log1p(−δ)); "float": binary
         powering in float on any device, with float directions (implied; the
         "fast" path, relative error ~2k·u). See :func:`clphong.device.plan.make_plan`.
+    light_tree : bool or "always"
+        With ``max_error``: cull clusters of the light tree too (True, default) where the
+        host's cut can pay (``tree_can_pay``: not on a device that shades the frame brute
+        force in under TREE_MIN_SECONDS), or on every device ("always"); False: never.
     light_tile : bool or int, optional
         Stage the light records through local memory, a work-group's worth at a time
         (the plan's LIGHT_TILE): by default where the device is a GPU
@@ -186,6 +190,8 @@ class Renderer:
                  light_tree: bool = True, light_tile: bool | None = None):
         self.scene = scene
         self.use_tree = bool(light_tree)
+        self.always_tree = light_tree == "always"
+        self._cull_rest = 0          # frames left that skip culling after it lost (CULL_RETRY)
         self.groups, self.aovs = check_layers(scene, aovs or scene.aovs)
         self.straight_alpha = bool(straight_alpha)
         if path is not None:
@@ -447,7 +453,8 @@ class Renderer:
         lists are read in group order, do not take clusters yet)."""
         if not self.use_tree or plan.defines.get("N_GROUPS") or plan.n_spot == plan.n_point:
             return None
-        if not tree_can_pay(self.runtime.pair_rate, frame.shape[0] * frame.shape[1] * plan.n_point):
+        if not self.always_tree and not tree_can_pay(self.runtime.pair_rate,
+                                                     frame.shape[0] * frame.shape[1] * plan.n_point):
             return None
         spec = SpecularModel.of_scene(self.scene, lights.eye,
                                       shininess_map="h" in frame.map_names)
@@ -492,6 +499,12 @@ class Renderer:
             ob = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             bg = self.scene.background
             cull_args, cull = [], None
+            if plan.defines.get("CULLING") and self._cull_rest > 0:
+                # culling lost on a recent frame (it kept nearly every light): brute force
+                # for CULL_RETRY frames, then the lists are tried again
+                self._cull_rest -= 1
+                plan, prog = self._plan_and_program(frame.map_names, culling=False,
+                                                    coverage=frame.coverage)
             if plan.defines.get("CULLING"):
                 cull = build_tile_lists(self.runtime, plan, frame, lights.point, plan.n_point,
                                         budget=self.max_error, k_d=k_d, S=S, gbuf_buffer=g,
@@ -502,6 +515,7 @@ class Renderer:
                     # lists' cost stays in cull.seconds, their kept share in the result)
                     if cull is not None:
                         cull = dataclasses.replace(cull, brute=True)
+                    self._cull_rest = CULL_RETRY
                     plan, prog = self._plan_and_program(frame.map_names, culling=False,
                                                         coverage=frame.coverage)
                 else:
@@ -569,6 +583,14 @@ PIECE_RATE = {"lanes": 2e8, "obvious": 3e6}
 #: before sizing the pieces: a scene with spots, maps, groups or layers runs slower than
 #: the calibration frame (at most ~2x on the bench's scenes).
 RATE_MARGIN = 4.0
+
+
+#: After a frame whose culling lost (its lists kept more than culling.BRUTE_ABOVE of the
+#: lights, or were too long), this many frames of the renderer are shaded brute force
+#: without building lists, then culling is tried again: a sequence whose lights reach every
+#: pixel pays for the lists once in CULL_RETRY + 1 frames (on an H200 at 65,536 wide lights
+#: the lists cost 1.7x the brute-force frame).
+CULL_RETRY = 7
 
 
 #: The light tree's cut runs on the host's cores (clphong/model/light_tree.py): 0.5 s for

@@ -212,6 +212,8 @@ PEER_PAIRS = 1.5e8
 #: by default: on a GPU 1.5e8 pairs are a few work-groups a row at 65,536 lights, and time
 #: the launch, not the shading.
 CROP_SECONDS = 0.1
+#: ...and at least this many device fills of pixels (Runtime.fill_items work-items each).
+CROP_FILLS = 4
 
 
 #: The obvious kernel runs at a few MPLE/s: above this many lights even a 4-row
@@ -280,6 +282,9 @@ def run_bench(cfg: BenchConfig) -> dict:
     peer_pairs = cfg.crop_pairs or PEER_PAIRS
     if cfg.crop_pairs is None:
         cfg = dataclasses.replace(cfg, crop_pairs=max(PEER_PAIRS, CROP_SECONDS * (rt.pair_rate or 0.0)))
+    # a crop holds at least CROP_FILLS times the work-items that fill the device (an H200's
+    # 103-row crop at 65,536 lights ran at 136 GPLE/s, the whole frame at 159)
+    least_pixels = CROP_FILLS * rt.fill_items * max(rt.lanes, 1)
     shapes: dict = {}
     peak = measure_peak_gflops(rt, detail=shapes)
     use_numba = cfg.numba and numba_peer.available()
@@ -344,7 +349,9 @@ def run_bench(cfg: BenchConfig) -> dict:
                 cropped = brute or kind == "wide" or budget == 0
                 # culled runs keep at least one row of tiles
                 least = 4 if brute else 16
-                rows = _crop_rows(W, H, n, cfg.crop_pairs, least) if cropped else H
+                rows = (max(_crop_rows(W, H, n, cfg.crop_pairs, least), -(-least_pixels // W))
+                        if cropped else H)
+                rows = min(rows, H)
                 if path == "obvious":
                     if n > OBVIOUS_MAX_LIGHTS:
                         log(f"obvious         {kind:5s} N={n:<6d} skipped (> {OBVIOUS_MAX_LIGHTS} lights)")
@@ -431,7 +438,11 @@ def run_bench(cfg: BenchConfig) -> dict:
                     # culled runs evaluate fewer pairs than S·N: no peak fraction
                     "flops_per_ple": flops,
                     "peak_fraction": rate * flops / (peak * 1e9) if brute else None,
-                    "kept_fraction": result.cull.kept_fraction if result.cull else None,
+                    "kept_fraction": (slot["last_cull"].kept_fraction if slot.get("last_cull")
+                                      else None),
+                    # timed frames shaded brute force without lists, culling having lost on
+                    # an earlier frame (renderer.CULL_RETRY)
+                    "lists_skipped": slot.get("lists_skipped", 0),
                     "error": err,
                 }
                 report["runs"].append(entry)

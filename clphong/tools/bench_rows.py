@@ -182,7 +182,7 @@ def run_tree(cfg, full, log) -> list[dict]:
         slots = []
         for label, opts in (("brute", dict(max_error=None)),
                             ("culling", dict(max_error=eps, light_tree=False)),
-                            ("tree", dict(max_error=eps))):
+                            ("tree", dict(max_error=eps, light_tree="always"))):
             r = Renderer(scene, device=cfg.device, **opts)
             band = super_tiles(max(r.lanes, 1)) * TILE
             rows = min(H, band * max(1, round(_crop_rows(W, H, n, cfg.crop_pairs) / band)))

@@ -252,6 +252,10 @@ def _time_slots(slots, *, keep: bool) -> None:
     """One frame of each slot in turn (its ``result``); ``keep``: record its times."""
     for slot in slots:
         t, c, slot["result"] = time_frame(slot["r"], slot["gb"], slot["frame"])
+        if slot["result"].cull is not None:      # the lists of the last frame that built them
+            slot["last_cull"] = slot["result"].cull
+        elif keep and slot.get("budget") is not None:
+            slot["lists_skipped"] = slot.get("lists_skipped", 0) + 1    # renderer.CULL_RETRY
         if keep:
             slot["times"].append(t)
             slot["cull"].append(c)

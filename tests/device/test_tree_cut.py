@@ -28,8 +28,13 @@ from clphong.tools.bench import bench_gbuffer, bench_scene
 
 @pytest.fixture(autouse=True)
 def _shade_through_the_lists(monkeypatch):
-    """The lists are used whatever they keep (the brute-force fallback is culling's)."""
+    """The lists are used whatever they keep (the brute-force fallback is culling's), and the
+    tree's cut is tried on every device (a GPU's frames here are too short for it to pay:
+    renderer.tree_can_pay, tested in test_renderer.py)."""
+    import clphong.device.renderer as R
+
     monkeypatch.setattr(culling, "BRUTE_ABOVE", 1.0)
+    monkeypatch.setattr(R, "TREE_DEVICE_RATE", float("inf"))
 
 
 def clustered_scene(rng, *, n_clusters=6, per=40, spread=0.15, height=12.0, grey=False, k_s=0.05,
