@@ -260,3 +260,16 @@ intensity = 20.0
 [[light]]
 type = "ambient"
 """
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _environment_cache_of_the_session(tmp_path_factory):
+    """Environment conversions made in the test process are kept in a folder of the session
+    (clphong.io.envmap's disk cache), not in the user's cache folder."""
+    from clphong.core.cache import Store
+    from clphong.io import envmap
+
+    saved = envmap._DISK
+    envmap._DISK = Store(str(tmp_path_factory.mktemp("environment-cache")), ".npz", envmap.DISK_KEEP)
+    yield
+    envmap._DISK = saved

@@ -41,6 +41,7 @@ from ..device.hostrule import host
 from ..device.renderer import Renderer
 from ..device.selection import describe_devices
 from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
+from ..io import envmap as _envmap
 from ..io.envmap import resolve_environment
 from ..io.gbuffer import parse_channel_mapping, read_gbuffer
 from ..io.inspection import METRICS, DiffError, diff_images, format_report, inspect_file
@@ -713,6 +714,8 @@ def _main(argv: list[str] | None) -> int:
         _unrecognized(parser, args, extras)
     # One line on a terminal when a kernel really compiles (1-30 s); none when piped.
     _runtime.compile_notice = _runtime.notice_on_tty
+    # and when an environment map is converted (seconds; cached on disk afterwards)
+    _envmap.conversion_notice = _runtime.notice_on_tty
     import warnings
 
     def _one_line_warning(message, category, filename, lineno, file=None, line=None):

@@ -20,6 +20,8 @@ import sysconfig
 import tempfile
 from pathlib import Path
 
+from ..core.cache import cache_dir  # noqa: F401 (clphong's cache folder; named here too)
+
 #: Platform kinds, by a lower-case substring of the platform name.
 KINDS = (("pocl", ("portable computing language", "pocl")),
          ("intel-cpu", ("intel(r) opencl", "intel(r) cpu runtime")),
@@ -62,16 +64,6 @@ def matches(spec: str, platform_name: str, device_name: str) -> bool:
     low = spec.strip().lower()
     names = (platform_name.lower(), device_name.lower())
     return any(low in n for n in names) or (low in ALIASES and ALIASES[low] in names[0])
-
-
-def cache_dir() -> Path:
-    """clphong's cache folder: ``$CLPHONG_CACHE_DIR``, else ``$XDG_CACHE_HOME/clphong``,
-    else ``~/.cache/clphong``."""
-    if os.environ.get("CLPHONG_CACHE_DIR"):
-        return Path(os.environ["CLPHONG_CACHE_DIR"])
-    if os.environ.get("XDG_CACHE_HOME"):
-        return Path(os.environ["XDG_CACHE_HOME"]) / "clphong"
-    return Path.home() / ".cache" / "clphong"
 
 
 def intel_cpu_runtime() -> Path | None:

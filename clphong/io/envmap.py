@@ -20,18 +20,25 @@ Bad input is one line naming the scene key (:class:`~clphong.core.errors.SceneEr
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import os
 import threading
+import time
 import warnings
+import zipfile
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
 
+from ..core.cache import Store
 from ..core.errors import SceneError, clean_line
 from ..core.files import not_regular
 from ..core.geometry import view_vector
 from ..core.memory import require_memory
+from ..model import environment as _environment
 from ..model.environment import DEFAULT_ENV_ERROR, EnvironmentLights, environment_lights
 from ..model.scene import Light, Scene, SceneWarning
 from .exrfile import oiio_message
@@ -159,6 +166,92 @@ _CACHE: dict = {}
 _CACHE_SIZE = 8
 
 
+#: Conversions kept on disk (``environment/`` in clphong's cache folder, least recently
+#: used removed first): a 1024 x 512 map at 1e-3 is ~10,800 lights, about 0.5 MB.
+DISK_KEEP = 64
+_DISK = Store("environment", ".npz", DISK_KEEP)
+#: Called with one line when a conversion runs (not a cache hit) and is still running after
+#: NOTICE_AFTER_S, then with its progress at most once a second; None (the library's
+#: default) is silent, the CLI writes to a terminal (runtime.notice_on_tty).
+conversion_notice = None
+NOTICE_AFTER_S = 1.0
+
+
+def _disk_key(digest: str, light: Light, material, view, max_error: float) -> str:
+    """The disk cache's name of a conversion: the map file's SHA-256, what the conversion
+    depends on (rotation, intensity, the material, an orthographic view, the target), and
+    the code that converts (a changed model/environment.py converts again)."""
+    h = hashlib.sha256()
+    for part in (digest, repr(float(light.rotation)), repr(float(light.intensity)), repr(material),
+                 None if view is None else tuple(map(float, view)), repr(float(max_error)),
+                 _code_digest()):
+        h.update(str(part).encode() + b"\0")
+    return h.hexdigest()[:40]
+
+
+_CODE: list = []
+
+
+def _code_digest() -> str:
+    if not _CODE:
+        _CODE.append(hashlib.sha256(Path(_environment.__file__).read_bytes()).hexdigest())
+    return _CODE[0]
+
+
+def _file_digest(name: str) -> str | None:
+    """SHA-256 of the map file's bytes (a 1024 x 512 EXR: ~10 ms), or None if unreadable
+    (read_envmap then says why)."""
+    h = hashlib.sha256()
+    try:
+        with open(name, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    except OSError:
+        return None
+    return h.hexdigest()
+
+
+def _load(path: Path) -> EnvironmentLights | None:
+    """A conversion from the disk cache, or None (missing, damaged, another layout)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            return EnvironmentLights(l=np.array(z["l"], np.float64),
+                                     radiance=np.array(z["radiance"], np.float64), seconds=0.0,
+                                     **{k: meta[k] for k in ("texels", "estimated_error",
+                                                             "max_error", "met", "probes")})
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile):
+        return None
+
+
+def _save(name: str, r: EnvironmentLights) -> None:
+    meta = json.dumps({"texels": r.texels, "estimated_error": r.estimated_error,
+                       "max_error": r.max_error, "met": r.met, "probes": r.probes,
+                       "seconds": r.seconds})
+    _DISK.put(name, lambda f: np.savez(f, l=r.l, radiance=r.radiance, meta=np.array(meta)))
+
+
+class _Progress:
+    """The conversion's notices (:data:`conversion_notice`): after NOTICE_AFTER_S, one
+    line saying what runs, then the search's progress at most once a second."""
+
+    def __init__(self, what: str):
+        self.what, self.t0, self.last = what, time.perf_counter(), None
+
+    def __call__(self, k: int, e: float) -> None:
+        hook = conversion_notice
+        now = time.perf_counter()
+        if hook is None or now - self.t0 < NOTICE_AFTER_S:
+            return
+        if self.last is None:
+            hook(f"clphong: converting {self.what} into directional lights (first use; "
+                 "cached afterwards)\u2026")
+        if self.last is None or now - self.last >= 1.0:
+            hook(f"clphong: {self.what}: {k:,} lights, estimated error {e:.2g} "
+                 f"({now - self.t0:.0f} s)")
+            self.last = now
+
+
 def _convert(light: Light, where: str, material, view, max_error: float) -> EnvironmentLights:
     name = light.file
     try:
@@ -171,9 +264,17 @@ def _convert(light: Light, where: str, material, view, max_error: float) -> Envi
         hit = _CACHE.get(key) if key is not None else None
     if hit is not None:
         return hit
-    L = read_envmap(name, where)
-    result = environment_lights(L, material, rotation=light.rotation, intensity=light.intensity,
-                                view=view, max_error=max_error)
+    digest = _file_digest(name) if key is not None else None
+    disk = None if digest is None else _disk_key(digest, light, material, view, max_error)
+    found = None if disk is None else _DISK.get(disk)
+    result = None if found is None else _load(found)
+    if result is None:
+        L = read_envmap(name, where)
+        result = environment_lights(L, material, rotation=light.rotation, intensity=light.intensity,
+                                    view=view, max_error=max_error,
+                                    progress=_Progress(f"{where}: {name}"))
+        if disk is not None:
+            _save(disk, result)
     if key is not None:
         with _LOCK:
             if len(_CACHE) >= _CACHE_SIZE:
@@ -205,7 +306,10 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR) -
     ResolvedScene
         ``.scene`` is ``scene`` itself when it has no environment light.
         Conversions are cached per process (same file, unchanged on disk, same
-        rotation, intensity, material, view and target).
+        rotation, intensity, material, view and target) and on disk, in clphong's
+        cache folder (``environment/``, keyed by the file's content, those settings
+        and the converting code; at most DISK_KEEP entries): a second process
+        converts nothing.
 
     Raises
     ------

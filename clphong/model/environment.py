@@ -482,7 +482,8 @@ class EnvironmentLights:
 
 def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: float = 1.0,
                        view=None, max_error: float = DEFAULT_ENV_ERROR,
-                       max_lights: int = MAX_ENV_LIGHTS, probes: int = PROBES) -> EnvironmentLights:
+                       max_lights: int = MAX_ENV_LIGHTS, probes: int = PROBES,
+                       progress=None) -> EnvironmentLights:
     """The fewest directional lights whose estimated error is within ``max_error``.
 
     Parameters
@@ -499,6 +500,9 @@ def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: 
         Relative error target against the exact texel sum (module docstring).
     max_lights, probes : int
         Most lights to return; probe pixels of the estimate.
+    progress : callable, optional
+        Called as ``progress(k, e)`` after each estimate of the search: k lights,
+        estimated relative error e.
 
     Returns
     -------
@@ -524,11 +528,15 @@ def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: 
         REFINE·k); 0 where the k leaves are every texel's own light."""
         fine = min(fine or REFINE * k, tree.grow(fine or REFINE * k))
         if fine <= k:                      # nothing left to split: k leaves are every texel's
-            return 0.0
-        # fewer than REFINE·k leaves: the tree ran out of texels to split, so the
-        # finer set is exact where it is short of them. More than REFINE·k: at most
-        # REFINE^-RATE of k's error, so the same factor holds.
-        return EXTRAPOLATION * probe_error(pixels(k), pixels(fine))
+            e = 0.0
+        else:
+            # fewer than REFINE·k leaves: the tree ran out of texels to split, so the
+            # finer set is exact where it is short of them. More than REFINE·k: at most
+            # REFINE^-RATE of k's error, so the same factor holds.
+            e = EXTRAPOLATION * probe_error(pixels(k), pixels(fine))
+        if progress is not None:
+            progress(k, e)
+        return e
 
     def done(k: int, fine: int | None = None) -> EnvironmentLights:
         e = estimate(k, fine)

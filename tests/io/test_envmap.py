@@ -265,3 +265,100 @@ def test_a_bad_map_stops_render_with_one_line(tmp_path, capsys):
     assert err.count("\n") == 1
     assert f"{scene_path}: light[0].file: {tmp_path / 'sky.exr'}: 5 negative texel(s); " in err
     assert not (tmp_path / "o.exr").exists()
+
+
+# ------------------------------------------------------------------- the disk cache (issue 25)
+
+@pytest.fixture
+def disk(tmp_path, monkeypatch):
+    """An empty disk cache and no in-process one; the map and scene of SCENE."""
+    from clphong.core.cache import Store
+
+    store = Store(str(tmp_path / "cache"), ".npz", 3)
+    monkeypatch.setattr(envmap, "_DISK", store)
+    monkeypatch.setattr(envmap, "_CACHE", {})
+    (tmp_path / "maps").mkdir()
+    _write(tmp_path / "maps" / "sky.exr", samples.sky_envmap(64, 32))
+    (tmp_path / "s.toml").write_text(SCENE)
+    return store, load_scene(tmp_path / "s.toml")
+
+
+def _no_conversion(*a, **k):
+    raise AssertionError("converted again")
+
+
+def test_a_second_process_converts_nothing(disk, monkeypatch):
+    """The conversion is kept on disk, keyed by the map's content and the settings: with the
+    process's own cache emptied (a new process), nothing is converted and the lights are
+    the same to the bit; seconds is 0 (no conversion ran)."""
+    store, scene = disk
+    first = envmap.resolve_environment(scene, max_error=1e-2).environments[0][1]
+    assert first.seconds > 0 and len(list(store.folder.glob("*.npz"))) == 1
+    monkeypatch.setattr(envmap, "_CACHE", {})
+    monkeypatch.setattr(envmap, "environment_lights", _no_conversion)
+    again = envmap.resolve_environment(scene, max_error=1e-2).environments[0][1]
+    assert np.array_equal(again.l, first.l) and np.array_equal(again.radiance, first.radiance)
+    assert (again.count, again.estimated_error, again.met, again.texels, again.seconds) == (
+        first.count, first.estimated_error, first.met, first.texels, 0.0)
+
+
+@pytest.mark.parametrize("change", ["target", "map", "material"])
+def test_what_the_conversion_depends_on_converts_again(disk, monkeypatch, tmp_path, change):
+    store, scene = disk
+    envmap.resolve_environment(scene, max_error=1e-2)
+    monkeypatch.setattr(envmap, "_CACHE", {})
+    eps = 1e-2
+    if change == "target":
+        eps = 2e-2
+    elif change == "map":                     # other content (same name, size and shape)
+        _write(tmp_path / "maps" / "sky.exr", samples.sky_envmap(64, 32) * 2.0)
+    else:
+        import dataclasses
+
+        scene = dataclasses.replace(scene, material=dataclasses.replace(scene.material, h=8.0))
+    envmap.resolve_environment(scene, max_error=eps)
+    assert len(list(store.folder.glob("*.npz"))) == 2
+
+
+def test_a_damaged_or_unwritable_cache_only_converts_again(disk, monkeypatch):
+    store, scene = disk
+    first = envmap.resolve_environment(scene, max_error=1e-2).environments[0][1]
+    entry, = store.folder.glob("*.npz")
+    entry.write_bytes(entry.read_bytes()[:100])              # a truncated entry
+    monkeypatch.setattr(envmap, "_CACHE", {})
+    again = envmap.resolve_environment(scene, max_error=1e-2).environments[0][1]
+    assert again.seconds > 0 and np.array_equal(again.l, first.l)
+    assert envmap._load(entry) is not None                   # rewritten whole
+    # a cache folder that cannot be made: the conversion still runs, nothing is kept
+    blocker = store.folder.parent / "file"
+    blocker.write_text("x")
+    from clphong.core.cache import Store
+
+    monkeypatch.setattr(envmap, "_DISK", Store(str(blocker / "cache"), ".npz", 3))
+    monkeypatch.setattr(envmap, "_CACHE", {})
+    assert envmap.resolve_environment(scene, max_error=1e-2).environments[0][1].seconds > 0
+
+
+def test_the_cache_keeps_its_newest_entries(disk, monkeypatch):
+    store, scene = disk                                      # keep = 3
+    for eps in (1e-2, 2e-2, 3e-2, 4e-2):
+        monkeypatch.setattr(envmap, "_CACHE", {})
+        envmap.resolve_environment(scene, max_error=eps)
+        os.utime(next(iter(sorted(store.folder.glob("*.npz"), key=os.path.getmtime))),
+                 (1, 1))                                     # the oldest, clearly
+    assert len(list(store.folder.glob("*.npz"))) == 3
+    assert not list(store.folder.glob(".*.tmp"))
+
+
+def test_a_conversion_says_it_runs_and_a_hit_says_nothing(disk, monkeypatch):
+    store, scene = disk
+    lines = []
+    monkeypatch.setattr(envmap, "conversion_notice", lines.append)
+    monkeypatch.setattr(envmap, "NOTICE_AFTER_S", 0.0)
+    envmap.resolve_environment(scene, max_error=1e-2)
+    assert lines[0].startswith("clphong: converting ") and "sky.exr" in lines[0]
+    assert "cached afterwards" in lines[0] and " lights, estimated error " in lines[1]
+    lines.clear()
+    monkeypatch.setattr(envmap, "_CACHE", {})
+    envmap.resolve_environment(scene, max_error=1e-2)
+    assert lines == []
