@@ -66,8 +66,10 @@ about 2e-2 relative at 1024 lights on the bench map).
 from __future__ import annotations
 
 import heapq
+import os
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -212,18 +214,35 @@ class LightTree:
         self.nodes: list[tuple[int, int, int, int]] = []
         #: The node split by each step, in order.
         self.split_order: list[int] = []
-        self._l: list[np.ndarray] = []
-        self._rad: list[np.ndarray] = []
+        self._l = np.empty((64, 3))         # per node: unit direction, radiance (grown by doubling)
+        self._rad = np.empty((64, 3))
         self._heap: list = []
         self._add((0, self.height, 0, self.width))
 
     def _score(self, y0, y1, x0, x1):
         """e − |m|²/e of rectangles (bounds broadcast): the energy-weighted angular variance."""
         s = self._sat
-        r = s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0]
+        return self._variance(s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0])
+
+    @staticmethod
+    def _variance(r):
+        """e − |m|²/e of the rectangles' sums r (..., 4): (w, w·l)."""
         e = r[..., 0]
         q = r[..., 1] ** 2 + r[..., 2] ** 2 + r[..., 3] ** 2
         return np.maximum(e - q / np.maximum(e, 1e-300), 0.0)
+
+    def _cut_scores(self, y0, y1, x0, x1):
+        """The scores of both parts of every row cut (y0..c, c..y1) and column cut of a
+        node: (top, bottom, left, right), from slices of the summed-area table, each
+        rectangle summed in :meth:`_score`'s order (the same roundings)."""
+        s = self._sat
+        A, B, C, D = s[y0, x0], s[y0, x1], s[y1, x0], s[y1, x1]
+        r1, r0 = s[y0 + 1:y1, x1], s[y0 + 1:y1, x0]          # rows c, at x1 and x0
+        c1, c0 = s[y1, x0 + 1:x1], s[y0, x0 + 1:x1]          # columns c, at y1 and y0
+        ny, nx = len(r1), len(c1)
+        v = self._variance(np.concatenate([r1 - B - r0 + A, D - r1 - C + r0,
+                                           c1 - c0 - C + A, D - B - c1 + c0]))
+        return v[:ny], v[ny:2 * ny], v[2 * ny:2 * ny + nx], v[2 * ny + nx:]
 
     def _add(self, rect, score=None) -> None:
         k = len(self.nodes)
@@ -239,8 +258,11 @@ class LightTree:
             rad = np.maximum(mc @ mh, 0.0)             # m_c·m̂: the exact diffuse on the lit side
         else:                                          # no energy, or none net: no light
             mh, rad = np.zeros(3), np.zeros(3)
-        self._l.append(mh)
-        self._rad.append(rad)
+        if k == len(self._l):
+            self._l = np.concatenate([self._l, np.empty_like(self._l)])
+            self._rad = np.concatenate([self._rad, np.empty_like(self._rad)])
+        self._l[k] = mh
+        self._rad[k] = rad
         if (y1 - y0) * (x1 - x0) > 1:                  # one texel is exact already
             if score is None:
                 score = float(self._score(y0, y1, x0, x1))
@@ -260,20 +282,15 @@ class LightTree:
             # every row and column cut at once: first parts (a) and second parts (b)
             cy = np.arange(y0 + 1, y1)
             cx = np.arange(x0 + 1, x1)
-            ny, nx = len(cy), len(cx)
-            Y0 = np.concatenate([np.full(ny, y0), cy, np.full(2 * nx, y0)])
-            Y1 = np.concatenate([cy, np.full(ny, y1), np.full(2 * nx, y1)])
-            X0 = np.concatenate([np.full(2 * ny, x0), np.full(nx, x0), cx])
-            X1 = np.concatenate([np.full(2 * ny, x1), cx, np.full(nx, x1)])
-            sc = self._score(Y0, Y1, X0, X1)
-            cost = np.concatenate([sc[:ny] + sc[ny:2 * ny], sc[2 * ny:2 * ny + nx] + sc[2 * ny + nx:]])
-            i = int(np.argmin(cost))
+            ny = len(cy)
+            top, bottom, left, right = self._cut_scores(y0, y1, x0, x1)
+            i = int(np.argmin(np.concatenate([top + bottom, left + right])))
             if i < ny:
-                a, b, sa, sb = (y0, int(cy[i]), x0, x1), (int(cy[i]), y1, x0, x1), sc[i], sc[ny + i]
+                a, b, sa, sb = (y0, int(cy[i]), x0, x1), (int(cy[i]), y1, x0, x1), top[i], bottom[i]
             else:
                 j = i - ny
                 a, b = (y0, y1, x0, int(cx[j])), (y0, y1, int(cx[j]), x1)
-                sa, sb = sc[2 * ny + j], sc[2 * ny + nx + j]
+                sa, sb = left[j], right[j]
             self.split_order.append(k)
             self._add(a, float(sa))
             self._add(b, float(sb))
@@ -290,8 +307,8 @@ class LightTree:
         """The first ``n`` leaves as lights: (l (K, 3) unit towards the light, radiance
         (K, 3)), K ≤ n (leaves without energy give no light)."""
         k = self.leaf_nodes(n)
-        l = np.array(self._l)[k] if len(k) else np.zeros((0, 3))
-        rad = np.array(self._rad)[k] if len(k) else np.zeros((0, 3))
+        l = self._l[k] if len(k) else np.zeros((0, 3))
+        rad = self._rad[k] if len(k) else np.zeros((0, 3))
         lit = rad.max(axis=1, initial=0.0) > 0 if len(k) else np.zeros(0, bool)
         return l[lit], rad[lit]
 
@@ -361,7 +378,24 @@ def _power(x: np.ndarray, k: float) -> np.ndarray:
         return np.where(x > 0, np.exp(k * np.log(np.where(x > 0, x, 1.0))), 1.0 if k == 0 else 0.0)
 
 
-def probe_sums(n, v, l, radiance, material, *, chunk: int = 128, specular: bool | None = None):
+def probe_sums(n, v, l, radiance, material, *, chunk: int = 128, specular: bool | None = None,
+               threads: int | None = None):
+    """:func:`_probe_sums` with the probes split among ``threads`` threads (default: the
+    CPU count; numpy's array operations release the GIL): the same sums, to the bit (each
+    probe's sum is its own)."""
+    n = np.asarray(n, np.float64)
+    v = np.asarray(v, np.float64)
+    threads = max(1, min(threads or os.cpu_count() or 1, len(n) // 256 or 1))
+    if threads == 1:
+        return _probe_sums(n, v, l, radiance, material, chunk=chunk, specular=specular)
+    parts = np.array_split(np.arange(len(n)), threads)
+    with ThreadPoolExecutor(threads) as pool:
+        done = list(pool.map(lambda idx: _probe_sums(n[idx], v[idx], l, radiance, material,
+                                                     chunk=chunk, specular=specular), parts))
+    return (np.concatenate([d for d, _ in done]), np.concatenate([q for _, q in done]))
+
+
+def _probe_sums(n, v, l, radiance, material, *, chunk: int = 128, specular: bool | None = None):
     """The model's diffuse and specular sums of directional lights at probe pixels.
 
     ``diffuse`` (P, 3) = Σ_i L_i·max(n·l_i, 0); ``specular`` (P, 3) =

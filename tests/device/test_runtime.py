@@ -115,7 +115,6 @@ def test_default_device_is_the_fastest_that_passes(gpu_rate, winner, fake_platfo
     """Issue 29: with a GPU and a CPU platform both present, the default is the device
     whose self-test passes and whose calibration frame ran faster (the verdict's
     pair_rate); the choice says so, with each rate. --device still wins."""
-
     from clphong.device import selection
 
     nvidia, = fake_platforms[0].get_devices()
