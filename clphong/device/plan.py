@@ -92,6 +92,148 @@ class ShadingPlan:
         return "\n".join(lines)
 
 
+def _light_counts(scene) -> tuple[int, int, int, int]:
+    """(point and spot, spot, directional, ambient) lights of a scene the kernels can shade:
+    its environment lights resolved (else a SceneError)."""
+    if scene.lights_of("environment"):
+        raise SceneError(f"{scene.source}: an environment light reaches the kernels only as the "
+                         "directional lights it is resolved into (clphong.io.envmap); resolve "
+                         "the scene's environment lights before planning")
+    return (len(scene.light_arrays["point_position"]),          # point and spot lights
+            int(scene.light_arrays["point_is_spot"].sum()),
+            len(scene.lights_of("directional")), len(scene.lights_of("ambient")))
+
+
+def _material_defines(put, scene, maps, *, kernel, specular, n_dir) -> None:
+    """The material's and the camera's defines (model, Fresnel, maps), through ``put``."""
+    m = scene.material
+    blinn = m.model == "blinn-phong"
+    ortho = scene.camera.type == "orthographic"
+    put("HAS_SPECULAR", specular,
+        "k_s map present" if "k_s" in maps else f"material.k_s = {m.k_s:g}")
+    fresnel = m.fresnel == "schlick" and specular
+    if fresnel and kernel != "lanes":
+        raise SceneError(f"{scene.source}: material.fresnel: the obvious kernel has no Fresnel "
+                         "weight; use the lane kernel (the default)")
+    put("FRESNEL", fresnel,
+        "Schlick's W = f0 + (1 − f0)(1 − cos α)^5 in place of C_s, cos α = "
+        + ("v·h per light" if blinn else "n·v per pixel") if fresnel
+        else "no Fresnel weight: the constant k_s·C_s")
+    if fresnel:
+        hi, lo = split_hi_lo(m.f0)
+        for c, h_, l_ in zip("RGB", hi.view("uint32"), lo.view("uint32")):
+            put(f"FRESNEL_F0{c}", int(h_), f"f0 {c} as float32 bits (hi)")
+            put(f"FRESNEL_F0{c}_LO", int(l_), f"f0 {c}'s float64 remainder as float32 bits")
+    put("CAMERA_ORTHO", ortho, f"camera.type = {scene.camera.type!r}"
+        + (": v is constant" if ortho else ": v = normalize(eye − P) per pixel"))
+    put("BLINN_CONST_H", blinn and ortho and n_dir > 0 and specular,
+        "Blinn + orthographic camera: each directional light's half vector is constant (host-computed)"
+        if blinn and ortho else "needs Blinn-Phong with an orthographic camera")
+    put("MAP_KD", "k_d" in maps, "per-pixel k_d map" if "k_d" in maps else "uniform k_d")
+    put("MAP_KS", "k_s" in maps, "per-pixel k_s map" if "k_s" in maps else "uniform k_s")
+    put("MAP_H", "h" in maps and specular, "per-pixel shininess map" if "h" in maps else "uniform h")
+    put("MAP_CS", "specular_color" in maps and specular,
+        "per-pixel specular colour map" if "specular_color" in maps else "uniform specular_color")
+
+
+def _layer_defines(put, coverage, groups, aovs) -> None:
+    """Coverage and the layers shaded beside the beauty, through ``put``."""
+    put("COVERAGE", coverage, "partly covered pixels: outputs α-premultiplied, the beauty over "
+                              "the background" if coverage else "no partly covered pixel")
+    put("N_GROUPS", len(groups), f"light-group layers {', '.join(groups)} from the same pass"
+        if groups else "no light groups")
+    put("AOV_DIFFUSE", "diffuse" in aovs, "diffuse layer (with the ambient term)"
+        if "diffuse" in aovs else "no diffuse layer")
+    put("AOV_SPECULAR", "specular" in aovs, "specular layer" if "specular" in aovs
+        else "no specular layer")
+
+
+def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated) -> None:
+    """How the lights are summed, and whether the falloff depends on distance."""
+    if kernel == "lanes":
+        put("SUM_FP64", sum_fp64,
+            f"{n_lights} lights summed in double, rounded once: error ≤ u + n·2⁻⁵³"
+            if sum_fp64 else "no fast double on this device, or a float sum was asked for")
+    put("COMPENSATED_SUM", compensated,
+        f"{n_lights} lights summed: "
+        + ("Neumaier summation keeps the sum's error at ~2u" if compensated
+           else "in double (SUM_FP64)" if sum_fp64
+           else f"naive float sum within {max(n_lights - 1, 0)}u"))
+    falloff = bool((scene.light_arrays["point_attenuation"][:, 1:] != 0).any())
+    put("HAS_ATTENUATION", falloff,
+        "some point light has c1 or c2 ≠ 0: 1/(c0 + c1·d + c2·d²) per pixel" if falloff
+        else ("every point light has c1 = c2 = 0: the falloff is the constant 1/c0"
+              if n_point else "no point light"))
+
+
+def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp64_directions,
+                  int_pow, max_error, light_tile, sum_fp64) -> None:
+    """The lane kernel's own defines (culling, the light loop, the number formats and the
+    specular power), each with its reason, through ``put`` (see :func:`make_plan`)."""
+    m = scene.material
+    culling = max_error is not None and n_point > 0
+    put("CULLING", culling,
+        f"--max-error budget ε = {max_error:g}: per-tile point-light lists, dropped lights "
+        "sum to ≤ ε per pixel (kernels/cull.cl)" if culling
+        else ("no point light to cull" if max_error is not None
+              else "no --max-error budget: every light shades every pixel"))
+    if culling:
+        put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel culling tiles (clphong.device.culling.TILE)")
+    staged = light_tile and (n_dir > 0 or (n_point > 0 and not culling))
+    put("LIGHT_TILE", light_tile if staged else 0,
+        f"the work-group stages {light_tile} light records at a time through local memory "
+        "(a GPU: one global read per light per work-group)" if staged
+        else "each work-item reads the light records (a CPU: they stay in its L1)"
+        if not light_tile else "no light loop to stage (the culled loop reads its lists)")
+    put("DIRECTIONS_FP64", fp64_directions,
+        "directions, n·l and δ in double: relative error a few u at grazing light and "
+        "any shininess (docs/error-model.md)" if fp64_directions
+        else "directions in float (devices without fast double): error grows near grazing "
+             "light and with k")
+    k = m.exponent
+    whole = float(k).is_integer() and 0 <= k <= INT_POW_MAX
+    in_float = int_pow == "float"
+    check_float_power(int_pow, fp64_directions)
+    use = specular and "h" not in maps and whole and (in_float or (fp64 and int_pow))
+    exponent = f"k = {'4h' if blinn else 'h'} = {k:g}"
+    cos_form = use and fp64_directions and (not blinn or int(k) % 2 == 0)
+    kind = "float" if in_float else "double"
+    put("SPEC_INT_POW", use,
+        f"{exponent} is a whole number: binary powering in {kind}, "
+        f"{int_pow_multiplies(int(k) // 2 if cos_form and blinn else k)} {kind} multiplies "
+        "per light "
+        "instead of exp(k·log1p(−δ)), and no rounding of k·log1p(−δ) (docs/error-model.md)" if use
+        else ("no specular term" if not specular
+              else "per-pixel shininess map: exp(k·log1p(−δ))" if "h" in maps
+              else f"{exponent} is not a whole number ≤ {INT_POW_MAX}: exp(k·log1p(−δ))" if not whole
+              else "no fast double on this device (cl_khr_fp64 at a measured quarter of the "
+                   "float rate or more): exp(k·log1p(−δ))" if not fp64
+              else "integer power turned off: exp(k·log1p(−δ))"))
+    put("SPEC_K", int(k) if use else 0,
+        f"the exponent K = {int(k)} compiled in: the binary powering unrolls, with no "
+        "branch per bit (1.04-1.12x on the bench scene; one program per exponent)" if use
+        else "no integer power")
+    put("SPEC_COS", cos_form,
+        ("the power's base is (n·h)² = (n·l + n·v)²/|l + v|² in double, raised to "
+         f"K/2 = {int(k) // 2}: no square root and no |n − h|²/2 (docs/error-model.md)" if blinn
+         else "the power's base is r·v = 2(n·l)(n·v) − l·v in double: no |r − v|²/2 "
+              "(docs/error-model.md)") if cos_form
+        else ("no integer power" if not use
+              else "directions in float: the base stays 1 − δ with δ = |·|²/2, free of cancellation"
+              if not fp64_directions
+              else f"Blinn with an odd K = {int(k)}: 1 − δ with δ = |n − h|²/2"))
+    put("POW_FP32", use and in_float,
+        "the fast path: the integer power in float (relative error ~2k·u)" if use and in_float
+        else "no integer power in float (only the fast path's)")
+    weights = fp64_directions and sum_fp64
+    put("WEIGHTS_FP64", weights,
+        "D, S, weights, falloff and each light's L·att·(D·w_d + S·w_s) in double"
+        + ("" if use or not specular else ", and exp(k·log1p(−δ)) too")
+        + ", into the double sum: nothing rounded to float before the result" if weights
+        else ("directions in float: weights in float" if not fp64_directions
+              else "light sum in float: weights rounded to float"))
+
+
 def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LANES,
               compensated: bool | None = None, fp64_directions: bool = False,
               max_error: float | None = None, has_fp64: bool | None = None,
@@ -152,16 +294,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     check_kernel(kernel)
     m = scene.material
     maps = tuple(n for n in MAP_KEYS if n in set(maps))
-    if scene.lights_of("environment"):
-        raise SceneError(f"{scene.source}: an environment light reaches the kernels only as the "
-                         "directional lights it is resolved into (clphong.io.envmap); resolve "
-                         "the scene's environment lights before planning")
-    n_point = len(scene.light_arrays["point_position"])      # point and spot lights
-    n_spot = int(scene.light_arrays["point_is_spot"].sum())
-    n_dir = len(scene.lights_of("directional"))
-    n_amb = len(scene.lights_of("ambient"))
+    n_point, n_spot, n_dir, n_amb = _light_counts(scene)
     blinn = m.model == "blinn-phong"
-    ortho = scene.camera.type == "orthographic"
     specular = m.k_s > 0 or "k_s" in maps
     fp64 = fp64_directions if has_fp64 is None else has_fp64
     sum_fp64 = kernel == "lanes" and fp64 and compensated is None
@@ -182,118 +316,17 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     put("HAS_SPOT", n_spot > 0, f"{n_spot} of them spot light(s): the falloff times the cone "
         "factor t² (glTF KHR_lights_punctual)" if n_spot else "no spot light")
     put("HAS_DIRECTIONAL", n_dir > 0, f"{n_dir} directional light(s)")
-    put("HAS_SPECULAR", specular,
-        "k_s map present" if "k_s" in maps else f"material.k_s = {m.k_s:g}")
-    fresnel = m.fresnel == "schlick" and specular
-    if fresnel and kernel != "lanes":
-        raise SceneError(f"{scene.source}: material.fresnel: the obvious kernel has no Fresnel "
-                         "weight; use the lane kernel (the default)")
-    put("FRESNEL", fresnel,
-        "Schlick's W = f0 + (1 − f0)(1 − cos α)^5 in place of C_s, cos α = "
-        + ("v·h per light" if blinn else "n·v per pixel") if fresnel
-        else "no Fresnel weight: the constant k_s·C_s")
-    if fresnel:
-        hi, lo = split_hi_lo(m.f0)
-        for c, h_, l_ in zip("RGB", hi.view("uint32"), lo.view("uint32")):
-            put(f"FRESNEL_F0{c}", int(h_), f"f0 {c} as float32 bits (hi)")
-            put(f"FRESNEL_F0{c}_LO", int(l_), f"f0 {c}'s float64 remainder as float32 bits")
-    put("CAMERA_ORTHO", ortho, f"camera.type = {scene.camera.type!r}"
-        + (": v is constant" if ortho else ": v = normalize(eye − P) per pixel"))
-    put("BLINN_CONST_H", blinn and ortho and n_dir > 0 and specular,
-        "Blinn + orthographic camera: each directional light's half vector is constant (host-computed)"
-        if blinn and ortho else "needs Blinn-Phong with an orthographic camera")
-    put("MAP_KD", "k_d" in maps, "per-pixel k_d map" if "k_d" in maps else "uniform k_d")
-    put("MAP_KS", "k_s" in maps, "per-pixel k_s map" if "k_s" in maps else "uniform k_s")
-    put("MAP_H", "h" in maps and specular, "per-pixel shininess map" if "h" in maps else "uniform h")
-    put("MAP_CS", "specular_color" in maps and specular,
-        "per-pixel specular colour map" if "specular_color" in maps else "uniform specular_color")
+    _material_defines(put, scene, maps, kernel=kernel, specular=specular, n_dir=n_dir)
+    _sum_defines(put, scene, kernel=kernel, n_lights=n_point + n_dir, n_point=n_point,
+                 sum_fp64=sum_fp64, compensated=compensated)
     if kernel == "lanes":
-        put("SUM_FP64", sum_fp64,
-            f"{n_point + n_dir} lights summed in double, rounded once: error ≤ u + n·2⁻⁵³"
-            if sum_fp64 else "no fast double on this device, or a float sum was asked for")
-    put("COMPENSATED_SUM", compensated,
-        f"{n_point + n_dir} lights summed: "
-        + ("Neumaier summation keeps the sum's error at ~2u" if compensated
-           else "in double (SUM_FP64)" if sum_fp64
-           else f"naive float sum within {max(n_point + n_dir - 1, 0)}u"))
-    falloff = bool((scene.light_arrays["point_attenuation"][:, 1:] != 0).any())
-    put("HAS_ATTENUATION", falloff,
-        "some point light has c1 or c2 ≠ 0: 1/(c0 + c1·d + c2·d²) per pixel" if falloff
-        else ("every point light has c1 = c2 = 0: the falloff is the constant 1/c0"
-              if n_point else "no point light"))
-    if kernel == "lanes":
-        culling = max_error is not None and n_point > 0
-        put("CULLING", culling,
-            f"--max-error budget ε = {max_error:g}: per-tile point-light lists, dropped lights "
-            "sum to ≤ ε per pixel (kernels/cull.cl)" if culling
-            else ("no point light to cull" if max_error is not None
-                  else "no --max-error budget: every light shades every pixel"))
-        if culling:
-            put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel culling tiles (clphong.device.culling.TILE)")
-        staged = light_tile and (n_dir > 0 or (n_point > 0 and not culling))
-        put("LIGHT_TILE", light_tile if staged else 0,
-            f"the work-group stages {light_tile} light records at a time through local memory "
-            "(a GPU: one global read per light per work-group)" if staged
-            else "each work-item reads the light records (a CPU: they stay in its L1)"
-            if not light_tile else "no light loop to stage (the culled loop reads its lists)")
-        put("DIRECTIONS_FP64", fp64_directions,
-            "directions, n·l and δ in double: relative error a few u at grazing light and "
-            "any shininess (docs/error-model.md)" if fp64_directions
-            else "directions in float (devices without fast double): error grows near grazing "
-                 "light and with k")
-        k = m.exponent
-        whole = float(k).is_integer() and 0 <= k <= INT_POW_MAX
-        in_float = int_pow == "float"
-        check_float_power(int_pow, fp64_directions)
-        use = specular and "h" not in maps and whole and (in_float or (fp64 and int_pow))
-        exponent = f"k = {'4h' if blinn else 'h'} = {k:g}"
-        cos_form = use and fp64_directions and (not blinn or int(k) % 2 == 0)
-        kind = "float" if in_float else "double"
-        put("SPEC_INT_POW", use,
-            f"{exponent} is a whole number: binary powering in {kind}, "
-            f"{int_pow_multiplies(int(k) // 2 if cos_form and blinn else k)} {kind} multiplies "
-            "per light "
-            "instead of exp(k·log1p(−δ)), and no rounding of k·log1p(−δ) (docs/error-model.md)" if use
-            else ("no specular term" if not specular
-                  else "per-pixel shininess map: exp(k·log1p(−δ))" if "h" in maps
-                  else f"{exponent} is not a whole number ≤ {INT_POW_MAX}: exp(k·log1p(−δ))" if not whole
-                  else "no fast double on this device (cl_khr_fp64 at a measured quarter of the "
-                       "float rate or more): exp(k·log1p(−δ))" if not fp64
-                  else "integer power turned off: exp(k·log1p(−δ))"))
-        put("SPEC_K", int(k) if use else 0,
-            f"the exponent K = {int(k)} compiled in: the binary powering unrolls, with no "
-            "branch per bit (1.04-1.12x on the bench scene; one program per exponent)" if use
-            else "no integer power")
-        put("SPEC_COS", cos_form,
-            ("the power's base is (n·h)² = (n·l + n·v)²/|l + v|² in double, raised to "
-             f"K/2 = {int(k) // 2}: no square root and no |n − h|²/2 (docs/error-model.md)" if blinn
-             else "the power's base is r·v = 2(n·l)(n·v) − l·v in double: no |r − v|²/2 "
-                  "(docs/error-model.md)") if cos_form
-            else ("no integer power" if not use
-                  else "directions in float: the base stays 1 − δ with δ = |·|²/2, free of cancellation"
-                  if not fp64_directions
-                  else f"Blinn with an odd K = {int(k)}: 1 − δ with δ = |n − h|²/2"))
-        put("POW_FP32", use and in_float,
-            "the fast path: the integer power in float (relative error ~2k·u)" if use and in_float
-            else "no integer power in float (only the fast path's)")
-        weights = fp64_directions and sum_fp64
-        put("WEIGHTS_FP64", weights,
-            "D, S, weights, falloff and each light's L·att·(D·w_d + S·w_s) in double"
-            + ("" if use or not specular else ", and exp(k·log1p(−δ)) too")
-            + ", into the double sum: nothing rounded to float before the result" if weights
-            else ("directions in float: weights in float" if not fp64_directions
-                  else "light sum in float: weights rounded to float"))
+        _lane_defines(put, scene, maps, n_point=n_point, n_dir=n_dir, specular=specular,
+                      blinn=blinn, fp64=fp64, fp64_directions=fp64_directions, int_pow=int_pow,
+                      max_error=max_error, light_tile=light_tile, sum_fp64=sum_fp64)
     if kernel != "lanes" and (groups or aovs):
         raise SceneError(f"{scene.source}: the obvious kernel shades the beauty only; light groups "
                          "and AOV layers need the lane kernel")
-    put("COVERAGE", coverage, "partly covered pixels: outputs α-premultiplied, the beauty over "
-                              "the background" if coverage else "no partly covered pixel")
-    put("N_GROUPS", len(groups), f"light-group layers {', '.join(groups)} from the same pass"
-        if groups else "no light groups")
-    put("AOV_DIFFUSE", "diffuse" in aovs, "diffuse layer (with the ambient term)"
-        if "diffuse" in aovs else "no diffuse layer")
-    put("AOV_SPECULAR", "specular" in aovs, "specular layer" if "specular" in aovs
-        else "no specular layer")
+    _layer_defines(put, coverage, groups, aovs)
     notes = []
     if not n_point and not n_dir:
         notes.append("no direct lights: only the ambient term is shaded")

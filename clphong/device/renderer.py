@@ -462,6 +462,30 @@ class Renderer:
 
     # ------------------------------------------------------------------ one launch
 
+    def _cull_or_brute(self, plan, prog, frame, lights, **buffers):
+        """With a culling plan: the frame's tile lists, or brute force where they lose
+        (too long, or keeping nearly every light: their cost stays in ``cull.seconds``,
+        their kept share in the result) or lost on one of the last CULL_RETRY frames.
+        (plan, program, TileLists or None, the kernel's list arguments, the tree's
+        (records, records64) or None)."""
+        if not plan.defines.get("CULLING"):
+            return plan, prog, None, [], None
+        cull = None
+        if self._cull_rest > 0:
+            self._cull_rest -= 1
+        else:
+            cull = build_tile_lists(self.runtime, plan, frame, lights.point, plan.n_point,
+                                    budget=self.max_error, tree=self._tree_input(plan, frame, lights),
+                                    **buffers)
+            if cull is not None and cull.pays:
+                records = None if cull.records is None else (cull.records, cull.records64)
+                return plan, prog, cull, cull.kernel_args(), records
+            if cull is not None:
+                cull = dataclasses.replace(cull, brute=True)
+            self._cull_rest = CULL_RETRY
+        plan, prog = self._plan_and_program(frame.map_names, culling=False, coverage=frame.coverage)
+        return plan, prog, cull, [], None
+
     def shade(self, frame: Frame, *, display: DisplayTransform | None = None) -> RenderResult:
         """One launch of the shading kernel on a prepared :class:`~clphong.device.frame.Frame`
         (no non-finite policy, no memory check: see :meth:`render`)."""
@@ -498,31 +522,11 @@ class Renderer:
             ga = cl.Buffer(ctx, ro, hostbuf=lights.group_ambient)
             ob = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             bg = self.scene.background
-            cull_args, cull = [], None
-            if plan.defines.get("CULLING") and self._cull_rest > 0:
-                # culling lost on a recent frame (it kept nearly every light): brute force
-                # for CULL_RETRY frames, then the lists are tried again
-                self._cull_rest -= 1
-                plan, prog = self._plan_and_program(frame.map_names, culling=False,
-                                                    coverage=frame.coverage)
-            if plan.defines.get("CULLING"):
-                cull = build_tile_lists(self.runtime, plan, frame, lights.point, plan.n_point,
-                                        budget=self.max_error, k_d=k_d, S=S, gbuf_buffer=g,
-                                        maps_buffer=mp,
-                                        tree=self._tree_input(plan, frame, lights))
-                if cull is None or not cull.pays:
-                    # lists too long, or keeping nearly every light: brute force (the
-                    # lists' cost stays in cull.seconds, their kept share in the result)
-                    if cull is not None:
-                        cull = dataclasses.replace(cull, brute=True)
-                    self._cull_rest = CULL_RETRY
-                    plan, prog = self._plan_and_program(frame.map_names, culling=False,
-                                                        coverage=frame.coverage)
-                else:
-                    cull_args = cull.kernel_args()
-                    if cull.records is not None:     # the lists name the tree's clusters too
-                        pl = cl.Buffer(ctx, ro, hostbuf=shading_records(
-                            cull.records64 if fp64 else cull.records, spots))
+            plan, prog, cull, cull_args, records = self._cull_or_brute(
+                plan, prog, frame, lights, k_d=k_d, S=S, gbuf_buffer=g, maps_buffer=mp)
+            if records is not None:                  # the lists name the tree's clusters too
+                pl = cl.Buffer(ctx, ro, hostbuf=shading_records(records[1] if fp64 else records[0],
+                                                                spots))
             kern = self.runtime.kernel(prog, "shade")
             kern.set_args(
                 g, mp, ob, np.uint32(frame.stride), np.uint32(0),

@@ -354,29 +354,41 @@ def diff_images(a: str | os.PathLike, b: str | os.PathLike, *, metric: str = "ma
     bad = ~same & ~finite                        # NaN/Inf where the other image differs
     n_bad = int(bad.sum())
     diff = np.where(same | ~finite, 0.0, np.abs(B - A))
-    finite_a = np.abs(A[np.isfinite(A)])
-    a_peak = float(finite_a.max()) if finite_a.size else 0.0
 
     details: dict = {"channels": list(channels)}
+    value, heat, per, match = _measure(metric, A, B, diff, bad, tol, details, channels=channels,
+                                       floor=floor, peak=peak,
+                                       hdr=sa.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE))
+    worst = _worst_pixel(heat, per if metric == "max-rel" else None, channels, n_bad)
+    if heatmap is not None:
+        _write_heatmap(os.fspath(heatmap), heat, metric)
+    return DiffResult(metric, value, tol, bool(match), worst=worst, nonfinite_mismatches=n_bad,
+                      details=details)
+
+
+def _measure(metric, A, B, diff, bad, tol, details, *, channels, floor, peak, hdr):
+    """(value, per-pixel heat, per-channel error or None, match) of ``metric`` on the finite
+    differences ``diff`` (``bad``: a NaN or Inf where the other image differs)."""
+    n_bad = int(bad.sum())
+    finite_a = np.abs(A[np.isfinite(A)])
+    a_peak = float(finite_a.max()) if finite_a.size else 0.0
+    per = None
     if metric == "max-rel":
         fl = floor if floor is not None else 1e-6 * a_peak
         fl = fl if fl > 0 else np.finfo(np.float64).tiny
         per = diff / np.maximum(np.where(np.isfinite(A), np.abs(A), 0.0), fl)
         per = np.where(bad, np.inf, per)
         value = float(per.max()) if per.size else 0.0
-        heat = per.max(axis=2)
         details["floor"] = fl
-        match = value <= tol
-    elif metric == "mean-abs":
+        return value, per.max(axis=2), per, value <= tol
+    if metric == "mean-abs":
         per = np.where(bad, np.inf, diff)
         value = float(per.mean()) if per.size else 0.0
-        heat = per.mean(axis=2)
-        match = value <= tol
-    elif metric == "psnr":
+        return value, per.mean(axis=2), None, value <= tol
+    if metric == "psnr":
         pk = peak if peak is not None else a_peak
         sq = np.where(bad, np.inf, diff * diff)
         mse = float(sq.mean()) if sq.size else 0.0
-        heat = sq.mean(axis=2)
         if mse == 0.0:
             value = math.inf
         elif pk <= 0 or not math.isfinite(mse):
@@ -384,29 +396,24 @@ def diff_images(a: str | os.PathLike, b: str | os.PathLike, *, metric: str = "ma
         else:
             value = 10.0 * math.log10(pk * pk / mse)
         details["peak"] = pk
-        match = value >= tol
-    else:
-        if len(channels) != 3:
-            raise ValueError(f"flip compares 3 colour channels; give --channels R,G,B "
-                             f"(got {','.join(channels)})")
-        heat, value = _flip(A, B, hdr=sa.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE))
-        if n_bad:
-            value = math.inf
-            heat = np.where(bad.any(axis=2), np.inf, heat)
-        match = value <= tol
-    if heat.size and np.isfinite(heat).any() or n_bad:
-        flat = np.nanargmax(np.where(np.isnan(heat), -np.inf, heat))
-        y, x = np.unravel_index(flat, heat.shape)
-        worst_c = ""
-        if metric == "max-rel":
-            worst_c = channels[int(np.argmax(per[y, x]))]
-        worst = (int(x), int(y), worst_c)
-    else:
-        worst = None
-    if heatmap is not None:
-        _write_heatmap(os.fspath(heatmap), heat, metric)
-    return DiffResult(metric, value, tol, bool(match), worst=worst, nonfinite_mismatches=n_bad,
-                      details=details)
+        return value, sq.mean(axis=2), None, value >= tol
+    if len(channels) != 3:
+        raise ValueError(f"flip compares 3 colour channels; give --channels R,G,B "
+                         f"(got {','.join(channels)})")
+    heat, value = _flip(A, B, hdr=hdr)
+    if n_bad:
+        value = math.inf
+        heat = np.where(bad.any(axis=2), np.inf, heat)
+    return value, heat, None, value <= tol
+
+
+def _worst_pixel(heat, per, channels, n_bad):
+    """(x, y, channel) of the largest heat (the channel with ``per``, max-rel's), or None."""
+    if not (heat.size and np.isfinite(heat).any() or n_bad):
+        return None
+    flat = np.nanargmax(np.where(np.isnan(heat), -np.inf, heat))
+    y, x = np.unravel_index(flat, heat.shape)
+    return int(x), int(y), (channels[int(np.argmax(per[y, x]))] if per is not None else "")
 
 
 def _buf(arr: np.ndarray) -> oiio.ImageBuf:

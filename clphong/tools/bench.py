@@ -275,28 +275,62 @@ def _first_lights(scene, n: int):
     return dataclasses.replace(scene, lights=tuple(amb) + tuple(scene.lights_of("point")[:n]))
 
 
-def run_bench(cfg: BenchConfig) -> dict:
-    """Run the benchmark; return the report (a JSON-serialisable dict)."""
-    log = cfg.log or (lambda msg: None)
-    rt = get_runtime(cfg.device)
-    peer_pairs = cfg.crop_pairs or PEER_PAIRS
-    if cfg.crop_pairs is None:
-        cfg = dataclasses.replace(cfg, crop_pairs=max(PEER_PAIRS, CROP_SECONDS * (rt.pair_rate or 0.0)))
-    # a crop holds at least CROP_FILLS times the work-items that fill the device (an H200's
-    # 103-row crop at 65,536 lights ran at 136 GPLE/s, the whole frame at 159)
-    least_pixels = CROP_FILLS * rt.fill_items * max(rt.lanes, 1)
-    shapes: dict = {}
-    peak = measure_peak_gflops(rt, detail=shapes)
-    use_numba = cfg.numba and numba_peer.available()
-    numba_fma = numba_peer.fma_peak_gflops() if use_numba else None
-    best = shapes.get("best", {})
-    log(f"device: {rt.name}; FP32 peak {peak:.1f} GFLOP/s (kernels/peak.cl, best of "
-        f"{len(shapes) - 1} shapes: {best.get('lanes')} lanes x {best.get('chains')} chains)"
-        + (f"; numba FMA loop {numba_fma:.1f} GFLOP/s ({numba_peer.fma_vector_bits()}-bit vectors)"
-           if numba_fma else ""))
-    if not use_numba and cfg.numba:
-        log("numba peer: skipped (numba is not installed: pip install 'clphong[bench]')")
-    report = {
+def _run_entry(slot, cfg, scene, kind, n, size, shaded_full, oracle_cache, np_rate, numba_rate,
+               peak, log) -> dict:
+    """One timed run's report row (and its log line): rate, ratios, error, culling."""
+    W, H = size
+    path, budget, rows, gb, r, frame = (slot[k] for k in ("path", "budget", "rows", "gb", "r", "frame"))
+    brute = budget is None
+    times, result = slot["times"], slot["result"]
+    med, cull_s = statistics.median(times), statistics.median(slot["cull"])
+    key = rows
+    if key not in oracle_cache:
+        m = max(500, int(cfg.error_pairs // max(n, 1)))
+        oracle_cache[key] = make_oracle(scene, gb, frame, m)
+    err = oracle_cache[key].errors(result.image)
+    # shaded pixel-light evaluations: background pixels cost no light
+    # (kernel, culling and numpy alike), so they are not counted
+    shaded = shaded_pixels(gb)
+    rate = shaded * n / med
+    flops = flops_per_ple(result.plan, scene.material.exponent)
+    entry = {
+        "scene": kind, "size": [W, H], "lights": n, "path": path,
+        "lanes": r.lanes, "lanes_given": slot["lanes_given"],
+        "max_error": budget, "crop_rows": rows, "extrapolated": rows != H,
+        "shaded_pixels": shaded_full,
+        "ms_per_frame": med * 1e3 * shaded_full / shaded,
+        "times_ms": [t * 1e3 for t in times],
+        "cull_ms": cull_s * 1e3 * shaded_full / shaded,
+        "ple_per_s": rate, "gple_per_s": rate / 1e9,
+        "numpy_ratio": rate / np_rate if np_rate else None,
+        "numba_ratio": rate / numba_rate if numba_rate and brute else None,
+        # culled runs evaluate fewer pairs than S·N: no peak fraction
+        "flops_per_ple": flops,
+        "peak_fraction": rate * flops / (peak * 1e9) if brute else None,
+        "kept_fraction": (slot["last_cull"].kept_fraction if slot.get("last_cull")
+                          else None),
+        # timed frames shaded brute force without lists, culling having lost on
+        # an earlier frame (renderer.CULL_RETRY)
+        "lists_skipped": slot.get("lists_skipped", 0),
+        "error": err,
+    }
+    label = path if brute else f"cull ε={budget:g}"
+    if slot["lanes_given"]:
+        label += f"@{r.lanes}"
+    log(f"{label:15s} {kind:5s} N={n:<6d} {rate / 1e9:7.3f} GPLE/s "
+        f"{entry['ms_per_frame']:10.1f} ms/frame"
+        + (f" ({W}x{rows} crop)" if rows != H else "")
+        + (f" ×{entry['numpy_ratio']:.0f} numpy" if np_rate else "")
+        + (f" ×{entry['numba_ratio']:.2f} numba" if entry["numba_ratio"] else "")
+        + f"  max rel {err['max_rel']:.2e} mean {err['mean_rel']:.2e}"
+        f" abs {err['max_abs']:.2e} band {err['band_pixels']}"
+        + (f" kept {entry['kept_fraction']:.4f}" if entry["kept_fraction"] is not None else ""))
+    return entry
+
+
+def _report_header(cfg: BenchConfig, rt, peak: float, shapes: dict, numba_fma, use_numba: bool) -> dict:
+    """The report's machine and settings, and its empty row lists."""
+    return {
         "clphong_bench": 1,
         "machine": {"device": rt.name, "llvm_target": rt.llvm_target, "lanes": rt.lanes,
                     "host": platform.processor() or platform.machine(),
@@ -326,6 +360,30 @@ def run_bench(cfg: BenchConfig) -> dict:
         "environment": [],
         "tree": [],
     }
+
+
+def run_bench(cfg: BenchConfig) -> dict:
+    """Run the benchmark; return the report (a JSON-serialisable dict)."""
+    log = cfg.log or (lambda msg: None)
+    rt = get_runtime(cfg.device)
+    peer_pairs = cfg.crop_pairs or PEER_PAIRS
+    if cfg.crop_pairs is None:
+        cfg = dataclasses.replace(cfg, crop_pairs=max(PEER_PAIRS, CROP_SECONDS * (rt.pair_rate or 0.0)))
+    # a crop holds at least CROP_FILLS times the work-items that fill the device (an H200's
+    # 103-row crop at 65,536 lights ran at 136 GPLE/s, the whole frame at 159)
+    least_pixels = CROP_FILLS * rt.fill_items * max(rt.lanes, 1)
+    shapes: dict = {}
+    peak = measure_peak_gflops(rt, detail=shapes)
+    use_numba = cfg.numba and numba_peer.available()
+    numba_fma = numba_peer.fma_peak_gflops() if use_numba else None
+    best = shapes.get("best", {})
+    log(f"device: {rt.name}; FP32 peak {peak:.1f} GFLOP/s (kernels/peak.cl, best of "
+        f"{len(shapes) - 1} shapes: {best.get('lanes')} lanes x {best.get('chains')} chains)"
+        + (f"; numba FMA loop {numba_fma:.1f} GFLOP/s ({numba_peer.fma_vector_bits()}-bit vectors)"
+           if numba_fma else ""))
+    if not use_numba and cfg.numba:
+        log("numba peer: skipped (numba is not installed: pip install 'clphong[bench]')")
+    report = _report_header(cfg, rt, peak, shapes, numba_fma, use_numba)
     for (W, H) in cfg.sizes:
         full = bench_gbuffer(W, H)
         shaded_full = shaded_pixels(full)
@@ -410,53 +468,8 @@ def run_bench(cfg: BenchConfig) -> dict:
                 log(f"numba peer     {kind:5s} N={n:<6d} {numba_rate / 1e9:7.3f} GPLE/s "
                     f"({W}x{peer_rows})  max rel {err['max_rel']:.2e} mean {err['mean_rel']:.2e}")
             for slot in slots:
-                path, budget, rows, gb, r, frame = (slot[k] for k in ("path", "budget", "rows", "gb", "r", "frame"))
-                brute = budget is None
-                times, result = slot["times"], slot["result"]
-                med, cull_s = statistics.median(times), statistics.median(slot["cull"])
-                key = rows
-                if key not in oracle_cache:
-                    m = max(500, int(cfg.error_pairs // max(n, 1)))
-                    oracle_cache[key] = make_oracle(scene, gb, frame, m)
-                err = oracle_cache[key].errors(result.image)
-                # shaded pixel-light evaluations: background pixels cost no light
-                # (kernel, culling and numpy alike), so they are not counted
-                shaded = shaded_pixels(gb)
-                rate = shaded * n / med
-                flops = flops_per_ple(result.plan, scene.material.exponent)
-                entry = {
-                    "scene": kind, "size": [W, H], "lights": n, "path": path,
-                    "lanes": r.lanes, "lanes_given": slot["lanes_given"],
-                    "max_error": budget, "crop_rows": rows, "extrapolated": rows != H,
-                    "shaded_pixels": shaded_full,
-                    "ms_per_frame": med * 1e3 * shaded_full / shaded,
-                    "times_ms": [t * 1e3 for t in times],
-                    "cull_ms": cull_s * 1e3 * shaded_full / shaded,
-                    "ple_per_s": rate, "gple_per_s": rate / 1e9,
-                    "numpy_ratio": rate / np_rate if np_rate else None,
-                    "numba_ratio": rate / numba_rate if numba_rate and brute else None,
-                    # culled runs evaluate fewer pairs than S·N: no peak fraction
-                    "flops_per_ple": flops,
-                    "peak_fraction": rate * flops / (peak * 1e9) if brute else None,
-                    "kept_fraction": (slot["last_cull"].kept_fraction if slot.get("last_cull")
-                                      else None),
-                    # timed frames shaded brute force without lists, culling having lost on
-                    # an earlier frame (renderer.CULL_RETRY)
-                    "lists_skipped": slot.get("lists_skipped", 0),
-                    "error": err,
-                }
-                report["runs"].append(entry)
-                label = path if brute else f"cull ε={budget:g}"
-                if slot["lanes_given"]:
-                    label += f"@{r.lanes}"
-                log(f"{label:15s} {kind:5s} N={n:<6d} {rate / 1e9:7.3f} GPLE/s "
-                    f"{entry['ms_per_frame']:10.1f} ms/frame"
-                    + (f" ({W}x{rows} crop)" if rows != H else "")
-                    + (f" ×{entry['numpy_ratio']:.0f} numpy" if np_rate else "")
-                    + (f" ×{entry['numba_ratio']:.2f} numba" if entry["numba_ratio"] else "")
-                    + f"  max rel {err['max_rel']:.2e} mean {err['mean_rel']:.2e}"
-                    f" abs {err['max_abs']:.2e} band {err['band_pixels']}"
-                    + (f" kept {entry['kept_fraction']:.4f}" if entry["kept_fraction"] is not None else ""))
+                report["runs"].append(_run_entry(slot, cfg, scene, kind, n, (W, H), shaded_full,
+                                                 oracle_cache, np_rate, numba_rate, peak, log))
         if cfg.env_errors:
             report["environment"] += run_environment(cfg, full, report["runs"], log)
         if cfg.tree_cases:

@@ -486,3 +486,23 @@ def test_a_spot_facing_away_is_dropped_at_any_budget(outer):
     lists = read_tile_lists(r.runtime, result.cull)
     assert not any(0 in idx for idx in lists)
     assert sum(len(idx) for idx in lists) > 0
+
+
+def test_culling_that_lost_is_skipped_for_a_few_frames_then_tried_again(monkeypatch):
+    """Lists that keep nearly every light fall back to brute force (cull.brute); the
+    renderer then shades its next CULL_RETRY frames brute force without building lists
+    (cull None, the same pixels), and tries the lists again after them."""
+    import clphong.device.renderer as R
+
+    monkeypatch.setattr(R, "CULL_RETRY", 2)
+    monkeypatch.setattr(culling, "BRUTE_ABOVE", 0.85)   # the fallback (this file's fixture lifts it)
+    rng = np.random.default_rng(8)
+    gb = heightfield(rng, 23, 35)
+    scene = make_scene(point_lights(rng, 40, att=(1.0, 0.0, 0.01)), model="phong", h=10.0)
+    r = Renderer(scene, max_error=0.0)              # 0: drops only lights whose bound is 0
+    results = [r.render(gb) for _ in range(4)]
+    assert results[0].cull is not None and results[0].cull.brute
+    assert results[1].cull is None and results[2].cull is None
+    assert results[3].cull is not None and results[3].cull.brute
+    assert all(x.plan.defines["CULLING"] == 0 for x in results)
+    assert all(np.array_equal(x.image, results[0].image) for x in results)
