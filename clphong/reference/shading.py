@@ -425,6 +425,237 @@ def finish_sum(E):
 
 # ------------------------------------------------------------------- the error model
 
+def _plan_forms(plan):
+    """(compensated, sum_fp64, form, directions, weights) of :func:`error_bound` for the
+    variant a plan compiled."""
+    lanes = plan.kernel == "lanes"
+    compensated = lanes and bool(plan.defines.get("COMPENSATED_SUM", 0))
+    sum_fp64 = lanes and bool(plan.defines.get("SUM_FP64", 0))
+    form = (("cos" if plan.defines.get("SPEC_COS", 0)
+             else "int32" if plan.defines.get("POW_FP32", 0) else "int")
+            if plan.defines.get("SPEC_INT_POW", 0) else "delta") if lanes else "naive"
+    directions = "fp64" if plan.defines.get("DIRECTIONS_FP64", 0) else "fp32"
+    weights = "fp64" if lanes and plan.defines.get("WEIGHTS_FP64", 0) else "fp32"
+    return compensated, sum_fp64, form, directions, weights
+
+
+def _check_forms(form, directions, weights) -> None:
+    if directions not in ("fp32", "fp64"):
+        raise ValueError(f"directions must be 'fp32' or 'fp64', not {directions!r}")
+    if form == "int32" and directions != "fp32":
+        raise ValueError("form 'int32' (the fast path's float power) goes with fp32 directions")
+    if weights not in ("fp32", "fp64") or (weights == "fp64" and directions != "fp64"):
+        raise ValueError(f"weights must be 'fp32', or 'fp64' with fp64 directions, not {weights!r}")
+
+
+def _point_geometry(params, px, o, rp, ud, uw, fp64):
+    """A batch of point lights' geometry and falloff errors for :func:`error_bound`:
+    (n·l, l, η_l, the falloff's relative error, d, the pixels whose float path leaves
+    float's range)."""
+    Lp = params["position"]                                     # (K, 1, 3)
+    dv = Lp - px.p
+    d = np.sqrt(_dot(dv, dv))
+    unbounded = None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rl = 0.0 if fp64 else np.sqrt(_dot(Lp - o, Lp - o))     # float32 record
+        eta_l = np.where(d > 0, ud * (2.0 + (rp + rl) / d), 0.0)
+        c0, c1, c2 = params["c"]
+        cond = (abs(c0) + abs(c1) * d + abs(c2) * d * d) / (c0 + c1 * d + c2 * d * d)
+        cond = np.where(d > 0, cond, 0.0)     # d = 0 adds nothing (shade_point_light)
+        if not fp64:
+            # float d², c2·d² or the polynomial outside float's normal
+            # range: flushed or infinite, the result is not bounded.
+            terms = np.stack([d * d, np.abs(c2) * d * d, c0 + c1 * d + c2 * d * d])
+            out_of_range = (d > 0) & np.any((terms > FLT_MAX) | ((terms > 0) & (terms < FLT_MIN)), axis=0)
+            unbounded = np.any(out_of_range, axis=0)
+    # d from the rounded position difference and rsqrt; Horner's three
+    # roundings; the coefficients rounded to float32; the division.
+    # fp64: d and the falloff in double, att·L rounded to float once.
+    e_att = (cond * (4.0 * ud + 2.0 * eta_l) + uw) if fp64 else \
+        (cond * (4.0 * U + 2.0 * eta_l) + 3.0 * U)
+    with np.errstate(invalid="ignore"):
+        NoL = np.where(d > 0, _dot(px.n, dv) / d, 0.0)
+        lvec = np.where((d > 0)[..., None], dv / d[..., None], 0.0)
+    return NoL, lvec, eta_l, e_att, d, unbounded
+
+
+def _cone_error(cone, lvec, eta_l, ud, fp64):
+    """A spot's cone factor F = t², t = clamp(x, 0, 1), x = cos θ·s + o, cos θ = −l·a
+    (spot_factor), and F's absolute error: (t, ΔF). cos θ errs by l's error η_l, the
+    axis's rounding to float (float path) and the dot product's 3 roundings; x by s times
+    that, the roundings of s and o to float (float path) and the fused add's; the clamp is
+    1-Lipschitz; t·t rounds once. ΔF = 2tΔt + Δt² + u·t² (t → 0 at the outer edge)."""
+    axis, sc, off = cone
+    cos_t = -_dot(lvec, axis)
+    t = np.clip(cos_t * sc + off, 0.0, 1.0)
+    e_cos = eta_l + 3.0 * ud + (0.0 if fp64 else U)
+    # MUL_ADD may or may not be fused: the product's own rounding too
+    e_x = sc * e_cos + (ud if fp64 else U) * (np.abs(cos_t * sc + off) + np.abs(cos_t) * sc) + \
+        (0.0 if fp64 else U * (np.abs(cos_t) * sc + np.abs(off)))
+    return t, 2.0 * t * e_x + e_x * e_x + (ud if fp64 else U) * t * t
+
+
+def _fresnel_error(px, lvec, w_hi, eta_l, eta_v, eta_n, S, Lc, ud, uw, w64):
+    """Schlick's W ∈ [f0, 1] scales the specular weight (≤ 1: |S|·e_spec still bounds its
+    error); W's own error on the computed weight ``w_hi`` = w_s + e_spec: (1 − f0)·ΔF5,
+    ΔF5 = 5(1 − c)⁴Δc + 5 roundings of the power + its rounding to the weights' type,
+    c = cos α; and 3 roundings of the products with f0. Summed over the batch's lights."""
+    if px.blinn:
+        # c = v·h = √x, x = (1 + l·v)/2: l·v errs by η_l + η_v + 3u_d, x by half
+        # that and a rounding; √ by Δx/(2c), or √Δx near c = 0, and a rounding
+        c = v_dot_h(lvec, px.v)
+        dx = 0.5 * (eta_l + eta_v + 3.0 * ud) + ud
+        # |√a − √b| = |a − b|/(√a + √b) ≤ Δx/c when the kernel's x is the
+        # smaller one; ≤ √Δx always
+        with np.errstate(divide="ignore"):
+            dc = np.minimum(dx / c, np.sqrt(dx)) + ud
+        dF5 = 5.0 * dc + 8.0 * ud + uw
+        S_abs = np.abs(S)
+    else:
+        c = _dot(px.n, px.v)                                    # (M,)
+        dc = eta_n + eta_v + 3.0 * ud
+        dF5 = 5.0 * (1.0 - np.clip(c - dc, 0.0, 1.0)) ** 4 * dc + 8.0 * ud + uw
+        S_abs = np.abs(px.S_base)
+    # 1 − m enters the power's 3 products 5 times (8u); the products with f0
+    # and 1 − f0, w·F5, S1·w_f and the add (7u); f0 itself rounded to float
+    # without WEIGHTS_FP64 (W_HI_LO keeps the hi part only: u·f0 ≤ u)
+    e_f0 = 0.0 if w64 else U
+    return np.sum(Lc * S_abs * ((1.0 - px.f0) * dF5[..., None] + 7.0 * uw + e_f0)
+                  * w_hi[..., None], axis=0)
+
+
+def _view_error(camera, px, o, rp, ud):
+    """η_v, the relative error of each pixel's unit view vector: orthographic, its rounding;
+    perspective, eye − P's (the rebased P's and eye's roundings over their distance)."""
+    if view_vector(camera) is not None:
+        return np.full(len(px.p), ud)
+    eye = np.asarray(camera.position, np.float64)
+    de = np.sqrt(_dot(eye - px.p, eye - px.p))
+    with np.errstate(divide="ignore"):
+        return ud * (2.0 + (rp + np.linalg.norm(eye - o)) / de)
+
+
+def _sum_error(total, n_direct, *, sum_fp64, compensated):
+    """The light sum's error: in double (SUM_FP64) by ≤ n·2⁻⁵³·Σ|c| before the one final
+    rounding; Neumaier's compensated sum by ≤ 2u|Σ| + O(n·u²)Σ|c|; the naive one by
+    (n − 1)·u·Σ|c|; plus the final rounding."""
+    if sum_fp64:
+        return (U + (n_direct + 1) * U_D) * total
+    if compensated:
+        return (3.0 * U + 2.0 * n_direct * U * U) * total
+    return (max(n_direct, 1) * U + U) * total
+
+
+def _with_background(bound, fg, scene, gbuffer):
+    """The bound with the background pixels' (the background value rounded to float32)
+    and, with partial coverage, the blend's: fl(α·S + fl(fl(1 − α)·bg)): α scales S's
+    error; 1 − α, the product and the fused add round once each (3u of α|S| + |bg|,
+    doubled)."""
+    bg_abs = np.abs(np.asarray(scene.background, np.float64))
+    bound[~fg] = U * bg_abs
+    a = partial_coverage(gbuffer)
+    if a is None:
+        return bound
+    ref = np.abs(shade_straight(scene, gbuffer)).reshape(-1, 3)
+    return a[:, None] * bound + 6.0 * U * (a[:, None] * ref + bg_abs)
+
+
+@dataclass(frozen=True)
+class _Rounding:
+    """What :func:`error_bound` fixes before the lights: the pixels, D and S, the rebasing
+    origin and |P − o|, the unit roundoffs, the formats, and the view's and normal's
+    direction errors."""
+
+    px: Pixels
+    D: np.ndarray
+    S: np.ndarray
+    o: np.ndarray
+    rp: object
+    ud: float
+    uw: float
+    r_nol: float
+    r_out: float
+    fp64: bool
+    w64: bool
+    eta_v: np.ndarray
+    eta_n: np.ndarray
+    k: np.ndarray
+    form: str
+
+
+def _batch_error(e: _Rounding, kind, L, params, diffuse, specular):
+    """One batch of lights' share of :func:`error_bound`: (the error bound's parts, to add
+    in order, their part of Σ|c|, the band pixels among the shaded ones, the pixels the float path cannot
+    bound or None)."""
+    px, D, S, ud, uw, fp64, w64 = e.px, e.D, e.S, e.ud, e.uw, e.fp64, e.w64
+    eta_v, eta_n, r_nol = e.eta_v, e.eta_n, e.r_nol
+    out = None
+    if kind == "point":
+        NoL, lvec, eta_l, e_att, d, out = _point_geometry(params, px, e.o, e.rp, ud, uw, fp64)
+        c0, c1, c2 = params["c"]
+    else:
+        NoL = _dot(px.n, params["l"])                               # (K, M)
+        eta_l = np.full(NoL.shape, ud)
+        e_att = np.zeros(NoL.shape)
+        lvec = np.broadcast_to(params["l"], NoL.shape + (3,))
+        d = None
+    eps_dir = eta_n + eta_l + 4.0 * ud
+    # n·l as the weights see it: rounded to float (flushed below FLT_MIN) when
+    # it was computed in double and the weights are float.
+    eps_NoL = eps_dir + (r_nol * np.abs(NoL) + FLT_MIN if fp64 and not w64 else 0.0)
+    Lc = np.abs(L)
+    # Diffuse: max(n·l, 0) is continuous, so its error is that of n·l.
+    diff_abs = np.where(NoL > -eps_NoL, eps_NoL, 0.0)
+    if d is None:
+        att = np.ones(NoL.shape)
+    else:
+        with np.errstate(divide="ignore"):
+            att = np.where(d > 0, attenuation(c0, c1, c2, d), 0.0)
+    # A spot's cone factor (_cone_error): F's error is absolute, charged below on the
+    # unattenuated weights' upper bounds; att·F rounds once more (into e_att).
+    cone = params.get("cone") if kind == "point" else None
+    dF = None
+    if cone is not None:
+        att_raw = att
+        t, dF = _cone_error(cone, lvec, eta_l, ud, fp64)
+        att = att_raw * t * t
+        e_att = e_att + (ud if fp64 else U)
+    # The product L·(D·w_d + S·w_s): five roundings, in float or (WEIGHTS_FP64)
+    # in double; D = C·k_d and S = k_s·C_s: k_d, k_s rounded to float and up to
+    # two products (3u), or (WEIGHTS_FP64) in double from hi + lo (3u_d).
+    e_prod = 5.0 * U if not w64 else 3.0 * ud + 5.0 * uw
+    e_diff = diffuse * e_att + att * diff_abs + diffuse * e_prod
+    if dF is not None:
+        e_diff = e_diff + att_raw * dF * (np.maximum(NoL, 0.0) + eps_NoL)
+    # Specular: the error of δ (or of r·v for the naive form) through the power.
+    if px.specular:
+        spec_abs, spec_upper = _specular_error(px, lvec, NoL, eps_dir, eta_l, eta_v, eta_n, e.k,
+                                               e.form, ud, e.r_out, uw)
+        e_spec = specular * (e_att + e_prod) + att * spec_abs
+        if dF is not None:
+            e_spec = e_spec + att_raw * dF * np.where(NoL > -eps_NoL, spec_upper, 0.0)
+        # The terminator: within eps_NoL of n·l = 0 the float32 gate n·l > 0
+        # may disagree with float64's, switching the whole term.
+        near = (np.abs(NoL) <= eps_NoL) & (spec_upper > 0)
+        e_spec = np.where(near, e_spec + att * spec_upper, e_spec)
+        band_fg = np.any(near & (np.abs(S).max(axis=1) * Lc_max(L) > 0), axis=0)
+    else:
+        e_spec = np.zeros(NoL.shape)
+        band_fg = np.zeros(len(px.p), bool)
+    # Underflow: intermediates below FLT_MIN are flushed to zero: the weights
+    # and their products with D and S (each then scaled by att·L), and att·L
+    # itself.
+    DS = np.abs(D) + np.abs(S)
+    floor = FLT_MIN * ((2.0 + DS) * (np.maximum(att, 1.0)[..., None] * Lc) + DS)
+    b_add = np.sum(Lc * (np.abs(D) * e_diff[..., None] + np.abs(S) * e_spec[..., None]) + floor, axis=0)
+    parts = [b_add]                              # added to the bound in this order
+    if px.f0 is not None:
+        parts.append(_fresnel_error(px, lvec, specular + e_spec, eta_l, eta_v, eta_n, S, Lc, ud,
+                                    uw, w64))
+    t_add = np.sum(Lc * (np.abs(D) * diffuse[..., None] + np.abs(S) * specular[..., None]), axis=0)
+    return parts, t_add, band_fg, out
+
+
 def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
                 directions="fp32", plan=None, sum_fp64=False, weights="fp32"):
     """Upper bound of |float32 kernel − :func:`shade`| per pixel and channel.
@@ -478,23 +709,11 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     second-order terms and the rounding of the float32 inputs.
     """
     if plan is not None:
-        lanes = plan.kernel == "lanes"
-        compensated = lanes and bool(plan.defines.get("COMPENSATED_SUM", 0))
-        sum_fp64 = lanes and bool(plan.defines.get("SUM_FP64", 0))
-        form = (("cos" if plan.defines.get("SPEC_COS", 0)
-                 else "int32" if plan.defines.get("POW_FP32", 0) else "int")
-                if plan.defines.get("SPEC_INT_POW", 0) else "delta") if lanes else "naive"
-        directions = "fp64" if plan.defines.get("DIRECTIONS_FP64", 0) else "fp32"
-        weights = "fp64" if lanes and plan.defines.get("WEIGHTS_FP64", 0) else "fp32"
-    if directions not in ("fp32", "fp64"):
-        raise ValueError(f"directions must be 'fp32' or 'fp64', not {directions!r}")
+        compensated, sum_fp64, form, directions, weights = _plan_forms(plan)
+    _check_forms(form, directions, weights)
     # ud: unit roundoff of the direction arithmetic. In double from float32
     # inputs and float32 hi+lo pairs (48 significant bits), 2⁻⁴⁷ covers the pairs'
     # truncation and the double roundings. r_out: n·l and δ rounded to float.
-    if form == "int32" and directions != "fp32":
-        raise ValueError("form 'int32' (the fast path's float power) goes with fp32 directions")
-    if weights not in ("fp32", "fp64") or (weights == "fp64" and directions != "fp64"):
-        raise ValueError(f"weights must be 'fp32', or 'fp64' with fp64 directions, not {weights!r}")
     fp64 = directions == "fp64"
     ud, r_out = (2.0 ** -47, U) if fp64 else (U, 0.0)
     # uw: the rounding of each weight, falloff and light product: to float, or
@@ -511,14 +730,7 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     # L − P, eye − P and the eye's hi+lo are rounded.
     o = np.zeros(3) if origin is None or fp64 else np.asarray(origin, np.float64)
     rp = np.sqrt(_dot(px.p - o, px.p - o)) if np.any(o != 0) else 0.0   # |P − o| if rounded
-    ortho = view_vector(scene.camera) is not None
-    if ortho:
-        eta_v = np.full(len(px.p), ud)
-    else:
-        eye = np.asarray(scene.camera.position, np.float64)
-        de = np.sqrt(_dot(eye - px.p, eye - px.p))
-        with np.errstate(divide="ignore"):
-            eta_v = ud * (2.0 + (rp + np.linalg.norm(eye - o)) / de)
+    eta_v = _view_error(scene.camera, px, o, rp, ud)
     eta_n = np.full(len(px.p), ud)                  # unit normal rounded (or as hi+lo)
     k = np.broadcast_to(px.k, (len(px.p),))
     total = np.abs(C * ambient_radiance(scene))    # Σ|c_i|, for the summation error
@@ -528,148 +740,19 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     B = (2.0 * ud if w64 else 2.0 * U) * total + FLT_MIN * (1.0 + np.abs(C))
     n_direct = 0
     unbounded = np.zeros(len(px.p), bool)
+    env = _Rounding(px=px, D=D, S=S, o=o, rp=rp, ud=ud, uw=uw, r_nol=r_nol, r_out=r_out,
+                    fp64=fp64, w64=w64, eta_v=eta_v, eta_n=eta_n, k=k, form=form)
+    idx = np.flatnonzero(fg)
     for kind, L, params, diffuse, specular in _light_terms(scene, px):
         n_direct += len(L)
-        if kind == "point":
-            Lp = params["position"]                                     # (K, 1, 3)
-            dv = Lp - px.p
-            d = np.sqrt(_dot(dv, dv))
-            with np.errstate(divide="ignore", invalid="ignore"):
-                rl = 0.0 if fp64 else np.sqrt(_dot(Lp - o, Lp - o))     # float32 record
-                eta_l = np.where(d > 0, ud * (2.0 + (rp + rl) / d), 0.0)
-                c0, c1, c2 = params["c"]
-                cond = (abs(c0) + abs(c1) * d + abs(c2) * d * d) / (c0 + c1 * d + c2 * d * d)
-                cond = np.where(d > 0, cond, 0.0)     # d = 0 adds nothing (shade_point_light)
-                if not fp64:
-                    # float d², c2·d² or the polynomial outside float's normal
-                    # range: flushed or infinite, the result is not bounded.
-                    terms = np.stack([d * d, np.abs(c2) * d * d, c0 + c1 * d + c2 * d * d])
-                    out_of_range = (d > 0) & np.any((terms > FLT_MAX) | ((terms > 0) & (terms < FLT_MIN)), axis=0)
-                    unbounded |= np.any(out_of_range, axis=0)
-            # d from the rounded position difference and rsqrt; Horner's three
-            # roundings; the coefficients rounded to float32; the division.
-            # fp64: d and the falloff in double, att·L rounded to float once.
-            e_att = (cond * (4.0 * ud + 2.0 * eta_l) + uw) if fp64 else \
-                (cond * (4.0 * U + 2.0 * eta_l) + 3.0 * U)
-            with np.errstate(invalid="ignore"):
-                NoL = np.where(d > 0, _dot(px.n, dv) / d, 0.0)
-                lvec = np.where((d > 0)[..., None], dv / d[..., None], 0.0)
-        else:
-            NoL = _dot(px.n, params["l"])                               # (K, M)
-            eta_l = np.full(NoL.shape, ud)
-            e_att = np.zeros(NoL.shape)
-            lvec = np.broadcast_to(params["l"], NoL.shape + (3,))
-            d = None
-        eps_dir = eta_n + eta_l + 4.0 * ud
-        # n·l as the weights see it: rounded to float (flushed below FLT_MIN) when
-        # it was computed in double and the weights are float.
-        eps_NoL = eps_dir + (r_nol * np.abs(NoL) + FLT_MIN if fp64 and not w64 else 0.0)
-        Lc = np.abs(L)
-        # Diffuse: max(n·l, 0) is continuous, so its error is that of n·l.
-        diff_abs = np.where(NoL > -eps_NoL, eps_NoL, 0.0)
-        if d is None:
-            att = np.ones(NoL.shape)
-        else:
-            with np.errstate(divide="ignore"):
-                att = np.where(d > 0, attenuation(c0, c1, c2, d), 0.0)
-        # A spot's cone factor F = t², t = clamp(x, 0, 1), x = cos θ·s + o, cos θ =
-        # −l·a (spot_factor): cos θ errs by l's error η_l, the axis's rounding to
-        # float (float path) and the dot product's 3 roundings; x by s times that,
-        # the roundings of s and o to float (float path) and the fused add's; the
-        # clamp is 1-Lipschitz; t·t rounds once, and att·F once more (into e_att).
-        # F's error is absolute (t → 0 at the outer edge): ΔF = 2tΔt + Δt² + u·t²,
-        # charged below on the unattenuated weights' upper bounds.
-        cone = params.get("cone") if kind == "point" else None
-        dF = None
-        if cone is not None:
-            axis, sc, off = cone
-            att_raw = att
-            cos_t = -_dot(lvec, axis)
-            t = np.clip(cos_t * sc + off, 0.0, 1.0)
-            e_cos = eta_l + 3.0 * ud + (0.0 if fp64 else U)
-            # MUL_ADD may or may not be fused: the product's own rounding too
-            e_x = sc * e_cos + (ud if fp64 else U) * (np.abs(cos_t * sc + off) + np.abs(cos_t) * sc) + \
-                (0.0 if fp64 else U * (np.abs(cos_t) * sc + np.abs(off)))
-            dF = 2.0 * t * e_x + e_x * e_x + (ud if fp64 else U) * t * t
-            att = att_raw * t * t
-            e_att = e_att + (ud if fp64 else U)
-        # The product L·(D·w_d + S·w_s): five roundings, in float or (WEIGHTS_FP64)
-        # in double; D = C·k_d and S = k_s·C_s: k_d, k_s rounded to float and up to
-        # two products (3u), or (WEIGHTS_FP64) in double from hi + lo (3u_d).
-        e_prod = 5.0 * U if not w64 else 3.0 * ud + 5.0 * uw
-        e_diff = diffuse * e_att + att * diff_abs + diffuse * e_prod
-        if dF is not None:
-            e_diff = e_diff + att_raw * dF * (np.maximum(NoL, 0.0) + eps_NoL)
-        # Specular: the error of δ (or of r·v for the naive form) through the power.
-        if px.specular:
-            spec_abs, spec_upper = _specular_error(px, lvec, NoL, eps_dir, eta_l, eta_v, eta_n, k,
-                                                   form, ud, r_out, uw)
-            e_spec = specular * (e_att + e_prod) + att * spec_abs
-            if dF is not None:
-                e_spec = e_spec + att_raw * dF * np.where(NoL > -eps_NoL, spec_upper, 0.0)
-            # The terminator: within eps_NoL of n·l = 0 the float32 gate n·l > 0
-            # may disagree with float64's, switching the whole term.
-            near = (np.abs(NoL) <= eps_NoL) & (spec_upper > 0)
-            e_spec = np.where(near, e_spec + att * spec_upper, e_spec)
-            band_fg = np.any(near & (np.abs(S).max(axis=1) * Lc_max(L) > 0), axis=0)
-        else:
-            e_spec = np.zeros(NoL.shape)
-            band_fg = np.zeros(len(px.p), bool)
-        idx = np.flatnonzero(fg)
+        parts, t_add, band_fg, out = _batch_error(env, kind, L, params, diffuse, specular)
+        for part in parts:
+            B += part
+        total += t_add
         band[idx[band_fg]] = True
-        # Underflow: intermediates below FLT_MIN are flushed to zero: the weights
-        # and their products with D and S (each then scaled by att·L), and att·L
-        # itself.
-        DS = np.abs(D) + np.abs(S)
-        floor = FLT_MIN * ((2.0 + DS) * (np.maximum(att, 1.0)[..., None] * Lc) + DS)
-        B += np.sum(Lc * (np.abs(D) * e_diff[..., None] + np.abs(S) * e_spec[..., None]) + floor, axis=0)
-        if px.f0 is not None:
-            # Schlick's W ∈ [f0, 1] scales the specular weight (≤ 1: |S|·e_spec still
-            # bounds its error); W's own error on the computed weight w_s + e_spec:
-            # (1 − f0)·ΔF5, ΔF5 = 5(1 − c)⁴Δc + 5 roundings of the power + its rounding
-            # to the weights' type, c = cos α; and 3 roundings of the products with f0.
-            w_hi = specular + e_spec
-            if px.blinn:
-                # c = v·h = √x, x = (1 + l·v)/2: l·v errs by η_l + η_v + 3u_d, x by half
-                # that and a rounding; √ by Δx/(2c), or √Δx near c = 0, and a rounding
-                c = v_dot_h(lvec, px.v)
-                dx = 0.5 * (eta_l + eta_v + 3.0 * ud) + ud
-                # |√a − √b| = |a − b|/(√a + √b) ≤ Δx/c when the kernel's x is the
-                # smaller one; ≤ √Δx always
-                with np.errstate(divide="ignore"):
-                    dc = np.minimum(dx / c, np.sqrt(dx)) + ud
-                dF5 = 5.0 * dc + 8.0 * ud + uw
-                S_abs = np.abs(S)
-            else:
-                c = _dot(px.n, px.v)                                    # (M,)
-                dc = eta_n + eta_v + 3.0 * ud
-                dF5 = 5.0 * (1.0 - np.clip(c - dc, 0.0, 1.0)) ** 4 * dc + 8.0 * ud + uw
-                S_abs = np.abs(px.S_base)
-            # 1 − m enters the power's 3 products 5 times (8u); the products with f0
-            # and 1 − f0, w·F5, S1·w_f and the add (7u); f0 itself rounded to float
-            # without WEIGHTS_FP64 (W_HI_LO keeps the hi part only: u·f0 ≤ u)
-            e_f0 = 0.0 if w64 else U
-            B += np.sum(Lc * S_abs * ((1.0 - px.f0) * dF5[..., None] + 7.0 * uw + e_f0)
-                        * w_hi[..., None], axis=0)
-        total += np.sum(Lc * (np.abs(D) * diffuse[..., None] + np.abs(S) * specular[..., None]), axis=0)
-    # The light sum: in double (SUM_FP64) by ≤ n·2⁻⁵³·Σ|c| before the one final
-    # rounding; Neumaier's compensated sum by ≤ 2u|Σ| + O(n·u²)Σ|c|; the naive
-    # one by (n − 1)·u·Σ|c|; plus the final rounding.
-    if sum_fp64:
-        B += (U + (n_direct + 1) * U_D) * total
-    elif compensated:
-        B += (3.0 * U + 2.0 * n_direct * U * U) * total
-    else:
-        B += (max(n_direct, 1) * U + U) * total
+        if out is not None:
+            unbounded |= out
+    B += _sum_error(total, n_direct, sum_fp64=sum_fp64, compensated=compensated)
     B[unbounded] = np.inf          # float path out of its range (see docs/error-model.md)
     bound[fg] = 2.0 * B
-    # Background pixels: the background value rounded to float32.
-    bg_abs = np.abs(np.asarray(scene.background, np.float64))
-    bound[~fg] = U * bg_abs
-    a = partial_coverage(gbuffer)
-    if a is not None:
-        # COVERAGE: fl(α·S + fl(fl(1 − α)·bg)): α scales S's error; 1 − α, the product
-        # and the fused add round once each (3u of α|S| + |bg|, doubled).
-        ref = np.abs(shade_straight(scene, gbuffer)).reshape(-1, 3)
-        bound = a[:, None] * bound + 6.0 * U * (a[:, None] * ref + bg_abs)
-    return bound.reshape(H, W, 3), band.reshape(H, W)
+    return _with_background(bound, fg, scene, gbuffer).reshape(H, W, 3), band.reshape(H, W)

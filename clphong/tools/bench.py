@@ -275,6 +275,34 @@ def _first_lights(scene, n: int):
     return dataclasses.replace(scene, lights=tuple(amb) + tuple(scene.lights_of("point")[:n]))
 
 
+def _case_slot(cfg, run, scene, kind, n, full, least_pixels, log) -> dict | None:
+    """One timed run of a case, set up: its crop, renderer and frame (None: skipped)."""
+    path, budget, width = run
+    H, W = full.shape
+    opts = dict(PATHS[path])
+    if width is not None and path != "obvious":
+        opts["lanes"] = width
+    brute = budget is None
+    # crop where (nearly) every pair is evaluated: brute force, the wide scene
+    # (nothing to cull), and ε = 0; the small scene's culled runs use the full frame
+    cropped = brute or kind == "wide" or budget == 0
+    # culled runs keep at least one row of tiles
+    least = 4 if brute else 16
+    rows = (max(_crop_rows(W, H, n, cfg.crop_pairs, least), -(-least_pixels // W))
+            if cropped else H)
+    rows = min(rows, H)
+    if path == "obvious":
+        if n > OBVIOUS_MAX_LIGHTS:
+            log(f"obvious         {kind:5s} N={n:<6d} skipped (> {OBVIOUS_MAX_LIGHTS} lights)")
+            return None
+        rows = _crop_rows(W, H, n, cfg.crop_pairs / 8, least)
+    gb = full if rows == H else bench_gbuffer(W, H, rows)
+    r = Renderer(scene, device=cfg.device, max_error=budget, **opts)
+    frame = prepare_frame(gb, lanes=max(r.lanes, 1))
+    return {"path": path, "budget": budget, "rows": rows, "gb": gb, "r": r,
+            "lanes_given": width is not None, "frame": frame, "times": [], "cull": []}
+
+
 def _run_entry(slot, cfg, scene, kind, n, size, shaded_full, oracle_cache, np_rate, numba_rate,
                peak, log) -> dict:
     """One timed run's report row (and its log line): rate, ratios, error, culling."""
@@ -396,31 +424,8 @@ def run_bench(cfg: BenchConfig) -> dict:
             # Set every run of this case up first, then time them round-robin (one
             # frame of each per round, numpy included), so that the other tenants'
             # load falls on every path alike and the ratios hold.
-            slots = []
-            for path, budget, width in runs:
-                opts = dict(PATHS[path])
-                if width is not None and path != "obvious":
-                    opts["lanes"] = width
-                brute = budget is None
-                # crop where (nearly) every pair is evaluated: brute force, the wide scene
-                # (nothing to cull), and ε = 0; the small scene's culled runs use the full frame
-                cropped = brute or kind == "wide" or budget == 0
-                # culled runs keep at least one row of tiles
-                least = 4 if brute else 16
-                rows = (max(_crop_rows(W, H, n, cfg.crop_pairs, least), -(-least_pixels // W))
-                        if cropped else H)
-                rows = min(rows, H)
-                if path == "obvious":
-                    if n > OBVIOUS_MAX_LIGHTS:
-                        log(f"obvious         {kind:5s} N={n:<6d} skipped (> {OBVIOUS_MAX_LIGHTS} lights)")
-                        continue
-                    rows = _crop_rows(W, H, n, cfg.crop_pairs / 8, least)
-                gb = full if rows == H else bench_gbuffer(W, H, rows)
-                r = Renderer(scene, device=cfg.device, max_error=budget, **opts)
-                frame = prepare_frame(gb, lanes=max(r.lanes, 1))
-                slots.append({"path": path, "budget": budget, "rows": rows, "gb": gb, "r": r,
-                              "lanes_given": width is not None,
-                              "frame": frame, "times": [], "cull": []})
+            slots = [slot for run in runs
+                     if (slot := _case_slot(cfg, run, scene, kind, n, full, least_pixels, log))]
             crop = peer = None
             if kind == "wide":      # numpy float32, on a crop (wide scene only: same shading)
                 np_rows, np_lights = numpy_crop(W, H, n, cfg.numpy_pairs)
