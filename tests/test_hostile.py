@@ -1097,7 +1097,8 @@ def test_an_endless_unknown_key_is_cut(work, capsys):
     src, out = work
     _scene(src, SCENE + "\n" + "k" * 100_000 + " = 1\n")
     line = fails(render_argv(src, out, scene=src / "bad.toml"), capsys, src.parent, "bad.toml")
-    assert len(line) < 2200 and "more characters)" in line
+    # issue 26: the key quoted in at most QUOTE_MAX characters (was: the line cut at 2,000)
+    assert len(line) < 600 and "…" in line and "characters)" in line
 
 
 def test_a_bad_display_from_the_scene_names_the_file_and_key(work, capsys):
@@ -1633,3 +1634,37 @@ def test_a_leftover_of_a_killed_writer_is_still_removed(work, capsys):
     err = capsys.readouterr().err
     assert "removed 1 temporary file(s) an interrupted earlier run left" in err, err
     assert [p.name for p in out.iterdir()] == ["beauty.exr"]
+
+
+# ======================================================= long names and values (issue 26)
+
+@pytest.mark.parametrize("where", ["toml-key", "toml-value", "option"])
+def test_a_huge_name_or_value_is_quoted_in_at_most_about_200_characters(work, capsys, where):
+    """A 100,000-character unknown TOML key gave a 2,041-character line: a message quotes
+    at most QUOTE_MAX characters of one word, cut around an ellipsis with its length, and
+    the API's exception says the same as the CLI."""
+    from clphong.core.errors import QUOTE_MAX, ClphongError, abbreviate
+    from clphong.model.scene import load_scene
+
+    src, out = work
+    huge = "k" * 100_000
+    extra = ()
+    if where == "toml-key":
+        (src / "scene.toml").write_text(SCENE.replace("[material]\n", f"[material]\n{huge} = 1\n", 1))
+    elif where == "toml-value":
+        (src / "scene.toml").write_text(SCENE.replace('model = "phong"', f'model = "{huge}"', 1))
+    else:
+        extra = ("--tonemap", huge)
+    line = fails(render_argv(src, out, extra=extra), capsys, src.parent)
+    assert "…" in line or "..." in line          # (a TOML value was cut at 60 characters already)
+    assert len(line) <= 2 * QUOTE_MAX + 250, len(line)
+    assert max(len(w) for w in line.split()) <= QUOTE_MAX, line
+    if where != "option":
+        with pytest.raises(ClphongError) as e:
+            load_scene(src / "scene.toml")
+        assert "clphong: error: " + str(e.value) == line
+    # short words are left alone; the cut keeps both ends
+    assert abbreviate("a b c") == "a b c"
+    cut = abbreviate("x" * 150 + "y" * 150)
+    assert cut.startswith("x" * 150) and "…" in cut and cut.split(" (")[0].endswith("y" * 25)
+    assert "(300 characters)" in cut

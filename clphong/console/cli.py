@@ -419,7 +419,10 @@ def _remove_stale_temporaries(files) -> None:
 
 def cmd_plan(args) -> int:
     opts = _renderer_options(args)
-    scene = resolve_environment(load_scene(args.scene), max_error=opts.pop("env_error")).scene
+    original = load_scene(args.scene)
+    env_error = opts.pop("env_error")
+    resolved = resolve_environment(original, max_error=env_error, nonfinite=opts["nonfinite"])
+    scene = resolved.scene
     maps = ()
     if args.gbuffer or args.position or args.normal or args.albedo:
         maps = tuple(_read_gbuffer(args).maps)
@@ -429,6 +432,13 @@ def cmd_plan(args) -> int:
     print(renderer.plan_for(maps))
     print(f"device: {renderer.runtime.name}, {renderer.lanes} lane(s); "
           f"{renderer.runtime.double_line()}")
+    for i, env in resolved.environments:
+        print(f"environment: light[{i}] {original.lights[i].file}: "
+              f"{env.count:,} directional lights of its {env.texels:,} texels (the light tree's "
+              f"split; no irradiance table yet: every environment takes this path), estimated "
+              f"error {env.estimated_error:.2g} "
+              + ("within" if env.met else "NOT within") + f" --env-error {env_error:g}"
+              + ("" if env.seconds else "; from the disk cache"))
     return 0
 
 
@@ -487,7 +497,8 @@ def cmd_relight(args) -> int:
                      "--hdr OUT.####.png or --contact-sheet OUT.####.png")
     rigs = [_rig(r) for r in args.rig]
     # environment maps resolved once here, not in every worker
-    rigs = [type(r)(r.name, resolve_environment(r.scene, max_error=args.env_error).scene)
+    rigs = [type(r)(r.name, resolve_environment(r.scene, max_error=args.env_error,
+                                                nonfinite=args.nonfinite).scene)
             for r in rigs]
     frames = FrameRange.parse(args.frames) if args.frames else None    # never listed: 1-1000000000
     plan = plan_batch(args.sequence, rigs, args.output, sdr=args.sdr, hdr=args.hdr,

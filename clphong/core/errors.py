@@ -6,10 +6,41 @@ of stderr and exits non-zero.
 """
 
 
+import re
+
+#: The most characters of one name or value a message quotes (issue 26): a longer run of
+#: non-space characters is abbreviated around an ellipsis, with its length.
+QUOTE_MAX = 200
+_LONG_WORD = re.compile(r"\S{%d,}" % (QUOTE_MAX + 1))
+
+
+def abbreviate(text: str, limit: int = QUOTE_MAX) -> str:
+    """``text`` with every run of non-space characters longer than ``limit`` (a name or
+    value a user supplied: a 100,000-character TOML key) cut to its first and last
+    characters around an ellipsis, and its length: ``'kkk…kkk' (100,002 characters)``."""
+    if len(text) <= limit:
+        return text
+    head, tail = limit * 3 // 4, limit // 8
+
+    def short(m):
+        w = m.group(0)
+        return f"{w[:head]}…{w[-tail:]} ({len(w):,} characters)"
+
+    pattern = _LONG_WORD if limit == QUOTE_MAX else re.compile(r"\S{%d,}" % (limit + 1))
+    return pattern.sub(short, text)
+
+
 class ClphongError(Exception):
-    """Base class of every error clphong raises on bad input or environment."""
+    """Base class of every error clphong raises on bad input or environment. Its message
+    quotes at most QUOTE_MAX characters of any one word (:func:`abbreviate`), in the CLI
+    and from the API alike."""
 
     exit_code = 1
+
+    def __init__(self, *args):
+        if args and isinstance(args[0], str):
+            args = (abbreviate(args[0]),) + args[1:]
+        super().__init__(*args)
 
 
 class GBufferError(ClphongError):
@@ -81,5 +112,5 @@ def clean_line(text: str, limit: int = MAX_LINE) -> str:
         out.append("".join(ch if ch.isprintable() else
                            (f"\\x{ord(ch):02x}" if ord(ch) < 0x100 else f"\\u{ord(ch):04x}")
                            for ch in word))
-    line = cut_line(" ".join(out), limit)
+    line = cut_line(abbreviate(" ".join(out)), limit)
     return line

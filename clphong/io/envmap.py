@@ -64,7 +64,7 @@ def _fail(where: str, name: str, problem: str):
     raise SceneError(clean_line(f"{where}: {name}: {problem}"))
 
 
-def read_envmap(path, where: str = "environment") -> np.ndarray:
+def read_envmap(path, where: str = "environment", nonfinite: str = "error") -> np.ndarray:
     """Read a latitude-longitude map as (H, W, 3) float32 radiance, checked.
 
     Parameters
@@ -74,13 +74,22 @@ def read_envmap(path, where: str = "environment") -> np.ndarray:
         else a single channel as grey, else its first three.
     where : str
         What the messages name first (the scene key, :func:`environment_key`).
+    nonfinite : {"error", "background", "pass"}
+        NaN or Inf texels (``--nonfinite``): "error" refuses the map; "background"
+        takes them as 0 (no light from there), with a warning giving the counts; "pass"
+        is refused too (one NaN texel would make every pixel NaN), naming the others.
+
+    An alpha channel is ignored: a lat-long map is radiance from every direction, and
+    OpenEXR's RGBA sky has α = 1 everywhere. A map whose texels are all 0 warns: it adds
+    no light.
 
     Raises
     ------
     SceneError
         One line ``"<where>: <file>: <problem>"``: missing, not a regular file,
         unreadable, not 2:1 (W = 2H, H >= 2), more than memory allows, or
-        holding NaN, Inf or negative texels (with their counts).
+        holding NaN, Inf (unless ``nonfinite="background"``) or negative texels (with
+        their counts).
     """
     name = os.fspath(path)
     if not os.path.exists(name):
@@ -120,9 +129,19 @@ def read_envmap(path, where: str = "environment") -> np.ndarray:
     pix = np.asarray(pix, np.float32).reshape(H, W, hi - lo)
     L = np.ascontiguousarray(pix[:, :, [p - lo for p in pick]])
     bad = _texel_problems(L)
-    if bad:
-        _fail(where, name, bad + "; an environment map holds finite radiance >= 0 (repair or "
-                                 "clamp it, e.g. oiiotool IN --fixnan black --clamp:min=0 -o OUT)")
+    if bad and nonfinite == "background" and not (L < 0).any():
+        hidden = ~np.isfinite(L).all(axis=-1)
+        L[hidden] = 0.0
+        warnings.warn(SceneWarning(clean_line(
+            f"{where}: {name}: {bad} taken as 0, no light from there (--nonfinite background)")))
+    elif bad:
+        cure = ("repair or clamp it, e.g. oiiotool IN --fixnan black --clamp:min=0 -o OUT"
+                + ("; --nonfinite background takes NaN/Inf texels as 0" if nonfinite != "background"
+                   and not (L < 0).any() else ""))
+        _fail(where, name, bad + f"; an environment map holds finite radiance >= 0 ({cure})")
+    if not L.any():
+        warnings.warn(SceneWarning(clean_line(
+            f"{where}: {name}: every texel is 0: the environment adds no light")))
     return L
 
 
@@ -177,14 +196,14 @@ conversion_notice = None
 NOTICE_AFTER_S = 1.0
 
 
-def _disk_key(digest: str, light: Light, material, view, max_error: float) -> str:
+def _disk_key(digest: str, light: Light, material, view, max_error: float, policy: str) -> str:
     """The disk cache's name of a conversion: the map file's SHA-256, what the conversion
     depends on (rotation, intensity, the material, an orthographic view, the target), and
     the code that converts (a changed model/environment.py converts again)."""
     h = hashlib.sha256()
     for part in (digest, repr(float(light.rotation)), repr(float(light.intensity)), repr(material),
                  None if view is None else tuple(map(float, view)), repr(float(max_error)),
-                 _code_digest()):
+                 policy, _code_digest()):
         h.update(str(part).encode() + b"\0")
     return h.hexdigest()[:40]
 
@@ -211,23 +230,25 @@ def _file_digest(name: str) -> str | None:
     return h.hexdigest()
 
 
-def _load(path: Path) -> EnvironmentLights | None:
-    """A conversion from the disk cache, or None (missing, damaged, another layout)."""
+def _load(path: Path):
+    """(a conversion, the map's warnings) from the disk cache, or None (missing, damaged,
+    another layout)."""
     try:
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(str(z["meta"]))
-            return EnvironmentLights(l=np.array(z["l"], np.float64),
-                                     radiance=np.array(z["radiance"], np.float64), seconds=0.0,
-                                     **{k: meta[k] for k in ("texels", "estimated_error",
-                                                             "max_error", "met", "probes")})
+            return (EnvironmentLights(l=np.array(z["l"], np.float64),
+                                      radiance=np.array(z["radiance"], np.float64), seconds=0.0,
+                                      **{k: meta[k] for k in ("texels", "estimated_error",
+                                                              "max_error", "met", "probes")}),
+                    tuple(str(n) for n in meta.get("notes", ())))
     except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile):
         return None
 
 
-def _save(name: str, r: EnvironmentLights) -> None:
+def _save(name: str, r: EnvironmentLights, notes=()) -> None:
     meta = json.dumps({"texels": r.texels, "estimated_error": r.estimated_error,
                        "max_error": r.max_error, "met": r.met, "probes": r.probes,
-                       "seconds": r.seconds})
+                       "seconds": r.seconds, "notes": list(notes)})
     _DISK.put(name, lambda f: np.savez(f, l=r.l, radiance=r.radiance, meta=np.array(meta)))
 
 
@@ -252,34 +273,43 @@ class _Progress:
             self.last = now
 
 
-def _convert(light: Light, where: str, material, view, max_error: float) -> EnvironmentLights:
+def _convert(light: Light, where: str, material, view, max_error: float,
+             nonfinite: str = "error") -> EnvironmentLights:
     name = light.file
+    policy = "background" if nonfinite == "background" else "error"   # what reading does
     try:
         st = os.stat(name)
         key = (os.path.realpath(name), st.st_ino, st.st_size, st.st_mtime_ns, light.rotation,
-               light.intensity, material, None if view is None else tuple(view), max_error)
+               light.intensity, material, None if view is None else tuple(view), max_error, policy)
     except OSError:
         key = None                        # read_envmap says what is wrong
     with _LOCK:
         hit = _CACHE.get(key) if key is not None else None
-    if hit is not None:
-        return hit
-    digest = _file_digest(name) if key is not None else None
-    disk = None if digest is None else _disk_key(digest, light, material, view, max_error)
-    found = None if disk is None else _DISK.get(disk)
-    result = None if found is None else _load(found)
-    if result is None:
-        L = read_envmap(name, where)
-        result = environment_lights(L, material, rotation=light.rotation, intensity=light.intensity,
-                                    view=view, max_error=max_error,
-                                    progress=_Progress(f"{where}: {name}"))
-        if disk is not None:
-            _save(disk, result)
-    if key is not None:
-        with _LOCK:
-            if len(_CACHE) >= _CACHE_SIZE:
-                _CACHE.pop(next(iter(_CACHE)))
-            _CACHE[key] = result
+    if hit is None:
+        digest = _file_digest(name) if key is not None else None
+        disk = None if digest is None else _disk_key(digest, light, material, view, max_error,
+                                                     policy)
+        found = None if disk is None else _DISK.get(disk)
+        hit = None if found is None else _load(found)
+        if hit is None:
+            with warnings.catch_warnings(record=True) as said:
+                warnings.simplefilter("always", SceneWarning)
+                L = read_envmap(name, where, nonfinite)
+            notes = tuple(str(w.message) for w in said if issubclass(w.category, SceneWarning))
+            result = environment_lights(L, material, rotation=light.rotation,
+                                        intensity=light.intensity, view=view, max_error=max_error,
+                                        progress=_Progress(f"{where}: {name}"))
+            hit = (result, notes)
+            if disk is not None:
+                _save(disk, result, notes)
+        if key is not None:
+            with _LOCK:
+                if len(_CACHE) >= _CACHE_SIZE:
+                    _CACHE.pop(next(iter(_CACHE)))
+                _CACHE[key] = hit
+    result, notes = hit
+    for note in notes:                    # the map's warnings, from the cache too
+        warnings.warn(SceneWarning(note))
     return result
 
 
@@ -291,7 +321,8 @@ def directional_lights(env: EnvironmentLights, group: str | None = None) -> tupl
                  for x, r in zip(env.l, env.radiance))
 
 
-def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR) -> ResolvedScene:
+def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
+                        nonfinite: str = "error") -> ResolvedScene:
     """Replace every environment light of ``scene`` by directional lights.
 
     Parameters
@@ -300,6 +331,8 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR) -
     max_error : float
         The relative error target (``--env-error``, default 1e-3) of
         :func:`clphong.model.environment.environment_lights`.
+    nonfinite : {"error", "background", "pass"}
+        NaN/Inf texels (``--nonfinite``, :func:`read_envmap`).
 
     Returns
     -------
@@ -325,7 +358,7 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR) -
         if lt.type != "environment":
             lights.append(lt)
             continue
-        r = _convert(lt, environment_key(scene, i), scene.material, view, max_error)
+        r = _convert(lt, environment_key(scene, i), scene.material, view, max_error, nonfinite)
         done.append((i, r))
         if not r.met:
             warnings.warn(SceneWarning(

@@ -276,7 +276,7 @@ class Relighter:
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
         # The kernels shade directional lights, not maps: environment lights resolved here.
-        resolved = resolve_environment(scene, max_error=env_error)
+        resolved = resolve_environment(scene, max_error=env_error, nonfinite=nonfinite)
         scene = resolved.scene
         self.environments = resolved.environments
         self.scene = scene
@@ -497,4 +497,6 @@ def render(scene, gbuffer, *, env_error: float = DEFAULT_ENV_ERROR, **kwargs) ->
     check_env_error(env_error)
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
-    return render_resolved(resolve_environment(scene, max_error=env_error).scene, gbuffer, **kwargs)
+    resolved = resolve_environment(scene, max_error=env_error,
+                                   nonfinite=kwargs.get("nonfinite", "background"))
+    return render_resolved(resolved.scene, gbuffer, **kwargs)

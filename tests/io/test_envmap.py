@@ -362,3 +362,94 @@ def test_a_conversion_says_it_runs_and_a_hit_says_nothing(disk, monkeypatch):
     monkeypatch.setattr(envmap, "_CACHE", {})
     envmap.resolve_environment(scene, max_error=1e-2)
     assert lines == []
+
+
+# ------------------------------------------------- bad maps follow --nonfinite (issue 25)
+
+def _nan_map(tmp_path):
+    L = samples.sky_envmap(64, 32)
+    L[3, :7, 0] = np.nan
+    L[5, 2] = np.inf
+    return _write(tmp_path / "maps" / "sky.exr", L), L
+
+
+def test_nan_texels_follow_the_nonfinite_policy(tmp_path):
+    (tmp_path / "maps").mkdir()
+    p, L = _nan_map(tmp_path)
+    with pytest.warns(Warning, match=r"7 NaN texel\(s\), 1 with Inf taken as 0, no light from there"):
+        got = envmap.read_envmap(p, KEY, "background")
+    bad = ~np.isfinite(L).all(axis=-1)
+    assert (got[bad] == 0).all() and np.array_equal(got[~bad], L[~bad])
+    for policy in ("error", "pass"):
+        with pytest.raises(SceneError) as e:
+            envmap.read_envmap(p, KEY, policy)
+        assert "7 NaN texel(s), 1 with Inf;" in _one_line(e)
+        assert "--nonfinite background takes NaN/Inf texels as 0" in _one_line(e)
+    L2 = L.copy()
+    L2[7, 0] = -1.0                      # negative radiance: refused whatever the policy
+    with pytest.raises(SceneError, match="1 negative"):
+        envmap.read_envmap(_write(tmp_path / "neg.exr", L2), KEY, "background")
+
+
+def test_an_all_zero_map_warns_and_adds_no_light(tmp_path):
+    p = _write(tmp_path / "zero.exr", np.zeros((8, 16, 3), np.float32))
+    with pytest.warns(Warning, match="every texel is 0: the environment adds no light"):
+        assert not envmap.read_envmap(p, KEY).any()
+
+
+def test_a_one_channel_map_is_grey_and_alpha_is_ignored(tmp_path):
+    L = samples.sky_envmap(32, 16)
+    grey = _write(tmp_path / "y.exr", L[..., :1], channels=("Y",))
+    assert np.array_equal(envmap.read_envmap(grey, KEY), np.repeat(L[..., :1], 3, axis=-1))
+    rgba = np.concatenate([L, np.full(L.shape[:2] + (1,), 0.25, np.float32)], axis=-1)
+    p = _write(tmp_path / "rgba.exr", rgba, channels=("R", "G", "B", "A"))
+    assert np.array_equal(envmap.read_envmap(p, KEY), L)
+
+
+def test_the_policy_is_part_of_the_cache_key_and_warnings_come_back(disk, tmp_path, monkeypatch):
+    """A map converted with NaN texels taken as 0 is not served to a run that refuses them,
+    and a run served from the cache says the same warning."""
+    store, scene = disk
+    _nan_map(tmp_path)
+    with pytest.warns(Warning, match="taken as 0"):
+        envmap.resolve_environment(scene, max_error=1e-2, nonfinite="background")
+    monkeypatch.setattr(envmap, "_CACHE", {})
+    with pytest.raises(SceneError, match="NaN"):
+        envmap.resolve_environment(scene, max_error=1e-2, nonfinite="error")
+    monkeypatch.setattr(envmap, "environment_lights", _no_conversion)
+    for cache in ({}, None):             # from the disk, then from the process's own cache
+        if cache is not None:
+            monkeypatch.setattr(envmap, "_CACHE", cache)
+        with pytest.warns(Warning, match="taken as 0"):
+            envmap.resolve_environment(scene, max_error=1e-2, nonfinite="background")
+
+
+def test_render_takes_nan_texels_as_0_by_default_and_stops_with_nonfinite_error(tmp_path, capsys):
+    from clphong.console.cli import main
+    from clphong.io.gbuffer import write_gbuffer
+
+    scene_path = _sky_scene(tmp_path)
+    L = samples.sky_envmap(32, 16)
+    L[2, :4, 1] = np.nan
+    _write(tmp_path / "sky.exr", L)
+    g = samples.spheres_gbuffer(16, 8)
+    write_gbuffer(tmp_path / "g.exr", g.position, g.normal, g.albedo, coverage=g.coverage)
+    argv = ["render", str(scene_path), str(tmp_path / "g.exr"), "-o", str(tmp_path / "o.exr")]
+    assert main(argv) == 0
+    assert "4 NaN texel(s) taken as 0" in capsys.readouterr().err
+    (tmp_path / "o.exr").unlink()
+    assert main(argv + ["--nonfinite", "error"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "4 NaN texel(s);" in err and not (tmp_path / "o.exr").exists()
+
+
+def test_plan_names_each_environments_path(tmp_path, capsys):
+    from clphong.console.cli import main
+
+    scene_path = _sky_scene(tmp_path)
+    _write(tmp_path / "sky.exr", samples.sky_envmap(32, 16))
+    assert main(["plan", str(scene_path), "--env-error", "1e-2"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    env = [ln for ln in out if ln.startswith("environment: light[0] ")]
+    assert len(env) == 1 and "directional lights of its 512 texels" in env[0]
+    assert "no irradiance table yet" in env[0] and "within --env-error 0.01" in env[0]
