@@ -52,9 +52,11 @@ def _add_bench_parser(sub):
     b.add_argument("--numpy-pairs", type=float, metavar="P",
                    help="numpy float32 timed on about P pixel-light pairs (default 2e7)")
     b.add_argument("--env-error", metavar="REL[,REL]",
-                   help="environment rows (the sample sky at 1024x512 on the bench G-buffer): "
-                        f"their error targets (default {DEFAULT_ENV_ERROR:g},0.01, none with "
-                        "--sizes; '' for none)")
+                   help="environment rows (the sample sky on the bench G-buffer, at each of "
+                        "--env-sizes): their error targets (default "
+                        f"{DEFAULT_ENV_ERROR:g},0.01, none with --sizes; '' for none)")
+    b.add_argument("--env-sizes", metavar="WxH[,WxH]",
+                   help="the environment rows' sky sizes (default 256x128,1024x512,4096x2048)")
     b.add_argument("--tree", metavar="SCENE:N:EPS[,...]",
                    help="light-tree rows: brute force, culling alone and culling with the tree's "
                         "clusters, in turns, for each scene ('wide' or 'clusters'), point-light "
@@ -78,6 +80,17 @@ def _csv(text, conv, what):
         return tuple(conv(x) for x in text.split(",") if x.strip())
     except ValueError:
         raise _Usage(f"{what}: expected a comma-separated list, got {text!r}") from None
+
+
+def _env_size(text: str) -> tuple[int, int]:
+    """``WxH`` of --env-sizes: a 2:1 lat-long map, at least 4x2."""
+    try:
+        w, h = (int(v) for v in text.strip().lower().split("x"))
+    except ValueError:
+        raise _Usage(f"--env-sizes: {text.strip()!r} is not WxH (e.g. 1024x512)") from None
+    if w != 2 * h or h < 2:
+        raise _Usage(f"--env-sizes: {w}x{h} is not a 2:1 map of at least 4x2 (e.g. 1024x512)")
+    return w, h
 
 
 def _tree_case(text):
@@ -126,6 +139,8 @@ def cmd_bench(args) -> int:
             kw["env_errors"] = tuple(check_env_error(x) for x in kw["env_errors"])
         except ValueError as exc:
             raise _Usage(f"--env-error: {exc}") from None
+    if args.env_sizes:
+        kw["env_sizes"] = tuple(_env_size(x) for x in args.env_sizes.split(",") if x.strip())
     kw["tree_cases"] = (BenchConfig.quick().tree_cases if args.quick
                         else () if args.sizes else TREE_CASES)
     if args.tree is not None:

@@ -241,7 +241,7 @@ class BenchConfig:
     device: str | None = None
     log: object = None
     env_errors: tuple = ()                          # environment rows' targets (the CLI: ENV_ERRORS)
-    env_size: tuple = (1024, 512)                   # the sky map's width and height
+    env_sizes: tuple = ((256, 128), (1024, 512), (4096, 2048))   # the sky maps' width x height
     env_pixels: int = 2000                          # pixels of the exact texel sum
     tree_cases: tuple = ()                          # light-tree rows: (scene, N, ε) (the CLI: TREE_CASES)
     lanes: tuple = (None,)                          # widths of the wide scene's brute-force rows (None: the device's)
@@ -250,7 +250,7 @@ class BenchConfig:
     def quick(cls, **kw):
         base = dict(sizes=((480, 270),), lights=(1, 16, 256, 4096), budgets=(0.0, 1e-3),
                     repeats=3, crop_pairs=3e7, error_pairs=5e6, numpy_pairs=4e6,
-                    small_lights=(4096,), env_errors=(1e-2,), env_size=(256, 128),
+                    small_lights=(4096,), env_errors=(1e-2,), env_sizes=((256, 128),),
                     env_pixels=500, tree_cases=(("clusters", 1024, 3e-2),))
         base.update(kw)
         return cls(**base)
@@ -380,7 +380,7 @@ def _report_header(cfg: BenchConfig, rt, peak: float, shapes: dict, numba_fma, u
                      "numba": use_numba,
                      "small_lights": list(cfg.small_lights), "seed": SEED,
                      "reference_white": 1.0, "env_errors": list(cfg.env_errors),
-                     "env_size": list(cfg.env_size), "env_pixels": cfg.env_pixels,
+                     "env_sizes": [list(e) for e in cfg.env_sizes], "env_pixels": cfg.env_pixels,
                      "tree_cases": [list(c) for c in cfg.tree_cases]},
         "numpy": [],
         "numba": [],
@@ -476,7 +476,8 @@ def run_bench(cfg: BenchConfig) -> dict:
                 report["runs"].append(_run_entry(slot, cfg, scene, kind, n, (W, H), shaded_full,
                                                  oracle_cache, np_rate, numba_rate, peak, log))
         if cfg.env_errors:
-            report["environment"] += run_environment(cfg, full, report["runs"], log)
+            for env_size in cfg.env_sizes:
+                report["environment"] += run_environment(cfg, full, report["runs"], log, env_size)
         if cfg.tree_cases:
             report["tree"] += run_tree(cfg, full, log)
     report["summary"] = summarise(report)

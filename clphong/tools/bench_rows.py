@@ -69,15 +69,21 @@ def _env_rel(value, exact):
     return float((np.abs(value - exact)[big] / exact[big]).max(initial=0.0))
 
 
-def run_environment(cfg, full, runs, log) -> list[dict]:
-    """The environment rows of the report; ``cfg`` a :class:`clphong.tools.bench.BenchConfig`."""
+#: Texel-pixel pairs of the exact sum an environment row computes at most: its pixel sample
+#: shrinks for a large map (4096 x 2048: 238 pixels, about 40 s in numpy on two cores).
+ENV_EXACT_PAIRS = 2e9
+
+
+def run_environment(cfg, full, runs, log, env_size) -> list[dict]:
+    """The environment rows of the report for one map size (width, height); ``cfg`` a
+    :class:`clphong.tools.bench.BenchConfig`."""
     H, W = full.shape
-    mw, mh = cfg.env_size
+    mw, mh = env_size
     L = samples.sky_envmap(mw, mh)
     base = environment_scene()
     material = base.material
     # the exact texel sum on a seeded pixel sample, each term apart (computed once)
-    idx = sample_pixels(full, cfg.env_pixels)
+    idx = sample_pixels(full, min(cfg.env_pixels, max(100, int(ENV_EXACT_PAIRS / (mw * mh)))))
     sub = sub_gbuffer(full, idx)
     t0 = time.perf_counter()
     l_all, E_all = texel_lights(L)
@@ -155,7 +161,7 @@ def run_environment(cfg, full, runs, log) -> list[dict]:
         }
         out.append(entry)
         e = entry["error"]
-        log(f"environment     eps={target:<6g} {conv.count:6d} lights (est {conv.estimated_error:.2e}, "
+        log(f"environment {mw}x{mh} eps={target:<6g} {conv.count:6d} lights (est {conv.estimated_error:.2e}, "
             f"{conv.seconds:.1f} s) {ms:10.1f} ms/frame x{entry['time_ratio_256_point']:.2f} of 256 "
             f"point lights  max rel {e['max_rel']:.2e} (diffuse {e['diffuse_max_rel']:.2e}, "
             f"specular {e['specular_max_rel']:.2e}); {entry['lights_for_target_on_sample']} lights "

@@ -280,13 +280,14 @@ def test_environment_rows_against_the_exact_texel_sum():
     kernel's own error, < 1e-5 relative, is far below the 1e-2 target)."""
     cfg = bench.BenchConfig(sizes=((64, 40),), lights=(256,), paths=("accurate",), budgets=(),
                             small_lights=(), repeats=2, warmup=1, numba=False, env_errors=(1e-2, 3e-2),
-                            env_size=(64, 32), env_pixels=200)
+                            env_sizes=((64, 32), (32, 16)), env_pixels=200)
     report = bench.run_bench(cfg)
     rows = report["environment"]
-    assert [r["env_error"] for r in rows] == [1e-2, 3e-2]
+    assert [r["env_error"] for r in rows] == [1e-2, 3e-2] * 2
+    assert [tuple(r["map"]) for r in rows] == [(64, 32)] * 2 + [(32, 16)] * 2   # each map size
     p256 = next(r for r in report["runs"] if r["lights"] == 256)
     for r in rows:
-        assert r["texels"] == 64 * 32 and 0 < r["lights"] <= 64 * 32
+        assert r["texels"] == r["map"][0] * r["map"][1] and 0 < r["lights"] <= r["texels"]
         assert r["estimate_met"] and r["estimated_error"] <= r["env_error"]
         assert math.isclose(r["time_ratio_256_point"], r["ms_per_frame"] / r["point256_ms_per_frame"])
         assert r["point256_wide_run_ms_per_frame"] == p256["ms_per_frame"]
@@ -297,9 +298,9 @@ def test_environment_rows_against_the_exact_texel_sum():
         # the float64 model sums of the same lights: the kernel adds < 1e-5
         assert abs(e["max_rel"] - e["model_max_rel"]) < 1e-5
         assert r["lights_for_target_on_sample"] <= r["lights"] * 1.07
-    assert rows[0]["lights"] >= rows[1]["lights"]
+    assert rows[0]["lights"] >= rows[1]["lights"] and rows[2]["lights"] >= rows[3]["lights"]
     lines = bench.environment_table(rows)
-    assert len(lines) == 4 and "environment" in lines[0]
+    assert len(lines) == 6 and "environment" in lines[0] and lines[3].startswith("32x16")
     assert "environment" in bench.table(report)
 
 
