@@ -574,7 +574,8 @@ def plot_pareto(report: dict, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    env = report.get("environment") or []
+    fig, axes = plt.subplots(1, 3 if env else 2, figsize=(18 if env else 12, 5))
     ax = axes[0]
     for r in report["runs"]:
         if r["max_error"] is not None:
@@ -602,6 +603,8 @@ def plot_pareto(report: dict, path) -> None:
     ax.set_xlabel("max absolute error vs float64 (radiance; white = 1)")
     ax.set_ylabel("GPLE/s (brute-force equivalent)")
     ax.set_title("tiled culling, budget ε")
+    if env:
+        _plot_environment(axes[2], env)
     fig.suptitle(f"clphong bench: {report['machine']['device']}", fontsize=9)
     fig.tight_layout()
 
@@ -610,6 +613,24 @@ def plot_pareto(report: dict, path) -> None:
             fig.savefig(tmp, dpi=110, format="png")
     finally:
         plt.close(fig)
+
+
+def _plot_environment(ax, rows) -> None:
+    """The environment rows: time against the exact texel sum's error, one line per map."""
+    for size in dict.fromkeys(tuple(r["map"]) for r in rows):
+        mine = sorted((r for r in rows if tuple(r["map"]) == size), key=lambda r: r["env_error"])
+        xs = [max(r["error"]["max_rel"], 1e-9) for r in mine]
+        ys = [r["time_ratio_256_point"] for r in mine]
+        ax.plot(xs, ys, marker="o", label=f"{size[0]}x{size[1]}")
+        for r, x, y in zip(mine, xs, ys):
+            ax.annotate(f"ε={r['env_error']:g}, {r['lights']} lights", (x, y), fontsize=7)
+    ax.axhline(1.0, color="grey", lw=0.5, ls=":")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("max relative error vs the exact float64 texel sum")
+    ax.set_ylabel("frame time / 256 point lights' (same run)")
+    ax.set_title("environment maps; dotted: 256 point lights")
+    ax.legend(fontsize=7)
 
 
 def table(report: dict) -> str:
