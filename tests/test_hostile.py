@@ -1114,14 +1114,21 @@ def test_render_removes_its_own_stale_temporaries(work, capsys):
     src, out = work
     stale = out / ".beauty.tmp-0123abcd.exr"
     stale.write_bytes(b"half a file")
+    # the name a temporary file has before it takes its own: a SIGKILL between the two
+    # left one (tests/pipeline/test_batch.py::test_resume_after_killed_run[SIGKILL], 1 run in 8)
+    born = out / ".beauty.tmp-4567cdef.exr.born"
+    born.write_bytes(b"")
     other = out / ".other.tmp-0123abcd.exr"
     other.write_bytes(b"not ours")
     unlike = out / ".beauty.tmp-xyz.exr"
     unlike.write_bytes(b"not the pattern")
+    unlike_born = out / ".beauty.tmp-0123abcd.exr.borne"
+    unlike_born.write_bytes(b"not the pattern")
     assert cli(render_argv(src, out)) == 0
     err = capsys.readouterr().err
-    assert not stale.exists() and other.exists() and unlike.exists()
-    assert err.count("\n") == 1 and "removed 1 temporary file" in err
+    assert not stale.exists() and not born.exists()
+    assert other.exists() and unlike.exists() and unlike_born.exists()
+    assert err.count("\n") == 1 and "removed 2 temporary file" in err
 
 
 def test_a_signalling_nan_in_a_normal_gives_no_numpy_line(work, capsys):

@@ -51,12 +51,15 @@ def check_output_folder(folder: str) -> None:
 
 
 def stale_temporaries(path: str) -> list[str]:
-    """Temporary files that :func:`clphong.io.atomic.atomic_path` left for ``path`` (a killed run)."""
+    """Temporary files that :func:`clphong.io.atomic.atomic_path` left for ``path`` (a killed
+    run): ``.NAME.tmp-XXXXXXXX.EXT``, and ``….EXT.born``, the name a temporary file has for
+    the moment before it takes its own (a SIGKILL there left one behind)."""
     folder = os.path.dirname(os.path.abspath(path))
     stem, ext = os.path.splitext(os.path.basename(path))
-    rx = re.compile(r"^\." + re.escape(stem) + r"\.tmp-[0-9a-f]{8}" + re.escape(ext) + r"$")
+    rx = re.compile(r"^\." + re.escape(stem) + r"\.tmp-[0-9a-f]{8}" + re.escape(ext) + r"(\.born)?$")
     pattern = os.path.join(glob.escape(folder), "." + glob.escape(stem) + ".tmp-*" + glob.escape(ext))
-    return [p for p in glob.glob(pattern, include_hidden=True) if rx.match(os.path.basename(p))]
+    return [p for pat in (pattern, pattern + ".born")
+            for p in glob.glob(pat, include_hidden=True) if rx.match(os.path.basename(p))]
 
 
 def remove_stale_temporaries(files, *, own: bool = False) -> list[str]:
