@@ -99,6 +99,10 @@ import re
 import warnings as _warnings
 from collections.abc import Mapping
 
+try:    # Rust's toml crate: large scene files (BIG_TOML) parse 1.9x faster than with tomli
+    import rtoml as _rtoml
+except ImportError:  # pragma: no cover - a dependency; tomli alone then
+    _rtoml = None
 try:    # tomllib's own parser (tomllib is tomli), as a mypyc-compiled wheel: 2.3x faster
     import tomli as _toml
 except ImportError:  # pragma: no cover - a platform without the compiled wheel
@@ -284,7 +288,7 @@ def load_scene(path: str | os.PathLike) -> Scene:
         raise SceneError(f"{source}:{line}: invalid TOML: not UTF-8 (byte {exc.start}); "
                          "save the file as UTF-8") from None
     try:
-        data = _toml.loads(text)
+        data = _loads(text)
     except _toml.TOMLDecodeError as exc:
         raise SceneError(_toml_message(source, exc, text)) from None
     except RecursionError:
@@ -298,6 +302,22 @@ def load_scene(path: str | os.PathLike) -> Scene:
                                                  else os.fsdecode(path)))
     _emit(scene, stacklevel=2)
     return scene
+
+
+#: Scene files from this size on (about 3,700 lights as [[light]] tables) are parsed by
+#: rtoml (Rust's toml crate): 0.72 s against tomli's 1.34 s for 65,536 lights, the same
+#: dictionary. A file rtoml refuses is parsed by tomli again, so every error reads as before.
+BIG_TOML = 1 << 20
+
+
+def _loads(text: str) -> dict:
+    """The TOML document ``text`` as tomllib returns it (see BIG_TOML)."""
+    if len(text) >= BIG_TOML and _rtoml is not None:
+        try:
+            return _rtoml.loads(text)
+        except Exception:     # rtoml.TomlParsingError, or anything else it says: tomli's words
+            pass
+    return _toml.loads(text)
 
 
 #: Peak bytes of memory per byte of TOML while parsing (tomllib and the scene
