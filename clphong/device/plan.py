@@ -167,7 +167,7 @@ def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated
 
 
 def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp64_directions,
-                  int_pow, max_error, light_tile, sum_fp64) -> None:
+                  int_pow, max_error, light_tile, sum_fp64, rsqrt_builtin=False) -> None:
     """The lane kernel's own defines (culling, the light loop, the number formats and the
     specular power), each with its reason, through ``put`` (see :func:`make_plan`)."""
     m = scene.material
@@ -179,6 +179,11 @@ def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp
               else "no --max-error budget: every light shades every pixel"))
     if culling:
         put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel culling tiles (clphong.device.culling.TILE)")
+    put("RSQRT_BUILTIN", rsqrt_builtin,
+        "1/√x by the OpenCL C builtin rsqrt (2 ulp by the specification): this platform "
+        "inlines a fast one" if rsqrt_builtin
+        else "1/√x by clphong's inline Newton steps (kernels/include/clphong.h), within the "
+             "builtin's 2 ulp: PoCL calls the builtin out of line (GPUs: not measured with it)")
     staged = light_tile and (n_dir > 0 or (n_point > 0 and not culling))
     put("LIGHT_TILE", light_tile if staged else 0,
         f"the work-group stages {light_tile} light records at a time through local memory "
@@ -238,7 +243,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
               compensated: bool | None = None, fp64_directions: bool = False,
               max_error: float | None = None, has_fp64: bool | None = None,
               int_pow: bool | str = True, coverage: bool = False, groups: Sequence[str] = (),
-              aovs: Sequence[str] = (), light_tile: int = 0) -> ShadingPlan:
+              aovs: Sequence[str] = (), light_tile: int = 0,
+              rsqrt_builtin: bool = False) -> ShadingPlan:
     """Choose the kernel variant for ``scene`` and the material ``maps`` present.
 
     Parameters
@@ -286,6 +292,10 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         the work-group stages T records at a time through local memory (LIGHT_TILE,
         GPUs: ``Runtime.light_tile``), any T with any work-group size (each work-item
         loads every work-group-size-th float4). Bit-identical results either way.
+    rsqrt_builtin : bool
+        Lane kernel: 1/√x by the OpenCL C builtin rsqrt (RSQRT_BUILTIN: the
+        specification's 2 ulp; ``Runtime.rsqrt_builtin``, Intel's CPU runtime), else
+        clphong's inline Newton steps (kernels/include/clphong.h).
 
     The display output is not part of the plan: kernels/tonemap_apply.cl runs
     on the stored planes (clphong.device.display), so the shading kernel never
@@ -322,7 +332,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     if kernel == "lanes":
         _lane_defines(put, scene, maps, n_point=n_point, n_dir=n_dir, specular=specular,
                       blinn=blinn, fp64=fp64, fp64_directions=fp64_directions, int_pow=int_pow,
-                      max_error=max_error, light_tile=light_tile, sum_fp64=sum_fp64)
+                      max_error=max_error, light_tile=light_tile, sum_fp64=sum_fp64,
+                      rsqrt_builtin=rsqrt_builtin)
     if kernel != "lanes" and (groups or aovs):
         raise SceneError(f"{scene.source}: the obvious kernel shades the beauty only; light groups "
                          "and AOV layers need the lane kernel")

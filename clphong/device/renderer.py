@@ -313,7 +313,8 @@ class Renderer:
                          max_error=self.max_error if culling else None,
                          has_fp64=self.runtime.fast_fp64, int_pow=self.int_pow,
                          coverage=coverage, groups=self.scene.light_groups, aovs=self.aovs,
-                         light_tile=self.light_tile if self.kernel_kind == "lanes" else 0)
+                         light_tile=self.light_tile if self.kernel_kind == "lanes" else 0,
+                         rsqrt_builtin=self.runtime.rsqrt_builtin)
         return plan, self.runtime.program(plan.entry_file, plan.defines)
 
     # ------------------------------------------------------------------ a whole frame

@@ -166,7 +166,15 @@ typedef floatL dirL;
  * takes two in float. Elsewhere the exponent-halving guesses above, with four
  * steps in double and three in float. Each step costs ~12 cycles of latency
  * on the lights loop's critical path. */
-#ifndef RSQRT_GUESS_KIND   /* 0: portable, 1: AVX vrsqrtps, 2: AVX-512 vrsqrt14; a test may set it */
+/* RSQRT_BUILTIN (the plan's, clphong/device/plan.py): the OpenCL C builtin rsqrt, within
+ * the specification's 2 ulp in float and double, where the platform inlines a fast one
+ * (Intel's CPU runtime: its own vrsqrt14 and Newton sequence, 1.5-2x the lights loop of
+ * the steps below, whose AVX-512 guess Intel's target-independent front end cannot
+ * select); PoCL 3.0 calls it out of line, so there the inline steps below. */
+#if defined(RSQRT_BUILTIN) && RSQRT_BUILTIN && !defined(RSQRT_GUESS_KIND)
+#define RSQRT_GUESS_KIND 3
+#endif
+#ifndef RSQRT_GUESS_KIND   /* 0: portable, 1: AVX vrsqrtps, 2: AVX-512 vrsqrt14, 3: the builtin; a test may set it */
 #if defined(__AVX512F__) && (LANES == 16 || (LANES == 8 && DIRECTIONS_FP64))
 #define RSQRT_GUESS_KIND 2
 #elif defined(__AVX__) && !DIRECTIONS_FP64 && (LANES == 16 || LANES == 8)
@@ -175,7 +183,10 @@ typedef floatL dirL;
 #define RSQRT_GUESS_KIND 0
 #endif
 #endif
-#if RSQRT_GUESS_KIND == 2 && DIRECTIONS_FP64 && LANES == 16
+#if RSQRT_GUESS_KIND == 3
+/* the OpenCL C builtin itself (2 ulp by the specification, in float and double) */
+#define RSQRT_STEPS 0
+#elif RSQRT_GUESS_KIND == 2 && DIRECTIONS_FP64 && LANES == 16
 #define RSQRT_GUESS(x) ((dirL)(__builtin_ia32_rsqrt14pd512_mask((x).lo, (double8)(0.0), (uchar)0xFF), \
                                __builtin_ia32_rsqrt14pd512_mask((x).hi, (double8)(0.0), (uchar)0xFF)))
 #define RSQRT_STEPS 2
@@ -207,6 +218,9 @@ typedef floatL dirL;
 #define NEWTON_RSQRT(y, h) ((y) * (1.5f - (h) * (y) * (y)))
 #endif
 
+#if RSQRT_GUESS_KIND == 3
+inline dirL rsqrt_dir(dirL x) { return rsqrt(x); }
+#else
 inline dirL rsqrt_dir(dirL x)
 {
     dirL y = RSQRT_GUESS(x);
@@ -223,9 +237,13 @@ inline dirL rsqrt_dir(dirL x)
 #endif
     return x == 0.0f ? (dirL)(INFINITY) : y;   /* as rsqrt(0) = +inf */
 }
+#endif
 #define RSQRT_DIR(x) rsqrt_dir(x)
 #if DIRECTIONS_FP64
 #define RSQRT_DIST(x) rsqrt_dir(x)
+#elif RSQRT_GUESS_KIND == 3
+inline dirL rsqrt_dist(dirL x) { return rsqrt(x); }   /* the builtin has the guards below */
+#define RSQRT_DIST(x) rsqrt_dist(x)
 #else
 /* 1/√x for a squared distance in float: rsqrt_dir with the two guards that the
    builtin has and rsqrt_dir lacks. x > FLT_MAX (d ≳ 1.8e19; +∞) gives 0, as
