@@ -541,7 +541,7 @@ class Renderer:
             events = []
             for start, count in launch_pieces(items, lights_per_item, self.kernel_kind,
                                               rate=self.runtime.pair_rate,
-                                              least=self.runtime.fill_items):
+                                              least=self.runtime.fill_groups * LOCAL_SIZE):
                 # one piece at a time: a signal (SIGTERM, Ctrl-C) is handled between
                 # pieces, at most PIECE_SECONDS late, and nothing is left queued
                 kern.set_arg(ITEM0_ARG, np.uint32(start))

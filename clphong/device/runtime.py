@@ -113,7 +113,7 @@ def _sources_digest(folder: Path) -> str:
     return digest
 
 
-#: Work-groups per compute unit that a launch piece fills at least (Runtime.fill_items):
+#: Work-groups per compute unit that a launch piece fills at least (Runtime.fill_groups):
 #: 32 groups of 64 is an NVIDIA multiprocessor's 2,048 resident work-items.
 FILL_GROUPS = 32
 
@@ -335,12 +335,12 @@ class Runtime:
             getattr(self.device, "double_fp_config", 0))
 
     @property
-    def fill_items(self) -> int:
-        """Work-items that keep every compute unit busy, FILL_GROUPS work-groups of
-        ``frame.LOCAL_SIZE`` per compute unit (two on a CPU, whose compute unit is a core
-        that runs one work-group at a time): a launch piece holds at least this many."""
+    def fill_groups(self) -> int:
+        """Work-groups that keep every compute unit busy: FILL_GROUPS per compute unit (two
+        on a CPU, whose compute unit is a core that runs one work-group at a time). A launch
+        piece holds at least this many (of ``frame.LOCAL_SIZE`` work-items each)."""
         per_unit = 2 if self.device.type & _cl().device_type.CPU else FILL_GROUPS
-        return int(self.device.max_compute_units) * per_unit * 64
+        return int(self.device.max_compute_units) * per_unit
 
     @property
     def rsqrt_builtin(self) -> bool:

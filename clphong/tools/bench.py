@@ -94,6 +94,7 @@ from pathlib import Path
 
 from ..device.peak import measure_peak_gflops
 from ..device.plan import int_pow_multiplies
+from ..device.frame import LOCAL_SIZE
 from ..device.renderer import Renderer, prepare_frame
 from ..device.selection import get_runtime
 from ..io.atomic import atomic_path
@@ -212,7 +213,8 @@ PEER_PAIRS = 1.5e8
 #: by default: on a GPU 1.5e8 pairs are a few work-groups a row at 65,536 lights, and time
 #: the launch, not the shading.
 CROP_SECONDS = 0.1
-#: ...and at least this many device fills of pixels (Runtime.fill_items work-items each).
+#: ...and at least this many device fills of pixels (Runtime.fill_groups work-groups of
+#: frame.LOCAL_SIZE each).
 CROP_FILLS = 4
 
 
@@ -399,7 +401,7 @@ def run_bench(cfg: BenchConfig) -> dict:
         cfg = dataclasses.replace(cfg, crop_pairs=max(PEER_PAIRS, CROP_SECONDS * (rt.pair_rate or 0.0)))
     # a crop holds at least CROP_FILLS times the work-items that fill the device (an H200's
     # 103-row crop at 65,536 lights ran at 136 GPLE/s, the whole frame at 159)
-    least_pixels = CROP_FILLS * rt.fill_items * max(rt.lanes, 1)
+    least_pixels = CROP_FILLS * rt.fill_groups * LOCAL_SIZE * max(rt.lanes, 1)
     shapes: dict = {}
     peak = measure_peak_gflops(rt, detail=shapes)
     use_numba = cfg.numba and numba_peer.available()
