@@ -56,6 +56,41 @@
         for (uint jj_ = 0; jj_ < (lit ? n_ : 0u); ++jj_) { body(tile + (F) * jj_) } \
     }
 
+/* LIGHT_UNROLL (set by the plan): U > 1, the light loops take U lights an iteration,
+ * one after another in the same order, then the last count mod U one at a time. The
+ * sums see the same operations in the same order: the pixels are bit-identical
+ * (tests/device/test_light_unroll.py). What it buys is independent work in one
+ * iteration: a light's chain (distance, 1/√d², l, h, the power, the falloff, the
+ * sum) is ~40 dependent operations long, and an out-of-order CPU core overlapped
+ * only part of the next light's chain with it; written out, the compiler
+ * interleaves U chains (Zen 5, Intel's CPU runtime, 1080p × 256 lights: fast
+ * 2.29 → 2.91 GPLE/s at U = 4, accurate 1.54 → 2.07; docs/bench.md). Intel's
+ * compiler ignored opencl_unroll_hint on these loops. */
+#ifndef LIGHT_UNROLL
+#error "LIGHT_UNROLL must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#if LIGHT_UNROLL == 8
+#define UNROLLED_BODIES(body, rec, j) body(rec(j)) body(rec((j) + 1)) body(rec((j) + 2)) \
+    body(rec((j) + 3)) body(rec((j) + 4)) body(rec((j) + 5)) body(rec((j) + 6)) body(rec((j) + 7))
+#elif LIGHT_UNROLL == 4
+#define UNROLLED_BODIES(body, rec, j) body(rec(j)) body(rec((j) + 1)) body(rec((j) + 2)) \
+    body(rec((j) + 3))
+#elif LIGHT_UNROLL == 2
+#define UNROLLED_BODIES(body, rec, j) body(rec(j)) body(rec((j) + 1))
+#elif LIGHT_UNROLL > 1
+#error "LIGHT_UNROLL must be 0, 1, 2, 4 or 8"
+#endif
+/* body(rec(j)) for j in [begin, end), in order; rec(j): light j's record */
+#if LIGHT_UNROLL > 1
+#define FOR_LIGHTS(begin, end, rec, body) { \
+        uint j_ = (begin); \
+        for (; j_ + LIGHT_UNROLL <= (end); j_ += LIGHT_UNROLL) { UNROLLED_BODIES(body, rec, j_) } \
+        for (; j_ < (end); ++j_) { body(rec(j_)) } }
+#else
+#define FOR_LIGHTS(begin, end, rec, body) \
+    for (uint j_ = (begin); j_ < (end); ++j_) { body(rec(j_)) }
+#endif
+
 /* Add x to the running sum s (POCL-NOTES "Light sums"). SUM_FP64: s is double,
  * so N float terms err by ≤ N·2⁻⁵³ of Σ|x| before the one final rounding to
  * float (c is unused); it ran 4 % (fp64 directions) to 9 % (float directions)
@@ -320,8 +355,8 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
         STAGE(directional_tile, directional_lights, DIRECTIONAL_LIGHT_FLOAT4S, d_begin, d_end,
               DIRECTIONAL_BODY)
 #else
-        for (uint j = (lit ? d_begin : d_end); j < d_end; ++j)
-            DIRECTIONAL_BODY(directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * j)
+#define DIRECTIONAL_RECORD(j) (directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * (j))
+        FOR_LIGHTS(lit ? d_begin : d_end, d_end, DIRECTIONAL_RECORD, DIRECTIONAL_BODY)
 #endif
 #endif
 #if HAS_POINT
@@ -342,13 +377,18 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
             ADD_LIGHT(ar, ag, ab, w); }
 #if CULLING
         /* this group's part of the tile's list: its entries below p_end */
-        for (; m < range.x + range.y && (!N_GROUPS || tile_lights[m] < p_end); ++m)
+#if N_GROUPS
+        for (; m < range.x + range.y && tile_lights[m] < p_end; ++m)
             POINT_BODY(point_lights + POINT_LIGHT_FLOAT4S * tile_lights[m])
+#else
+#define LISTED_RECORD(j) (point_lights + POINT_LIGHT_FLOAT4S * tile_lights[j])
+        FOR_LIGHTS(m, range.x + range.y, LISTED_RECORD, POINT_BODY)
+#endif
 #elif LIGHT_TILE
         STAGE(point_tile, point_lights, POINT_LIGHT_FLOAT4S, p_begin, p_end, POINT_BODY)
 #else
-        for (uint j = (lit ? p_begin : p_end); j < p_end; ++j)
-            POINT_BODY(point_lights + POINT_LIGHT_FLOAT4S * j)
+#define POINT_RECORD(j) (point_lights + POINT_LIGHT_FLOAT4S * (j))
+        FOR_LIGHTS(lit ? p_begin : p_end, p_end, POINT_RECORD, POINT_BODY)
 #endif
 #endif
 #if N_GROUPS

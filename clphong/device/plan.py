@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 from ..core.errors import SceneError
 from ..core.geometry import split_hi_lo
-from ..model.options import check_float_power, check_kernel
+from ..model.options import check_float_power, check_kernel, check_unroll
 from ..model.scene import AOV_NAMES, MAP_KEYS
 from .culling import TILE
 
@@ -167,7 +167,8 @@ def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated
 
 
 def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp64_directions,
-                  int_pow, max_error, light_tile, sum_fp64, rsqrt_builtin=False) -> None:
+                  int_pow, max_error, light_tile, sum_fp64, rsqrt_builtin=False,
+                  light_unroll=0) -> None:
     """The lane kernel's own defines (culling, the light loop, the number formats and the
     specular power), each with its reason, through ``put`` (see :func:`make_plan`)."""
     m = scene.material
@@ -190,6 +191,11 @@ def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp
         "(a GPU: one global read per light per work-group)" if staged
         else "each work-item reads the light records (a CPU: they stay in its L1)"
         if not light_tile else "no light loop to stage (the culled loop reads its lists)")
+    check_unroll(light_unroll)
+    put("LIGHT_UNROLL", light_unroll,
+        f"the light loops take {light_unroll} lights an iteration, in order (an out-of-order "
+        "CPU core overlaps their chains: docs/bench.md)" if light_unroll
+        else "one light an iteration")
     put("DIRECTIONS_FP64", fp64_directions,
         "directions, n·l and δ in double: relative error a few u at grazing light and "
         "any shininess (docs/error-model.md)" if fp64_directions
@@ -244,7 +250,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
               max_error: float | None = None, has_fp64: bool | None = None,
               int_pow: bool | str = True, coverage: bool = False, groups: Sequence[str] = (),
               aovs: Sequence[str] = (), light_tile: int = 0,
-              rsqrt_builtin: bool = False) -> ShadingPlan:
+              rsqrt_builtin: bool = False, light_unroll: int = 0) -> ShadingPlan:
     """Choose the kernel variant for ``scene`` and the material ``maps`` present.
 
     Parameters
@@ -296,6 +302,11 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         Lane kernel: 1/√x by the OpenCL C builtin rsqrt (RSQRT_BUILTIN: the
         specification's 2 ulp; ``Runtime.rsqrt_builtin``, Intel's CPU runtime), else
         clphong's inline Newton steps (kernels/include/clphong.h).
+    light_unroll : {0, 2, 4, 8}
+        Lane kernel: U > 1, the light loops that each work-item walks itself take U
+        lights an iteration, in order (LIGHT_UNROLL, ``Runtime.light_unroll``: Intel's
+        CPU runtime); 0, one. Bit-identical results either way. The staged loop
+        (``light_tile``) is not unrolled.
 
     The display output is not part of the plan: kernels/tonemap_apply.cl runs
     on the stored planes (clphong.device.display), so the shading kernel never
@@ -333,7 +344,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         _lane_defines(put, scene, maps, n_point=n_point, n_dir=n_dir, specular=specular,
                       blinn=blinn, fp64=fp64, fp64_directions=fp64_directions, int_pow=int_pow,
                       max_error=max_error, light_tile=light_tile, sum_fp64=sum_fp64,
-                      rsqrt_builtin=rsqrt_builtin)
+                      rsqrt_builtin=rsqrt_builtin, light_unroll=light_unroll)
     if kernel != "lanes" and (groups or aovs):
         raise SceneError(f"{scene.source}: the obvious kernel shades the beauty only; light groups "
                          "and AOV layers need the lane kernel")

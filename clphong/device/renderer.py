@@ -33,6 +33,7 @@ from ..model.options import (
     check_kernel,
     check_lanes,
     check_nonfinite,
+    check_unroll,
     path_options,
 )
 from ..model.scene import AOV_NAMES
@@ -171,6 +172,11 @@ class Renderer:
         (the plan's LIGHT_TILE): by default where the device is a GPU
         (:attr:`clphong.device.runtime.Runtime.light_tile`); True or False to force it,
         or a number of lights a step (the pixels are bit-identical either way).
+    light_unroll : {0, 2, 4, 8}, optional
+        Lights an iteration of the light loops a work-item walks itself (the plan's
+        LIGHT_UNROLL): by default the device's
+        (:attr:`clphong.device.runtime.Runtime.light_unroll`: 4 on Intel's CPU runtime);
+        0 for one (the pixels are bit-identical either way).
 
     The attributes ``max_error`` (the *absolute* budget
     ``max_error·reference_white``, or None), ``fp64_directions`` and
@@ -187,7 +193,8 @@ class Renderer:
                  max_error: float | None = None, reference_white: float = 1.0,
                  int_pow: bool | str | None = None, path: str | None = None,
                  aovs: Sequence[str] = (), straight_alpha: bool = False,
-                 light_tree: bool = True, light_tile: bool | None = None):
+                 light_tree: bool = True, light_tile: bool | None = None,
+                 light_unroll: int | None = None):
         self.scene = scene
         self.use_tree = bool(light_tree)
         self.always_tree = light_tree == "always"
@@ -217,6 +224,8 @@ class Renderer:
             check_width(self.runtime, check_lanes(lanes))
         self.lanes = check_lanes(lanes)
         self._light_tile = light_tile
+        self.light_unroll = (self.runtime.light_unroll if light_unroll is None
+                             else check_unroll(light_unroll))
         self.compensated = compensated
         self.max_error = check_budget(max_error, reference_white)   # absolute, or None
         self.reference_white = float(reference_white)
@@ -314,7 +323,8 @@ class Renderer:
                          has_fp64=self.runtime.fast_fp64, int_pow=self.int_pow,
                          coverage=coverage, groups=self.scene.light_groups, aovs=self.aovs,
                          light_tile=self.light_tile if self.kernel_kind == "lanes" else 0,
-                         rsqrt_builtin=self.runtime.rsqrt_builtin)
+                         rsqrt_builtin=self.runtime.rsqrt_builtin,
+                         light_unroll=self.light_unroll if self.kernel_kind == "lanes" else 0)
         return plan, self.runtime.program(plan.entry_file, plan.defines)
 
     # ------------------------------------------------------------------ a whole frame

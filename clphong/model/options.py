@@ -15,7 +15,8 @@ from collections.abc import Mapping
 from ..core.errors import ClphongError, ToneMapError
 
 __all__ = ["validate_method", "PATHS", "path_options", "NONFINITE_POLICIES", "check_nonfinite",
-           "KERNELS", "check_kernel", "LANES", "check_lanes", "INT_POW", "check_int_pow",
+           "KERNELS", "check_kernel", "LANES", "check_lanes", "UNROLLS", "check_unroll",
+           "INT_POW", "check_int_pow",
            "check_fp64_directions", "check_float_power",
            "MAX_EXPOSURE", "check_exposure", "ENCODINGS", "CullingError", "check_budget",
            "NUMBERS", "check_number"]
@@ -77,6 +78,15 @@ LANES = (1, 4, 8, 16)
 
 def check_lanes(lanes: int) -> int:
     return validate_method(lanes, LANES, "lanes")
+
+
+#: Lights an iteration of the lane kernel's light loops (``Renderer(light_unroll=)``,
+#: the plan's LIGHT_UNROLL; 0: one).
+UNROLLS = (0, 2, 4, 8)
+
+
+def check_unroll(unroll: int) -> int:
+    return validate_method(unroll, UNROLLS, "light_unroll")
 
 
 #: The specular power: True, binary powering of a whole exponent in double;
