@@ -454,6 +454,8 @@ def cmd_devices(args) -> int:
         print(f"      {width}; self-test: {row['verdict']}")
         if row.get("double"):
             print(f"      {row['double']}")
+        if row.get("rsqrt"):
+            print(f"      {row['rsqrt']}")
         if "rule" in row:
             print(f"      rule: {row['rule']}")
     default = next((r for r in rows if r["default"]), None)

@@ -13,7 +13,8 @@ import statistics
 
 import numpy as np
 
-__all__ = ["measure_peak_gflops", "peak_shapes", "measure_fp64_ratio", "FAST_FP64_RATIO"]
+__all__ = ["measure_peak_gflops", "peak_shapes", "measure_fp64_ratio", "FAST_FP64_RATIO",
+           "native_rsqrt_inputs", "measure_native_rsqrt_ulp", "NATIVE_RSQRT_MAX_ULP"]
 
 
 def peak_shapes(lanes: int) -> tuple[tuple[int, int], ...]:
@@ -75,3 +76,61 @@ def measure_peak_gflops(runtime, repeats: int = 5, detail: dict | None = None) -
             if detail is not None:
                 detail["best"] = {"lanes": lanes, "chains": chains}
     return best
+
+
+#: The error model's 1/√x in float: within 2 ulp, the OpenCL C builtin's specified bound.
+NATIVE_RSQRT_MAX_ULP = 2.0
+
+
+def native_rsqrt_inputs() -> np.ndarray:
+    """Every float of [1, 4) (a factor 4 in x moves the hardware estimate and the Newton
+    step by exactly ½, so this binade stands for every normal float where the estimate
+    scales so), every third float of the bottom binades [FLT_MIN, 4·FLT_MIN) (where
+    rsqrt_dist rescales), and 100,001 floats spread from FLT_MIN to FLT_MAX in case an
+    implementation's estimate does not scale."""
+    binade = np.arange(0x3F800000, 0x40800000, dtype=np.uint32).view(np.float32)
+    bottom = np.arange(0x00800000, 0x01800000, 3, dtype=np.uint32).view(np.float32)
+    f32 = np.finfo(np.float32)
+    spread = np.geomspace(f32.tiny, f32.max, 100_001).astype(np.float32)
+    return np.concatenate([binade, bottom, spread])
+
+
+def measure_native_rsqrt_ulp(runtime, lanes: int | None = None, chunk: int = 1 << 22) -> float:
+    """The largest error, in float ulp of 1/√x, of the shading kernel's rsqrt_dist with
+    native_rsqrt as its first guess and one Newton step (kernels/rsqrt_probe.cl,
+    RSQRT_GUESS_KIND 4) at ``lanes`` (the runtime's width by default), over :func:`native_rsqrt_inputs`; inf
+    where it is not finite there, or gets rsqrt(0) = +∞ or rsqrt(+∞) = 0 wrong. The plan
+    takes that guess (RSQRT_NATIVE) only within :data:`NATIVE_RSQRT_MAX_ULP`."""
+    import pyopencl as cl
+
+    lanes = max(lanes or runtime.lanes, 1)
+    defines = {"LANES": lanes, "RSQRT_GUESS_KIND": 4, "DIRECTIONS_FP64": 0, "SUM_FP64": 0,
+               "SPEC_INT_POW": 0, "SPEC_COS": 0, "POW_FP32": 0, "WEIGHTS_FP64": 0}
+    prog = runtime.program("rsqrt_probe.cl", defines)
+    x_all = np.concatenate([np.float32([0.0, np.inf]), native_rsqrt_inputs()])
+    chunk -= chunk % lanes
+    worst = 0.0
+    with runtime.lock:
+        kern = runtime.kernel(prog, "rsqrt_probe")
+        for a in range(0, len(x_all), chunk):
+            x = x_all[a:a + chunk]
+            n = len(x)
+            x = np.concatenate([x, np.ones(-n % lanes, np.float32)])
+            mf = cl.mem_flags
+            xb = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+            yb = cl.Buffer(runtime.context, mf.WRITE_ONLY, x.nbytes)
+            kern(runtime.queue, (len(x) // lanes,), None, xb, yb)
+            y = np.empty_like(x)
+            cl.enqueue_copy(runtime.queue, y, yb)
+            y, x = y[:n].astype(np.float64), x[:n].astype(np.float64)
+            if a == 0:                   # rsqrt(0) = +inf, rsqrt(+inf) = 0, as the builtin's
+                if not (y[0] == np.inf and y[1] == 0.0):
+                    return float("inf")
+                y, x = y[2:], x[2:]
+            ref = 1.0 / np.sqrt(x)
+            ulp = np.exp2(np.floor(np.log2(ref)) - 23)
+            err = np.abs(y - ref) / ulp
+            if not np.all(np.isfinite(err)):
+                return float("inf")
+            worst = max(worst, float(err.max()))
+    return worst

@@ -168,7 +168,7 @@ def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated
 
 def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp64_directions,
                   int_pow, max_error, light_tile, sum_fp64, rsqrt_builtin=False,
-                  light_unroll=0) -> None:
+                  light_unroll=0, rsqrt_native=False) -> None:
     """The lane kernel's own defines (culling, the light loop, the number formats and the
     specular power), each with its reason, through ``put`` (see :func:`make_plan`)."""
     m = scene.material
@@ -185,6 +185,11 @@ def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp
         "inlines a fast one" if rsqrt_builtin
         else "1/√x by clphong's inline Newton steps (kernels/include/clphong.h), within the "
              "builtin's 2 ulp: PoCL calls the builtin out of line (GPUs: not measured with it)")
+    native = bool(rsqrt_native) and not fp64_directions
+    put("RSQRT_NATIVE", native,
+        "float 1/√x from native_rsqrt and one Newton step: the self-test measured it within "
+        "2 ulp at this width, and this platform inlines it" if native
+        else "no native_rsqrt first guess" + (" (directions in double)" if rsqrt_native else ""))
     staged = light_tile and (n_dir > 0 or (n_point > 0 and not culling))
     put("LIGHT_TILE", light_tile if staged else 0,
         f"the work-group stages {light_tile} light records at a time through local memory "
@@ -250,7 +255,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
               max_error: float | None = None, has_fp64: bool | None = None,
               int_pow: bool | str = True, coverage: bool = False, groups: Sequence[str] = (),
               aovs: Sequence[str] = (), light_tile: int = 0,
-              rsqrt_builtin: bool = False, light_unroll: int = 0) -> ShadingPlan:
+              rsqrt_builtin: bool = False, light_unroll: int = 0,
+              rsqrt_native: bool = False) -> ShadingPlan:
     """Choose the kernel variant for ``scene`` and the material ``maps`` present.
 
     Parameters
@@ -302,6 +308,10 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         Lane kernel: 1/√x by the OpenCL C builtin rsqrt (RSQRT_BUILTIN: the
         specification's 2 ulp; ``Runtime.rsqrt_builtin``, Intel's CPU runtime), else
         clphong's inline Newton steps (kernels/include/clphong.h).
+    rsqrt_native : bool
+        Lane kernel with float directions: the first guess of 1/√x is native_rsqrt, then
+        one Newton step (RSQRT_NATIVE; ``Runtime.rsqrt_native``: where the self-test
+        measured it within 2 ulp at this width).
     light_unroll : {0, 2, 4, 8}
         Lane kernel: U > 1, the light loops that each work-item walks itself take U
         lights an iteration, in order (LIGHT_UNROLL, ``Runtime.light_unroll``: Intel's
@@ -344,7 +354,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         _lane_defines(put, scene, maps, n_point=n_point, n_dir=n_dir, specular=specular,
                       blinn=blinn, fp64=fp64, fp64_directions=fp64_directions, int_pow=int_pow,
                       max_error=max_error, light_tile=light_tile, sum_fp64=sum_fp64,
-                      rsqrt_builtin=rsqrt_builtin, light_unroll=light_unroll)
+                      rsqrt_builtin=rsqrt_builtin, light_unroll=light_unroll,
+                      rsqrt_native=rsqrt_native)
     if kernel != "lanes" and (groups or aovs):
         raise SceneError(f"{scene.source}: the obvious kernel shades the beauty only; light groups "
                          "and AOV layers need the lane kernel")

@@ -324,7 +324,8 @@ class Renderer:
                          coverage=coverage, groups=self.scene.light_groups, aovs=self.aovs,
                          light_tile=self.light_tile if self.kernel_kind == "lanes" else 0,
                          rsqrt_builtin=self.runtime.rsqrt_builtin,
-                         light_unroll=self.light_unroll if self.kernel_kind == "lanes" else 0)
+                         light_unroll=self.light_unroll if self.kernel_kind == "lanes" else 0,
+                         rsqrt_native=self.runtime.rsqrt_native(self.lanes))
         return plan, self.runtime.program(plan.entry_file, plan.defines)
 
     # ------------------------------------------------------------------ a whole frame

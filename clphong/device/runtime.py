@@ -27,7 +27,7 @@ from typing import Callable
 from ..core.errors import DeviceError
 from . import hostrule, platforms
 from .isolate import build_child, in_child, intel_vectorizer_mode
-from .peak import FAST_FP64_RATIO
+from .peak import FAST_FP64_RATIO, NATIVE_RSQRT_MAX_ULP
 
 # PoCL's CPU drivers install a SIGFPE handler (integer division by zero in a
 # kernel then gives an undefined value instead of killing the process), and to
@@ -117,6 +117,12 @@ def _sources_digest(folder: Path) -> str:
 #: 32 groups of 64 is an NVIDIA multiprocessor's 2,048 resident work-items.
 FILL_GROUPS = 32
 
+
+#: Platforms (``Runtime.kind``) whose float 1/√x may start from native_rsqrt (plan
+#: RSQRT_NATIVE) where the self-test measures it within 2 ulp: Intel's CPU runtime,
+#: which inlines it as the hardware estimate. PoCL 3.0 calls it out of line, and a GPU
+#: was not measured with it.
+NATIVE_RSQRT_KINDS = ("intel-cpu",)
 
 #: Free space below which PoCL's cache folder is taken for full (a compile writes ~1.1 MB).
 CACHE_MIN_FREE = 4 << 20
@@ -292,6 +298,10 @@ class Runtime:
     #: Pixel-light pairs a second on the calibration frame, measured with the self-test
     #: (:func:`clphong.device.selftest.calibrate`); None: not measured.
     pair_rate: float | None = None
+    #: Per lane width, the error in float ulp of 1/√x from native_rsqrt and one Newton
+    #: step, measured by the self-test (:func:`clphong.device.peak.measure_native_rsqrt_ulp`);
+    #: None or absent: not measured.
+    native_rsqrt_ulps: dict = field(default_factory=dict)
 
     @property
     def kind(self) -> str:
@@ -350,6 +360,16 @@ class Runtime:
         of line, and a GPU was not measured with it: clphong's inline steps there."""
         return self.kind == "intel-cpu"
 
+    def rsqrt_native(self, lanes: int) -> bool:
+        """Whether the shading kernel's float 1/√x at ``lanes`` starts from native_rsqrt
+        with one Newton step (``plan``'s RSQRT_NATIVE): on the platforms where it was
+        measured faster (:data:`NATIVE_RSQRT_KINDS`: Intel's CPU runtime inlines the
+        hardware estimate where its builtin is a call, 1.06x the fast path on Zen 5),
+        and only at a width whose self-test measured it within the error model's 2 ulp
+        (Zen 5: 1.96 at 16 lanes; 2.39 at 1 and 8, whose estimate is coarser)."""
+        ulp = self.native_rsqrt_ulps.get(lanes)
+        return self.kind in NATIVE_RSQRT_KINDS and ulp is not None and ulp <= NATIVE_RSQRT_MAX_ULP
+
     @property
     def light_unroll(self) -> int:
         """Lights an iteration of the shading kernel's light loops (``plan``'s
@@ -391,6 +411,18 @@ class Runtime:
         return (f"double at {rate}, under {FAST_FP64_RATIO:g}: the accurate path keeps double "
                 "directions only, with compensated float sums and weights; each pixel stays "
                 "within the error model's bound, but lights that cancel may miss the 5e-6 target")
+
+    def rsqrt_line(self) -> str | None:
+        """How the fast path forms 1/√x at the chosen width, in one line (None where the
+        platform does not measure native_rsqrt: :data:`NATIVE_RSQRT_KINDS`)."""
+        if self.kind not in NATIVE_RSQRT_KINDS:
+            return None
+        ulp = self.native_rsqrt_ulps.get(self.lanes)
+        if ulp is None:
+            return "float 1/√x: the builtin rsqrt (native_rsqrt not measured at this width)"
+        how = ("native_rsqrt and one Newton step" if self.rsqrt_native(self.lanes)
+               else "the builtin rsqrt (native_rsqrt and one Newton step are over 2 ulp here)")
+        return f"float 1/√x: {how}; measured {ulp:.3g} ulp over every float of [1, 4) and more"
 
     def kernel(self, program, name: str):
         """The ``cl.Kernel`` ``name`` of a program built by :meth:`program`, created once

@@ -92,7 +92,7 @@ _RUNTIMES: dict[str | None, Runtime] = {}
 _RT_LOCK = threading.Lock()
 
 #: Bumped when the self-test changes what it checks: older verdicts are not reused.
-SELFTEST_VERSION = 3
+SELFTEST_VERSION = 4
 _VERDICTS: dict[Path, dict] = {}
 
 
@@ -173,6 +173,7 @@ def _configure(rt: Runtime, lanes: int | None) -> Runtime:
             rt.lanes = width
             rt.fp64_ratio = verdict.get("fp64_ratio")
             rt.pair_rate = verdict.get("pair_rate")
+            rt.native_rsqrt_ulps[width] = verdict.get("native_rsqrt_ulp")
             rt.choice = (f"{width} lane(s), the host rule's best that passed the self-test "
                          f"(worst |err|/bound {verdict['worst']:.2g}); rule: {decision.why()}")
             return rt
@@ -332,7 +333,7 @@ def describe_devices() -> tuple[list[dict], str]:
                 row.update(width=chosen.lanes,
                            verdict=f"passed (worst |err|/bound {v['worst']:.2g}); "
                                    f"calibration frame {_rate(chosen)}",
-                           double=chosen.double_line())
+                           double=chosen.double_line(), rsqrt=chosen.rsqrt_line())
         except DeviceError as exc:
             row.setdefault("width", None)
             row["verdict"] = "failed: " + str(exc).split("; choose another device")[0]
@@ -355,3 +356,4 @@ def check_width(rt: Runtime, lanes: int) -> None:
     if not verdict["ok"]:
         raise DeviceError(f"--lanes {lanes} failed the self-test on {rt.name} "
                           f"({verdict['detail']}); leave it out to use {rt.lanes}")
+    rt.native_rsqrt_ulps[lanes] = verdict.get("native_rsqrt_ulp")

@@ -30,7 +30,8 @@ from ..core.errors import ClphongError, InputWarning
 from ..io.gbuffer import GBuffer
 from ..model.scene import parse_scene
 from ..reference import shading as reference
-from .peak import measure_fp64_ratio
+from .peak import measure_fp64_ratio, measure_native_rsqrt_ulp
+from .runtime import NATIVE_RSQRT_KINDS
 from .renderer import Renderer, prepare_frame
 from .selection import get_runtime
 
@@ -97,6 +98,10 @@ def check(device: str, lanes: int, *, fault: float = 0.0) -> dict:
     # measured first: it chooses what the plan computes in double (Runtime.fast_fp64),
     # so the variants checked here are the ones the parent will run
     rt.fp64_ratio = measure_fp64_ratio(rt)
+    # likewise: whether the float 1/√x may start from native_rsqrt at this width (plan
+    # RSQRT_NATIVE), so that the variants checked below are the ones the parent runs
+    ulp = measure_native_rsqrt_ulp(rt) if rt.kind in NATIVE_RSQRT_KINDS else None
+    rt.native_rsqrt_ulps[lanes] = ulp
     if fault:
         rt.extra_defines = {"SELFTEST_FAULT": f"{float(fault)!r}f"}
     gb = _gbuffer()
@@ -124,7 +129,7 @@ def check(device: str, lanes: int, *, fault: float = 0.0) -> dict:
                           f"{rgb[y, x, c]:.9g} against the reference's {ref[y, x, c]:.9g} "
                           f"(|err|/bound {here:.3g})")
     verdict = {"ok": bool(worst <= 1.0), "worst": worst, "detail": detail,
-               "fp64_ratio": rt.fp64_ratio}
+               "fp64_ratio": rt.fp64_ratio, "native_rsqrt_ulp": ulp}
     if verdict["ok"] and not fault:
         verdict["pair_rate"] = calibrate(device, lanes)
     return verdict

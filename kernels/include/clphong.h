@@ -171,10 +171,22 @@ typedef floatL dirL;
  * (Intel's CPU runtime: its own vrsqrt14 and Newton sequence, 1.5-2x the lights loop of
  * the steps below, whose AVX-512 guess Intel's target-independent front end cannot
  * select); PoCL 3.0 calls it out of line, so there the inline steps below. */
+/* RSQRT_NATIVE (the plan's, float directions only): the first guess is native_rsqrt,
+ * whose accuracy OpenCL leaves to the implementation, then one Newton step: the plan
+ * sets it only where the self-test measured this guess and step within 2 ulp over every
+ * float of [1, 4), the bottom binade and a spread to FLT_MAX (clphong/device/peak.py
+ * measure_native_rsqrt_ulp). Intel's CPU runtime inlines native_rsqrt as the hardware
+ * estimate (AVX-512 vrsqrt14ps, ≤ 2⁻¹⁴), where its builtin rsqrt is an out-of-line
+ * call that spills every vector register: the fast path's lights loop ran 1.06x
+ * faster (Zen 5). The guards of rsqrt_dist apply, as to every inline guess. */
+#if defined(RSQRT_NATIVE) && RSQRT_NATIVE && !DIRECTIONS_FP64 && !defined(RSQRT_GUESS_KIND)
+#define RSQRT_GUESS_KIND 4
+#endif
 #if defined(RSQRT_BUILTIN) && RSQRT_BUILTIN && !defined(RSQRT_GUESS_KIND)
 #define RSQRT_GUESS_KIND 3
 #endif
-#ifndef RSQRT_GUESS_KIND   /* 0: portable, 1: AVX vrsqrtps, 2: AVX-512 vrsqrt14, 3: the builtin; a test may set it */
+#ifndef RSQRT_GUESS_KIND   /* 0: portable, 1: AVX vrsqrtps, 2: AVX-512 vrsqrt14, 3: the builtin,
+                              4: native_rsqrt and one step (float); a test may set it */
 #if defined(__AVX512F__) && (LANES == 16 || (LANES == 8 && DIRECTIONS_FP64))
 #define RSQRT_GUESS_KIND 2
 #elif defined(__AVX__) && !DIRECTIONS_FP64 && (LANES == 16 || LANES == 8)
@@ -202,6 +214,9 @@ typedef floatL dirL;
 #elif RSQRT_GUESS_KIND == 1 && !DIRECTIONS_FP64 && LANES == 8
 #define RSQRT_GUESS(x) __builtin_ia32_rsqrtps256(x)
 #define RSQRT_STEPS 2
+#elif RSQRT_GUESS_KIND == 4 && !DIRECTIONS_FP64
+#define RSQRT_GUESS(x) native_rsqrt(x)
+#define RSQRT_STEPS 1
 #elif RSQRT_GUESS_KIND == 0 && DIRECTIONS_FP64
 #define RSQRT_GUESS(x) AS_DOUBLE_L((longL)(0x5FE6EB50C7B537A9L) - (AS_LONG_L(x) >> 1))
 #define RSQRT_STEPS 4

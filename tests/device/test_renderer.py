@@ -15,6 +15,7 @@ from conftest import (
     make_scene,
     random_gbuffer,
     random_lights,
+    skip_unless_lanes,
 )
 
 from clphong.device.renderer import Renderer
@@ -455,6 +456,65 @@ def _rsqrt_dir_on_device(x, ctype, options, device=None, fn="rsqrt_dir", lanes=1
     y = np.empty_like(x)
     cl.enqueue_copy(rt.queue, y, yb)
     return y[:n]
+
+
+@pytest.mark.parametrize("lanes", [1, 8, 16])
+def test_native_rsqrt_is_taken_only_where_measured_within_two_ulp(device, lanes):
+    """RSQRT_NATIVE (native_rsqrt and one Newton step, float): the self-test's measure
+    (clphong.device.peak.measure_native_rsqrt_ulp) agrees with this harness over the same
+    inputs, and the plan takes the guess only within 2 ulp, on the platforms listed.
+    Zen 5 on Intel's runtime measured 1.96 ulp at 16 lanes and 2.39 at 1 and 8: one
+    width takes it, the others keep the builtin."""
+    from clphong.device.peak import NATIVE_RSQRT_MAX_ULP, measure_native_rsqrt_ulp, native_rsqrt_inputs
+    from clphong.device.runtime import NATIVE_RSQRT_KINDS
+    from clphong.device.selection import get_runtime
+
+    skip_unless_lanes(lanes, device)
+    rt = get_runtime(device)
+    measured = measure_native_rsqrt_ulp(rt, lanes)
+    x = np.concatenate([np.float32([0.0, np.inf]), native_rsqrt_inputs()[::5]])
+    y = _rsqrt_dir_on_device(x, "float", ["-DDIRECTIONS_FP64=0", "-cl-denorms-are-zero",
+                                          "-DRSQRT_GUESS_KIND=4"], device, fn="rsqrt_dist", lanes=lanes)
+    ref = 1.0 / np.sqrt(x[2:].astype(np.float64))
+    here = float((np.abs(y[2:] - ref) / 2.0 ** (np.floor(np.log2(ref)) - 23)).max())
+    if y[0] != np.inf or y[1] != 0.0:
+        here = float("inf")
+    assert here <= measured                         # a fifth of the probe's inputs
+    assert measured == float("inf") or measured < 2 * here + 1.0
+    rt_ulps = dict(rt.native_rsqrt_ulps)
+    try:
+        rt.native_rsqrt_ulps[lanes] = measured
+        assert rt.rsqrt_native(lanes) == (rt.kind in NATIVE_RSQRT_KINDS
+                                          and measured <= NATIVE_RSQRT_MAX_ULP)
+    finally:
+        rt.native_rsqrt_ulps.clear()
+        rt.native_rsqrt_ulps.update(rt_ulps)
+
+
+def test_native_rsqrt_follows_the_measure_not_the_platform_alone(monkeypatch):
+    """A measure over 2 ulp, or none, keeps the builtin on Intel's runtime; PoCL and GPUs
+    never take the native guess; the plan never takes it with double directions."""
+    from clphong.device.plan import make_plan
+    from clphong.device.runtime import Runtime
+
+    class _Fake(Runtime):
+        def __init__(self, kind, ulps):
+            self.native_rsqrt_ulps = ulps
+            self._kind = kind
+
+        @property
+        def kind(self):
+            return self._kind
+
+    assert _Fake("intel-cpu", {16: 1.96}).rsqrt_native(16)
+    assert not _Fake("intel-cpu", {16: 2.39}).rsqrt_native(16)
+    assert not _Fake("intel-cpu", {16: float("inf")}).rsqrt_native(16)
+    assert not _Fake("intel-cpu", {16: 1.96}).rsqrt_native(8)           # not measured there
+    assert not _Fake("intel-cpu", {16: None}).rsqrt_native(16)
+    assert not _Fake("pocl", {16: 1.0}).rsqrt_native(16)
+    scene = make_scene([dict(type="point", position=(0.3, 0.0, 3.0), intensity=4.0)])
+    assert make_plan(scene, rsqrt_native=True).defines["RSQRT_NATIVE"] == 1
+    assert make_plan(scene, rsqrt_native=True, fp64_directions=True).defines["RSQRT_NATIVE"] == 0
 
 
 def _guess_option(guess):
