@@ -46,7 +46,7 @@ from ..io.envmap import resolve_environment
 from ..io.gbuffer import parse_channel_mapping, read_gbuffer
 from ..io.inspection import METRICS, DiffError, diff_images, format_report, inspect_file
 from ..model.environment import DEFAULT_ENV_ERROR, check_env_error
-from ..model.options import KERNELS, LANES, NONFINITE_POLICIES, PATHS, check_number
+from ..model.options import KERNELS, LANES, NONFINITE_POLICIES, PATHS, RendererOptions, check_number
 from ..model.scene import MAP_KEYS, load_scene
 from ..model.tonemap import OPERATORS
 from ..pipeline.batch import (
@@ -60,7 +60,6 @@ from ..pipeline.relighter import (
     Relighter,
     RelighterSpec,
     _hashable_channels,
-    check_renderer_options,
 )
 from ..tools.samples import write_samples
 from .bench import _add_bench_parser, cmd_bench
@@ -307,15 +306,14 @@ def _add_renderer_options(p):
     _add_speed_options(p)
 
 
-def _renderer_options(args) -> dict:
-    """Relighter/Renderer keyword arguments from the renderer options, validated (one-line errors)."""
-    opts = dict(path=None if args.path == "accurate" else args.path,
-                max_error=args.max_error, reference_white=args.reference_white,
-                env_error=args.env_error, light_tree=args.light_tree,
-                nonfinite=getattr(args, "nonfinite", "background"),
-                aovs=tuple(a.strip() for a in (getattr(args, "aov", None) or "").split(",") if a.strip()))
-    check_renderer_options(**opts)
-    return opts
+def _renderer_options(args) -> RendererOptions:
+    """The renderer options, checked once here (one-line errors) and handed down finished."""
+    return RendererOptions(
+        path=None if args.path == "accurate" else args.path,
+        max_error=args.max_error, reference_white=args.reference_white,
+        env_error=args.env_error, light_tree=args.light_tree,
+        nonfinite=getattr(args, "nonfinite", "background"),
+        aovs=tuple(a.strip() for a in (getattr(args, "aov", None) or "").split(",") if a.strip()))
 
 
 def _read_gbuffer(args):
@@ -345,7 +343,7 @@ def cmd_render(args) -> int:
         check_output_path(out, exr=out == args.output)   # fail before the work, not after
     t0 = time.perf_counter()
     scene = load_scene(args.scene)
-    if renderer_options["aovs"] and not args.output:
+    if renderer_options.aovs and not args.output:
         warnings.warn(OutputWarning("--aov adds EXR layers, and no EXR is written (-o)"))
     paths = _output_paths(args, args.output)
     options = check_outputs(_output_options(args).for_scene(scene), paths)   # bad names: before any work
@@ -354,7 +352,7 @@ def cmd_render(args) -> int:
     t_read = time.perf_counter()
     # The same constructor path as 'relight' and the API (--path, --max-error, --nonfinite).
     relighter = Relighter(scene, device=args.device, kernel=args.kernel, lanes=args.lanes,
-                          output=options, **renderer_options)
+                          output=options, options=renderer_options)
     # A scene without [camera] takes this frame's worldToCamera (clphong.io.camera).
     renderer = relighter.renderer_for(gbuffer, source=args.gbuffer or args.position)
     # The one output step of render, relight and the API: EXR / SDR / HDR / contact sheet.
@@ -420,15 +418,16 @@ def _remove_stale_temporaries(files) -> None:
 def cmd_plan(args) -> int:
     opts = _renderer_options(args)
     original = load_scene(args.scene)
-    env_error = opts.pop("env_error")
-    resolved = resolve_environment(original, max_error=env_error, nonfinite=opts["nonfinite"])
+    env_error = opts.env_error
+    resolved = resolve_environment(original, max_error=env_error, nonfinite=opts.nonfinite)
     scene = resolved.scene
     maps = ()
     if args.gbuffer or args.position or args.normal or args.albedo:
         maps = tuple(_read_gbuffer(args).maps)
     # The renderer 'render' builds, so the plan printed is the one it compiles
     # (device, lane width, --path, --max-error).
-    renderer = Renderer(scene, device=args.device, kernel=args.kernel, lanes=args.lanes, **opts)
+    renderer = Renderer(scene, device=args.device, kernel=args.kernel, lanes=args.lanes,
+                        options=opts)
     print(renderer.plan_for(maps))
     print(f"device: {renderer.runtime.name}, {renderer.lanes} lane(s); "
           f"{renderer.runtime.double_line()}")
@@ -537,9 +536,9 @@ def cmd_relight(args) -> int:
             print(plan.missing_line(), file=sys.stderr)
         return 0
     channels = _hashable_channels(parse_channel_mapping(args.channels)) if args.channels else ()
-    specs = {r.name: RelighterSpec(scene=r.scene, device=args.device, kernel=args.kernel,
-                                   lanes=args.lanes, channels=channels, output=options[r.name],
-                                   **renderer_options)
+    specs = {r.name: RelighterSpec.of(renderer_options, scene=r.scene, device=args.device,
+                                      kernel=args.kernel, lanes=args.lanes, channels=channels,
+                                      output=options[r.name])
              for r in rigs}
     progress = not args.quiet and sys.stderr.isatty()
     result = run_batch(plan, specs, jobs=args.jobs, scheduler=args.scheduler, progress=progress,

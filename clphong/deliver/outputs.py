@@ -41,7 +41,7 @@ from ..device.display import DisplayTransform
 from ..device.renderer import straight_of
 from ..io.atomic import check_pixel_type, same_file
 from ..model import tonemap
-from ..model.options import check_exposure
+from ..model.options import check_exposure, finished
 from .contact import write_contact_sheet
 from .writers import (
     HDR_EXTENSIONS,
@@ -135,6 +135,11 @@ class OutputOptions:
     albedo_space: str | None = None
     from_scene: tuple = field(default=(), compare=False, repr=False)
     scene_source: str | None = field(default=None, compare=False, repr=False)
+    #: Set by :meth:`checked` on the instance it returns; any change (``replace``) makes
+    #: an unchecked one again, so a checked value is checked once and never again.
+    _checked: bool = field(default=False, init=False, compare=False, repr=False)
+    #: The OutputPaths :func:`check_outputs` checked these options with (None: none).
+    _checked_for: object = field(default=None, init=False, compare=False, repr=False)
 
     def for_scene(self, scene) -> "OutputOptions":
         """These options with every colour setting left ``None`` taken from ``scene.color``, checked.
@@ -148,6 +153,8 @@ class OutputOptions:
         c = scene.color
         fill = {k: getattr(c, key) for k, key in _FROM_SCENE.items() if getattr(self, k) is None}
         given = tuple(k for k, v in fill.items() if v is not None)
+        if self._checked and not given:
+            return self                    # finished already: nothing of the scene's to add
         if given:
             fill.update(from_scene=self.from_scene + given, scene_source=getattr(scene, "source", None))
         return dataclasses.replace(self, **fill).checked()
@@ -159,7 +166,10 @@ class OutputOptions:
         return f"--{name.replace('_', '-')}"
 
     def checked(self) -> "OutputOptions":
-        """Validate names and values; normalise operator and working-space names."""
+        """Validate names and values; normalise operator and working-space names (once:
+        a checked instance is returned as it is)."""
+        if self._checked:
+            return self
         check_pixel_type(self.pixel_type)
         check_compression(self.compression)
         check_bits(self.bits)
@@ -172,7 +182,9 @@ class OutputOptions:
             changes["working_space"] = color.working_space(self.working_space).name
         if self.exposure is not None:
             changes["exposure"] = check_exposure(self.exposure, self.origin("exposure"))
-        return dataclasses.replace(self, **changes)
+        out = dataclasses.replace(self, **changes)
+        object.__setattr__(out, "_checked", True)
+        return out
 
     @property
     def resolved(self) -> bool:
@@ -335,8 +347,6 @@ def check_outputs(options: OutputOptions, paths: OutputPaths, *, warn: bool = Tr
         raise color.ColorError(
             f"tone-mapping operator {options.tonemap!r} ({options.origin('tonemap')}) and an OCIO "
             f"view ({', '.join(views)}) both tone-map the SDR output; drop one of them")
-    if paths.sdr and not options.ocio_view:
-        DisplayTransform(options.tonemap, exposure=options.exposure, white=options.white)
     if warn:
         _warn_unused(options, paths)
     ws = color.working_space(options.working_space)
@@ -357,7 +367,9 @@ def check_outputs(options: OutputOptions, paths: OutputPaths, *, warn: bool = Tr
             display, view, _ = _display_view(cfg, options, options.display, None, options.look)
             _check_display_files(cfg, display, view, paths.contact_sheet,
                                  dataclasses.replace(options, bits=8, alpha=False))
-    return options
+    out = copy.copy(options)                # checked with these paths: not again (render_outputs)
+    object.__setattr__(out, "_checked_for", paths)
+    return out
 
 
 def _warn_unused(options: OutputOptions, paths: OutputPaths) -> None:
@@ -474,7 +486,8 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
     """
     if not options.resolved:
         options = options.for_scene(renderer.scene)
-    options = check_outputs(options, paths, warn=False)   # the caller's check warned
+    if options._checked_for != paths:
+        options = check_outputs(options, paths, warn=False)   # the caller's check warned
     _check_output_memory(gbuffer.shape, paths)
     ws = color.working_space(options.working_space)
     cfg = _load_config(options.ocio_config) if _needs_config(options, paths, ws) else None
@@ -482,8 +495,10 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
     t_shade = time.perf_counter()
     if paths.sdr and not options.ocio_view:
         matrix = _to_rec709(cfg, ws.name) if cfg is not None else None
-        dt = DisplayTransform(options.tonemap, exposure=options.exposure, white=options.white,
-                              matrix=matrix)
+        # the operator, exposure and white point were checked with the options: handed
+        # down as they are (the matrix comes from the OCIO config, as _to_rec709 gives it)
+        dt = finished(DisplayTransform, operator=options.tonemap, exposure=options.exposure,
+                      white=options.white, matrix=matrix, encoding="srgb")
     else:
         dt = None
     if options.alpha and not renderer.straight_alpha:

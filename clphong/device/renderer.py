@@ -35,6 +35,7 @@ from ..model.options import (
     check_nonfinite,
     check_unroll,
     path_options,
+    RendererOptions,
 )
 from ..model.scene import AOV_NAMES
 from .bands import (
@@ -177,6 +178,10 @@ class Renderer:
         LIGHT_UNROLL): by default the device's
         (:attr:`clphong.device.runtime.Runtime.light_unroll`: 4 on Intel's CPU runtime);
         0 for one (the pixels are bit-identical either way).
+    options : clphong.model.options.RendererOptions, optional
+        The renderer options checked where they came in (a command, a Relighter): taken
+        as they are, in place of ``fp64_directions``, ``max_error``, ``reference_white``,
+        ``nonfinite``, ``path``, ``aovs`` and ``light_tree``.
 
     The attributes ``max_error`` (the *absolute* budget
     ``max_error·reference_white``, or None), ``fp64_directions`` and
@@ -194,7 +199,12 @@ class Renderer:
                  int_pow: bool | str | None = None, path: str | None = None,
                  aovs: Sequence[str] = (), straight_alpha: bool = False,
                  light_tree: bool = True, light_tile: bool | None = None,
-                 light_unroll: int | None = None):
+                 light_unroll: int | None = None, options: RendererOptions | None = None):
+        if options is not None:
+            # finished where they came in (RendererOptions): taken as they are
+            fp64_directions, max_error, path = options.fp64_directions, options.max_error, options.path
+            reference_white, nonfinite = options.reference_white, options.nonfinite
+            aovs, light_tree = options.aovs, options.light_tree
         self.scene = scene
         self.use_tree = bool(light_tree)
         self.always_tree = light_tree == "always"
@@ -204,7 +214,7 @@ class Renderer:
         if path is not None:
             if compensated is not None or fp64_directions is not None or int_pow is not None:
                 raise ValueError("give either path or fp64_directions/compensated/int_pow")
-            opts = path_options(path)
+            opts = options.path_options if options is not None else path_options(path)
             fp64_directions = opts.get("fp64_directions")
             compensated = opts.get("compensated")
             int_pow = opts.get("int_pow")
@@ -227,7 +237,8 @@ class Renderer:
         self.light_unroll = (self.runtime.light_unroll if light_unroll is None
                              else check_unroll(light_unroll))
         self.compensated = compensated
-        self.max_error = check_budget(max_error, reference_white)   # absolute, or None
+        self.max_error = (options.budget if options is not None          # absolute, or None
+                          else check_budget(max_error, reference_white))
         self.reference_white = float(reference_white)
         if fp64_directions is None:
             fp64_directions = self.runtime.has_fp64
@@ -235,7 +246,7 @@ class Renderer:
             raise DeviceError(f"{self.runtime.name} has no double precision (cl_khr_fp64); "
                               "use the float32 directions path")
         self._fp64_directions = bool(fp64_directions) and kernel == "lanes"
-        self.nonfinite = check_nonfinite(nonfinite)
+        self.nonfinite = nonfinite if options is not None else check_nonfinite(nonfinite)
         # Launches on one device are serialised: its cached kernel objects hold their
         # arguments between set_args and the enqueue.
         self._lock = self.runtime.lock

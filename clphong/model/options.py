@@ -11,15 +11,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 from ..core.errors import ClphongError, ToneMapError
+from .environment import DEFAULT_ENV_ERROR, check_env_error
 
 __all__ = ["validate_method", "PATHS", "path_options", "NONFINITE_POLICIES", "check_nonfinite",
            "KERNELS", "check_kernel", "LANES", "check_lanes", "UNROLLS", "check_unroll",
            "INT_POW", "check_int_pow",
            "check_fp64_directions", "check_float_power",
            "MAX_EXPOSURE", "check_exposure", "ENCODINGS", "CullingError", "check_budget",
-           "NUMBERS", "check_number"]
+           "NUMBERS", "check_number", "RendererOptions", "finished"]
 
 
 def validate_method(value, methods, what: str, error: type[Exception] = ValueError):
@@ -181,3 +183,89 @@ def check_budget(max_error, reference_white=1.0) -> float | None:
     if max_error is None:
         return None
     return float(max_error) * float(reference_white)
+
+
+def finished(cls, **values):
+    """An instance of the frozen dataclass ``cls`` from values checked already (by an
+    instance of it, or of the options they came from), without its ``__post_init__``:
+    how a checked value is handed down, so that nothing below checks it again. Every
+    field must be given."""
+    missing = set(cls.__dataclass_fields__) - set(values)
+    if missing:
+        raise TypeError(f"{cls.__name__}: finished() needs every field; missing "
+                        f"{', '.join(sorted(missing))}")
+    obj = object.__new__(cls)
+    for k, v in values.items():
+        object.__setattr__(obj, k, v)
+    return obj
+
+
+@dataclass(frozen=True)
+class RendererOptions:
+    """The renderer options of one command or one :class:`~clphong.pipeline.relighter.Relighter`,
+    checked once, where they come in (the command line, a TOML rig, the Python API), then
+    handed down finished: the Relighter, its RelighterSpec and the Renderer take them as
+    they are and check nothing again.
+
+    Attributes
+    ----------
+    fp64_directions : bool, optional
+        None: the device decides; not with ``path``.
+    max_error : float, optional
+        The culling budget in units of ``reference_white`` (≥ 0; None: brute force).
+    reference_white : float
+        > 0.
+    nonfinite : str
+        :data:`NONFINITE_POLICIES`.
+    path : str, optional
+        :data:`PATHS` (None: the default, accurate).
+    aovs : tuple of str
+        Component layers (checked against the scene by the renderer).
+    env_error : float
+        The environment lights' error target (> 0).
+    light_tree : bool or "always"
+
+    Raises
+    ------
+    CullingError
+        A negative or non-finite ``max_error``, or a ``reference_white`` that is not a
+        finite number > 0.
+    ValueError
+        An unknown ``nonfinite`` policy or ``path``, ``fp64_directions`` not None/bool,
+        both ``path`` and ``fp64_directions``, or an ``env_error`` that is not a finite
+        number > 0.
+    """
+
+    fp64_directions: bool | None = None
+    max_error: float | None = None
+    reference_white: float = 1.0
+    nonfinite: str = "background"
+    path: str | None = None
+    aovs: tuple = ()
+    env_error: float = DEFAULT_ENV_ERROR
+    light_tree: bool | str = True
+
+    def __post_init__(self):
+        check_fp64_directions(self.fp64_directions)
+        if self.path is not None:
+            validate_method(self.path, PATHS, "path")
+            if self.fp64_directions is not None:
+                raise ValueError("give either path or fp64_directions")
+        check_budget(self.max_error, self.reference_white)
+        check_nonfinite(self.nonfinite)
+        object.__setattr__(self, "env_error", check_env_error(self.env_error))
+        object.__setattr__(self, "aovs", tuple(self.aovs))
+
+    @property
+    def budget(self) -> float | None:
+        """The absolute culling budget ``max_error·reference_white`` (None: no culling)."""
+        return None if self.max_error is None else float(self.max_error) * float(self.reference_white)
+
+    @property
+    def path_options(self) -> dict:
+        """The Renderer options ``path`` stands for (:data:`PATHS`; {} without one)."""
+        return dict(PATHS[self.path]) if self.path is not None else {}
+
+    def kwargs(self) -> dict:
+        """These options as keyword arguments (of Relighter, RelighterSpec)."""
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}

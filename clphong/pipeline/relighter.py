@@ -32,7 +32,7 @@ from __future__ import annotations
 import copy
 import os
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field
 
 import numpy as np
 
@@ -52,12 +52,7 @@ from ..io.camera import resolve_camera
 from ..io.envmap import resolve_environment
 from ..io.gbuffer import MAP_KEYS, GBuffer, read_gbuffer
 from ..model.environment import DEFAULT_ENV_ERROR, check_env_error
-from ..model.options import (
-    check_budget,
-    check_fp64_directions,
-    check_nonfinite,
-    path_options,
-)
+from ..model.options import RendererOptions, finished
 from ..model.scene import MATERIAL_MAPS, Scene, load_scene
 
 __all__ = ["Relighter", "OutputOptions", "OutputPaths", "write_output", "as_gbuffer",
@@ -164,42 +159,38 @@ class RelighterSpec:
     light_tree: bool = True
 
     def __post_init__(self):
-        check_renderer_options(fp64_directions=self.fp64_directions, max_error=self.max_error,
-                               reference_white=self.reference_white, nonfinite=self.nonfinite,
-                               path=self.path, env_error=self.env_error)
+        RendererOptions(**self.renderer_options_kwargs())      # checked once, here
+
+    def renderer_options_kwargs(self) -> dict:
+        return {k: getattr(self, k) for k in RendererOptions.__dataclass_fields__}
+
+    @property
+    def options(self) -> RendererOptions:
+        """The renderer options, as checked when this spec was made."""
+        return finished(RendererOptions, **self.renderer_options_kwargs())
+
+    @classmethod
+    def of(cls, options: RendererOptions, **rest) -> "RelighterSpec":
+        """The spec of ``options`` (checked already) and the rest of the fields."""
+        defaults = {k: f.default if f.default is not MISSING else f.default_factory()
+                    for k, f in cls.__dataclass_fields__.items()
+                    if f.default is not MISSING or f.default_factory is not MISSING}
+        return finished(cls, **{**defaults, **rest, **options.kwargs()})
 
     def build(self) -> Relighter:
         return Relighter(self.scene, device=self.device, kernel=self.kernel, lanes=self.lanes,
                          channels=dict(self.channels) or None, output=self.output,
-                         fp64_directions=self.fp64_directions, max_error=self.max_error,
-                         reference_white=self.reference_white, nonfinite=self.nonfinite,
-                         path=self.path, aovs=self.aovs, env_error=self.env_error,
-                         light_tree=self.light_tree)
+                         options=self.options)
 
 
 def check_renderer_options(*, fp64_directions=None, max_error=None, reference_white=1.0,
                            nonfinite="background", path=None, aovs=(),
-                           env_error=DEFAULT_ENV_ERROR, light_tree=True) -> None:
-    """Check the renderer options of a :class:`Relighter` without compiling anything.
-
-    Raises
-    ------
-    clphong.model.options.CullingError
-        A negative or non-finite ``max_error``, or a ``reference_white`` that
-        is not a finite number > 0.
-    ValueError
-        An unknown ``nonfinite`` policy or ``path``, ``fp64_directions`` not
-        None/bool, both ``path`` and ``fp64_directions``, or an ``env_error``
-        that is not a finite number > 0.
-    """
-    check_fp64_directions(fp64_directions)
-    if path is not None:
-        path_options(path)
-        if fp64_directions is not None:
-            raise ValueError("give either path or fp64_directions")
-    check_budget(max_error, reference_white)
-    check_nonfinite(nonfinite)
-    check_env_error(env_error)
+                           env_error=DEFAULT_ENV_ERROR, light_tree=True) -> RendererOptions:
+    """The renderer options of a :class:`Relighter`, checked without compiling anything
+    (:class:`~clphong.model.options.RendererOptions`, which raises as it says)."""
+    return RendererOptions(fp64_directions=fp64_directions, max_error=max_error,
+                           reference_white=reference_white, nonfinite=nonfinite, path=path,
+                           aovs=tuple(aovs), env_error=env_error, light_tree=light_tree)
 
 
 _CACHE: dict = {}
@@ -268,31 +259,30 @@ class Relighter:
                  output: OutputOptions | None = None, fp64_directions: bool | None = None,
                  max_error: float | None = None, reference_white: float = 1.0,
                  nonfinite: str = "background", path: str | None = None, aovs=(),
-                 env_error: float = DEFAULT_ENV_ERROR, light_tree: bool = True):
+                 env_error: float = DEFAULT_ENV_ERROR, light_tree: bool = True,
+                 options: RendererOptions | None = None):
         # Renderer options first: a bad value fails before the scene is read or compiled.
-        check_renderer_options(fp64_directions=fp64_directions, max_error=max_error,
-                               reference_white=reference_white, nonfinite=nonfinite, path=path,
-                               env_error=env_error)
+        # Given as ``options`` they were checked where they came in, and are not again.
+        if options is None:
+            options = check_renderer_options(
+                fp64_directions=fp64_directions, max_error=max_error,
+                reference_white=reference_white, nonfinite=nonfinite, path=path, aovs=aovs,
+                env_error=env_error, light_tree=light_tree)
+        self.options = options
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
         # The kernels shade directional lights, not maps: environment lights resolved here.
-        resolved = resolve_environment(scene, max_error=env_error, nonfinite=nonfinite)
+        resolved = resolve_environment(scene, max_error=options.env_error, nonfinite=options.nonfinite)
         scene = resolved.scene
         self.environments = resolved.environments
         self.scene = scene
         self.channels = dict(channels) if channels else None
         self.output = (output or OutputOptions()).for_scene(scene)
         self.renderer = Renderer(scene, device=device, kernel=kernel, lanes=lanes,
-                                 fp64_directions=fp64_directions, max_error=max_error,
-                                 reference_white=reference_white, nonfinite=nonfinite,
-                                 path=path, aovs=aovs, straight_alpha=self.output.alpha,
-                                 light_tree=light_tree)
-        self.spec = RelighterSpec(scene=scene, device=device, kernel=kernel, lanes=lanes,
-                                  channels=_hashable_channels(channels), output=self.output,
-                                  fp64_directions=fp64_directions, max_error=max_error,
-                                  reference_white=reference_white, nonfinite=nonfinite,
-                                  path=path, aovs=tuple(aovs), env_error=env_error,
-                                  light_tree=light_tree)
+                                 straight_alpha=self.output.alpha, options=options)
+        self.spec = RelighterSpec.of(options, scene=scene, device=device, kernel=kernel,
+                                     lanes=lanes, channels=_hashable_channels(channels),
+                                     output=self.output)
 
     @property
     def camera_from_metadata(self) -> bool:
