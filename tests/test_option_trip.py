@@ -80,3 +80,20 @@ def test_a_bad_value_reads_the_same_from_the_api_and_the_command(kwargs, cli, tm
         argv = default_argv(str(tmp_path))[:5] + cli
         out = subprocess.run([sys.executable, "-m", "clphong", *argv], capture_output=True, text=True)
         assert out.returncode != 0 and str(obj.value) in out.stderr, out.stderr
+
+
+def test_options_come_one_way_not_both():
+    """options= and the same options as keyword arguments together are refused in one
+    line (the keyword arguments would be dropped without a word)."""
+    from clphong.device.renderer import Renderer
+
+    scene = str(Path(__file__).parent.parent / "gbuffers" / "spheres.toml")
+    with pytest.raises(ValueError, match="not both"):
+        Relighter(scene, options=RendererOptions(path="fast"), max_error=1e-3)
+    from clphong.model.scene import load_scene
+
+    with pytest.raises(ValueError, match="not both"):
+        Renderer(load_scene(scene), options=RendererOptions(), nonfinite="error")
+    r = Relighter(scene, options=RendererOptions(path="fast", max_error=1e-3))
+    assert r.renderer.max_error == pytest.approx(1e-3) and r.spec.path == "fast"
+    assert r.spec.build().options == r.options

@@ -201,6 +201,10 @@ class Renderer:
                  light_tree: bool = True, light_tile: bool | None = None,
                  light_unroll: int | None = None, options: RendererOptions | None = None):
         if options is not None:
+            if (fp64_directions, max_error, reference_white, nonfinite, path, tuple(aovs),
+                    light_tree) != (None, None, 1.0, "background", None, (), True):
+                raise ValueError("give the renderer options as options= or as keyword "
+                                 "arguments, not both")
             # finished where they came in (RendererOptions): taken as they are
             fp64_directions, max_error, path = options.fp64_directions, options.max_error, options.path
             reference_white, nonfinite = options.reference_white, options.nonfinite

@@ -263,11 +263,14 @@ class Relighter:
                  options: RendererOptions | None = None):
         # Renderer options first: a bad value fails before the scene is read or compiled.
         # Given as ``options`` they were checked where they came in, and are not again.
+        given = dict(fp64_directions=fp64_directions, max_error=max_error,
+                     reference_white=reference_white, nonfinite=nonfinite, path=path,
+                     aovs=tuple(aovs), env_error=env_error, light_tree=light_tree)
         if options is None:
-            options = check_renderer_options(
-                fp64_directions=fp64_directions, max_error=max_error,
-                reference_white=reference_white, nonfinite=nonfinite, path=path, aovs=aovs,
-                env_error=env_error, light_tree=light_tree)
+            options = check_renderer_options(**given)
+        elif any(v != RendererOptions.__dataclass_fields__[k].default for k, v in given.items()):
+            raise ValueError("give the renderer options as options= or as keyword arguments, "
+                             "not both")
         self.options = options
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
