@@ -181,14 +181,14 @@ def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp
     if culling:
         put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel culling tiles (clphong.device.culling.TILE)")
     put("RSQRT_BUILTIN", rsqrt_builtin,
-        "1/√x by the OpenCL C builtin rsqrt (2 ulp by the specification): this platform "
-        "inlines a fast one" if rsqrt_builtin
+        "1/√x by the OpenCL C builtin rsqrt (2 ulp by the specification): on this platform "
+        "faster than clphong's inline steps" if rsqrt_builtin
         else "1/√x by clphong's inline Newton steps (kernels/include/clphong.h), within the "
              "builtin's 2 ulp: PoCL calls the builtin out of line (GPUs: not measured with it)")
     native = bool(rsqrt_native) and not fp64_directions
     put("RSQRT_NATIVE", native,
         "float 1/√x from native_rsqrt and one Newton step: the self-test measured it within "
-        "2 ulp at this width, and this platform inlines it" if native
+        "2 ulp at this width, and this platform inlines it (its builtin is a call)" if native
         else "no native_rsqrt first guess" + (" (directions in double)" if rsqrt_native else ""))
     staged = light_tile and (n_dir > 0 or (n_point > 0 and not culling))
     put("LIGHT_TILE", light_tile if staged else 0,

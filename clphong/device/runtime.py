@@ -355,9 +355,10 @@ class Runtime:
     @property
     def rsqrt_builtin(self) -> bool:
         """Whether the shading kernel takes 1/√x from the OpenCL C builtin (``plan``'s
-        RSQRT_BUILTIN): on Intel's CPU runtime, which inlines a fast one (measured 1.5x
-        the accurate and 2x the fast path's lights loop on Zen 5). PoCL 3.0 calls it out
-        of line, and a GPU was not measured with it: clphong's inline steps there."""
+        RSQRT_BUILTIN): on Intel's CPU runtime, whose builtin (an SVML call) measured 1.5x
+        the accurate and 2x the fast path's lights loop of clphong's inline steps on Zen 5.
+        PoCL 3.0 calls it out of line at a higher cost, and a GPU was not measured with
+        it: clphong's inline steps there."""
         return self.kind == "intel-cpu"
 
     def rsqrt_native(self, lanes: int) -> bool:

@@ -167,10 +167,11 @@ typedef floatL dirL;
  * steps in double and three in float. Each step costs ~12 cycles of latency
  * on the lights loop's critical path. */
 /* RSQRT_BUILTIN (the plan's, clphong/device/plan.py): the OpenCL C builtin rsqrt, within
- * the specification's 2 ulp in float and double, where the platform inlines a fast one
- * (Intel's CPU runtime: its own vrsqrt14 and Newton sequence, 1.5-2x the lights loop of
- * the steps below, whose AVX-512 guess Intel's target-independent front end cannot
- * select); PoCL 3.0 calls it out of line, so there the inline steps below. */
+ * the specification's 2 ulp in float and double, where the platform's is faster than the
+ * steps below (Intel's CPU runtime: an SVML call, __ocl_svml_z0_rsqrt16 in double, still
+ * 1.5-2x the lights loop of the steps, whose AVX-512 guess Intel's target-independent
+ * front end cannot select; in float RSQRT_NATIVE below does better where measured);
+ * PoCL 3.0 calls it out of line too, and there the inline steps below win. */
 /* RSQRT_NATIVE (the plan's, float directions only): the first guess is native_rsqrt,
  * whose accuracy OpenCL leaves to the implementation, then one Newton step: the plan
  * sets it only where the self-test measured this guess and step within 2 ulp over every
