@@ -97,3 +97,27 @@ def test_options_come_one_way_not_both():
     r = Relighter(scene, options=RendererOptions(path="fast", max_error=1e-3))
     assert r.renderer.max_error == pytest.approx(1e-3) and r.spec.path == "fast"
     assert r.spec.build().options == r.options
+
+
+def test_layers_given_as_one_string_are_split_as_the_command_line_does():
+    """``aovs="diffuse,specular"`` (the --aov form) stays two layers, not letters."""
+    assert RendererOptions(aovs="diffuse, specular").aovs == ("diffuse", "specular")
+    r = Relighter(str(Path(__file__).parent.parent / "gbuffers" / "spheres.toml"),
+                  aovs="diffuse,specular")
+    assert r.renderer.aovs == ("diffuse", "specular") and r.spec.aovs == ("diffuse", "specular")
+
+
+def test_a_spec_keeps_its_options_as_checked():
+    """RelighterSpec normalises as RendererOptions does (env_error "0.01" -> 0.01), and
+    RelighterSpec.of refuses a renderer option given twice or a name that is no field."""
+    from clphong.model.options import finished
+    from clphong.pipeline.relighter import RelighterSpec
+
+    spec = RelighterSpec(scene="s.toml", env_error="0.01", aovs="diffuse")
+    assert spec.env_error == 0.01 and spec.options.env_error == 0.01 and spec.aovs == ("diffuse",)
+    with pytest.raises(TypeError, match="max_error"):
+        RelighterSpec.of(RendererOptions(), scene="s.toml", max_error=1e-3)
+    with pytest.raises(TypeError, match="lane"):
+        RelighterSpec.of(RendererOptions(), scene="s.toml", lane=16)
+    with pytest.raises(TypeError, match="missing"):
+        finished(RendererOptions, path="fast")

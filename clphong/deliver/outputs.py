@@ -495,6 +495,9 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
     t_shade = time.perf_counter()
     if paths.sdr and not options.ocio_view:
         matrix = _to_rec709(cfg, ws.name) if cfg is not None else None
+        if matrix is not None and not np.all(np.isfinite(matrix)):
+            raise color.ColorError(f"the OCIO config's {ws.name} to Rec.709 matrix is not "
+                                   "finite; check the config (--ocio-config or $OCIO)")
         # the operator, exposure and white point were checked with the options: handed
         # down as they are (the matrix comes from the OCIO config, as _to_rec709 gives it)
         dt = finished(DisplayTransform, operator=options.tonemap, exposure=options.exposure,

@@ -180,12 +180,16 @@ def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp
               else "no --max-error budget: every light shades every pixel"))
     if culling:
         put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel culling tiles (clphong.device.culling.TILE)")
+    native_float = bool(rsqrt_native) and not fp64_directions
     put("RSQRT_BUILTIN", rsqrt_builtin,
         "1/√x by the OpenCL C builtin rsqrt (2 ulp by the specification): on this platform "
-        "faster than clphong's inline steps" if rsqrt_builtin
+        "faster than clphong's inline steps"
+        + (" (not used here: each 1/√x is in float, by RSQRT_NATIVE below)" if native_float
+           else "")
+        if rsqrt_builtin
         else "1/√x by clphong's inline Newton steps (kernels/include/clphong.h), within the "
              "builtin's 2 ulp: PoCL calls the builtin out of line (GPUs: not measured with it)")
-    native = bool(rsqrt_native) and not fp64_directions
+    native = native_float
     put("RSQRT_NATIVE", native,
         "float 1/√x from native_rsqrt and one Newton step: the self-test measured it within "
         "2 ulp at this width, and this platform inlines it (its builtin is a call)" if native

@@ -201,14 +201,19 @@ class Renderer:
                  light_tree: bool = True, light_tile: bool | None = None,
                  light_unroll: int | None = None, options: RendererOptions | None = None):
         if options is not None:
-            if (fp64_directions, max_error, reference_white, nonfinite, path, tuple(aovs),
-                    light_tree) != (None, None, 1.0, "background", None, (), True):
-                raise ValueError("give the renderer options as options= or as keyword "
-                                 "arguments, not both")
+            given = dict(fp64_directions=fp64_directions, max_error=max_error,
+                         reference_white=reference_white, nonfinite=nonfinite, path=path,
+                         aovs=tuple(aovs), light_tree=light_tree)
+            twice = [k for k, v in given.items() if v != (
+                () if k == "aovs" else RendererOptions.__dataclass_fields__[k].default)]
+            if twice:
+                raise ValueError(f"give the renderer options as options= or as keyword "
+                                 f"arguments, not both ({', '.join(twice)} given with options=)")
             # finished where they came in (RendererOptions): taken as they are
             fp64_directions, max_error, path = options.fp64_directions, options.max_error, options.path
             reference_white, nonfinite = options.reference_white, options.nonfinite
             aovs, light_tree = options.aovs, options.light_tree
+        self._light_unroll = None if light_unroll is None else check_unroll(light_unroll)
         self.scene = scene
         self.use_tree = bool(light_tree)
         self.always_tree = light_tree == "always"
@@ -238,8 +243,6 @@ class Renderer:
             check_width(self.runtime, check_lanes(lanes))
         self.lanes = check_lanes(lanes)
         self._light_tile = light_tile
-        self.light_unroll = (self.runtime.light_unroll if light_unroll is None
-                             else check_unroll(light_unroll))
         self.compensated = compensated
         self.max_error = (options.budget if options is not None          # absolute, or None
                           else check_budget(max_error, reference_white))
@@ -276,6 +279,12 @@ class Renderer:
                                             f"at {other.lanes} lane(s) instead"))
                 self.runtime, self.lanes, self._lock = other, other.lanes, other.lock
                 self._fp64_directions = self._fp64_directions and other.has_fp64
+
+    @property
+    def light_unroll(self) -> int:
+        """Lights an iteration of the light loops: the one given, else the device's
+        (:attr:`clphong.device.runtime.Runtime.light_unroll`)."""
+        return self.runtime.light_unroll if self._light_unroll is None else self._light_unroll
 
     def _narrower_width(self, *, pinned: bool) -> int | None:
         """The next width below :attr:`lanes` that the host rule allows on this device and

@@ -112,6 +112,14 @@ def verify(rt: Runtime, width: int) -> dict:
     ``{"ok": bool, "worst": max |err|/bound, "detail": str}``. In a child: not checked."""
     if in_child():
         return {"ok": True, "worst": 0.0, "detail": "not checked in a child process"}
+    verdict = _verdict(rt, width)
+    # the width's measure of native_rsqrt goes with every reading of its verdict, so the
+    # plan at this width takes what its self-test ran (Runtime.rsqrt_native)
+    rt.native_rsqrt_ulps[width] = verdict.get("native_rsqrt_ulp") if verdict.get("ok") else None
+    return verdict
+
+
+def _verdict(rt: Runtime, width: int) -> dict:
     path = _verdict_path(rt, width)
     verdict = _VERDICTS.get(path)
     if verdict is not None:
@@ -173,7 +181,6 @@ def _configure(rt: Runtime, lanes: int | None) -> Runtime:
             rt.lanes = width
             rt.fp64_ratio = verdict.get("fp64_ratio")
             rt.pair_rate = verdict.get("pair_rate")
-            rt.native_rsqrt_ulps[width] = verdict.get("native_rsqrt_ulp")
             rt.choice = (f"{width} lane(s), the host rule's best that passed the self-test "
                          f"(worst |err|/bound {verdict['worst']:.2g}); rule: {decision.why()}")
             return rt
@@ -356,4 +363,4 @@ def check_width(rt: Runtime, lanes: int) -> None:
     if not verdict["ok"]:
         raise DeviceError(f"--lanes {lanes} failed the self-test on {rt.name} "
                           f"({verdict['detail']}); leave it out to use {rt.lanes}")
-    rt.native_rsqrt_ulps[lanes] = verdict.get("native_rsqrt_ulp")
+

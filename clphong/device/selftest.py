@@ -100,7 +100,12 @@ def check(device: str, lanes: int, *, fault: float = 0.0) -> dict:
     rt.fp64_ratio = measure_fp64_ratio(rt)
     # likewise: whether the float 1/√x may start from native_rsqrt at this width (plan
     # RSQRT_NATIVE), so that the variants checked below are the ones the parent runs
-    ulp = measure_native_rsqrt_ulp(rt) if rt.kind in NATIVE_RSQRT_KINDS else None
+    ulp = None
+    if rt.kind in NATIVE_RSQRT_KINDS:
+        try:
+            ulp = measure_native_rsqrt_ulp(rt, lanes)
+        except Exception:  # noqa: BLE001 - a probe that fails takes the builtin, not the device
+            ulp = None
     rt.native_rsqrt_ulps[lanes] = ulp
     if fault:
         rt.extra_defines = {"SELFTEST_FAULT": f"{float(fault)!r}f"}

@@ -191,9 +191,11 @@ def finished(cls, **values):
     how a checked value is handed down, so that nothing below checks it again. Every
     field must be given."""
     missing = set(cls.__dataclass_fields__) - set(values)
-    if missing:
-        raise TypeError(f"{cls.__name__}: finished() needs every field; missing "
-                        f"{', '.join(sorted(missing))}")
+    extra = set(values) - set(cls.__dataclass_fields__)
+    if missing or extra:
+        raise TypeError(f"{cls.__name__}: finished() takes every field and only those; "
+                        f"missing {', '.join(sorted(missing)) or 'none'}, "
+                        f"not fields {', '.join(sorted(extra)) or 'none'}")
     obj = object.__new__(cls)
     for k, v in values.items():
         object.__setattr__(obj, k, v)
@@ -254,7 +256,10 @@ class RendererOptions:
         check_budget(self.max_error, self.reference_white)
         check_nonfinite(self.nonfinite)
         object.__setattr__(self, "env_error", check_env_error(self.env_error))
-        object.__setattr__(self, "aovs", tuple(self.aovs))
+        aovs = self.aovs
+        if isinstance(aovs, str):         # "diffuse,specular", as --aov and the scene key
+            aovs = tuple(a.strip() for a in aovs.split(",") if a.strip())
+        object.__setattr__(self, "aovs", tuple(aovs))
 
     @property
     def budget(self) -> float | None:

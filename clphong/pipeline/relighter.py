@@ -159,7 +159,9 @@ class RelighterSpec:
     light_tree: bool = True
 
     def __post_init__(self):
-        RendererOptions(**self.renderer_options_kwargs())      # checked once, here
+        checked = RendererOptions(**self.renderer_options_kwargs())   # checked once, here
+        for k, v in checked.kwargs().items():                         # kept as normalised
+            object.__setattr__(self, k, v)
 
     def renderer_options_kwargs(self) -> dict:
         return {k: getattr(self, k) for k in RendererOptions.__dataclass_fields__}
@@ -172,10 +174,14 @@ class RelighterSpec:
     @classmethod
     def of(cls, options: RendererOptions, **rest) -> "RelighterSpec":
         """The spec of ``options`` (checked already) and the rest of the fields."""
+        given = options.kwargs()
+        twice = set(rest) & set(given)
+        if twice:
+            raise TypeError(f"RelighterSpec.of: {', '.join(sorted(twice))} given with options")
         defaults = {k: f.default if f.default is not MISSING else f.default_factory()
                     for k, f in cls.__dataclass_fields__.items()
                     if f.default is not MISSING or f.default_factory is not MISSING}
-        return finished(cls, **{**defaults, **rest, **options.kwargs()})
+        return finished(cls, **{**defaults, **rest, **given})
 
     def build(self) -> Relighter:
         return Relighter(self.scene, device=self.device, kernel=self.kernel, lanes=self.lanes,
@@ -190,7 +196,7 @@ def check_renderer_options(*, fp64_directions=None, max_error=None, reference_wh
     (:class:`~clphong.model.options.RendererOptions`, which raises as it says)."""
     return RendererOptions(fp64_directions=fp64_directions, max_error=max_error,
                            reference_white=reference_white, nonfinite=nonfinite, path=path,
-                           aovs=tuple(aovs), env_error=env_error, light_tree=light_tree)
+                           aovs=aovs, env_error=env_error, light_tree=light_tree)
 
 
 _CACHE: dict = {}
@@ -265,12 +271,15 @@ class Relighter:
         # Given as ``options`` they were checked where they came in, and are not again.
         given = dict(fp64_directions=fp64_directions, max_error=max_error,
                      reference_white=reference_white, nonfinite=nonfinite, path=path,
-                     aovs=tuple(aovs), env_error=env_error, light_tree=light_tree)
+                     aovs=aovs, env_error=env_error, light_tree=light_tree)
         if options is None:
             options = check_renderer_options(**given)
-        elif any(v != RendererOptions.__dataclass_fields__[k].default for k, v in given.items()):
-            raise ValueError("give the renderer options as options= or as keyword arguments, "
-                             "not both")
+        else:
+            twice = [k for k, v in given.items()
+                     if v != RendererOptions.__dataclass_fields__[k].default]
+            if twice:
+                raise ValueError(f"give the renderer options as options= or as keyword "
+                                 f"arguments, not both ({', '.join(twice)} given with options=)")
         self.options = options
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
