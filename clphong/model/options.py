@@ -272,5 +272,6 @@ class RendererOptions:
         return dict(PATHS[self.path]) if self.path is not None else {}
 
     def kwargs(self) -> dict:
-        """These options as keyword arguments (of Relighter, RelighterSpec)."""
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+        """The renderer options as keyword arguments (of Relighter; a subclass's own
+        fields, RelighterSpec's, are not among them)."""
+        return {k: getattr(self, k) for k in RendererOptions.__dataclass_fields__}

@@ -133,12 +133,16 @@ def _hashable_channels(channels) -> tuple:
     return tuple(sorted((k, v if isinstance(v, str) else tuple(v)) for k, v in dict(channels).items()))
 
 
-@dataclass(frozen=True)
-class RelighterSpec:
-    """Everything needed to rebuild an identical :class:`Relighter` elsewhere.
+@dataclass(frozen=True, kw_only=True)
+class RelighterSpec(RendererOptions):
+    """Everything needed to rebuild an identical :class:`Relighter` elsewhere: its
+    renderer options (a :class:`~clphong.model.options.RendererOptions`, checked and
+    normalised when the spec is made) and the rest.
 
     Picklable and hashable, so worker processes (local pools, Dask workers)
-    can build their relighter once and reuse it (:func:`cached_relighter`).
+    can build their relighter once and reuse it (:func:`cached_relighter`); the
+    renderer options are part of the cache key, so workers build a relighter with
+    exactly these.
     """
 
     scene: object
@@ -147,29 +151,11 @@ class RelighterSpec:
     lanes: int | None = None
     channels: tuple = ()
     output: OutputOptions = field(default_factory=OutputOptions)
-    #: Renderer options (see :class:`Relighter`); part of the cache key, so
-    #: workers build a relighter with exactly these.
-    fp64_directions: bool | None = None
-    max_error: float | None = None
-    reference_white: float = 1.0
-    nonfinite: str = "background"
-    path: str | None = None
-    aovs: tuple = ()
-    env_error: float = DEFAULT_ENV_ERROR
-    light_tree: bool = True
-
-    def __post_init__(self):
-        checked = RendererOptions(**self.renderer_options_kwargs())   # checked once, here
-        for k, v in checked.kwargs().items():                         # kept as normalised
-            object.__setattr__(self, k, v)
-
-    def renderer_options_kwargs(self) -> dict:
-        return {k: getattr(self, k) for k in RendererOptions.__dataclass_fields__}
 
     @property
     def options(self) -> RendererOptions:
-        """The renderer options, as checked when this spec was made."""
-        return finished(RendererOptions, **self.renderer_options_kwargs())
+        """The renderer options alone, as checked when this spec was made."""
+        return finished(RendererOptions, **self.kwargs())
 
     @classmethod
     def of(cls, options: RendererOptions, **rest) -> "RelighterSpec":
