@@ -363,4 +363,3 @@ def check_width(rt: Runtime, lanes: int) -> None:
     if not verdict["ok"]:
         raise DeviceError(f"--lanes {lanes} failed the self-test on {rt.name} "
                           f"({verdict['detail']}); leave it out to use {rt.lanes}")
-
