@@ -374,11 +374,12 @@ class Runtime:
     @property
     def light_unroll(self) -> int:
         """Lights an iteration of the shading kernel's light loops (``plan``'s
-        LIGHT_UNROLL): 4 on Intel's CPU runtime, whose compiled loop let the core overlap
-        too little of one light's ~40-operation chain with the next (Zen 5, 1080p × 256
-        lights: fast 1.27x, accurate 1.35x; 8 added 2-3 % more for twice the code). 0
-        elsewhere: PoCL and GPUs were not measured with it."""
-        return 4 if self.kind == "intel-cpu" else 0
+        LIGHT_UNROLL): 4 on Intel's CPU runtime on an AVX-512 host, whose compiled loop let
+        the core overlap too little of one light's ~40-operation chain with the next (Zen
+        5, 1080p × 256 lights: fast 1.27x, accurate 1.35x; 8 added 0-3 % more for twice
+        the code). 0 elsewhere, as not measured: PoCL, GPUs, and AVX2 hosts, whose 16
+        vector registers four chains at once may spill."""
+        return 4 if self.kind == "intel-cpu" and hostrule.host().avx512 else 0
 
     @property
     def light_tile(self) -> bool:
