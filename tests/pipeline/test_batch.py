@@ -434,8 +434,12 @@ def test_killing_one_pool_worker_neither_hangs_nor_loses_a_frame(shot, tmp_path,
     stderr = proc.stderr.read()
     assert rc == 0, stderr
     assert "clphong relight: 48 written, 0 skipped (exist), 0 failed" in stderr
-    how = "killed by SIGKILL" if sig == signal.SIGKILL else "SIGTERM, exit code 143"
-    assert f"on another worker: worker process died ({how})" in stderr, stderr
+    # SIGTERM: the worker unwinds (exit 143), or, if the signal reaches it while it is still
+    # starting (importing, before its handler is installed; seen under load), it ends by
+    # the signal's default action; both are reported as what they were
+    hows = (["killed by SIGKILL"] if sig == signal.SIGKILL
+            else ["SIGTERM, exit code 143", "killed by SIGTERM"])
+    assert any(f"on another worker: worker process died ({how})" in stderr for how in hows), stderr
     _check_outputs(out, expected)
     _no_temporaries(out)
 
