@@ -37,7 +37,7 @@ import numpy as np
 from ..color import ocio as color
 from ..core.errors import OutputError, OutputWarning
 from ..core.memory import output_bytes, require_memory
-from ..device.display import DisplayTransform
+from ..device.display import DisplayTransform, display_matrix
 from ..device.renderer import straight_of
 from ..io.atomic import check_pixel_type, same_file
 from ..model import tonemap
@@ -495,13 +495,10 @@ def render_outputs(renderer, gbuffer, options: OutputOptions,
     t_shade = time.perf_counter()
     if paths.sdr and not options.ocio_view:
         matrix = _to_rec709(cfg, ws.name) if cfg is not None else None
-        if matrix is not None and not np.all(np.isfinite(matrix)):
-            raise color.ColorError(f"the OCIO config's {ws.name} to Rec.709 matrix is not "
-                                   "finite; check the config (--ocio-config or $OCIO)")
         # the operator, exposure and white point were checked with the options: handed
-        # down as they are (the matrix comes from the OCIO config, as _to_rec709 gives it)
+        # down as they are; the matrix, from the OCIO config, is checked here
         dt = finished(DisplayTransform, operator=options.tonemap, exposure=options.exposure,
-                      white=options.white, matrix=matrix, encoding="srgb")
+                      white=options.white, matrix=display_matrix(matrix), encoding="srgb")
     else:
         dt = None
     if options.alpha and not renderer.straight_alpha:

@@ -30,7 +30,19 @@ from .frame import LOCAL_SIZE
 from .runtime import float4
 from .selection import get_runtime
 
-__all__ = ["DisplayTransform", "apply_display_transform", "display_program", "enqueue_display"]
+__all__ = ["DisplayTransform", "apply_display_transform", "display_program", "enqueue_display",
+           "display_matrix"]
+
+
+def display_matrix(matrix) -> tuple | None:
+    """A working space → Rec.709 matrix as the display transform holds it (a 3x3 tuple of
+    floats), or None for None; a ToneMapError unless it is a finite 3x3 matrix."""
+    if matrix is None:
+        return None
+    m = np.asarray(matrix, np.float64)
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+        raise ToneMapError("display matrix must be a finite 3x3 matrix")
+    return tuple(map(tuple, m))
 
 
 @dataclass(frozen=True)
@@ -64,11 +76,7 @@ class DisplayTransform:
         if self.encoding not in ENCODINGS:
             raise ToneMapError(f"display encoding must be one of {', '.join(ENCODINGS)}, "
                                        f"not {self.encoding!r}")
-        if self.matrix is not None:
-            m = np.asarray(self.matrix, np.float64)
-            if m.shape != (3, 3) or not np.all(np.isfinite(m)):
-                raise ToneMapError("display matrix must be a finite 3x3 matrix")
-            object.__setattr__(self, "matrix", tuple(map(tuple, m)))
+        object.__setattr__(self, "matrix", display_matrix(self.matrix))
 
     @property
     def id(self) -> int:

@@ -98,9 +98,10 @@ def native_rsqrt_inputs() -> np.ndarray:
 def measure_native_rsqrt_ulp(runtime, lanes: int | None = None, chunk: int = 1 << 22) -> float:
     """The largest error, in float ulp of 1/√x, of the shading kernel's rsqrt_dist with
     native_rsqrt as its first guess and one Newton step (kernels/rsqrt_probe.cl,
-    RSQRT_GUESS_KIND 4) at ``lanes`` (the runtime's width by default), over :func:`native_rsqrt_inputs`; inf
-    where it is not finite there, or gets rsqrt(0) = +∞ or rsqrt(+∞) = 0 wrong. The plan
-    takes that guess (RSQRT_NATIVE) only within :data:`NATIVE_RSQRT_MAX_ULP`."""
+    RSQRT_GUESS_KIND 4) at ``lanes`` (the runtime's width by default), over
+    :func:`native_rsqrt_inputs`; inf where it is not finite there, or gets rsqrt(0) = +∞
+    or rsqrt(+∞) = 0 wrong. The plan takes that guess (RSQRT_NATIVE) only within
+    :data:`NATIVE_RSQRT_MAX_ULP`."""
     import pyopencl as cl
 
     lanes = max(lanes or runtime.lanes, 1)
