@@ -62,12 +62,10 @@ import statistics
 import sys
 import threading
 import time
-import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 from ..core.errors import ClphongError
-from ..core.memory import ENV_VAR, memory_budget
 from ..core.signals import signal_name, terminating_signals
 from ..deliver.outputs import OutputPaths, check_extensions
 from ..io.atomic import remove_live_temporaries
@@ -95,9 +93,11 @@ from .jobs import (
 from .paths import (
     check_output_folder,
     check_rig_name,
+    remove_job_temporaries,
     remove_stale_temporaries,
     stale_temporaries,
 )
+from .pool import run_pool
 from .relighter import cached_relighter
 
 __all__ = ["BatchError", "Rig", "Job", "Outcome", "BatchPlan", "BatchResult", "Interrupted",
@@ -327,12 +327,8 @@ class _Signals:
     def __enter__(self):
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, *terminating_signals()):
-                self.old[sig] = signal.signal(sig, self._raise)
+                self.old[sig] = signal.signal(sig, Interrupted.handler)
         return self
-
-    @staticmethod
-    def _raise(signum, frame):
-        raise Interrupted(signum)
 
     def __exit__(self, *exc):
         for sig, handler in self.old.items():
@@ -349,6 +345,44 @@ _STOP_WAIT = 30.0
 
 class _Stopped(BaseException):
     """The batch is stopping (an interrupt, an error): a frame not yet writing is abandoned."""
+
+
+class _Frame:
+    """One frame in flight in a one-process batch: shaded in a thread of its own, then
+    written once the frame before it is done (or the batch stops: ``stop`` is set)."""
+
+    def __init__(self, job, gbuffer, read_seconds, previous, relighters, stop: threading.Event):
+        self.job, self.previous, self.relighters, self.stop = job, previous, relighters, stop
+        self.done = threading.Event()        # written (or failed), and so is every frame before
+        self.outcomes, self.error = None, None
+        self.thread = threading.Thread(target=self.run, args=(gbuffer, read_seconds),
+                                       name=f"clphong-frame-{job.frame}", daemon=True)
+
+    def wait_previous(self, abandon: bool):
+        prev = self.previous
+        while prev is not None and not prev.done.wait(0.1):
+            if self.stop.is_set():
+                break
+        if abandon and self.stop.is_set():
+            raise _Stopped
+        self.previous = None                 # no chain of finished frames kept alive
+
+    def run(self, gbuffer, read_seconds):
+        try:
+            self.outcomes = shade_job(self.job, gbuffer, self.relighters,
+                                      read_seconds=read_seconds,
+                                      before_write=lambda: self.wait_previous(abandon=True),
+                                      parallel=True)
+        except _Stopped:
+            pass
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
+            self.error = exc
+        finally:
+            del gbuffer
+            try:
+                self.wait_previous(abandon=False)
+            finally:
+                self.done.set()
 
 
 def _run_inline(jobs: Sequence[Job], specs: dict, on_outcomes: Callable, *,
@@ -410,41 +444,6 @@ def _run_inline(jobs: Sequence[Job], specs: dict, on_outcomes: Callable, *,
                 if not t.is_alive() and ahead.empty():
                     raise RuntimeError("the frame reader thread stopped unexpectedly") from None
 
-    class Frame:
-        """One frame in flight: shaded, then written once the frame before it is done."""
-
-        def __init__(self, job, gbuffer, read_seconds, previous):
-            self.job, self.previous = job, previous
-            self.done = threading.Event()        # written (or failed), and so is every frame before
-            self.outcomes, self.error = None, None
-            self.thread = threading.Thread(target=self.run, args=(gbuffer, read_seconds),
-                                           name=f"clphong-frame-{job.frame}", daemon=True)
-
-        def wait_previous(self, abandon: bool):
-            prev = self.previous
-            while prev is not None and not prev.done.wait(0.1):
-                if stop.is_set():
-                    break
-            if abandon and stop.is_set():
-                raise _Stopped
-            self.previous = None                 # no chain of finished frames kept alive
-
-        def run(self, gbuffer, read_seconds):
-            try:
-                self.outcomes = shade_job(self.job, gbuffer, relighters, read_seconds=read_seconds,
-                                          before_write=lambda: self.wait_previous(abandon=True),
-                                          parallel=True)
-            except _Stopped:
-                pass
-            except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
-                self.error = exc
-            finally:
-                del gbuffer
-                try:
-                    self.wait_previous(abandon=False)
-                finally:
-                    self.done.set()
-
     def report(frame):
         while not frame.done.wait(0.1):          # a timeout, so that signals are handled here
             pass
@@ -464,7 +463,7 @@ def _run_inline(jobs: Sequence[Job], specs: dict, on_outcomes: Callable, *,
                 inflight.popleft()
             job, gbuffer, read_seconds = take()
             slot.release()                       # the reader starts on the next frame
-            previous = Frame(job, gbuffer, read_seconds, previous)
+            previous = _Frame(job, gbuffer, read_seconds, previous, relighters, stop)
             del gbuffer
             inflight.append(previous)
             previous.thread.start()
@@ -491,223 +490,9 @@ def _stop_threads(threads, jobs: Sequence[Job], wait: float | None = None) -> No
                     again, deadline = exc, 0.0
     finally:
         for job in jobs:
-            _remove_temporaries(job, own=True)
+            remove_job_temporaries(job, own=True)
     if again is not None:
         raise again
-
-
-def worker_environment(n: int) -> dict[str, str]:
-    """What each of ``n`` pool workers sets in its environment (where not set
-    already): its share of the cores for PoCL, and its share of the memory this
-    process may use (clphong.device.bands), so that n workers together plan within it."""
-    env = {"POCL_CPU_MAX_CU_NUM": str(max(1, (os.cpu_count() or 1) // n))}
-    budget = memory_budget().bytes
-    if budget is not None and ENV_VAR not in os.environ:
-        env[ENV_VAR] = str(max(1, budget // n))
-    return env
-
-
-def _worker_main(conn, specs, env: dict[str, str]) -> None:  # pragma: no cover - subprocess
-    """A pool worker: relight the jobs that arrive on ``conn`` until a None (or the batch process is gone).
-
-    Replies ``(index, outcomes, warnings)`` per job; the warnings (say, non-finite
-    inputs) are shown by the batch process, as in a one-process batch. SIGTERM
-    or SIGINT end the worker with exit status 128 + the signal number, after
-    removing the temporary file of a write in flight.
-    """
-    for key, value in env.items():      # N workers share the machine: worker_environment
-        os.environ.setdefault(key, value)
-    for sig in terminating_signals():
-        signal.signal(sig, _Signals._raise)
-    try:
-        while True:
-            try:
-                item = conn.recv()
-            except (EOFError, OSError):       # the batch process was killed: do not run on orphaned
-                return
-            if item is None:
-                return
-            index, job = item
-            with warnings.catch_warnings(record=True) as caught:
-                outcomes = relight_job(job, specs)
-            shown = [(w.category, str(w.message), w.filename, w.lineno) for w in caught]
-            try:
-                try:
-                    conn.send((index, outcomes, shown))
-                except (AttributeError, TypeError, ValueError):     # a warning class that cannot be pickled
-                    conn.send((index, outcomes, [(UserWarning, *w[1:]) for w in shown]))
-            except OSError:                   # the batch process is gone
-                return
-    except KeyboardInterrupt as exc:
-        remove_live_temporaries()     # a write the interrupt caught before its own cleanup could
-        sys.exit(128 + int(getattr(exc, "signum", signal.SIGINT)))
-    finally:
-        # Nothing is being written any more: a late SIGTERM may simply end the process.
-        for sig in terminating_signals():
-            signal.signal(sig, signal.SIG_DFL)
-
-
-def _death(exitcode: int | None) -> str:
-    """How a worker process ended, for messages: 'killed by SIGKILL', 'SIGTERM, exit code 143'."""
-    if exitcode is not None and exitcode < 0:
-        try:
-            return f"killed by {signal_name(-exitcode)}"
-        except ValueError:
-            return f"killed by signal {-exitcode}"
-    if exitcode is not None and exitcode > 128:
-        try:
-            return f"{signal_name(exitcode - 128)}, exit code {exitcode}"
-        except ValueError:
-            pass
-    return f"exit code {exitcode}"
-
-
-@dataclass
-class _Worker:
-    proc: object
-    conn: object
-    held: list[int] = field(default_factory=list)   # indices of the jobs sent to it, oldest (running) first
-
-
-#: Jobs sent ahead to a pool worker (the one it runs and the next), so that it never waits for work.
-_AHEAD = 2
-
-
-def _run_pool(jobs: Sequence[Job], specs: dict, n: int, on_outcomes: Callable,
-              on_retry: Callable[[Job, str], None] | None = None) -> None:
-    """N worker processes (spawned: OpenCL and threads do not survive fork).
-
-    This process hands each worker its jobs over the worker's own pipe, so it
-    always knows which jobs a worker holds. A worker that ends while holding
-    jobs, whatever its exit status, has died: the temporary files of those
-    jobs' outputs are removed, the job it was running is retried once on
-    another worker (``on_retry`` is told) and fails the second time, the
-    others are sent to other workers, and a new worker replaces it.
-    """
-    import multiprocessing as mp
-    from multiprocessing.connection import wait
-
-    ctx = mp.get_context("spawn")
-    n = max(1, min(n, len(jobs)))
-    env = worker_environment(n)
-    pending = collections.deque(range(len(jobs)))
-    undone = set(range(len(jobs)))
-    first_death: dict[int, str] = {}             # job index -> how its first worker died
-    workers: dict[int, _Worker] = {}             # by process sentinel
-    registry: dict = {}                          # warnings shown (as a module's __warningregistry__)
-    # Each death charges a try to a job (two each), so this many workers is ample; a limit all
-    # the same, so that workers that die before taking any job cannot be replaced forever.
-    spawns_left = n + 2 * len(jobs)
-
-    def spawn():
-        nonlocal spawns_left
-        spawns_left -= 1
-        here, there = ctx.Pipe()
-        p = ctx.Process(target=_worker_main, args=(there, specs, env), daemon=True)
-        p.start()
-        there.close()                            # so that this end reads EOF once the worker is gone
-        workers[p.sentinel] = _Worker(p, here)
-
-    def finish(i, outcomes):
-        if i in undone:
-            undone.discard(i)
-            on_outcomes(outcomes)
-
-    def feed(w):
-        # One job ahead while there are enough for every worker: near the end a
-        # worker holding two frames would leave another idle.
-        while pending and (not w.held or (len(w.held) < _AHEAD and len(pending) >= len(workers))):
-            i = pending.popleft()
-            try:
-                w.conn.send((i, jobs[i]))
-            except OSError:                      # it is dying: its sentinel says so next
-                pending.appendleft(i)
-                return
-            w.held.append(i)
-
-    def receive(w) -> bool:
-        """Take every reply ``w`` has sent; False once its pipe is closed (it has ended)."""
-        while True:
-            try:
-                if not w.conn.poll():
-                    return True
-                i, outcomes, shown = w.conn.recv()
-            except (EOFError, OSError):
-                return False
-            if i in w.held:
-                w.held.remove(i)
-            for category, message, filename, lineno in shown:
-                warnings.warn_explicit(message, category, filename, lineno, registry=registry)
-            finish(i, outcomes)
-
-    def bury(w):
-        del workers[w.proc.sentinel]
-        w.proc.join()
-        w.conn.close()
-        how = _death(w.proc.exitcode)
-        for i in w.held:
-            _remove_temporaries(jobs[i])
-        if w.held:
-            i, rest = w.held[0], w.held[1:]
-            if i in first_death:
-                finish(i, failed_outcomes(jobs[i], f"worker process died twice running it "
-                                                   f"({first_death[i]}, then {how})"))
-            else:
-                first_death[i] = how
-                if on_retry is not None:
-                    on_retry(jobs[i], f"worker process died ({how})")
-                rest = [i, *rest]
-            pending.extendleft(reversed(rest))
-
-    finished = False
-    try:
-        for _ in range(n):
-            spawn()
-        for w in workers.values():
-            feed(w)
-        while undone:
-            if not workers:                      # safety net: never wait on no one
-                for i in sorted(undone):
-                    finish(i, failed_outcomes(jobs[i], "no worker process left to run it"))
-                break
-            ready = set(wait([w.conn for w in workers.values()] + list(workers), timeout=1.0))
-            for w in list(workers.values()):
-                if w.conn in ready or w.proc.sentinel in ready:
-                    if not receive(w) or w.proc.sentinel in ready:
-                        receive(w)               # what it sent before it ended
-                        bury(w)
-            while pending and len(workers) < n and spawns_left > 0:
-                spawn()
-            for w in workers.values():
-                feed(w)
-        finished = True
-    finally:
-        procs = [w.proc for w in workers.values()]
-        if finished:                              # every job is done: let the workers exit
-            for w in workers.values():
-                try:
-                    w.conn.send(None)
-                except OSError:
-                    pass
-            for p in procs:
-                p.join(10)
-        for p in procs:
-            if p.is_alive():
-                p.terminate()                     # SIGTERM: the worker unwinds and removes its temporary file
-        deadline = time.monotonic() + 10
-        for p in procs:
-            p.join(max(0.0, deadline - time.monotonic()))
-            if p.is_alive():
-                p.kill()
-                p.join()
-        for w in workers.values():
-            w.conn.close()
-
-
-def _remove_temporaries(job: Job, *, own: bool = False) -> int:
-    """Remove the temporary files a killed run left for the outputs of ``job`` (with ``own``,
-    this process's own writes in flight too); return how many."""
-    return len(remove_stale_temporaries((p for _, paths in job.outputs for p in paths.files), own=own))
 
 
 def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | None = None,
@@ -740,7 +525,7 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
         With ``interrupted`` set when SIGINT/SIGTERM stopped it.
     """
     t0 = time.perf_counter()
-    stale = sum(_remove_temporaries(job) for job in plan.jobs)
+    stale = sum(remove_job_temporaries(job) for job in plan.jobs)
     outcomes: list[Outcome] = []
     retried: list[tuple[int, str, str]] = []
     bar = None
@@ -770,7 +555,7 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
             elif jobs <= 1:
                 _run_inline(plan.jobs, specs, collect, overlap=overlap)
             else:
-                _run_pool(plan.jobs, specs, jobs, collect,
+                run_pool(plan.jobs, specs, jobs, collect,
                           on_retry=lambda job, why: retried.append((job.frame, job.source, why)))
     except Interrupted as exc:
         interrupted = exc.signum

@@ -34,6 +34,11 @@ class Interrupted(KeyboardInterrupt):
         super().__init__(signum)
         self.signum = signum
 
+    @classmethod
+    def handler(cls, signum, frame):
+        """A signal handler that raises :class:`Interrupted` for ``signum``."""
+        raise cls(signum)
+
 
 @dataclass(frozen=True)
 class Rig:
@@ -154,3 +159,4 @@ def relight_job(job: Job, specs: dict) -> list[Outcome]:
     t0 = time.perf_counter()
     gbuffer = load_job(job, dict(channels) or None)
     return shade_job(job, gbuffer, relighters, read_seconds=time.perf_counter() - t0)
+

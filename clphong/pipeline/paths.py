@@ -78,3 +78,10 @@ def remove_stale_temporaries(files, *, own: bool = False) -> list[str]:
             except OSError:
                 pass
     return removed
+
+
+def remove_job_temporaries(job, *, own: bool = False) -> int:
+    """Remove the temporary files a killed run left for the outputs of ``job`` (a
+    :class:`~clphong.pipeline.jobs.Job`; with ``own``,
+    this process's own writes in flight too); return how many."""
+    return len(remove_stale_temporaries((p for _, paths in job.outputs for p in paths.files), own=own))

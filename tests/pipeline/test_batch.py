@@ -959,18 +959,18 @@ def test_pool_workers_share_the_cores_and_the_memory(monkeypatch):
     otherwise budget against the same available memory as the others) and uses 1/N of
     the cores; a CLPHONG_MAX_MEMORY the user set is each worker's own."""
     from clphong.core.memory import MemoryBudget
-    from clphong.pipeline import batch
+    from clphong.pipeline import pool
 
     monkeypatch.delenv("CLPHONG_MAX_MEMORY", raising=False)
-    monkeypatch.setattr(batch, "memory_budget", lambda: MemoryBudget(8 * 2 ** 30, "test"))
-    monkeypatch.setattr(batch.os, "cpu_count", lambda: 8)
-    assert batch.worker_environment(2) == {"POCL_CPU_MAX_CU_NUM": "4",
-                                           "CLPHONG_MAX_MEMORY": str(4 * 2 ** 30)}
+    monkeypatch.setattr(pool, "memory_budget", lambda: MemoryBudget(8 * 2 ** 30, "test"))
+    monkeypatch.setattr(pool.os, "cpu_count", lambda: 8)
+    assert pool.worker_environment(2) == {"POCL_CPU_MAX_CU_NUM": "4",
+                                          "CLPHONG_MAX_MEMORY": str(4 * 2 ** 30)}
     monkeypatch.setenv("CLPHONG_MAX_MEMORY", "1G")
-    assert "CLPHONG_MAX_MEMORY" not in batch.worker_environment(2)
-    monkeypatch.setattr(batch, "memory_budget", lambda: MemoryBudget(None, "no limit"))
+    assert "CLPHONG_MAX_MEMORY" not in pool.worker_environment(2)
+    monkeypatch.setattr(pool, "memory_budget", lambda: MemoryBudget(None, "no limit"))
     monkeypatch.delenv("CLPHONG_MAX_MEMORY")
-    assert batch.worker_environment(3) == {"POCL_CPU_MAX_CU_NUM": "2"}
+    assert pool.worker_environment(3) == {"POCL_CPU_MAX_CU_NUM": "2"}
 
 
 @pytest.mark.parametrize("tty,quiet", [(True, False), (True, True), (False, False)],
