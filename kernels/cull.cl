@@ -111,7 +111,10 @@
 /* Per-tile planes written by tile_bounds (n_tiles_pad floats each). */
 enum { T_LOX, T_LOY, T_LOZ, T_HIX, T_HIY, T_HIZ,
        T_NLOX, T_NLOY, T_NLOZ, T_NHIX, T_NHIY, T_NHIZ,
-       T_DR, T_DG, T_DB, T_SR, T_SG, T_SB, T_R, T_PLANES };
+       T_DR, T_DG, T_DB, T_SR, T_SG, T_SB, T_R,
+       /* signed minima, for the relative budget's floor (tile_floor): D = C_d·k_d and
+          C_d per channel, and S = k_s·C_s over the channels */
+       T_DMR, T_DMG, T_DMB, T_CMR, T_CMG, T_CMB, T_SMIN, T_PLANES };
 
 /* Cull-light records, 5 float4 each (pack_cull_lights, clphong/device/culling.py):
  *   (x, y, z, c0) (c1, c2, vertex, p_vertex_lo) (p_scale, r, g, b) (|L|, ax, ay, az)
@@ -133,6 +136,8 @@ __kernel void tile_bounds(__global const float *restrict gbuf,
     float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     float nlo[3] = {INFINITY, INFINITY, INFINITY}, nhi[3] = {-INFINITY, -INFINITY, -INFINITY};
     float D[3] = {0.0f, 0.0f, 0.0f}, S[3] = {0.0f, 0.0f, 0.0f}, R2 = 0.0f;
+    float Dm[3] = {INFINITY, INFINITY, INFINITY}, Cm[3] = {INFINITY, INFINITY, INFINITY};
+    float Sm = INFINITY;
     if (t < n_tiles) {
         const uint x0 = (t % tiles_x) * tile_size;   /* ≥ width: a padding tile, empty */
         const uint x1 = min(x0 + tile_size, width);
@@ -171,8 +176,12 @@ __kernel void tile_bounds(__global const float *restrict gbuf,
 #else
                     const float kd = k_d;
 #endif
-                    for (int c = 0; c < 3; ++c)
-                        D[c] = MAX_(D[c], ABS1_(gbuf[(6 + c) * stride + q] * kd));
+                    for (int c = 0; c < 3; ++c) {
+                        const float C = gbuf[(6 + c) * stride + q];
+                        D[c] = MAX_(D[c], ABS1_(C * kd));
+                        Dm[c] = MIN_(Dm[c], C * kd);
+                        Cm[c] = MIN_(Cm[c], C);
+                    }
 #if HAS_SPECULAR
 #if MAP_KS
                     const float ks = maps[(plane++) * stride + q];
@@ -190,6 +199,7 @@ __kernel void tile_bounds(__global const float *restrict gbuf,
                         const float s = ks * Su[c];
 #endif
                         S[c] = MAX_(S[c], ABS1_(s));
+                        Sm = MIN_(Sm, s);
                     }
 #endif
                 }
@@ -199,7 +209,8 @@ __kernel void tile_bounds(__global const float *restrict gbuf,
     const float v[T_PLANES] = {lo[0], lo[1], lo[2], hi[0], hi[1], hi[2],
                                nlo[0], nlo[1], nlo[2], nhi[0], nhi[1], nhi[2],
                                D[0], D[1], D[2], S[0], S[1], S[2],
-                               sqrt(R2) * (1.0f + 2.0f * U_F32)};   /* max |P|, rounded up */
+                               sqrt(R2) * (1.0f + 2.0f * U_F32),    /* max |P|, rounded up */
+                               Dm[0], Dm[1], Dm[2], Cm[0], Cm[1], Cm[2], Sm};
     for (int k = 0; k < T_PLANES; ++k)
         tiles[k * n_tiles_pad + t] = v[k];
 }
@@ -222,7 +233,7 @@ __kernel void merge_bounds(__global const float *restrict fine, const uint fine_
     float v[T_PLANES];
     for (int k = 0; k < T_PLANES; ++k)
         v[k] = k < T_HIX ? INFINITY : (k < T_NLOX ? -INFINITY : (k < T_NHIX ? INFINITY
-               : (k < T_DR ? -INFINITY : 0.0f)));
+               : (k < T_DR ? -INFINITY : (k < T_DMR ? 0.0f : INFINITY))));
     if (t < n_tiles) {
         const uint fx0 = (t % tiles_x) * super, fy0 = (t / tiles_x) * super;
         for (uint fy = fy0; fy < min(fy0 + super, fine_tiles_y); ++fy)
@@ -230,7 +241,7 @@ __kernel void merge_bounds(__global const float *restrict fine, const uint fine_
                 const uint f = fy * fine_tiles_x + fx;
                 for (int k = 0; k < T_PLANES; ++k) {
                     const float x = fine[k * fine_pad + f];
-                    const int is_min = k < T_HIX || (k >= T_NLOX && k < T_NHIX);
+                    const int is_min = k < T_HIX || (k >= T_NLOX && k < T_NHIX) || k >= T_DMR;
                     v[k] = is_min ? MIN_(v[k], x) : MAX_(v[k], x);
                 }
             }
@@ -344,6 +355,22 @@ inline floatL light_bound(const tile_t *t, float4 A, float4 B, float4 C, float4 
     return SEL_(safe, (floatL)(0.0f), t->empty);
 }
 
+/* The relative budget: 1/B of work-item i's tiles (B = 0: +inf, nothing but zero
+ * bounds dropped), or 1 (absolute: bounds as they are). */
+inline floatL budget_inverse(__global const float *tile_budget, uint relative, size_t i)
+{
+    if (!relative)
+        return (floatL)(1.0f);
+    const floatL B = vloadL(i, tile_budget);
+    return SEL_((floatL)(INFINITY), 1.0f / B, (intL)(B > 0.0f));
+}
+
+/* b·inv, with a zero bound staying 0 (not 0·∞) */
+inline floatL scaled_bound(floatL b, floatL inv)
+{
+    return SEL_(b * inv, (floatL)(0.0f), (intL)(b == 0.0f));
+}
+
 /* The budget the float32 sums may use: computed sums of n positive terms are
  * within (n − 1)u of the exact ones, so ε·(1 − 2n·u) keeps the exact dropped
  * sum ≤ ε. */
@@ -365,6 +392,110 @@ inline uint2 candidates(size_t i, __global const uint2 *cand_ranges, uint use_ca
     return s < super_tiles ? cand_ranges[s] : (uint2)(0, 0);
 }
 
+/* Lower bound of n_c·w_c for n_c ∈ [a, b], w_c ∈ [lo, hi]: the smallest corner product. */
+inline floatL interval_product_min(floatL a, floatL b, floatL lo, floatL hi)
+{
+    return MIN_(MIN_(a * lo, a * hi), MIN_(b * lo, b * hi));
+}
+
+/* The relative budget's floor (clphong/device/culling.py, relative=True): per tile,
+ * a proven lower bound T⁻_c of every shaded pixel's total in each channel c, and
+ * the tile's budget scale·min_c T⁻_c, written to budget_out (output radiance). The
+ * total's terms are all ≥ 0 where the host calls this (no negative radiance): the
+ * specular terms are bounded below by 0, and every other term by
+ *   ambient      A_c·min C_d,c;
+ *   directional  L_c·min D_c·max(NoL⁻, 0), NoL⁻ = Σ_k min(n_k·l_k) over the box of n;
+ *   point        L_c·min D_c·max(NoL⁻, 0)/p⁺, NoL⁻ = (lower bound of n·(L − P) over
+ *                the boxes)/d⁺ − the kernel's margin for n·l (light_bound's), and
+ *                p⁺ = p(d⁺) for c0, c1, c2 ≥ 0 (p increasing); 0 for a spot (its cone
+ *                is not bounded below) or any other falloff;
+ * each rounded down (1 − 32u), and the float32 sum of n terms by (1 − 2nu). A tile
+ * with a negative minimum of D, C_d or S has no floor: budget 0 (nothing dropped that
+ * could matter). Lights are the candidates (the super-tile's kept lights at the fine
+ * level): dropped lights add ≥ 0, so the floor over fewer lights still holds. */
+__kernel void tile_floor(__global const float *restrict tiles, const uint n_tiles_pad,
+                         __global const float4 *restrict lights, const uint n_point,
+                         __global const uint2 *restrict cand_ranges,
+                         __global const uint *restrict cand_lights, const uint use_cand,
+                         const uint tiles_x, const uint super_tiles,
+                         __global const float4 *restrict dirs, const uint n_dir,
+                         const float4 ambient, const float scale,
+                         __global float *restrict budget_out)
+{
+    const size_t i = get_global_id(0);
+    if ((i + 1) * LANES > n_tiles_pad)
+        return;
+    const tile_t t = load_tiles(tiles, i, n_tiles_pad);
+    const floatL Dmr = vloadL(i, tiles + T_DMR * n_tiles_pad);
+    const floatL Dmg = vloadL(i, tiles + T_DMG * n_tiles_pad);
+    const floatL Dmb = vloadL(i, tiles + T_DMB * n_tiles_pad);
+    const floatL Cmr = vloadL(i, tiles + T_CMR * n_tiles_pad);
+    const floatL Cmg = vloadL(i, tiles + T_CMG * n_tiles_pad);
+    const floatL Cmb = vloadL(i, tiles + T_CMB * n_tiles_pad);
+    const floatL Smin = vloadL(i, tiles + T_SMIN * n_tiles_pad);
+    const floatL low = (floatL)(1.0f - 32.0f * U_F32);
+    /* ambient */
+    floatL Tr = MAX_(ambient.x * Cmr, 0.0f), Tg = MAX_(ambient.y * Cmg, 0.0f),
+           Tb = MAX_(ambient.z * Cmb, 0.0f);
+    /* directional lights: (l, 0) (L, 0) then 4 float4s the bound does not read */
+    for (uint j = 0; j < n_dir; ++j) {
+        const float4 l = dirs[6 * j], L = dirs[6 * j + 1];
+        const floatL nx = MIN_(t.nlox * l.x, t.nhix * l.x);
+        const floatL ny = MIN_(t.nloy * l.y, t.nhiy * l.y);
+        const floatL nz = MIN_(t.nloz * l.z, t.nhiz * l.z);
+        /* the sum's roundings, and the normal's and l's float32 roundings (4u) */
+        const floatL w = MAX_((nx + ny + nz) - 8.0f * U_F32 * (ABS_(nx) + ABS_(ny) + ABS_(nz))
+                              - 4.0f * U_F32, 0.0f) * low;
+        Tr = MUL_ADD(L.x * w, Dmr, Tr);
+        Tg = MUL_ADD(L.y * w, Dmg, Tg);
+        Tb = MUL_ADD(L.z * w, Dmb, Tb);
+    }
+    const uint2 range = candidates(i, cand_ranges, use_cand, n_point, tiles_x, super_tiles);
+    for (uint c = range.x; c < range.x + range.y; ++c) {
+        const uint j = use_cand ? cand_lights[c] : c;
+        const __global float4 *Lr = lights + CULL_LIGHT_FLOAT4S * j;
+        const float4 A = Lr[0], B = Lr[1], C = Lr[2], E = Lr[3], F = Lr[4];
+        if (F.x != 0.0f || A.w < 0.0f || B.x < 0.0f || B.y < 0.0f)
+            continue;                      /* a spot, or a falloff not increasing in d */
+        const floatL dx = MAX_(t.lox - A.x, 0.0f) + MAX_(A.x - t.hix, 0.0f);
+        const floatL dy = MAX_(t.loy - A.y, 0.0f) + MAX_(A.y - t.hiy, 0.0f);
+        const floatL dz = MAX_(t.loz - A.z, 0.0f) + MAX_(A.z - t.hiz, 0.0f);
+        const floatL d_lo = MAX_(MUL_ADD(sqrt(MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz))),
+                                         (floatL)(1.0f - 16.0f * U_F32),
+                                         -2.0f * U_F32 * (t.R + E.x)), 0.0f);
+        const floatL fx = MAX_(ABS_(t.lox - A.x), ABS_(t.hix - A.x));
+        const floatL fy = MAX_(ABS_(t.loy - A.y), ABS_(t.hiy - A.y));
+        const floatL fz = MAX_(ABS_(t.loz - A.z), ABS_(t.hiz - A.z));
+        const floatL d_hi = MUL_ADD(sqrt(MUL_ADD(fx, fx, MUL_ADD(fy, fy, fz * fz))),
+                                    (floatL)(1.0f + 16.0f * U_F32), 2.0f * U_F32 * (t.R + E.x));
+        const floatL lx = interval_product_min(t.nlox, t.nhix, A.x - t.hix, A.x - t.lox);
+        const floatL ly = interval_product_min(t.nloy, t.nhiy, A.y - t.hiy, A.y - t.loy);
+        const floatL lz = interval_product_min(t.nloz, t.nhiz, A.z - t.hiz, A.z - t.loz);
+        const floatL lb = (lx + ly + lz) - 8.0f * U_F32 * (ABS_(lx) + ABS_(ly) + ABS_(lz));
+        const floatL margin = U_F32 * (12.0f + 2.0f * (t.R + E.x) / d_lo);
+        /* d⁻ = 0 (the light may be in the box): margin = +inf, no floor */
+        const floatL NoL_lo = MAX_(SEL_(lb / d_hi - margin, (floatL)(0.0f),
+                                        (intL)(d_lo <= 0.0f)), 0.0f);
+        const floatL p_hi = MUL_ADD(d_hi, MUL_ADD(d_hi, (floatL)(B.y), (floatL)(B.x)),
+                                    (floatL)(A.w)) * (1.0f + 8.0f * U_F32);
+        /* p⁺ = 0 or ∞ (or NaN) adds nothing */
+        const floatL w = SEL_((floatL)(0.0f), NoL_lo / p_hi * low,
+                              (intL)((p_hi > 0.0f) & (p_hi < INFINITY) & (NoL_lo > 0.0f)));
+        Tr = MUL_ADD(C.y * w, Dmr, Tr);
+        Tg = MUL_ADD(C.z * w, Dmg, Tg);
+        Tb = MUL_ADD(C.w * w, Dmb, Tb);
+    }
+    const float sum_low = MAX_(1.0f - 2.0f * (float)(n_point + n_dir + 1) * U_F32, 0.0f);
+    const floatL T = MIN_(MIN_(Tr, Tg), Tb) * sum_low;
+    const intL negative = (intL)(Dmr < 0.0f) | (intL)(Dmg < 0.0f) | (intL)(Dmb < 0.0f)
+                          | (intL)(Cmr < 0.0f) | (intL)(Cmg < 0.0f) | (intL)(Cmb < 0.0f)
+                          | (intL)(Smin < 0.0f);
+    /* NaN anywhere: no floor */
+    const intL ok = (intL)(!negative) & (intL)(T >= 0.0f) & (intL)(T < INFINITY)
+                    & (intL)(!t.empty);
+    vstoreL(SEL_((floatL)(0.0f), T * scale * (1.0f - 2.0f * U_F32), ok), i, budget_out);
+}
+
 __kernel void cull_count(__global const float *restrict tiles, const uint n_tiles_pad,
                          __global const float4 *restrict lights, const uint n_point,
                          /* candidates: with use_cand, the lights of this work-item's
@@ -373,6 +504,8 @@ __kernel void cull_count(__global const float *restrict tiles, const uint n_tile
                          __global const uint *restrict cand_lights, const uint use_cand,
                          const uint tiles_x, const uint super_tiles,
                          const float budget,
+                         /* relative: each tile's own budget (tile_floor), else budget */
+                         __global const float *restrict tile_budget, const uint relative,
                          __global float *restrict tau_out,
                          __global float *restrict left_out,
                          __global uint *restrict capacity_out)
@@ -381,7 +514,11 @@ __kernel void cull_count(__global const float *restrict tiles, const uint n_tile
     if ((i + 1) * LANES > n_tiles_pad)
         return;
     const tile_t t = load_tiles(tiles, i, n_tiles_pad);
-    const float eps = usable_budget(budget, n_point);
+    /* relative: the bounds in units of the tile's budget B (b·(1/B), 2 roundings: 4u
+       off the budget of 1), so that the thresholds below stay one per level */
+    const float eps = relative ? usable_budget(1.0f, n_point) * (1.0f - 4.0f * U_F32)
+                               : usable_budget(budget, n_point);
+    const floatL inv = budget_inverse(tile_budget, relative, i);
     float tau[CULL_LEVELS];
     floatL sum[CULL_LEVELS];
     intL below[CULL_LEVELS];
@@ -396,7 +533,7 @@ __kernel void cull_count(__global const float *restrict tiles, const uint n_tile
     for (uint c = range.x; c < range.x + range.y; ++c) {
         const uint j = use_cand ? cand_lights[c] : c;
         const __global float4 *L = lights + CULL_LIGHT_FLOAT4S * j;
-        const floatL b = light_bound(&t, L[0], L[1], L[2], L[3], L[4]);
+        const floatL b = scaled_bound(light_bound(&t, L[0], L[1], L[2], L[3], L[4]), inv);
         for (int m = 0; m < CULL_LEVELS; ++m) {
             const intL is_below = (intL)(b < tau[m]);
             sum[m] += SEL_((floatL)(0.0f), b, is_below);
@@ -436,6 +573,7 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
                          __global const uint2 *restrict cand_ranges,
                          __global const uint *restrict cand_lights, const uint use_cand,
                          const uint tiles_x, const uint super_tiles,
+                         __global const float *restrict tile_budget, const uint relative,
                          __global const float *restrict tau_in,
                          __global const float *restrict left_in,
                          __global const uint *restrict offsets,
@@ -448,6 +586,7 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
     const tile_t t = load_tiles(tiles, i, n_tiles_pad);
     const floatL tau = vloadL(i, tau_in);
     floatL left = vloadL(i, left_in);
+    const floatL inv = budget_inverse(tile_budget, relative, i);
     uint off[LANES], cnt[LANES];
     for (int m = 0; m < LANES; ++m) {
         off[m] = offsets[i * LANES + m];
@@ -457,7 +596,7 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
     for (uint c = range.x; c < range.x + range.y; ++c) {
         const uint j = use_cand ? cand_lights[c] : c;
         const __global float4 *L = lights + CULL_LIGHT_FLOAT4S * j;
-        const floatL b = light_bound(&t, L[0], L[1], L[2], L[3], L[4]);
+        const floatL b = scaled_bound(light_bound(&t, L[0], L[1], L[2], L[3], L[4]), inv);
         const intL at_or_above = (intL)(b >= tau);   /* b is never NaN (light_bound) */
         const intL greedy = at_or_above & (intL)(b <= left);
         left = SEL_(left, left - b, greedy);

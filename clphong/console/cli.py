@@ -279,6 +279,11 @@ def _add_speed_options(p):
                    help="tiled light culling: per 16x16 tile, drop point lights only while the sum "
                         "of their upper bounds stays within EPS x reference white of output radiance "
                         "per pixel and channel (0: bit-identical to brute force; default: no culling)")
+    p.add_argument("--relative", action="store_true",
+                   help="with --max-error: EPS is a fraction of each pixel's own value, per "
+                        "channel (as Lightcuts): a tile drops lights only within EPS x a proven "
+                        "lower bound of its pixels' totals; no light tree, no light groups "
+                        "(docs/speed.md, 'Relative budget')")
     p.add_argument("--reference-white", type=float, default=1.0, metavar="W",
                    help="output radiance of reference white for --max-error (default 1.0)")
     p.add_argument("--no-light-tree", dest="light_tree", action="store_false",
@@ -312,6 +317,7 @@ def _renderer_options(args) -> RendererOptions:
         path=None if args.path == "accurate" else args.path,
         max_error=args.max_error, reference_white=args.reference_white,
         env_error=args.env_error, light_tree=args.light_tree,
+        relative=getattr(args, "relative", False),
         nonfinite=getattr(args, "nonfinite", "background"),
         aovs=tuple(a.strip() for a in (getattr(args, "aov", None) or "").split(",") if a.strip()))
 

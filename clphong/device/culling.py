@@ -173,6 +173,9 @@ class TileLists:
     tree_nodes: int = 0       # the tree's internal nodes (possible clusters)
     tree_lights: int = 0      # lights under them
     tree_build_seconds: float = 0.0
+    #: with the relative budget: each tile's proven lower bound of its pixels' totals
+    #: (the least channel; float64 array over the tiles, 0 where none), else None
+    floors: np.ndarray | None = None
 
     @property
     def pays(self) -> bool:
@@ -190,7 +193,7 @@ class TileLists:
 
 
 #: Floats per tile record (T_PLANES in kernels/cull.cl).
-T_PLANES = 19
+T_PLANES = 26
 
 
 def _n_pad(n_tiles: int, lanes: int) -> int:
@@ -231,9 +234,15 @@ def _merge_bounds(runtime, prog, fine, *, fine_tiles_x, fine_tiles_y, sup, tiles
 
 
 def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, tiles_x, tiles_y,
-                lanes, candidates=None, super_tiles=0):
+                lanes, candidates=None, super_tiles=0, floor=None):
     """One level, from its tile records: capacities, lists. Returns (ranges (n, 2) uint32
-    host array, lists buffer, total kept, device seconds), or None when too long."""
+    host array, lists buffer, total kept, device seconds, the tiles' floors or None), or
+    None when too long.
+
+    ``floor``: the relative budget, ``budget`` a fraction of each pixel's own value:
+    (directional records buffer, their number, ambient float4) for
+    kernels/cull.cl ``tile_floor``, which gives each tile ``budget·T⁻`` (T⁻ a proven
+    lower bound of its pixels' totals, scaled by :data:`FLOOR_SCALE`)."""
     import pyopencl as cl
 
     ctx, queue = runtime.context, runtime.queue
@@ -251,9 +260,18 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
         cand = (candidates[0], candidates[1], np.uint32(1))
     cand_args = (*cand, np.uint32(tiles_x), np.uint32(super_tiles))
     events = list(bounds_events)
+    tile_budget = cl.Buffer(ctx, mf.READ_WRITE, n_pad * 4 if floor is not None else 16)
+    if floor is not None:
+        dirs, n_dir, ambient = floor
+        k0 = runtime.kernel(prog, "tile_floor")
+        k0.set_args(tiles, np.uint32(n_pad), lb, np.uint32(n_point), *cand_args, dirs,
+                    np.uint32(n_dir), ambient, np.float32(budget * FLOOR_SCALE), tile_budget)
+        events.append(cl.enqueue_nd_range_kernel(queue, k0, (n_pad // lanes,), (CULL_LOCAL,),
+                                                 wait_for=events[-1:]))
+    budget_args = (tile_budget, np.uint32(floor is not None))
     k1 = runtime.kernel(prog, "cull_count")
     k1.set_args(tiles, np.uint32(n_pad), lb, np.uint32(n_point), *cand_args,
-                np.float32(budget), tau, left, capb)
+                np.float32(budget), *budget_args, tau, left, capb)
     events.append(cl.enqueue_nd_range_kernel(queue, k1, (n_pad // lanes,), (CULL_LOCAL,),
                                              wait_for=events[-1:]))
     cl.enqueue_copy(queue, cap, capb, wait_for=events[-1:]).wait()
@@ -267,13 +285,19 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
     cb = cl.Buffer(ctx, mf.READ_WRITE, counts.nbytes)
     lists = cl.Buffer(ctx, mf.READ_WRITE, max(total, 1) * 4)
     k2 = runtime.kernel(prog, "cull_write")
-    k2.set_args(tiles, np.uint32(n_pad), lb, np.uint32(n_point), *cand_args, tau, left, ob, cb,
-                lists)
+    k2.set_args(tiles, np.uint32(n_pad), lb, np.uint32(n_point), *cand_args, *budget_args, tau,
+                left, ob, cb, lists)
     events.append(cl.enqueue_nd_range_kernel(queue, k2, (n_pad // lanes,), (CULL_LOCAL,)))
     cl.enqueue_copy(queue, counts, cb, wait_for=events[-1:]).wait()
     ranges = np.stack([offsets[:n_tiles], counts[:n_tiles]], axis=1).astype(np.uint32)
     seconds = sum((e.profile.end - e.profile.start) * 1e-9 for e in events)
-    return ranges, lists, int(counts[:n_tiles].sum(dtype=np.int64)), seconds
+    floors = None
+    if floor is not None:          # the tiles' floors T⁻ (what tile_floor gave, over its scale)
+        floors = np.zeros(n_pad, np.float32)
+        cl.enqueue_copy(queue, floors, tile_budget).wait()
+        scale = budget * FLOOR_SCALE
+        floors = floors[:n_tiles].astype(np.float64) / scale if scale > 0 else None
+    return ranges, lists, int(counts[:n_tiles].sum(dtype=np.int64)), seconds, floors
 
 
 #: The plan defines kernels/cull.cl reads; passing only these keeps one cull
@@ -282,12 +306,39 @@ CULL_DEFINES = ("HAS_SPECULAR", "MAP_KD", "MAP_KS", "MAP_H", "MAP_CS", "HAS_SPOT
 
 
 def build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k_d, S,
-                     gbuf_buffer=None, maps_buffer=None, tree=None):
+                     gbuf_buffer=None, maps_buffer=None, tree=None, relative=None):
     """See :func:`_build_tile_lists`; holds the runtime's launch lock (its cached kernels)."""
     with runtime.lock:
         return _build_tile_lists(runtime, plan, frame, point_records, n_point, budget=budget,
                                  k_d=k_d, S=S, gbuf_buffer=gbuf_buffer, maps_buffer=maps_buffer,
-                                 tree=tree)
+                                 tree=tree, relative=relative)
+
+
+@dataclass(frozen=True)
+class RelativeInput:
+    """What the relative budget's floor needs besides the point lights: the directional
+    records as the shading kernel reads them (``pack_lights``), their number, and the
+    ambient radiance ``k_a·Σ A`` per channel. ``nonnegative``: every radiance is ≥ 0, so
+    every term of a pixel's total is; where not, no tile has a floor (nothing is dropped
+    but lights whose bound is 0)."""
+
+    directional: np.ndarray
+    n_dir: int
+    ambient: np.ndarray
+    nonnegative: bool
+
+    @classmethod
+    def of(cls, lights, n_dir: int, point_radiance) -> "RelativeInput":
+        d = lights.directional.reshape(-1, 6, 4)[:n_dir, 1, :3]
+        nonneg = bool((np.asarray(point_radiance) >= 0).all() and (d >= 0).all()
+                      and (np.asarray(lights.ambient) >= 0).all())
+        return cls(directional=lights.directional, n_dir=n_dir,
+                   ambient=np.asarray(lights.ambient, np.float64), nonnegative=nonneg)
+
+
+#: Test-only: the factor the relative budget's floor is multiplied by (1: the proof).
+#: tests/device/test_relative_budget.py raises it a few percent and sees the guarantee fail.
+FLOOR_SCALE = 1.0
 
 
 @dataclass(frozen=True)
@@ -302,7 +353,8 @@ class TreeInput:
 
 
 def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k_d, S,
-                      gbuf_buffer=None, maps_buffer=None, tree: TreeInput | None = None):
+                      gbuf_buffer=None, maps_buffer=None, tree: TreeInput | None = None,
+                      relative: RelativeInput | None = None):
     """Run kernels/cull.cl for one frame; return :class:`TileLists`, or None when
     culling cannot pay off (the lists would exceed ``MAX_LIST_ENTRIES``).
 
@@ -310,6 +362,10 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
     ``COARSE_SHARE`` of the budget, then each tile against its super-tile's list
     with the rest. ``gbuf_buffer`` and ``maps_buffer``: the frame's planes already
     on the device (the shading launch's), so they are not uploaded twice.
+
+    ``relative``: ``budget`` is a fraction of each pixel's own value, per channel: each
+    level's tiles get their share of it times a proven lower bound of their pixels'
+    totals (kernels/cull.cl ``tile_floor``). The light tree is not used then.
     """
     import pyopencl as cl
 
@@ -336,12 +392,22 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
     coarse_tiles, e_coarse = _merge_bounds(runtime, prog, fine_tiles, fine_tiles_x=tiles_x,
                                            fine_tiles_y=tiles_y, sup=sup, tiles_x=super_x,
                                            tiles_y=super_y, lanes=lanes, wait_for=[e_fine])
+    floor = None
+    if relative is not None:
+        tree = None
+        dirs = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(relative.directional, np.float32))
+        # rounded down, so that the float32 floor never exceeds k_a·Σ A
+        amb = np.nextafter(relative.ambient.astype(np.float32), np.float32(-np.inf))
+        floor = (dirs, relative.n_dir, float4(*np.maximum(amb, 0)))
+        if not relative.nonnegative:
+            budget = 0.0
     coarse_budget = budget * COARSE_SHARE
     coarse = _cull_level(runtime, prog, coarse_tiles, [e_fine, e_coarse], lb, n_point,
-                         budget=coarse_budget, tiles_x=super_x, tiles_y=super_y, lanes=lanes)
+                         budget=coarse_budget, tiles_x=super_x, tiles_y=super_y, lanes=lanes,
+                         floor=floor)
     if coarse is None:
         return None
-    c_ranges, c_lists, _, c_seconds = coarse
+    c_ranges, c_lists, _, c_seconds, _ = coarse
     shaded = tile_of_pixels(frame.shape, lanes, tiles_x).reshape(-1)[~frame.background]
     active = int(np.unique(shaded).size)
 
@@ -351,7 +417,7 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
         fb = float(np.nextafter(np.float32(rest), np.float32(0)))
         return _cull_level(runtime, prog, fine_tiles, [], lb_, n_lists, budget=max(fb, 0.0),
                            tiles_x=tiles_x, tiles_y=tiles_y, lanes=lanes,
-                           candidates=(crb, lists_), super_tiles=super_x * super_y)
+                           candidates=(crb, lists_), super_tiles=super_x * super_y, floor=floor)
 
     fine = fine_level(c_ranges, c_lists, lb, n_point, budget - coarse_budget)
     extra, spent = {}, 0.0
@@ -380,11 +446,11 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                 spent += tree_s + (with_tree[3] if with_tree is not None else 0.0)
     if fine is None:
         return None
-    ranges, lists, kept, seconds = fine
+    ranges, lists, kept, seconds, floors = fine
     rb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(ranges))
     return TileLists(ranges=rb, lights=lists, width=w, tiles_x=tiles_x, n_tiles=tiles_x * tiles_y,
                      kept=kept, n_point=n_point, seconds=c_seconds + seconds + spent,
-                     active_tiles=active, **extra)
+                     active_tiles=active, floors=floors, **extra)
 
 
 def read_tile_boxes(runtime, tiles_buffer, n_tiles: int, lanes: int) -> TileBoxes:

@@ -168,14 +168,17 @@ def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated
 
 def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp64_directions,
                   int_pow, max_error, light_tile, sum_fp64, rsqrt_builtin=False,
-                  light_unroll=0, rsqrt_native=False) -> None:
+                  light_unroll=0, rsqrt_native=False, relative=False) -> None:
     """The lane kernel's own defines (culling, the light loop, the number formats and the
     specular power), each with its reason, through ``put`` (see :func:`make_plan`)."""
     m = scene.material
     culling = max_error is not None and n_point > 0
     put("CULLING", culling,
-        f"--max-error budget ε = {max_error:g}: per-tile point-light lists, dropped lights "
-        "sum to ≤ ε per pixel (kernels/cull.cl)" if culling
+        (f"--max-error {max_error:g} --relative: per-tile point-light lists, dropped lights "
+         "sum to ≤ ε times a proven lower bound of each pixel's own value, per channel "
+         "(kernels/cull.cl tile_floor)" if relative else
+         f"--max-error budget ε = {max_error:g}: per-tile point-light lists, dropped lights "
+         "sum to ≤ ε per pixel (kernels/cull.cl)") if culling
         else ("no point light to cull" if max_error is not None
               else "no --max-error budget: every light shades every pixel"))
     if culling:
@@ -260,7 +263,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
               int_pow: bool | str = True, coverage: bool = False, groups: Sequence[str] = (),
               aovs: Sequence[str] = (), light_tile: int = 0,
               rsqrt_builtin: bool = False, light_unroll: int = 0,
-              rsqrt_native: bool = False) -> ShadingPlan:
+              rsqrt_native: bool = False, relative: bool = False) -> ShadingPlan:
     """Choose the kernel variant for ``scene`` and the material ``maps`` present.
 
     Parameters
@@ -296,6 +299,9 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         Culling budget ε in output radiance (``--max-error`` × reference
         white): with point lights, compile the per-tile light lists of
         ``kernels/cull.cl`` (CULLING=1). None: every light shades every pixel.
+    relative : bool
+        ``max_error`` is a fraction of each pixel's own value (``--relative``): the
+        plan's reasons say so (the variant is the same).
     coverage : bool
         The frame has partly covered pixels: gbuf plane 12 holds α and every
         output is α-premultiplied (COVERAGE).
@@ -359,7 +365,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
                       blinn=blinn, fp64=fp64, fp64_directions=fp64_directions, int_pow=int_pow,
                       max_error=max_error, light_tile=light_tile, sum_fp64=sum_fp64,
                       rsqrt_builtin=rsqrt_builtin, light_unroll=light_unroll,
-                      rsqrt_native=rsqrt_native)
+                      rsqrt_native=rsqrt_native, relative=relative)
     if kernel != "lanes" and (groups or aovs):
         raise SceneError(f"{scene.source}: the obvious kernel shades the beauty only; light groups "
                          "and AOV layers need the lane kernel")

@@ -27,12 +27,14 @@ from ..core.memory import ENV_VAR, F32, format_size, memory_budget
 from ..io.nonfinite import apply_nonfinite_policy, apply_range_policy
 from ..model.light_tree import SpecularModel, build_light_tree
 from ..model.options import (
+    CullingError,
     check_budget,
     check_float_power,
     check_int_pow,
     check_kernel,
     check_lanes,
     check_nonfinite,
+    check_relative,
     check_unroll,
     path_options,
     RendererOptions,
@@ -48,7 +50,7 @@ from .bands import (
     plan_bands,
     render_bytes_per_pixel,
 )
-from .culling import TileLists, TreeInput, build_tile_lists
+from .culling import RelativeInput, TileLists, TreeInput, build_tile_lists
 from .display import DisplayTransform, apply_display_transform, enqueue_display
 from .frame import (
     COVERAGE_PLANE,
@@ -151,6 +153,12 @@ class Renderer:
         A frame's lists are described by its :attr:`RenderResult.cull`.
     reference_white : float
         Output radiance of reference white (default 1.0, scene-linear).
+    relative : bool
+        With ``max_error``: the budget is a fraction of each pixel's own value, per
+        channel (Lightcuts' criterion): each tile drops lights only while their summed
+        bounds stay within ``max_error`` times a proven lower bound of every one of its
+        pixels' totals (ambient, directional and point lights; kernels/cull.cl
+        ``tile_floor``). Without the light tree; not with light groups.
     path : {"accurate", "float", "fast"}, optional
         A shading path (:data:`clphong.model.options.PATHS`): shorthand for ``fp64_directions``,
         ``compensated`` and ``int_pow``, which must then be left unset (the
@@ -199,11 +207,12 @@ class Renderer:
                  int_pow: bool | str | None = None, path: str | None = None,
                  aovs: Sequence[str] = (), straight_alpha: bool = False,
                  light_tree: bool = True, light_tile: bool | None = None,
-                 light_unroll: int | None = None, options: RendererOptions | None = None):
+                 light_unroll: int | None = None, relative: bool = False,
+                 options: RendererOptions | None = None):
         if options is not None:
             given = dict(fp64_directions=fp64_directions, max_error=max_error,
                          reference_white=reference_white, nonfinite=nonfinite, path=path,
-                         aovs=tuple(aovs), light_tree=light_tree)
+                         aovs=tuple(aovs), light_tree=light_tree, relative=relative)
             twice = [k for k, v in given.items() if v != (
                 () if k == "aovs" else RendererOptions.__dataclass_fields__[k].default)]
             if twice:
@@ -212,7 +221,7 @@ class Renderer:
             # finished where they came in (RendererOptions): taken as they are
             fp64_directions, max_error, path = options.fp64_directions, options.max_error, options.path
             reference_white, nonfinite = options.reference_white, options.nonfinite
-            aovs, light_tree = options.aovs, options.light_tree
+            aovs, light_tree, relative = options.aovs, options.light_tree, options.relative
         self._light_unroll = None if light_unroll is None else check_unroll(light_unroll)
         self.scene = scene
         self.use_tree = bool(light_tree)
@@ -244,8 +253,18 @@ class Renderer:
         self.lanes = check_lanes(lanes)
         self._light_tile = light_tile
         self.compensated = compensated
-        self.max_error = (options.budget if options is not None          # absolute, or None
-                          else check_budget(max_error, reference_white))
+        if options is None:
+            relative = check_relative(relative, max_error)
+            budget = check_budget(max_error, 1.0 if relative else reference_white)
+        else:
+            budget = options.budget
+        #: ε as a fraction of each pixel's own value (True), or absolute (False)
+        self.relative = bool(relative) and budget is not None
+        if self.relative and scene.light_groups:
+            raise CullingError(f"{scene.source}: --relative with light groups is not supported "
+                               "yet (each group layer needs a floor of its own); give an "
+                               "absolute --max-error")
+        self.max_error = budget                  # absolute, a fraction with relative, or None
         self.reference_white = float(reference_white)
         if fp64_directions is None:
             fp64_directions = self.runtime.has_fp64
@@ -344,7 +363,7 @@ class Renderer:
         plan = make_plan(self.scene, map_names, kernel=self.kernel_kind, lanes=self.lanes,
                          compensated=self.compensated, fp64_directions=self.fp64_directions,
                          max_error=self.max_error if culling else None,
-                         has_fp64=self.runtime.fast_fp64, int_pow=self.int_pow,
+                         relative=self.relative, has_fp64=self.runtime.fast_fp64, int_pow=self.int_pow,
                          coverage=coverage, groups=self.scene.light_groups, aovs=self.aovs,
                          light_tile=self.light_tile if self.kernel_kind == "lanes" else 0,
                          rsqrt_builtin=self.runtime.rsqrt_builtin,
@@ -510,8 +529,14 @@ class Renderer:
         if self._cull_rest > 0:
             self._cull_rest -= 1
         else:
+            relative = None
+            if self.relative:
+                arrays = self.scene.light_arrays
+                relative = RelativeInput.of(lights, len(arrays["directional_direction"]),
+                                            arrays["point_radiance"])
             cull = build_tile_lists(self.runtime, plan, frame, lights.point, plan.n_point,
-                                    budget=self.max_error, tree=self._tree_input(plan, frame, lights),
+                                    budget=self.max_error, relative=relative,
+                                    tree=None if relative else self._tree_input(plan, frame, lights),
                                     **buffers)
             if cull is not None and cull.pays:
                 records = None if cull.records is None else (cull.records, cull.records64)

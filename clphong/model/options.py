@@ -13,7 +13,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from ..core.errors import ClphongError, ToneMapError
+from ..core.errors import ClphongError, ToneMapError, abbreviate
 from .environment import DEFAULT_ENV_ERROR, check_env_error
 
 __all__ = ["validate_method", "PATHS", "path_options", "NONFINITE_POLICIES", "check_nonfinite",
@@ -185,6 +185,16 @@ def check_budget(max_error, reference_white=1.0) -> float | None:
     return float(max_error) * float(reference_white)
 
 
+def check_relative(relative, max_error) -> bool:
+    """``--relative``: a bool, and only with a ``--max-error`` budget to make relative."""
+    if not isinstance(relative, bool):
+        raise CullingError(f"--relative: expected true or false, got {abbreviate(repr(relative))}")
+    if relative and max_error is None:
+        raise CullingError("--relative needs a --max-error budget (a fraction of each pixel's "
+                           "own value, e.g. --max-error 1e-2 --relative)")
+    return bool(relative)
+
+
 def finished(cls, **values):
     """An instance of the frozen dataclass ``cls`` from values checked already (by an
     instance of it, or of the options they came from), without its ``__post_init__``:
@@ -214,9 +224,13 @@ class RendererOptions:
     fp64_directions : bool, optional
         None: the device decides; not with ``path``.
     max_error : float, optional
-        The culling budget in units of ``reference_white`` (≥ 0; None: brute force).
+        The culling budget in units of ``reference_white`` (≥ 0; None: brute force), or
+        with ``relative`` a fraction of each pixel's own value.
     reference_white : float
         > 0.
+    relative : bool
+        ``max_error`` is relative: every pixel's culling error is within ``max_error``
+        of the pixel's own value, per channel (``--relative``); needs ``max_error``.
     nonfinite : str
         :data:`NONFINITE_POLICIES`.
     path : str, optional
@@ -246,6 +260,7 @@ class RendererOptions:
     aovs: tuple = ()
     env_error: float = DEFAULT_ENV_ERROR
     light_tree: bool | str = True
+    relative: bool = False
 
     def __post_init__(self):
         check_fp64_directions(self.fp64_directions)
@@ -254,6 +269,7 @@ class RendererOptions:
             if self.fp64_directions is not None:
                 raise ValueError("give either path or fp64_directions")
         check_budget(self.max_error, self.reference_white)
+        check_relative(self.relative, self.max_error)
         check_nonfinite(self.nonfinite)
         object.__setattr__(self, "env_error", check_env_error(self.env_error))
         aovs = self.aovs
@@ -263,8 +279,11 @@ class RendererOptions:
 
     @property
     def budget(self) -> float | None:
-        """The absolute culling budget ``max_error·reference_white`` (None: no culling)."""
-        return None if self.max_error is None else float(self.max_error) * float(self.reference_white)
+        """The culling budget: absolute, ``max_error·reference_white``, or with ``relative``
+        the fraction ``max_error`` (None: no culling)."""
+        if self.max_error is None:
+            return None
+        return float(self.max_error) * (1.0 if self.relative else float(self.reference_white))
 
     @property
     def path_options(self) -> dict:

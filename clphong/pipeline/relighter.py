@@ -177,12 +177,14 @@ class RelighterSpec(RendererOptions):
 
 def check_renderer_options(*, fp64_directions=None, max_error=None, reference_white=1.0,
                            nonfinite="background", path=None, aovs=(),
-                           env_error=DEFAULT_ENV_ERROR, light_tree=True) -> RendererOptions:
+                           env_error=DEFAULT_ENV_ERROR, light_tree=True,
+                           relative=False) -> RendererOptions:
     """The renderer options of a :class:`Relighter`, checked without compiling anything
     (:class:`~clphong.model.options.RendererOptions`, which raises as it says)."""
     return RendererOptions(fp64_directions=fp64_directions, max_error=max_error,
                            reference_white=reference_white, nonfinite=nonfinite, path=path,
-                           aovs=aovs, env_error=env_error, light_tree=light_tree)
+                           aovs=aovs, env_error=env_error, light_tree=light_tree,
+                           relative=relative)
 
 
 _CACHE: dict = {}
@@ -222,6 +224,9 @@ class Relighter:
         (``--max-error``); None (default): no culling.
     reference_white : float
         Output radiance of reference white for ``max_error`` (default 1.0).
+    relative : bool
+        ``max_error`` is a fraction of each pixel's own value, per channel
+        (``--relative``; :class:`~clphong.device.renderer.Renderer`).
     nonfinite : {"background", "error", "pass"}
         NaN/Inf input policy (:mod:`clphong.io.nonfinite`); under ``"error"`` a
         frame with a non-finite value raises
@@ -252,12 +257,14 @@ class Relighter:
                  max_error: float | None = None, reference_white: float = 1.0,
                  nonfinite: str = "background", path: str | None = None, aovs=(),
                  env_error: float = DEFAULT_ENV_ERROR, light_tree: bool = True,
+                 relative: bool = False,
                  options: RendererOptions | None = None):
         # Renderer options first: a bad value fails before the scene is read or compiled.
         # Given as ``options`` they were checked where they came in, and are not again.
         given = dict(fp64_directions=fp64_directions, max_error=max_error,
                      reference_white=reference_white, nonfinite=nonfinite, path=path,
-                     aovs=aovs, env_error=env_error, light_tree=light_tree)
+                     aovs=aovs, env_error=env_error, light_tree=light_tree,
+                     relative=relative)
         if options is None:
             options = check_renderer_options(**given)
         else:
