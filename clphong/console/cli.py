@@ -282,7 +282,7 @@ def _add_speed_options(p):
     p.add_argument("--relative", action="store_true",
                    help="with --max-error: EPS is a fraction of each pixel's own value, per "
                         "channel (as Lightcuts): a tile drops lights only within EPS x a proven "
-                        "lower bound of its pixels' totals; no light tree, no light groups "
+                        "lower bound of its pixels' totals; not with light groups "
                         "(docs/speed.md, 'Relative budget')")
     p.add_argument("--reference-white", type=float, default=1.0, metavar="W",
                    help="output radiance of reference white for --max-error (default 1.0)")

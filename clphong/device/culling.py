@@ -240,7 +240,8 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
     None when too long.
 
     ``floor``: the relative budget, ``budget`` a fraction of each pixel's own value:
-    (directional records buffer, their number, ambient float4) for
+    (directional records buffer, their number, ambient float4, the number of real
+    lights: the light tree's representatives follow them) for
     kernels/cull.cl ``tile_floor``, which gives each tile ``budget·T⁻`` (T⁻ a proven
     lower bound of its pixels' totals, scaled by :data:`FLOOR_SCALE`)."""
     import pyopencl as cl
@@ -262,10 +263,11 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
     events = list(bounds_events)
     tile_budget = cl.Buffer(ctx, mf.READ_WRITE, n_pad * 4 if floor is not None else 16)
     if floor is not None:
-        dirs, n_dir, ambient = floor
+        dirs, n_dir, ambient, n_real = floor
         k0 = runtime.kernel(prog, "tile_floor")
         k0.set_args(tiles, np.uint32(n_pad), lb, np.uint32(n_point), *cand_args, dirs,
-                    np.uint32(n_dir), ambient, np.float32(budget * FLOOR_SCALE), tile_budget)
+                    np.uint32(n_dir), ambient, np.float32(budget * FLOOR_SCALE),
+                    np.uint32(n_real), tile_budget)
         events.append(cl.enqueue_nd_range_kernel(queue, k0, (n_pad // lanes,), (CULL_LOCAL,),
                                                  wait_for=events[-1:]))
     budget_args = (tile_budget, np.uint32(floor is not None))
@@ -365,7 +367,8 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
 
     ``relative``: ``budget`` is a fraction of each pixel's own value, per channel: each
     level's tiles get their share of it times a proven lower bound of their pixels'
-    totals (kernels/cull.cl ``tile_floor``). The light tree is not used then.
+    totals (kernels/cull.cl ``tile_floor``), and the tree's cut ``TREE_SHARE`` of it times
+    each super-tile's floor.
     """
     import pyopencl as cl
 
@@ -394,11 +397,10 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                                            tiles_y=super_y, lanes=lanes, wait_for=[e_fine])
     floor = None
     if relative is not None:
-        tree = None
         dirs = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(relative.directional, np.float32))
         # rounded down, so that the float32 floor never exceeds k_a·Σ A
         amb = np.nextafter(relative.ambient.astype(np.float32), np.float32(-np.inf))
-        floor = (dirs, relative.n_dir, float4(*np.maximum(amb, 0)))
+        floor = (dirs, relative.n_dir, float4(*np.maximum(amb, 0)), n_point)
         if not relative.nonnegative:
             budget = 0.0
     coarse_budget = budget * COARSE_SHARE
@@ -407,7 +409,7 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                          floor=floor)
     if coarse is None:
         return None
-    c_ranges, c_lists, _, c_seconds, _ = coarse
+    c_ranges, c_lists, _, c_seconds, c_floors = coarse
     shaded = tile_of_pixels(frame.shape, lanes, tiles_x).reshape(-1)[~frame.background]
     active = int(np.unique(shaded).size)
 
@@ -425,8 +427,10 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
     # average, or lists too long): the tiles cull again from the super-tiles' cuts,
     # and the shorter lists win. Elsewhere nothing changes (nor is the tree built).
     if tree is not None and budget > 0 and (fine is None or fine[2] > TREE_ABOVE * active * n_point):
+        # relative: each super-tile's share is ε·TREE_SHARE times its floor
+        tree_budget = budget * TREE_SHARE * (1.0 if c_floors is None else c_floors)
         cut = _tree_cut(runtime, tree, coarse_tiles, c_ranges, c_lists, point_records, n_point,
-                        frame.origin, n_super=super_x * super_y, budget=budget * TREE_SHARE,
+                        frame.origin, n_super=super_x * super_y, budget=tree_budget,
                         lanes=lanes)
         if cut is not None:
             t_ranges, t_lists, records, records64, clusters, covered, tree_s = cut
@@ -468,7 +472,8 @@ def read_tile_boxes(runtime, tiles_buffer, n_tiles: int, lanes: int) -> TileBoxe
 def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_records,
               n_point, origin, *, n_super, budget, lanes):
     """The super-tiles' lists with the tree's clusters: per super-tile, the cut of
-    :func:`~clphong.model.light_tree.choose_cut` within ``budget``; its clusters
+    :func:`~clphong.model.light_tree.choose_cut` within ``budget`` (a number, or one per
+    super-tile: the relative budget's; 0 takes no cluster); its clusters
     replace the lights they stand for, and the culled lights stay out. None where
     no cluster fits.
 
@@ -489,7 +494,14 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
         s1 = min(s0 + TREE_CHUNK, n_super)
         part = TileBoxes(*(getattr(boxes, f)[s0:s1] for f in ("lo", "hi", "nlo", "nhi", "D", "S")))
         b = cluster_bounds(tree, part, tin.spec, origin)
-        used, covered = choose_cut(tree, b, budget)
+        if np.ndim(budget):
+            # per super-tile: the bounds in units of its budget (none: +inf, no cluster)
+            share = np.asarray(budget, np.float64)[s0:s1, None]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                b = np.where(share > 0, b / np.where(share > 0, share, 1.0) * (1 + 1e-12), np.inf)
+            used, covered = choose_cut(tree, b, 1.0)
+        else:
+            used, covered = choose_cut(tree, b, budget)
         for t in range(s1 - s0):
             o, c = c_ranges[s0 + t]
             kept = flat[o:o + c]

@@ -158,7 +158,8 @@ class Renderer:
         channel (Lightcuts' criterion): each tile drops lights only while their summed
         bounds stay within ``max_error`` times a proven lower bound of every one of its
         pixels' totals (ambient, directional and point lights; kernels/cull.cl
-        ``tile_floor``). Without the light tree; not with light groups.
+        ``tile_floor``); the tree's clusters within ε/2 of each super-tile's floor.
+        Not with light groups.
     path : {"accurate", "float", "fast"}, optional
         A shading path (:data:`clphong.model.options.PATHS`): shorthand for ``fp64_directions``,
         ``compensated`` and ``int_pow``, which must then be left unset (the
@@ -536,7 +537,7 @@ class Renderer:
                                             arrays["point_radiance"])
             cull = build_tile_lists(self.runtime, plan, frame, lights.point, plan.n_point,
                                     budget=self.max_error, relative=relative,
-                                    tree=None if relative else self._tree_input(plan, frame, lights),
+                                    tree=self._tree_input(plan, frame, lights),
                                     **buffers)
             if cull is not None and cull.pays:
                 records = None if cull.records is None else (cull.records, cull.records64)

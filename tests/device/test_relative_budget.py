@@ -31,8 +31,10 @@ F64_SLACK = 1e-12
 
 @pytest.fixture(autouse=True)
 def _shade_through_the_lists(monkeypatch):
-    """The culled kernel is held to its budget whatever its lists keep."""
+    """The culled kernel is held to its budget whatever its lists keep, and the lists are
+    culling's alone but in the light tree's own test below."""
     monkeypatch.setattr(culling, "BRUTE_ABOVE", 1.0)
+    monkeypatch.setattr(culling, "TREE_ABOVE", 2.0)
 
 
 def totals(scene, gbuffer) -> np.ndarray:
@@ -172,6 +174,31 @@ def test_relative_budget_holds_on_random_scenes(seed, eps, dark, channel, ambien
     scene = make_scene(lights, model=["phong", "blinn-phong"][seed % 2], h=15.0,
                        camera=dict(type="perspective", position=(2.0, 1.5, 3.0)))
     check_relative_holds(scene, gb, eps)
+
+
+@pytest.mark.parametrize("seed,eps", [(0, 1e-2), (1, 1e-1)])
+def test_the_light_tree_keeps_the_relative_budget(seed, eps, monkeypatch):
+    """Clusters under the relative budget: each super-tile's share is ε/2 times its floor.
+    The lists' float64 sum (representatives as the point lights they are) is within ε of
+    each pixel's own total, per channel."""
+    from test_tree_cut import clustered_scene, list_sum_error
+
+    monkeypatch.setattr(culling, "TREE_ABOVE", 0.0)      # the cut is tried on every frame
+    rng = np.random.default_rng(seed)
+    scene = clustered_scene(rng)
+    gb = heightfield(rng, 64, 96, bumps=0.1)
+    r = Renderer(scene, max_error=eps, relative=True, light_tree="always")
+    frame = prepare_frame(gb, lanes=r.lanes)
+    result = r.shade(frame)
+    cull = result.cull
+    assert cull is not None and not cull.brute and cull.clusters > 0
+    off = list_sum_error(scene, gb, r, cull)
+    T = totals(scene, gb)
+    assert np.all(np.abs(off) <= eps * T * (1 + F64_SLACK)), np.max(np.abs(off) / (eps * T))
+    ref = reference.shade(scene, gb)
+    bound, _ = reference.error_bound(scene, gb, origin=frame.origin,
+                                     plan=r.plan_for(frame.map_names, culling=False))
+    assert np.all(np.abs(result.image - ref) <= eps * np.abs(ref) + bound)
 
 
 def test_negative_albedo_has_no_floor():
