@@ -337,6 +337,16 @@ class RelativeInput:
         return cls(directional=lights.directional, n_dir=n_dir,
                    ambient=np.asarray(lights.ambient, np.float64), nonnegative=nonneg)
 
+    def floor_args(self, ctx, n_real: int) -> tuple:
+        """kernels/cull.cl tile_floor's arguments (see :func:`_cull_level`'s ``floor``)."""
+        import pyopencl as cl
+
+        dirs = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                         hostbuf=np.ascontiguousarray(self.directional, np.float32))
+        # rounded down, so that the float32 floor never exceeds k_a·Σ A
+        amb = np.nextafter(self.ambient.astype(np.float32), np.float32(-np.inf))
+        return dirs, self.n_dir, float4(*np.maximum(amb, 0)), n_real
+
 
 #: Test-only: the factor the relative budget's floor is multiplied by (1: the proof).
 #: tests/device/test_relative_budget.py raises it a few percent and sees the guarantee fail.
@@ -395,14 +405,9 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
     coarse_tiles, e_coarse = _merge_bounds(runtime, prog, fine_tiles, fine_tiles_x=tiles_x,
                                            fine_tiles_y=tiles_y, sup=sup, tiles_x=super_x,
                                            tiles_y=super_y, lanes=lanes, wait_for=[e_fine])
-    floor = None
-    if relative is not None:
-        dirs = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(relative.directional, np.float32))
-        # rounded down, so that the float32 floor never exceeds k_a·Σ A
-        amb = np.nextafter(relative.ambient.astype(np.float32), np.float32(-np.inf))
-        floor = (dirs, relative.n_dir, float4(*np.maximum(amb, 0)), n_point)
-        if not relative.nonnegative:
-            budget = 0.0
+    floor = None if relative is None else relative.floor_args(ctx, n_point)
+    if relative is not None and not relative.nonnegative:
+        budget = 0.0
     coarse_budget = budget * COARSE_SHARE
     coarse = _cull_level(runtime, prog, coarse_tiles, [e_fine, e_coarse], lb, n_point,
                          budget=coarse_budget, tiles_x=super_x, tiles_y=super_y, lanes=lanes,
