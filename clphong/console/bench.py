@@ -57,10 +57,12 @@ def _add_bench_parser(sub):
                         f"{DEFAULT_ENV_ERROR:g},0.01, none with --sizes; '' for none)")
     b.add_argument("--env-sizes", metavar="WxH[,WxH]",
                    help="the environment rows' sky sizes (default 256x128,1024x512,4096x2048)")
-    b.add_argument("--tree", metavar="SCENE:N:EPS[,...]",
+    b.add_argument("--tree", metavar="SCENE:N:EPS[:rel][,...]",
                    help="light-tree rows: brute force, culling alone and culling with the tree's "
                         "clusters, in turns, for each scene ('wide' or 'clusters'), point-light "
-                        "count and budget (default: " + ",".join(f"{k}:{n}:{e:g}" for k, n, e in TREE_CASES)
+                        "count and budget (':rel': --relative) (default: "
+                        + ",".join(f"{c[0]}:{c[1]}:{c[2]:g}" + (":rel" if len(c) > 3 else "")
+                                   for c in TREE_CASES)
                         + ", none with --sizes; '' for none)")
     b.add_argument("--device", metavar="DEV", help="OpenCL device (see 'clphong devices')")
     b.add_argument("--lanes", metavar="N[,N]",
@@ -94,10 +96,11 @@ def _env_size(text: str) -> tuple[int, int]:
 
 
 def _tree_case(text):
-    kind, n, eps = text.split(":")
-    if kind.strip() not in ("wide", "clusters", "small") or int(n) <= 0 or not float(eps) >= 0:
+    kind, n, eps, *rest = text.split(":")
+    if (kind.strip() not in ("wide", "clusters", "small") or int(n) <= 0 or not float(eps) >= 0
+            or rest not in ([], ["rel"])):
         raise ValueError(text)
-    return (kind.strip(), int(n), float(eps))
+    return (kind.strip(), int(n), float(eps), *(("relative",) if rest else ()))
 
 
 def _size(text):

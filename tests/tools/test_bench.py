@@ -323,3 +323,29 @@ def test_tree_rows_time_three_ways_and_keep_the_budget():
     assert row["culling"]["clusters"] == 0 and row["tree"]["clusters"] > 0
     text = bench.table(report)
     assert "tree" in text and "clusters" in text
+
+
+def test_relative_tree_rows_keep_each_pixels_own_budget():
+    """A relative row (``--tree clusters:512:3e-2:rel``): the same three runs with
+    ``relative=True``; the error is measured per pixel against its own reference value
+    and is within ε there; the slack is ε over that error."""
+    cfg = bench.BenchConfig(sizes=((160, 90),), lights=(), small_lights=(), paths=(), budgets=(),
+                            env_errors=(), tree_cases=(("clusters", 512, 3e-2, "relative"),),
+                            repeats=1, warmup=0, crop_pairs=1e9, error_pairs=1e6, numpy_pairs=1e9)
+    report = bench.run_bench(cfg)
+    (row,) = report["tree"]
+    assert row["relative"] is True
+    for label in ("culling", "tree"):
+        x = row[label]
+        assert x["within_budget"] and x["max_rel_error"] <= 3e-2
+        assert x["slack"] == pytest.approx(3e-2 / x["max_rel_error"])
+    assert "3e-02r" in bench.table(report)
+
+
+def test_tree_case_syntax():
+    from clphong.console.bench import _tree_case
+
+    assert _tree_case("wide:4096:1e-2:rel") == ("wide", 4096, 1e-2, "relative")
+    assert _tree_case("clusters:512:0.03") == ("clusters", 512, 3e-2)
+    with pytest.raises(ValueError):
+        _tree_case("wide:4096:1e-2:absolute")
