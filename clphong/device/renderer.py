@@ -259,6 +259,9 @@ class Renderer:
             budget = check_budget(max_error, 1.0 if relative else reference_white)
         else:
             budget = options.budget
+        if budget is None and scene.max_error is not None:      # the scene's render.max_error
+            relative = scene.relative
+            budget = scene.max_error * (1.0 if relative else float(reference_white))
         #: ε as a fraction of each pixel's own value (True), or absolute (False)
         self.relative = bool(relative) and budget is not None
         if self.relative and scene.light_groups:

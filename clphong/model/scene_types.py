@@ -51,7 +51,7 @@ _CAMERA_ALL_ORDERED = ("type", "position", "direction", "up")
 _MATERIAL_KEYS = ("model", "k_a", "k_d", "k_s", "h", "specular_color", "fresnel", "f0")
 _MATERIAL_REQUIRED = ("model", "k_a", "k_d", "k_s", "h")
 _RENDER_KEYS = ("background", "working_space", "exposure", "tonemap", "white_point",
-                "display", "view", "look", "albedo_space", "aovs")
+                "display", "view", "look", "albedo_space", "aovs", "max_error", "relative")
 #: Valid ``render.working_space`` values (clphong.color.ocio.WORKING_SPACES).
 WORKING_SPACE_NAMES: tuple[str, ...] = ("lin_rec709", "acescg")
 _LIGHT_KEYS = {
@@ -370,6 +370,12 @@ class Scene:
     aovs : tuple of str
         ``render.aovs``: extra output layers (``diffuse``, ``specular``, light-group
         names), as ``--aov`` (which replaces them).
+    max_error : float or None
+        ``render.max_error``: the culling budget, as ``--max-error`` (which replaces
+        it, with ``--relative``); None: brute force.
+    relative : bool
+        ``render.relative``: ``max_error`` is a fraction of each pixel's own value,
+        as ``--relative``.
     """
 
     camera: Camera
@@ -380,6 +386,8 @@ class Scene:
     warnings: tuple[str, ...] = ()
     color: "ColorSettings" = None  # type: ignore[assignment]  # set in __post_init__
     aovs: tuple[str, ...] = ()
+    max_error: float | None = None
+    relative: bool = False
 
     def __post_init__(self):
         if self.color is None:
@@ -532,6 +540,8 @@ class Scene:
             "camera": self.camera.to_dict(),
             "material": self.material.to_dict(),
             "render": {"background": list(self.background), **self.color.to_dict(),
-                       **({"aovs": list(self.aovs)} if self.aovs else {})},
+                       **({"aovs": list(self.aovs)} if self.aovs else {}),
+                       **({"max_error": self.max_error} if self.max_error is not None else {}),
+                       **({"relative": True} if self.relative else {})},
             "light": [lt.to_dict() for lt in self.lights],
         }

@@ -255,3 +255,39 @@ def test_cli_render_with_a_relative_budget(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("clphong: error: --relative needs a --max-error")
     assert not (tmp_path / "bad.exr").exists()
+
+
+def test_the_budget_from_the_scene_file(tmp_path, capsys):
+    """[render] max_error and relative: the same budget as --max-error/--relative, which
+    replace it; a bad value is one line naming the file and key, as the CLI's."""
+    from conftest import GBUFFERS
+
+    from clphong.console.cli import main
+    from clphong.core.errors import SceneError
+    from clphong.model.scene import load_scene
+
+    text = (GBUFFERS / "spheres.toml").read_text()
+    scene_path = tmp_path / "rel.toml"
+    scene_path.write_text(text + "\n[render]\nmax_error = 1e-2\nrelative = true\n")
+    scene = load_scene(str(scene_path))
+    assert (scene.max_error, scene.relative) == (1e-2, True)
+    assert load_scene(str(scene_path)).to_dict()["render"]["relative"] is True
+    r = Renderer(scene)
+    assert r.relative and r.max_error == 1e-2
+    assert "--relative" in str(r.plan_for(()))
+    r = Renderer(scene, max_error=1e-3)                     # the command's budget wins
+    assert not r.relative and r.max_error == 1e-3
+    args = ["render", str(scene_path), str(GBUFFERS / "spheres.exr"), "-o",
+            str(tmp_path / "o.exr"), "--stats"]
+    assert main(args) == 0
+    assert "--relative: per-tile point-light lists" in capsys.readouterr().err
+    for bad, key, says in (("relative = true\n", "render.relative", "needs render.max_error"),
+                           ("max_error = -1\n", "render.max_error", "≥ 0"),
+                           ("max_error = 1e-2\nrelative = 1\n", "render.relative",
+                            "expected true or false")):
+        scene_path.write_text(text + "\n[render]\n" + bad)
+        with pytest.raises(SceneError, match=f"{key}.*{says}"):
+            load_scene(str(scene_path))
+        assert main(args) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(scene_path) in err[0] and key in err[0]
