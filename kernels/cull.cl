@@ -138,6 +138,7 @@ __kernel void tile_bounds(__global const float *restrict gbuf,
     float D[3] = {0.0f, 0.0f, 0.0f}, S[3] = {0.0f, 0.0f, 0.0f}, R2 = 0.0f;
     float Dm[3] = {INFINITY, INFINITY, INFINITY}, Cm[3] = {INFINITY, INFINITY, INFINITY};
     float Sm = INFINITY;
+    int nan_seen = 0;      /* a NaN anywhere (--nonfinite pass): MIN_/MAX_ skip it, so no floor */
     if (t < n_tiles) {
         const uint x0 = (t % tiles_x) * tile_size;   /* ≥ width: a padding tile, empty */
         const uint x1 = min(x0 + tile_size, width);
@@ -178,6 +179,7 @@ __kernel void tile_bounds(__global const float *restrict gbuf,
 #endif
                     for (int c = 0; c < 3; ++c) {
                         const float C = gbuf[(6 + c) * stride + q];
+                        nan_seen |= !(C * kd == C * kd) | !(p[c] == p[c]) | !(n[c] == n[c]);
                         D[c] = MAX_(D[c], ABS1_(C * kd));
                         Dm[c] = MIN_(Dm[c], C * kd);
                         Cm[c] = MIN_(Cm[c], C);
@@ -200,6 +202,7 @@ __kernel void tile_bounds(__global const float *restrict gbuf,
 #endif
                         S[c] = MAX_(S[c], ABS1_(s));
                         Sm = MIN_(Sm, s);
+                        nan_seen |= !(s == s);
                     }
 #endif
                 }
@@ -210,7 +213,8 @@ __kernel void tile_bounds(__global const float *restrict gbuf,
                                nlo[0], nlo[1], nlo[2], nhi[0], nhi[1], nhi[2],
                                D[0], D[1], D[2], S[0], S[1], S[2],
                                sqrt(R2) * (1.0f + 2.0f * U_F32),    /* max |P|, rounded up */
-                               Dm[0], Dm[1], Dm[2], Cm[0], Cm[1], Cm[2], Sm};
+                               nan_seen ? -INFINITY : Dm[0], Dm[1], Dm[2], Cm[0], Cm[1], Cm[2],
+                               Sm};
     for (int k = 0; k < T_PLANES; ++k)
         tiles[k * n_tiles_pad + t] = v[k];
 }
@@ -412,8 +416,9 @@ inline floatL interval_product_min(floatL a, floatL b, floatL lo, floatL hi)
  * each rounded down (1 − 32u), and the float32 sum of n terms by (1 − 2nu). Only
  * lights j < n_real count: the light tree's representatives (j ≥ n_real) stand for
  * lights within an error, not below them, and the lights they stand for add ≥ 0. A tile
- * with a negative minimum of D, C_d or S has no floor: budget 0 (nothing dropped that
- * could matter). Lights are the candidates (the super-tile's kept lights at the fine
+ * with a negative minimum of D, C_d or S, or a NaN in any of its pixels' inputs
+ * (tile_bounds writes min D_r = −∞ then), has no floor: budget 0 (nothing dropped
+ * that could matter). Lights are the candidates (the super-tile's kept lights at the fine
  * level): dropped lights add ≥ 0, so the floor over fewer lights still holds. */
 __kernel void tile_floor(__global const float *restrict tiles, const uint n_tiles_pad,
                          __global const float4 *restrict lights, const uint n_point,
@@ -437,8 +442,8 @@ __kernel void tile_floor(__global const float *restrict tiles, const uint n_tile
     const floatL Smin = vloadL(i, tiles + T_SMIN * n_tiles_pad);
     const floatL low = (floatL)(1.0f - 32.0f * U_F32);
     /* ambient */
-    floatL Tr = MAX_(ambient.x * Cmr, 0.0f), Tg = MAX_(ambient.y * Cmg, 0.0f),
-           Tb = MAX_(ambient.z * Cmb, 0.0f);
+    floatL Tr = MAX_(ambient.x * Cmr, 0.0f) * low, Tg = MAX_(ambient.y * Cmg, 0.0f) * low,
+           Tb = MAX_(ambient.z * Cmb, 0.0f) * low;
     /* directional lights: (l, 0) (L, 0) then 4 float4s the bound does not read */
     for (uint j = 0; j < n_dir; ++j) {
         const float4 l = dirs[6 * j], L = dirs[6 * j + 1];
@@ -457,8 +462,9 @@ __kernel void tile_floor(__global const float *restrict tiles, const uint n_tile
         const uint j = use_cand ? cand_lights[c] : c;
         const __global float4 *Lr = lights + CULL_LIGHT_FLOAT4S * j;
         const float4 A = Lr[0], B = Lr[1], C = Lr[2], E = Lr[3], F = Lr[4];
-        if (j >= n_real || F.x != 0.0f || A.w < 0.0f || B.x < 0.0f || B.y < 0.0f)
-            continue;      /* a representative, a spot, or a falloff not increasing in d */
+        if (j >= n_real || F.x != 0.0f || F.z != 0.0f || A.w < 0.0f || B.x < 0.0f || B.y < 0.0f)
+            continue;      /* a representative, a spot, a falloff not increasing in d or with a
+                              coefficient float32 cannot hold to a relative u (F.z) */
         const floatL dx = MAX_(t.lox - A.x, 0.0f) + MAX_(A.x - t.hix, 0.0f);
         const floatL dy = MAX_(t.loy - A.y, 0.0f) + MAX_(A.y - t.hiy, 0.0f);
         const floatL dz = MAX_(t.loz - A.z, 0.0f) + MAX_(A.z - t.hiz, 0.0f);
@@ -493,8 +499,9 @@ __kernel void tile_floor(__global const float *restrict tiles, const uint n_tile
                           | (intL)(Cmr < 0.0f) | (intL)(Cmg < 0.0f) | (intL)(Cmb < 0.0f)
                           | (intL)(Smin < 0.0f);
     /* NaN anywhere: no floor */
+    /* T ≥ 0 is false for NaN; MIN_ would pass over a NaN channel, so each is tested */
     const intL ok = (intL)(!negative) & (intL)(T >= 0.0f) & (intL)(T < INFINITY)
-                    & (intL)(!t.empty);
+                    & (intL)(Tr == Tr) & (intL)(Tg == Tg) & (intL)(Tb == Tb) & (intL)(!t.empty);
     vstoreL(SEL_((floatL)(0.0f), T * scale * (1.0f - 2.0f * U_F32), ok), i, budget_out);
 }
 

@@ -110,7 +110,9 @@ def pack_cull_lights(point: np.ndarray, n_point: int) -> np.ndarray:
     * ``|L|``: the distance of the (rebased) light from the frame origin, for
       the error of n·l;
     * a spot's axis and cone ``(s, o)`` as the point record holds them (a point
-      light's ``s = 0``: no cone), for the cone's bound of the factor t².
+      light's ``s = 0``: no cone), for the cone's bound of the factor t²;
+    * 1 where a falloff coefficient is nonzero and below FLT_MIN: the relative
+      budget's floor (``tile_floor``) leaves such a light out.
     """
     rec = np.zeros((max(n_point, 1), CULL_RECORD, 4), np.float32)
     if n_point == 0:
@@ -146,6 +148,10 @@ def pack_cull_lights(point: np.ndarray, n_point: int) -> np.ndarray:
                                 np.float32(np.inf))
     rec[:, 3, 1:4] = pt[:, 2, 1:4]        # a spot's axis, as the shading kernel reads it
     rec[:, 4, 0:2] = pt[:, 3, 0:2]        # (s, o), as the shading kernel reads them
+    # no floor (relative budget) from a light with a falloff coefficient below FLT_MIN: the
+    # kernels read it as 0 (denormals flushed), an absolute, not relative, rounding
+    coef = np.abs(np.stack([c0, c1, c2], axis=1))
+    rec[:, 4, 2] = ((coef > 0) & (coef < np.finfo(np.float32).tiny)).any(axis=1)
     return rec.reshape(-1, 4)
 
 
@@ -176,6 +182,8 @@ class TileLists:
     #: with the relative budget: each tile's proven lower bound of its pixels' totals
     #: (the least channel; float64 array over the tiles, 0 where none), else None
     floors: np.ndarray | None = None
+    #: the same for the super-tiles (SUPER×SUPER tiles, or lanes×lanes), numbered row by row
+    coarse_floors: np.ndarray | None = None
 
     @property
     def pays(self) -> bool:
@@ -294,11 +302,11 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
     ranges = np.stack([offsets[:n_tiles], counts[:n_tiles]], axis=1).astype(np.uint32)
     seconds = sum((e.profile.end - e.profile.start) * 1e-9 for e in events)
     floors = None
-    if floor is not None:          # the tiles' floors T⁻ (what tile_floor gave, over its scale)
+    if floor is not None:          # the tiles' floors T⁻ (what tile_floor gave, over ε)
         floors = np.zeros(n_pad, np.float32)
         cl.enqueue_copy(queue, floors, tile_budget).wait()
-        scale = budget * FLOOR_SCALE
-        floors = floors[:n_tiles].astype(np.float64) / scale if scale > 0 else None
+        # over ε alone: the floor the budget rests on (FLOOR_SCALE included)
+        floors = floors[:n_tiles].astype(np.float64) / budget if budget > 0 else None
     return ranges, lists, int(counts[:n_tiles].sum(dtype=np.int64)), seconds, floors
 
 
@@ -415,6 +423,7 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
     if coarse is None:
         return None
     c_ranges, c_lists, _, c_seconds, c_floors = coarse
+    extra = {} if c_floors is None else {"coarse_floors": c_floors}
     shaded = tile_of_pixels(frame.shape, lanes, tiles_x).reshape(-1)[~frame.background]
     active = int(np.unique(shaded).size)
 
@@ -427,7 +436,7 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                            candidates=(crb, lists_), super_tiles=super_x * super_y, floor=floor)
 
     fine = fine_level(c_ranges, c_lists, lb, n_point, budget - coarse_budget)
-    extra, spent = {}, 0.0
+    spent = 0.0
     # The light tree where culling alone keeps much (TREE_ABOVE of the lights on
     # average, or lists too long): the tiles cull again from the super-tiles' cuts,
     # and the shorter lists win. Elsewhere nothing changes (nor is the tree built).
@@ -448,7 +457,7 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                     spent += fine[3]                 # the pass without the tree, not used
                 fine = with_tree
                 t = tree.tree()
-                extra = dict(records=records, records64=records64, clusters=clusters,
+                extra.update(records=records, records64=records64, clusters=clusters,
                              covered=covered, tree_seconds=tree_s, tree_nodes=t.n_nodes,
                              tree_lights=t.clusterable, tree_build_seconds=t.seconds)
             else:

@@ -223,7 +223,8 @@ def run_tree(cfg, full, log) -> list[dict]:
                "tree_lights": built.clusterable if built else 0, "tree_build_s": build_s}
         for slot in slots:
             res = slot["result"]
-            c = res.cull
+            # the lists of the last frame that built them (a lost culling skips CULL_RETRY)
+            c = slot.get("last_cull")
             ms = statistics.median(slot["times"]) * 1e3 * shaded_full / shaded_pixels(slot["gb"])
             row[slot["label"]] = {
                 "ms_per_frame": ms, "times_ms": [t * 1e3 for t in slot["times"]],
