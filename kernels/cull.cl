@@ -375,6 +375,20 @@ inline floatL scaled_bound(floatL b, floatL inv)
     return SEL_(b * inv, (floatL)(0.0f), (intL)(b == 0.0f));
 }
 
+/* Light groups under the relative budget: the lights are in group order, so a walk
+ * in light order moves to group g's budget plane once j reaches the previous group's end
+ * (n_groups = 0: one group, nothing to do). */
+inline void next_group(uint j, uint *g, uint *g_end, floatL *inv, uint n_groups,
+                       __global const uint *point_end, __global const float *tile_budget,
+                       uint n_tiles_pad, size_t i)
+{
+    while (j >= *g_end) {
+        *g += 1;
+        *g_end = *g < n_groups ? point_end[*g] : 0xffffffffu;
+        *inv = budget_inverse(tile_budget + (size_t)(*g) * n_tiles_pad, 1u, i);
+    }
+}
+
 /* The budget the float32 sums may use: computed sums of n positive terms are
  * within (n − 1)u of the exact ones, so ε·(1 − 2n·u) keeps the exact dropped
  * sum ≤ ε. */
@@ -427,6 +441,11 @@ __kernel void tile_floor(__global const float *restrict tiles, const uint n_tile
                          const uint tiles_x, const uint super_tiles,
                          __global const float4 *restrict dirs, const uint n_dir,
                          const float4 ambient, const float scale, const uint n_real,
+                         /* light groups (n_groups > 0): each group's point and directional
+                            ends (the lights are in group order) and k_a·A_g, rounded down */
+                         const uint n_groups, __global const uint *restrict point_end,
+                         __global const uint *restrict dir_end,
+                         __global const float4 *restrict group_ambient,
                          __global float *restrict budget_out)
 {
     const size_t i = get_global_id(0);
@@ -441,68 +460,79 @@ __kernel void tile_floor(__global const float *restrict tiles, const uint n_tile
     const floatL Cmb = vloadL(i, tiles + T_CMB * n_tiles_pad);
     const floatL Smin = vloadL(i, tiles + T_SMIN * n_tiles_pad);
     const floatL low = (floatL)(1.0f - 32.0f * U_F32);
-    /* ambient */
-    floatL Tr = MAX_(ambient.x * Cmr, 0.0f) * low, Tg = MAX_(ambient.y * Cmg, 0.0f) * low,
-           Tb = MAX_(ambient.z * Cmb, 0.0f) * low;
-    /* directional lights: (l, 0) (L, 0) then 4 float4s the bound does not read */
-    for (uint j = 0; j < n_dir; ++j) {
-        const float4 l = dirs[6 * j], L = dirs[6 * j + 1];
-        const floatL nx = MIN_(t.nlox * l.x, t.nhix * l.x);
-        const floatL ny = MIN_(t.nloy * l.y, t.nhiy * l.y);
-        const floatL nz = MIN_(t.nloz * l.z, t.nhiz * l.z);
-        /* the sum's roundings, and the normal's and l's float32 roundings (4u) */
-        const floatL w = MAX_((nx + ny + nz) - 8.0f * U_F32 * (ABS_(nx) + ABS_(ny) + ABS_(nz))
-                              - 4.0f * U_F32, 0.0f) * low;
-        Tr = MUL_ADD(L.x * w, Dmr, Tr);
-        Tg = MUL_ADD(L.y * w, Dmg, Tg);
-        Tb = MUL_ADD(L.z * w, Dmb, Tb);
-    }
-    const uint2 range = candidates(i, cand_ranges, use_cand, n_point, tiles_x, super_tiles);
-    for (uint c = range.x; c < range.x + range.y; ++c) {
-        const uint j = use_cand ? cand_lights[c] : c;
-        const __global float4 *Lr = lights + CULL_LIGHT_FLOAT4S * j;
-        const float4 A = Lr[0], B = Lr[1], C = Lr[2], E = Lr[3], F = Lr[4];
-        if (j >= n_real || F.x != 0.0f || F.z != 0.0f || A.w < 0.0f || B.x < 0.0f || B.y < 0.0f)
-            continue;      /* a representative, a spot, a falloff not increasing in d or with a
-                              coefficient float32 cannot hold to a relative u (F.z) */
-        const floatL dx = MAX_(t.lox - A.x, 0.0f) + MAX_(A.x - t.hix, 0.0f);
-        const floatL dy = MAX_(t.loy - A.y, 0.0f) + MAX_(A.y - t.hiy, 0.0f);
-        const floatL dz = MAX_(t.loz - A.z, 0.0f) + MAX_(A.z - t.hiz, 0.0f);
-        const floatL d_lo = MAX_(MUL_ADD(sqrt(MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz))),
-                                         (floatL)(1.0f - 16.0f * U_F32),
-                                         -2.0f * U_F32 * (t.R + E.x)), 0.0f);
-        const floatL fx = MAX_(ABS_(t.lox - A.x), ABS_(t.hix - A.x));
-        const floatL fy = MAX_(ABS_(t.loy - A.y), ABS_(t.hiy - A.y));
-        const floatL fz = MAX_(ABS_(t.loz - A.z), ABS_(t.hiz - A.z));
-        const floatL d_hi = MUL_ADD(sqrt(MUL_ADD(fx, fx, MUL_ADD(fy, fy, fz * fz))),
-                                    (floatL)(1.0f + 16.0f * U_F32), 2.0f * U_F32 * (t.R + E.x));
-        const floatL lx = interval_product_min(t.nlox, t.nhix, A.x - t.hix, A.x - t.lox);
-        const floatL ly = interval_product_min(t.nloy, t.nhiy, A.y - t.hiy, A.y - t.loy);
-        const floatL lz = interval_product_min(t.nloz, t.nhiz, A.z - t.hiz, A.z - t.loz);
-        const floatL lb = (lx + ly + lz) - 8.0f * U_F32 * (ABS_(lx) + ABS_(ly) + ABS_(lz));
-        const floatL margin = U_F32 * (12.0f + 2.0f * (t.R + E.x) / d_lo);
-        /* d⁻ = 0 (the light may be in the box): margin = +inf, no floor */
-        const floatL NoL_lo = MAX_(SEL_(lb / d_hi - margin, (floatL)(0.0f),
-                                        (intL)(d_lo <= 0.0f)), 0.0f);
-        const floatL p_hi = MUL_ADD(d_hi, MUL_ADD(d_hi, (floatL)(B.y), (floatL)(B.x)),
-                                    (floatL)(A.w)) * (1.0f + 8.0f * U_F32);
-        /* p⁺ = 0 or ∞ (or NaN) adds nothing */
-        const floatL w = SEL_((floatL)(0.0f), NoL_lo / p_hi * low,
-                              (intL)((p_hi > 0.0f) & (p_hi < INFINITY) & (NoL_lo > 0.0f)));
-        Tr = MUL_ADD(C.y * w, Dmr, Tr);
-        Tg = MUL_ADD(C.z * w, Dmg, Tg);
-        Tb = MUL_ADD(C.w * w, Dmb, Tb);
-    }
-    const float sum_low = MAX_(1.0f - 2.0f * (float)(n_point + n_dir + 1) * U_F32, 0.0f);
-    const floatL T = MIN_(MIN_(Tr, Tg), Tb) * sum_low;
     const intL negative = (intL)(Dmr < 0.0f) | (intL)(Dmg < 0.0f) | (intL)(Dmb < 0.0f)
                           | (intL)(Cmr < 0.0f) | (intL)(Cmg < 0.0f) | (intL)(Cmb < 0.0f)
                           | (intL)(Smin < 0.0f);
-    /* NaN anywhere: no floor */
-    /* T ≥ 0 is false for NaN; MIN_ would pass over a NaN channel, so each is tested */
-    const intL ok = (intL)(!negative) & (intL)(T >= 0.0f) & (intL)(T < INFINITY)
-                    & (intL)(Tr == Tr) & (intL)(Tg == Tg) & (intL)(Tb == Tb) & (intL)(!t.empty);
-    vstoreL(SEL_((floatL)(0.0f), T * scale * (1.0f - 2.0f * U_F32), ok), i, budget_out);
+    const float sum_low = MAX_(1.0f - 2.0f * (float)(n_point + n_dir + 1) * U_F32, 0.0f);
+    const uint2 range = candidates(i, cand_ranges, use_cand, n_point, tiles_x, super_tiles);
+    uint c = range.x;                      /* candidates in light order: group by group */
+    for (uint g = 0; g < (n_groups ? n_groups : 1u); ++g) {
+        const float4 amb = n_groups ? group_ambient[g] : ambient;
+        const uint d_begin = n_groups && g ? dir_end[g - 1] : 0u;
+        const uint d_end = n_groups ? dir_end[g] : n_dir;
+        const uint p_end = n_groups ? point_end[g] : 0xffffffffu;
+        /* ambient */
+        floatL Tr = MAX_(amb.x * Cmr, 0.0f) * low, Tg = MAX_(amb.y * Cmg, 0.0f) * low,
+               Tb = MAX_(amb.z * Cmb, 0.0f) * low;
+        /* directional lights: (l, 0) (L, 0) then 4 float4s the bound does not read */
+        for (uint j = d_begin; j < d_end; ++j) {
+            const float4 l = dirs[6 * j], L = dirs[6 * j + 1];
+            const floatL nx = MIN_(t.nlox * l.x, t.nhix * l.x);
+            const floatL ny = MIN_(t.nloy * l.y, t.nhiy * l.y);
+            const floatL nz = MIN_(t.nloz * l.z, t.nhiz * l.z);
+            /* the sum's roundings, and the normal's and l's float32 roundings (4u) */
+            const floatL w = MAX_((nx + ny + nz) - 8.0f * U_F32 * (ABS_(nx) + ABS_(ny) + ABS_(nz))
+                                  - 4.0f * U_F32, 0.0f) * low;
+            Tr = MUL_ADD(L.x * w, Dmr, Tr);
+            Tg = MUL_ADD(L.y * w, Dmg, Tg);
+            Tb = MUL_ADD(L.z * w, Dmb, Tb);
+        }
+        for (; c < range.x + range.y; ++c) {
+            const uint j = use_cand ? cand_lights[c] : c;
+            if (j >= p_end)
+                break;                     /* the next group's */
+            const __global float4 *Lr = lights + CULL_LIGHT_FLOAT4S * j;
+            const float4 A = Lr[0], B = Lr[1], C = Lr[2], E = Lr[3], F = Lr[4];
+            if (j >= n_real || F.x != 0.0f || F.z != 0.0f || A.w < 0.0f || B.x < 0.0f
+                || B.y < 0.0f)
+                continue;  /* a representative, a spot, a falloff not increasing in d or with a
+                              coefficient float32 cannot hold to a relative u (F.z) */
+            const floatL dx = MAX_(t.lox - A.x, 0.0f) + MAX_(A.x - t.hix, 0.0f);
+            const floatL dy = MAX_(t.loy - A.y, 0.0f) + MAX_(A.y - t.hiy, 0.0f);
+            const floatL dz = MAX_(t.loz - A.z, 0.0f) + MAX_(A.z - t.hiz, 0.0f);
+            const floatL d_lo = MAX_(MUL_ADD(sqrt(MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz))),
+                                             (floatL)(1.0f - 16.0f * U_F32),
+                                             -2.0f * U_F32 * (t.R + E.x)), 0.0f);
+            const floatL fx = MAX_(ABS_(t.lox - A.x), ABS_(t.hix - A.x));
+            const floatL fy = MAX_(ABS_(t.loy - A.y), ABS_(t.hiy - A.y));
+            const floatL fz = MAX_(ABS_(t.loz - A.z), ABS_(t.hiz - A.z));
+            const floatL d_hi = MUL_ADD(sqrt(MUL_ADD(fx, fx, MUL_ADD(fy, fy, fz * fz))),
+                                        (floatL)(1.0f + 16.0f * U_F32), 2.0f * U_F32 * (t.R + E.x));
+            const floatL lx = interval_product_min(t.nlox, t.nhix, A.x - t.hix, A.x - t.lox);
+            const floatL ly = interval_product_min(t.nloy, t.nhiy, A.y - t.hiy, A.y - t.loy);
+            const floatL lz = interval_product_min(t.nloz, t.nhiz, A.z - t.hiz, A.z - t.loz);
+            const floatL lb = (lx + ly + lz) - 8.0f * U_F32 * (ABS_(lx) + ABS_(ly) + ABS_(lz));
+            const floatL margin = U_F32 * (12.0f + 2.0f * (t.R + E.x) / d_lo);
+            /* d⁻ = 0 (the light may be in the box): margin = +inf, no floor */
+            const floatL NoL_lo = MAX_(SEL_(lb / d_hi - margin, (floatL)(0.0f),
+                                            (intL)(d_lo <= 0.0f)), 0.0f);
+            const floatL p_hi = MUL_ADD(d_hi, MUL_ADD(d_hi, (floatL)(B.y), (floatL)(B.x)),
+                                        (floatL)(A.w)) * (1.0f + 8.0f * U_F32);
+            /* p⁺ = 0 or ∞ (or NaN) adds nothing */
+            const floatL w = SEL_((floatL)(0.0f), NoL_lo / p_hi * low,
+                                  (intL)((p_hi > 0.0f) & (p_hi < INFINITY) & (NoL_lo > 0.0f)));
+            Tr = MUL_ADD(C.y * w, Dmr, Tr);
+            Tg = MUL_ADD(C.z * w, Dmg, Tg);
+            Tb = MUL_ADD(C.w * w, Dmb, Tb);
+        }
+        const floatL T = MIN_(MIN_(Tr, Tg), Tb) * sum_low;
+        /* T ≥ 0 is false for NaN; MIN_ would pass over a NaN channel, so each is tested */
+        const intL ok = (intL)(!negative) & (intL)(T >= 0.0f) & (intL)(T < INFINITY)
+                        & (intL)(Tr == Tr) & (intL)(Tg == Tg) & (intL)(Tb == Tb)
+                        & (intL)(!t.empty);
+        vstoreL(SEL_((floatL)(0.0f), T * scale * (1.0f - 2.0f * U_F32), ok), i,
+                budget_out + g * n_tiles_pad);
+    }
 }
 
 __kernel void cull_count(__global const float *restrict tiles, const uint n_tiles_pad,
@@ -513,8 +543,10 @@ __kernel void cull_count(__global const float *restrict tiles, const uint n_tile
                          __global const uint *restrict cand_lights, const uint use_cand,
                          const uint tiles_x, const uint super_tiles,
                          const float budget,
-                         /* relative: each tile's own budget (tile_floor), else budget */
+                         /* relative: each tile's own budget (tile_floor), else budget; with
+                            n_groups, one plane of budgets per light group */
                          __global const float *restrict tile_budget, const uint relative,
+                         const uint n_groups, __global const uint *restrict point_end,
                          __global float *restrict tau_out,
                          __global float *restrict left_out,
                          __global uint *restrict capacity_out)
@@ -527,7 +559,8 @@ __kernel void cull_count(__global const float *restrict tiles, const uint n_tile
        off the budget of 1), so that the thresholds below stay one per level */
     const float eps = relative ? usable_budget(1.0f, n_point) * (1.0f - 4.0f * U_F32)
                                : usable_budget(budget, n_point);
-    const floatL inv = budget_inverse(tile_budget, relative, i);
+    floatL inv = budget_inverse(tile_budget, relative, i);
+    uint g = 0, g_end = n_groups ? point_end[0] : 0xffffffffu;
     float tau[CULL_LEVELS];
     floatL sum[CULL_LEVELS];
     intL below[CULL_LEVELS];
@@ -542,6 +575,7 @@ __kernel void cull_count(__global const float *restrict tiles, const uint n_tile
     for (uint c = range.x; c < range.x + range.y; ++c) {
         const uint j = use_cand ? cand_lights[c] : c;
         const __global float4 *L = lights + CULL_LIGHT_FLOAT4S * j;
+        next_group(j, &g, &g_end, &inv, n_groups, point_end, tile_budget, n_tiles_pad, i);
         const floatL b = scaled_bound(light_bound(&t, L[0], L[1], L[2], L[3], L[4]), inv);
         for (int m = 0; m < CULL_LEVELS; ++m) {
             const intL is_below = (intL)(b < tau[m]);
@@ -583,6 +617,7 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
                          __global const uint *restrict cand_lights, const uint use_cand,
                          const uint tiles_x, const uint super_tiles,
                          __global const float *restrict tile_budget, const uint relative,
+                         const uint n_groups, __global const uint *restrict point_end,
                          __global const float *restrict tau_in,
                          __global const float *restrict left_in,
                          __global const uint *restrict offsets,
@@ -595,7 +630,8 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
     const tile_t t = load_tiles(tiles, i, n_tiles_pad);
     const floatL tau = vloadL(i, tau_in);
     floatL left = vloadL(i, left_in);
-    const floatL inv = budget_inverse(tile_budget, relative, i);
+    floatL inv = budget_inverse(tile_budget, relative, i);
+    uint g = 0, g_end = n_groups ? point_end[0] : 0xffffffffu;
     uint off[LANES], cnt[LANES];
     for (int m = 0; m < LANES; ++m) {
         off[m] = offsets[i * LANES + m];
@@ -605,6 +641,7 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
     for (uint c = range.x; c < range.x + range.y; ++c) {
         const uint j = use_cand ? cand_lights[c] : c;
         const __global float4 *L = lights + CULL_LIGHT_FLOAT4S * j;
+        next_group(j, &g, &g_end, &inv, n_groups, point_end, tile_budget, n_tiles_pad, i);
         const floatL b = scaled_bound(light_bound(&t, L[0], L[1], L[2], L[3], L[4]), inv);
         const intL at_or_above = (intL)(b >= tau);   /* b is never NaN (light_bound) */
         const intL greedy = at_or_above & (intL)(b <= left);

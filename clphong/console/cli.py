@@ -282,8 +282,8 @@ def _add_speed_options(p):
     p.add_argument("--relative", action="store_true",
                    help="with --max-error: EPS is a fraction of each pixel's own value, per "
                         "channel (as Lightcuts): a tile drops lights only within EPS x a proven "
-                        "lower bound of its pixels' totals; not with light groups "
-                        "(docs/speed.md, 'Relative budget')")
+                        "lower bound of its pixels' totals, each light group's layer within "
+                        "EPS of its own (docs/speed.md, 'Relative budget')")
     p.add_argument("--reference-white", type=float, default=1.0, metavar="W",
                    help="output radiance of reference white for --max-error (default 1.0)")
     p.add_argument("--no-light-tree", dest="light_tree", action="store_false",

@@ -180,7 +180,8 @@ class TileLists:
     tree_lights: int = 0      # lights under them
     tree_build_seconds: float = 0.0
     #: with the relative budget: each tile's proven lower bound of its pixels' totals
-    #: (the least channel; float64 array over the tiles, 0 where none), else None
+    #: (the least channel; float64 array over the tiles, 0 where none; with light
+    #: groups (G, tiles), each group's own), else None
     floors: np.ndarray | None = None
     #: the same for the super-tiles (SUPER×SUPER tiles, or lanes×lanes), numbered row by row
     coarse_floors: np.ndarray | None = None
@@ -269,16 +270,21 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
         cand = (candidates[0], candidates[1], np.uint32(1))
     cand_args = (*cand, np.uint32(tiles_x), np.uint32(super_tiles))
     events = list(bounds_events)
-    tile_budget = cl.Buffer(ctx, mf.READ_WRITE, n_pad * 4 if floor is not None else 16)
+    n_groups = floor[4] if floor is not None else 0
+    planes = max(n_groups, 1)
+    tile_budget = cl.Buffer(ctx, mf.READ_WRITE, planes * n_pad * 4 if floor is not None else 16)
     if floor is not None:
-        dirs, n_dir, ambient, n_real = floor
+        dirs, n_dir, ambient, n_real, _, pend, dend, gamb = floor
         k0 = runtime.kernel(prog, "tile_floor")
         k0.set_args(tiles, np.uint32(n_pad), lb, np.uint32(n_point), *cand_args, dirs,
                     np.uint32(n_dir), ambient, np.float32(budget * FLOOR_SCALE),
-                    np.uint32(n_real), tile_budget)
+                    np.uint32(n_real), np.uint32(n_groups), pend, dend, gamb, tile_budget)
         events.append(cl.enqueue_nd_range_kernel(queue, k0, (n_pad // lanes,), (CULL_LOCAL,),
                                                  wait_for=events[-1:]))
-    budget_args = (tile_budget, np.uint32(floor is not None))
+        group_args = (np.uint32(n_groups), pend)
+    else:
+        group_args = (np.uint32(0), cl.Buffer(ctx, mf.READ_ONLY, 16))
+    budget_args = (tile_budget, np.uint32(floor is not None), *group_args)
     k1 = runtime.kernel(prog, "cull_count")
     k1.set_args(tiles, np.uint32(n_pad), lb, np.uint32(n_point), *cand_args,
                 np.float32(budget), *budget_args, tau, left, capb)
@@ -303,10 +309,12 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
     seconds = sum((e.profile.end - e.profile.start) * 1e-9 for e in events)
     floors = None
     if floor is not None:          # the tiles' floors T⁻ (what tile_floor gave, over ε)
-        floors = np.zeros(n_pad, np.float32)
+        floors = np.zeros((planes, n_pad), np.float32)
         cl.enqueue_copy(queue, floors, tile_budget).wait()
-        # over ε alone: the floor the budget rests on (FLOOR_SCALE included)
-        floors = floors[:n_tiles].astype(np.float64) / budget if budget > 0 else None
+        # over ε alone: the floor the budget rests on (FLOOR_SCALE included); per group
+        floors = floors[:, :n_tiles].astype(np.float64) / budget if budget > 0 else None
+        if floors is not None and not n_groups:
+            floors = floors[0]
     return ranges, lists, int(counts[:n_tiles].sum(dtype=np.int64)), seconds, floors
 
 
@@ -328,32 +336,60 @@ def build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k_
 class RelativeInput:
     """What the relative budget's floor needs besides the point lights: the directional
     records as the shading kernel reads them (``pack_lights``), their number, and the
-    ambient radiance ``k_a·Σ A`` per channel. ``nonnegative``: every radiance is ≥ 0, so
-    every term of a pixel's total is; where not, no tile has a floor (nothing is dropped
-    but lights whose bound is 0)."""
+    ambient radiance ``k_a·Σ A`` per channel; with light groups, each group's ends of
+    the point and directional runs and its ambient ``k_a·A_g`` (each group gets floors
+    of its own). ``nonnegative``: every radiance is ≥ 0, so every term of a pixel's
+    total is; where not, no tile has a floor (nothing is dropped but lights whose bound
+    is 0)."""
 
     directional: np.ndarray
     n_dir: int
     ambient: np.ndarray
     nonnegative: bool
+    point_end: np.ndarray = None          # (G,) uint32, or None without groups
+    dir_end: np.ndarray = None
+    group_ambient: np.ndarray = None      # (G, 3) float64
+
+    @property
+    def n_groups(self) -> int:
+        return 0 if self.point_end is None else len(self.point_end)
 
     @classmethod
-    def of(cls, lights, n_dir: int, point_radiance) -> "RelativeInput":
+    def of(cls, scene, lights) -> "RelativeInput":
+        arrays = scene.light_arrays
+        n_dir = len(arrays["directional_direction"])
         d = lights.directional.reshape(-1, 6, 4)[:n_dir, 1, :3]
-        nonneg = bool((np.asarray(point_radiance) >= 0).all() and (d >= 0).all()
+        nonneg = bool((np.asarray(arrays["point_radiance"]) >= 0).all() and (d >= 0).all()
                       and (np.asarray(lights.ambient) >= 0).all())
+        groups = {}
+        if scene.light_groups:
+            groups = dict(point_end=np.asarray(arrays["point_group_end"], np.uint32),
+                          dir_end=np.asarray(arrays["directional_group_end"], np.uint32),
+                          group_ambient=np.asarray(arrays["ambient_group_radiance"])
+                          * scene.material.k_a)
         return cls(directional=lights.directional, n_dir=n_dir,
-                   ambient=np.asarray(lights.ambient, np.float64), nonnegative=nonneg)
+                   ambient=np.asarray(lights.ambient, np.float64), nonnegative=nonneg, **groups)
 
     def floor_args(self, ctx, n_real: int) -> tuple:
         """kernels/cull.cl tile_floor's arguments (see :func:`_cull_level`'s ``floor``)."""
         import pyopencl as cl
 
-        dirs = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                         hostbuf=np.ascontiguousarray(self.directional, np.float32))
-        # rounded down, so that the float32 floor never exceeds k_a·Σ A
-        amb = np.nextafter(self.ambient.astype(np.float32), np.float32(-np.inf))
-        return dirs, self.n_dir, float4(*np.maximum(amb, 0)), n_real
+        ro = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+        dirs = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(self.directional, np.float32))
+
+        def down(a):            # rounded down, so that the float32 floor never exceeds k_a·A
+            return np.maximum(np.nextafter(np.asarray(a, np.float32), np.float32(-np.inf)), 0)
+
+        G = self.n_groups
+        ends = np.zeros((2, max(G, 1)), np.uint32)
+        gamb = np.zeros((max(G, 1), 4), np.float32)
+        if G:
+            ends[0], ends[1] = self.point_end, self.dir_end
+            gamb[:, :3] = down(self.group_ambient)
+        pend = cl.Buffer(ctx, ro, hostbuf=ends[0].copy())
+        dend = cl.Buffer(ctx, ro, hostbuf=ends[1].copy())
+        gb = cl.Buffer(ctx, ro, hostbuf=gamb)
+        return dirs, self.n_dir, float4(*down(self.ambient)), n_real, G, pend, dend, gb
 
 
 #: Test-only: the factor the relative budget's floor is multiplied by (1: the proof).

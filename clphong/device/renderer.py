@@ -27,7 +27,6 @@ from ..core.memory import ENV_VAR, F32, format_size, memory_budget
 from ..io.nonfinite import apply_nonfinite_policy, apply_range_policy
 from ..model.light_tree import SpecularModel, build_light_tree
 from ..model.options import (
-    CullingError,
     check_budget,
     check_float_power,
     check_int_pow,
@@ -159,7 +158,8 @@ class Renderer:
         bounds stay within ``max_error`` times a proven lower bound of every one of its
         pixels' totals (ambient, directional and point lights; kernels/cull.cl
         ``tile_floor``); the tree's clusters within ε/2 of each super-tile's floor.
-        Not with light groups.
+        With light groups each group's lights are held to its own floor, so every
+        group layer keeps the guarantee, and so does the beauty.
     path : {"accurate", "float", "fast"}, optional
         A shading path (:data:`clphong.model.options.PATHS`): shorthand for ``fp64_directions``,
         ``compensated`` and ``int_pow``, which must then be left unset (the
@@ -264,10 +264,6 @@ class Renderer:
             budget = scene.max_error * (1.0 if relative else float(reference_white))
         #: ε as a fraction of each pixel's own value (True), or absolute (False)
         self.relative = bool(relative) and budget is not None
-        if self.relative and scene.light_groups:
-            raise CullingError(f"{scene.source}: --relative with light groups is not supported "
-                               "yet (each group layer needs a floor of its own); give an "
-                               "absolute --max-error")
         self.max_error = budget                  # absolute, a fraction with relative, or None
         self.reference_white = float(reference_white)
         if fp64_directions is None:
@@ -533,11 +529,7 @@ class Renderer:
         if self._cull_rest > 0:
             self._cull_rest -= 1
         else:
-            relative = None
-            if self.relative:
-                arrays = self.scene.light_arrays
-                relative = RelativeInput.of(lights, len(arrays["directional_direction"]),
-                                            arrays["point_radiance"])
+            relative = RelativeInput.of(self.scene, lights) if self.relative else None
             cull = build_tile_lists(self.runtime, plan, frame, lights.point, plan.n_point,
                                     budget=self.max_error, relative=relative,
                                     tree=self._tree_input(plan, frame, lights),

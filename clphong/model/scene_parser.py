@@ -259,14 +259,14 @@ class _Parser:
             lights += self.lights_file(data["lights"])
         self.check_scene(material, lights)
         aovs = self.aovs(data["render"]["aovs"], lights) if "aovs" in data.get("render", {}) else ()
-        max_error, relative = self.budget(data.get("render", {}), lights)
+        max_error, relative = self.budget(data.get("render", {}))
         return Scene(camera=camera, material=material, lights=lights, background=background,
                      source=self.source, warnings=tuple(self.warnings), color=color, aovs=aovs,
                      max_error=max_error, relative=relative)
 
-    def budget(self, t: Mapping, lights) -> tuple[float | None, bool]:
+    def budget(self, t: Mapping) -> tuple[float | None, bool]:
         """``render.max_error`` (≥ 0, as ``--max-error``) and ``render.relative`` (a bool
-        that needs max_error, as ``--relative``; not with light groups)."""
+        that needs max_error, as ``--relative``)."""
         max_error = None
         if "max_error" in t:
             max_error = self.num(t["max_error"], "render.max_error")
@@ -280,10 +280,6 @@ class _Parser:
             if relative and max_error is None:
                 self.fail("render.relative", "needs render.max_error (a fraction of each "
                                              "pixel's own value, e.g. max_error = 1e-2)")
-            if relative and any(lt.group is not None for lt in lights):
-                self.fail("render.relative", "not supported with light groups yet (each group "
-                                             "layer needs a floor of its own); give an absolute "
-                                             "max_error")
         return max_error, relative
 
     def aovs(self, v: Any, lights: tuple[Light, ...]) -> tuple[str, ...]:

@@ -12,6 +12,8 @@ bound is tight, so the check can fail.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from conftest import heightfield, make_gbuffer, make_scene, point_lights
@@ -47,9 +49,10 @@ def totals(scene, gbuffer) -> np.ndarray:
     return E
 
 
-def check_relative_holds(scene, gbuffer, eps, **kw):
+def check_relative_holds(scene, gbuffer, eps, *, group_totals=False, **kw):
     """Render with the relative budget; assert both forms of the claim; return
-    (renderer, dropped / (ε·T) per pixel and channel, TileLists)."""
+    (renderer, dropped / (ε·T) per pixel and channel, TileLists). ``group_totals``: the
+    floors are each light group's, checked against each group's own totals."""
     r = Renderer(scene, max_error=eps, relative=True, **kw)
     frame = prepare_frame(gbuffer, lanes=r.lanes)
     result = r.shade(frame)
@@ -66,7 +69,15 @@ def check_relative_holds(scene, gbuffer, eps, **kw):
     err = np.abs(result.image.astype(np.float64) - ref)
     assert np.all(err <= eps * np.abs(ref) + bound), \
         f"max excess {np.max(err - eps * np.abs(ref) - bound):.3g}"
-    check_floors(r, gbuffer, result.cull, T)
+    if group_totals:
+        for g, name in enumerate(scene.light_groups):
+            sub = dataclasses.replace(scene, lights=tuple(
+                lt for lt in scene.lights if lt.group_name == name))
+            one = dataclasses.replace(result.cull, floors=result.cull.floors[g],
+                                      coarse_floors=result.cull.coarse_floors[g])
+            check_floors(r, gbuffer, one, totals(sub, gbuffer))
+    else:
+        check_floors(r, gbuffer, result.cull, T)
     with np.errstate(divide="ignore", invalid="ignore"):
         share = np.where(T != 0, np.abs(dropped) / (eps * np.abs(T)), 0.0)
     return r, share, result.cull
@@ -87,12 +98,22 @@ def check_floors(renderer, gbuffer, cull, T):
     supert = (tile // cull.tiles_x // sup) * per_row + (tile % cull.tiles_x) // sup
     for floors, of in ((cull.floors, tile), (cull.coarse_floors, supert)):
         assert floors is not None
-        low = np.full(len(floors), np.inf)
+        low = np.full(floors.shape[-1], np.inf)
         np.minimum.at(low, of, least)
         shaded = np.isfinite(low)
-        over = floors[shaded] > np.maximum(low[shaded], 0.0) * (1 + F64_SLACK)
-        assert not over.any(), f"a floor above its least total: {floors[shaded][over][:3]} > " \
-                               f"{low[shaded][over][:3]}"
+        over = floors[..., shaded] > np.maximum(low[shaded], 0.0) * (1 + F64_SLACK)
+        assert not over.any(), f"a floor above its least total: {floors[..., shaded][over][:3]}" \
+                               f" > {np.broadcast_to(low[shaded], over.shape)[over][:3]}"
+
+
+def _uniform_lights(n_dim, eps):
+    """One light overhead and ``n_dim`` identical dim lights beside it, each ε/1000 of
+    the pixel's total from them (see :func:`_uniform_tile`)."""
+    att = (1.0, 0.0, 1.0)
+    main = dict(type="point", position=(0.0, 0.0, 1.0), intensity=2.0, attenuation=att)
+    dim = eps * 0.4 / (1000 - eps * n_dim)
+    return [main] + [dict(type="point", position=(0.0, 0.0, 1.0), intensity=2.0 * dim / 0.4,
+                          attenuation=att) for _ in range(n_dim)]
 
 
 def _uniform_tile(n_dim, eps, *, size=16):
@@ -267,14 +288,88 @@ def test_negative_albedo_has_no_floor():
     assert np.array_equal(r.shade(frame).image[mine], brute[mine])
 
 
-def test_relative_needs_a_budget_and_refuses_light_groups(device):
+def test_relative_needs_a_budget(device):
     scene = make_scene(point_lights(np.random.default_rng(0), 3), model="phong", h=10.0)
     with pytest.raises(CullingError, match="--relative needs a --max-error"):
         Renderer(scene, relative=True, device=device)
-    lights = [dict(point_lights(np.random.default_rng(1), 1)[0], group="key")]
-    grouped = make_scene(lights, model="phong", h=10.0)
-    with pytest.raises(CullingError, match="light groups"):
-        Renderer(grouped, max_error=1e-2, relative=True, device=device)
+
+
+def group_dropped(scene, gbuffer, renderer, cull, members):
+    """Per pixel and channel, Σ of the float64 contributions of the point lights with
+    index in ``members`` (scene.light_arrays order) that the tile dropped."""
+    from clphong.device.culling import read_tile_lists, tile_of_pixels
+
+    lists = read_tile_lists(renderer.runtime, cull)
+    tile = tile_of_pixels(gbuffer.shape, renderer.lanes).reshape(-1)
+    px, C, D, S, fg = reference._inputs(scene, gbuffer)
+    tile_fg = tile[fg]
+    n_point = len(scene.light_arrays["point_position"])
+    kept = np.zeros((cull.n_tiles, n_point), bool)
+    for t, idx in enumerate(lists):
+        kept[t, idx] = True
+    total = np.zeros((len(tile_fg), 3))
+    j = 0
+    for kind, L, _, diffuse, specular in reference._light_terms(scene, px):
+        if kind != "point":
+            continue
+        for k in range(len(diffuse)):
+            if j in members:
+                contrib = L[k] * (D * diffuse[k][:, None] + S * specular[k][:, None])
+                total += np.where(kept[tile_fg, j][:, None], 0.0, contrib)
+            j += 1
+    return total
+
+
+@pytest.mark.parametrize("eps", [1e-1, 1e-2])
+def test_every_light_group_keeps_its_own_relative_budget(eps):
+    """Two groups (a key with its ambient, a dim fill with a directional light), listed
+    group by group: the lights each tile drops from group g sum to ≤ ε·T_g per pixel
+    and channel, T_g the group layer's own float64 value, and the beauty keeps ε·T."""
+    rng = np.random.default_rng(21)
+    gb = heightfield(rng, 40, 48, bumps=0.05)
+    key = point_lights(rng, 80, att=(1.0, 0.0, 20.0), intensity=(0.5, 2.0))
+    fill = point_lights(rng, 80, att=(1.0, 0.0, 20.0), intensity=(0.01, 0.1))
+    lights = ([dict(lt, group="key") for lt in key] + [dict(type="ambient", intensity=0.05,
+                                                            group="key")]
+              + [dict(lt, group="fill") for lt in fill]
+              + [dict(type="directional", direction=(0.2, 0.1, -1.0), intensity=0.02,
+                      group="fill")])
+    scene = make_scene(lights, model="phong", h=10.0, k_a=0.5)
+    assert scene.light_groups == ("key", "fill")
+    r, _, cull = check_relative_holds(scene, gb, eps, group_totals=True)
+    assert cull.floors.shape[0] == 2
+    ends = scene.light_arrays["point_group_end"]
+    for g, name in enumerate(scene.light_groups):
+        members = set(range(ends[g - 1] if g else 0, ends[g]))
+        sub = make_scene([lt for lt in lights if lt["group"] == name], model="phong", h=10.0,
+                         k_a=0.5)
+        T_g = totals(sub, gb)
+        dropped = group_dropped(scene, gb, r, cull, members)
+        assert np.all(np.abs(dropped) <= eps * T_g * (1 + F64_SLACK)), name
+    if eps >= 1e-1:
+        assert cull.kept_fraction < 1.0          # something was dropped
+
+
+def test_a_dim_group_is_held_to_its_own_floor_not_the_beautys():
+    """A uniform tile (exact floors) lit by a bright key group and a fill group 100x
+    dimmer whose 2000 dim lights are each ε/1000 of the fill's own total: the culler
+    drops about ε of the fill's own value from the fill layer, not ε of the beauty's
+    (which would be ~100x too much for the fill layer)."""
+    eps = 1e-2
+    P = np.zeros((16, 16, 3))
+    gb = make_gbuffer(P, np.broadcast_to([0.0, 0.0, 1.0], P.shape), np.full(P.shape, 0.5))
+    key = dict(type="point", position=(0.0, 0.0, 1.0), intensity=200.0,
+               attenuation=(1.0, 0.0, 1.0), group="key")
+    fill = [dict(lt, group="fill") for lt in _uniform_lights(2000, eps)]
+    scene = make_scene([key] + fill, model="phong", k_a=0.0, k_d=0.8, k_s=0.0, h=10.0,
+                       camera=dict(type="orthographic", direction=(0.0, 0.0, -1.0)))
+    r, share, cull = check_relative_holds(scene, gb, eps, group_totals=True)
+    sub = make_scene(fill, model="phong", k_a=0.0, k_d=0.8, k_s=0.0, h=10.0,
+                     camera=dict(type="orthographic", direction=(0.0, 0.0, -1.0)))
+    T_fill = totals(sub, gb)
+    dropped = group_dropped(scene, gb, r, cull, set(range(1, 2002)))
+    assert np.all(dropped <= eps * T_fill * (1 + F64_SLACK))
+    assert (dropped / (eps * T_fill)).max() >= 0.9              # and it does use it
 
 
 def test_plan_says_the_budget_is_relative():
