@@ -436,3 +436,28 @@ def test_the_budget_from_the_scene_file(tmp_path, capsys):
         assert main(args) == 1
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and str(scene_path) in err[0] and key in err[0]
+
+
+def test_a_nan_in_a_tile_leaves_it_without_a_floor():
+    """--nonfinite pass lets a NaN albedo reach the kernels: the minima of its tile would
+    skip it, so the tile gets no floor (nothing dropped) and matches brute force."""
+    from clphong.device.culling import tile_of_pixels
+
+    rng = np.random.default_rng(8)
+    gb = heightfield(rng, 40, 40, bumps=0.02)
+    gb.coverage[...] = 1.0
+    gb.albedo[20, 7, 0] = np.nan
+    lights = point_lights(rng, 30, att=(1.0, 0.0, 30.0))
+    lights.append(dict(type="ambient", intensity=0.05))
+    scene = make_scene(lights, model="phong", h=10.0)
+    r = Renderer(scene, max_error=1e-1, relative=True, nonfinite="pass")
+    with pytest.warns(UserWarning, match="non-finite G-buffer values passed"):
+        result = r.render(gb)
+    tiles = tile_of_pixels(gb.shape, r.lanes)
+    bad = tiles[20, 7]
+    assert result.cull.floors[bad] == 0.0
+    assert result.cull.floors[tiles[2, 35]] > 0.0
+    with pytest.warns(UserWarning, match="non-finite"):
+        brute = Renderer(scene, nonfinite="pass").render(gb).image
+    mine = tiles == bad
+    assert np.array_equal(result.image[mine], brute[mine], equal_nan=True)
