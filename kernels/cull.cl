@@ -663,3 +663,53 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
     for (int m = 0; m < LANES; ++m)
         counts_out[i * LANES + m] = cnt[m];
 }
+
+/* Directional lights per tile (DIR_CULLING, clphong/device/culling.py build_dir_lists):
+ * a tile keeps light l unless the shading kernel's n·l is ≤ 0 at every one of its
+ * pixels, where the light adds exactly 0 (max(n·l, 0) = 0, the specular term gated
+ * on n·l > 0): so the lists change no pixel. The bound of the kernel's n·l over the
+ * tile's box of normals: Σ_c max(nlo_c·l_c, nhi_c·l_c), plus the roundings of that
+ * sum (8u of its terms) and of the kernel's n·l from the hi + lo normal and direction
+ * (32u: |n|, |l| ≈ 1). NaN keeps the light. One work-item per tile (not LANES tiles:
+ * each tile's loop is short and the implicit vectoriser takes the tiles). */
+inline int dir_reaches(__global const float *tiles, uint n_tiles_pad, uint t, float4 l)
+{
+    const float a = MAX_(tiles[T_NLOX * n_tiles_pad + t] * l.x, tiles[T_NHIX * n_tiles_pad + t] * l.x);
+    const float b = MAX_(tiles[T_NLOY * n_tiles_pad + t] * l.y, tiles[T_NHIY * n_tiles_pad + t] * l.y);
+    const float c = MAX_(tiles[T_NLOZ * n_tiles_pad + t] * l.z, tiles[T_NHIZ * n_tiles_pad + t] * l.z);
+    const float ub = (a + b + c) + 8.0f * U_F32 * (ABS1_(a) + ABS1_(b) + ABS1_(c)) + 32.0f * U_F32;
+    return !(ub <= 0.0f);
+}
+
+inline int tile_is_empty(__global const float *tiles, uint n_tiles_pad, uint t)
+{
+    return tiles[T_LOX * n_tiles_pad + t] > tiles[T_HIX * n_tiles_pad + t];
+}
+
+__kernel void dir_count(__global const float *restrict tiles, const uint n_tiles_pad,
+                        const uint n_tiles, __global const float4 *restrict dirs,
+                        const uint n_dir, __global uint *restrict count_out)
+{
+    const uint t = get_global_id(0);
+    if (t >= n_tiles_pad)
+        return;
+    uint n = 0;
+    if (t < n_tiles && !tile_is_empty(tiles, n_tiles_pad, t))
+        for (uint j = 0; j < n_dir; ++j)
+            n += dir_reaches(tiles, n_tiles_pad, t, dirs[6 * j]);
+    count_out[t] = n;
+}
+
+__kernel void dir_write(__global const float *restrict tiles, const uint n_tiles_pad,
+                        const uint n_tiles, __global const float4 *restrict dirs,
+                        const uint n_dir, __global const uint *restrict offsets,
+                        __global uint *restrict lists)
+{
+    const uint t = get_global_id(0);
+    if (t >= n_tiles || tile_is_empty(tiles, n_tiles_pad, t))
+        return;
+    uint k = offsets[t];
+    for (uint j = 0; j < n_dir; ++j)
+        if (dir_reaches(tiles, n_tiles_pad, t, dirs[6 * j]))
+            lists[k++] = j;
+}

@@ -396,6 +396,10 @@ def cmd_render(args) -> int:
         print(f"{w}x{h}: read {t_read - t0:.3f} s, setup {t_end - t_read - t_shade - t_write:.3f} s, "
               f"shade {t_shade:.3f} s (kernel {st.kernel_seconds:.4f} s), write {t_write:.3f} s"
               + (f" ({kinds})" if kinds else "") + f", total {t_end - t0:.3f} s", file=sys.stderr)
+        dl = result.dir_lists
+        if dl is not None:
+            print(f"directional lists: {dl.seconds * 1e3:.1f} ms, tiles keep {dl.kept_fraction:.1%} "
+                  f"of {dl.n_dir} directional lights (the others face away: exact)", file=sys.stderr)
         cull = result.cull
         if cull is not None:
             print(f"culling: {cull.seconds * 1e3:.1f} ms, tiles keep {cull.kept_fraction:.2%} of "

@@ -599,3 +599,75 @@ def tile_of_pixels(shape, lanes: int, tiles_x: int | None = None) -> np.ndarray:
     first = (q // lanes) * lanes
     y, x = first // w, first % w
     return ((y // TILE) * tiles_x + x // TILE).reshape(h, w)
+
+
+@dataclass
+class DirLists:
+    """Per-tile directional-light lists on the device (DIR_CULLING): each tile's lights
+    that some normal of it may face, in light order (kernels/cull.cl dir_count)."""
+
+    ranges: object            # cl.Buffer of uint2 (offset, count) per tile
+    lights: object            # cl.Buffer of uint light indices
+    width: int
+    tiles_x: int
+    n_tiles: int
+    kept: int                 # Σ over tiles of the kept lights
+    n_dir: int
+    active_tiles: int
+    seconds: float            # device time of the bounds and both list kernels
+
+    @property
+    def kept_fraction(self) -> float:
+        """Mean fraction of the directional lights a tile with shaded pixels keeps."""
+        return self.kept / max(self.active_tiles * self.n_dir, 1)
+
+    def kernel_args(self) -> list:
+        return [self.ranges, self.lights, np.uint32(self.width), np.uint32(self.tiles_x),
+                np.uint32(self.n_tiles)]
+
+
+def build_dir_lists(runtime, plan, frame, directional, n_dir: int, *, k_d, S,
+                    gbuf_buffer=None, maps_buffer=None) -> DirLists:
+    """The directional lists of one frame (plan with DIR_CULLING): the tiles' bounds
+    (``tile_bounds``), then per tile the count of lights it keeps, a prefix sum here,
+    and the indices. ``directional``: the records as the shading kernel reads them."""
+    import pyopencl as cl
+
+    with runtime.lock:
+        ctx, queue = runtime.context, runtime.queue
+        lanes = max(plan.lanes, 1)
+        defines = {k: v for k, v in plan.defines.items() if k in CULL_DEFINES}
+        prog = runtime.program("cull.cl", {**defines, "CULL_TILE": TILE,
+                                           "CULL_SUPER": super_tiles(lanes), "LANES": lanes})
+        h, w = frame.shape
+        tiles_x, tiles_y = -(-w // TILE), -(-h // TILE)
+        n_tiles = tiles_x * tiles_y
+        n_pad = _n_pad(n_tiles, lanes)
+        mf = cl.mem_flags
+        ro = mf.READ_ONLY | mf.COPY_HOST_PTR
+        g = gbuf_buffer if gbuf_buffer is not None else cl.Buffer(ctx, ro, hostbuf=frame.gbuf)
+        mp = maps_buffer if maps_buffer is not None else cl.Buffer(ctx, ro, hostbuf=frame.maps)
+        tiles, e0 = _tile_bounds(runtime, prog, frame, g, mp, k_d=k_d, S=S, tile_size=TILE,
+                                 tiles_x=tiles_x, tiles_y=tiles_y, lanes=lanes)
+        db = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(directional, np.float32))
+        counts = np.zeros(n_pad, np.uint32)
+        cb = cl.Buffer(ctx, mf.READ_WRITE, counts.nbytes)
+        k1 = runtime.kernel(prog, "dir_count")
+        k1.set_args(tiles, np.uint32(n_pad), np.uint32(n_tiles), db, np.uint32(n_dir), cb)
+        e1 = cl.enqueue_nd_range_kernel(queue, k1, (n_pad,), (CULL_LOCAL,), wait_for=[e0])
+        cl.enqueue_copy(queue, counts, cb, wait_for=[e1]).wait()
+        offsets = np.zeros(n_pad, np.uint32)
+        offsets[1:] = np.cumsum(counts[:-1], dtype=np.uint64).astype(np.uint32)
+        total = int(counts[:n_tiles].sum(dtype=np.int64))
+        ob = cl.Buffer(ctx, ro, hostbuf=offsets)
+        lists = cl.Buffer(ctx, mf.READ_WRITE, max(total, 1) * 4)
+        k2 = runtime.kernel(prog, "dir_write")
+        k2.set_args(tiles, np.uint32(n_pad), np.uint32(n_tiles), db, np.uint32(n_dir), ob, lists)
+        e2 = cl.enqueue_nd_range_kernel(queue, k2, (n_pad,), (CULL_LOCAL,))
+        e2.wait()
+        ranges = np.stack([offsets[:n_tiles], counts[:n_tiles]], axis=1).astype(np.uint32)
+        rb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(ranges))
+        active = int(np.count_nonzero(counts[:n_tiles])) or 1
+        seconds = sum((e.profile.end - e.profile.start) * 1e-9 for e in (e0, e1, e2))
+        return DirLists(ranges=rb, lights=lists, width=w, tiles_x=tiles_x, n_tiles=n_tiles,
+                        kept=total, n_dir=n_dir, active_tiles=active, seconds=seconds)

@@ -28,6 +28,12 @@ COMPENSATE_ABOVE = 4
 #: Pixels per work-item, as explicit SIMD lanes (see kernels/clphong.h).
 DEFAULT_LANES = 16
 
+#: Directional lights from which the lane kernel reads per-tile lists of them
+#: (DIR_CULLING: only the lights some normal of a tile may face; exact). An
+#: environment becomes thousands; a scene's sun and sky lights, a few, for which
+#: a list pass would cost more than it saves.
+DIR_CULL_MIN = 64
+
 
 #: The largest whole exponent k (h, or 4h for Blinn-Phong) raised by binary
 #: powering (SPEC_INT_POW): at most 16 squarings and 15 products per light.
@@ -168,7 +174,7 @@ def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated
 
 def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp64_directions,
                   int_pow, max_error, light_tile, sum_fp64, rsqrt_builtin=False,
-                  light_unroll=0, rsqrt_native=False, relative=False) -> None:
+                  light_unroll=0, rsqrt_native=False, relative=False, groups=()) -> None:
     """The lane kernel's own defines (culling, the light loop, the number formats and the
     specular power), each with its reason, through ``put`` (see :func:`make_plan`)."""
     m = scene.material
@@ -183,6 +189,15 @@ def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp
               else "no --max-error budget: every light shades every pixel"))
     if culling:
         put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel culling tiles (clphong.device.culling.TILE)")
+    dir_cull = n_dir >= DIR_CULL_MIN and not groups and not light_tile
+    put("DIR_CULLING", dir_cull,
+        f"{n_dir} directional lights: per-tile lists keep those some normal of the tile may "
+        "face (n·l > 0); the others add exactly 0 there (kernels/cull.cl dir_count)"
+        if dir_cull else f"fewer than {DIR_CULL_MIN} directional lights: no per-tile lists"
+        if n_dir < DIR_CULL_MIN else "directional lights in one loop (light groups or a "
+        "staged GPU loop: their lists are not built)")
+    if dir_cull and not culling:
+        put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel tiles of the directional lists")
     native_float = bool(rsqrt_native) and not fp64_directions
     put("RSQRT_BUILTIN", rsqrt_builtin,
         "1/√x by the OpenCL C builtin rsqrt (2 ulp by the specification): on this platform "
@@ -365,7 +380,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
                       blinn=blinn, fp64=fp64, fp64_directions=fp64_directions, int_pow=int_pow,
                       max_error=max_error, light_tile=light_tile, sum_fp64=sum_fp64,
                       rsqrt_builtin=rsqrt_builtin, light_unroll=light_unroll,
-                      rsqrt_native=rsqrt_native, relative=relative)
+                      rsqrt_native=rsqrt_native, relative=relative, groups=groups)
     if kernel != "lanes" and (groups or aovs):
         raise SceneError(f"{scene.source}: the obvious kernel shades the beauty only; light groups "
                          "and AOV layers need the lane kernel")

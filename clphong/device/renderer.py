@@ -49,7 +49,14 @@ from .bands import (
     plan_bands,
     render_bytes_per_pixel,
 )
-from .culling import RelativeInput, TileLists, TreeInput, build_tile_lists
+from .culling import (
+    DirLists,
+    RelativeInput,
+    TileLists,
+    TreeInput,
+    build_dir_lists,
+    build_tile_lists,
+)
 from .display import DisplayTransform, apply_display_transform, enqueue_display
 from .frame import (
     COVERAGE_PLANE,
@@ -113,6 +120,8 @@ class RenderResult:
     bands: int = 1
     layers: dict = field(default_factory=dict)
     display_transform: DisplayTransform | None = None
+    #: The directional lights' per-tile lists of the (last) launch (DIR_CULLING), or None.
+    dir_lists: DirLists | None = None
 
     def __array__(self, dtype=None, copy=None):
         return self.image if dtype is None else self.image.astype(dtype)
@@ -450,7 +459,7 @@ class Renderer:
                             total_seconds=time.perf_counter() - t0)
         return RenderResult(image=image, display=shown, plan=last.plan, stats=stats, cull=last.cull,
                             nonfinite=nonfinite, bands=len(bands), layers=layers,
-                            display_transform=display)
+                            display_transform=display, dir_lists=last.dir_lists)
 
     def _band_rows(self, gbuffer, display: bool) -> int:
         """The rows one launch may shade (the memory model and the device's limits)."""
@@ -584,6 +593,12 @@ class Renderer:
             if records is not None:                  # the lists name the tree's clusters too
                 pl = cl.Buffer(ctx, ro, hostbuf=shading_records(records[1] if fp64 else records[0],
                                                                 spots))
+            dirs, dir_args = None, []
+            if plan.defines.get("DIR_CULLING"):       # the lights some normal of a tile faces
+                dirs = build_dir_lists(self.runtime, plan, frame, lights.directional,
+                                       plan.n_directional, k_d=k_d, S=S, gbuf_buffer=g,
+                                       maps_buffer=mp)
+                dir_args = dirs.kernel_args()
             kern = self.runtime.kernel(prog, "shade")
             kern.set_args(
                 g, mp, ob, np.uint32(frame.stride), np.uint32(0),
@@ -591,7 +606,7 @@ class Renderer:
                 float4(*origin), float4(*eye), float4(*lights.ambient),
                 np.float32(k_d), float4(*S), np.float32(k), float4(*bg),
                 float4(*eye_lo), float4(*amb_lo, kd_lo), float4(*S_lo, k_lo), gt, ga,
-                *cull_args)
+                *cull_args, *dir_args)
             items = frame.stride // self.lanes
             lights_per_item = max(plan.n_point + plan.n_directional, 1) * self.lanes
             events = []
@@ -628,7 +643,7 @@ class Renderer:
         stats = RenderStats(kernel_seconds=kernel_s, upload_seconds=t2 - t1 - kernel_s,
                             total_seconds=time.perf_counter() - t0)
         return RenderResult(image=image, display=shown, plan=plan, stats=stats, cull=cull,
-                            layers=layers, display_transform=display)
+                            layers=layers, display_transform=display, dir_lists=dirs)
 
 
 #: A launch is split into pieces of about this long (at a pessimistic rate), so

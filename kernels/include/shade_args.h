@@ -4,7 +4,7 @@
  * clphong/device/renderer.py), which passes them in this order: the frame, the
  * lights and the uniforms, then display_kernel_args (clphong/device/display.py)
  * from `display` on, then with CULLING the tile lists' kernel_args
- * (clphong/device/culling.py). shade_obvious.cl takes the same list and ignores
+ * (clphong/device/culling.py), then with DIR_CULLING the directional lists' (the same). shade_obvious.cl takes the same list and ignores
  * what it does not use (the hi + lo remainders: it is all float).
  *
  * pointrec_t is clphong.h's (float4 unless DIRECTIONS_FP64); CULLING is plan.h's.
@@ -23,6 +23,18 @@
     const uint width, const uint tiles_x, const uint n_tiles
 #else
 #define SHADE_CULL_ARGS
+#endif
+
+#if defined(DIR_CULLING) && DIR_CULLING
+/* per-tile directional-light lists (cull.cl dir_count/dir_write): (offset, count) per
+   tile and the indices of the lights some normal of the tile may face, in light order;
+   the tiles' geometry as the point lists' */
+#define SHADE_DIR_ARGS , \
+    __global const uint2 *restrict dir_ranges, \
+    __global const uint *restrict dir_lights, \
+    const uint dir_width, const uint dir_tiles_x, const uint dir_n_tiles
+#else
+#define SHADE_DIR_ARGS
 #endif
 
 #define SHADE_ARGS \
@@ -45,6 +57,6 @@
     const float4 S_lo,         /* S_uniform − float(S_uniform) (xyz), k − float(k) (w); both with WEIGHTS_FP64 */ \
     __global const uint *restrict group_table,     /* with N_GROUPS: dir_end[G], point_end[G] */ \
     __global const float4 *restrict group_ambient  /* with N_GROUPS: k_a·A_g as hi, lo per group */ \
-    SHADE_CULL_ARGS
+    SHADE_CULL_ARGS SHADE_DIR_ARGS
 
 #endif /* CLPHONG_SHADE_ARGS_H */

@@ -1,0 +1,93 @@
+"""Per-tile lists of directional lights (DIR_CULLING, kernels/cull.cl dir_count).
+
+A tile keeps a directional light unless the kernel's n·l is ≤ 0 at each of its
+pixels, where the light adds exactly 0. So the lists change no pixel: the claim
+under test is bit-identity with the loop over every light, on scenes with many
+directional lights from every side (an environment's), and that they do drop the
+lights behind a tile's surface.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import GBUFFERS, heightfield, make_scene, point_lights
+
+from clphong.device import plan as plan_module
+from clphong.device.renderer import Renderer
+
+
+def sphere_lights(rng, n, intensity=0.02):
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return [dict(type="directional", direction=tuple(x), color=tuple(rng.uniform(0.3, 1, 3)),
+                 intensity=intensity) for x in d]
+
+
+def both(scene, gb, monkeypatch, **kw):
+    """(with the lists, without them): the same renderer options, DIR_CULL_MIN moved."""
+    listed = Renderer(scene, **kw).render(gb)
+    monkeypatch.setattr(plan_module, "DIR_CULL_MIN", 10 ** 9)
+    plain = Renderer(scene, **kw).render(gb)
+    monkeypatch.undo()
+    assert listed.plan.defines["DIR_CULLING"] == 1 and plain.plan.defines["DIR_CULLING"] == 0
+    return listed, plain
+
+
+@pytest.mark.parametrize("model,path", [("phong", None), ("blinn-phong", None),
+                                        ("phong", "fast"), ("blinn-phong", "float")])
+def test_lists_change_no_pixel(model, path, monkeypatch):
+    rng = np.random.default_rng(4)
+    gb = heightfield(rng, 45, 70, bumps=0.2)
+    lights = sphere_lights(rng, 300) + point_lights(rng, 5)
+    scene = make_scene(lights, model=model, h=20.0,
+                       camera=dict(type="perspective", position=(2.0, 1.5, 4.0)))
+    listed, plain = both(scene, gb, monkeypatch, path=path)
+    assert np.array_equal(listed.image, plain.image)
+    d = listed.dir_lists
+    assert d is not None and 0.3 < d.kept_fraction < 0.8     # about the lights above the surface
+
+
+def test_lists_with_culled_points_and_layers(monkeypatch):
+    """Point-light culling and AOV layers beside the directional lists: still bit-identical."""
+    rng = np.random.default_rng(9)
+    gb = heightfield(rng, 40, 50)
+    scene = make_scene(sphere_lights(rng, 100) + point_lights(rng, 40), model="phong", h=12.0)
+    listed, plain = both(scene, gb, monkeypatch, max_error=1e-3, aovs=("diffuse", "specular"))
+    assert np.array_equal(listed.image, plain.image)
+    for k in listed.layers:
+        assert np.array_equal(listed.layers[k], plain.layers[k])
+
+
+def test_few_directional_lights_or_groups_take_no_lists():
+    rng = np.random.default_rng(1)
+    few = make_scene(sphere_lights(rng, 3), model="phong", h=10.0)
+    assert Renderer(few).plan_for(()).defines["DIR_CULLING"] == 0
+    grouped = make_scene([dict(lt, group="sky") for lt in sphere_lights(rng, 100)], model="phong",
+                         h=10.0)
+    p = Renderer(grouped).plan_for(())
+    assert p.defines["DIR_CULLING"] == 0 and "light groups" in str(p)
+
+
+def test_the_sample_environment_is_unchanged(monkeypatch):
+    """The shipped sky as directional lights (gbuffers/spheres_sky.toml) on the spheres."""
+    from clphong.io.envmap import resolve_environment
+    from clphong.io.gbuffer import read_gbuffer
+    from clphong.model.scene import load_scene
+
+    scene = resolve_environment(load_scene(str(GBUFFERS / "spheres_sky.toml")),
+                                max_error=1e-2).scene
+    gb = read_gbuffer(str(GBUFFERS / "spheres.exr"))
+    listed, plain = both(scene, gb, monkeypatch)
+    assert np.array_equal(listed.image, plain.image)
+    assert listed.dir_lists.kept_fraction < 0.9
+
+
+def test_render_stats_say_what_the_lists_keep(tmp_path, capsys):
+    from clphong.console.cli import main
+
+    args = ["render", str(GBUFFERS / "spheres_sky.toml"), str(GBUFFERS / "spheres.exr"),
+            "-o", str(tmp_path / "o.exr"), "--env-error", "1e-2", "--stats"]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "-DDIR_CULLING=1" in err and "directional lists:" in err and "face away" in err
