@@ -26,6 +26,9 @@
  *                    (clphong/device/culling.py)
  *   CULL_TILE        with CULLING: screen tile edge of the lists, pixels (the culling
  *                    pass's TILE, clphong/device/culling.py, which builds them)
+ *   DIR_CULLING      (shade.cl) directional lights from per-tile lists of those some
+ *                    normal of the tile may face (cull.cl dir_count): exact; with
+ *                    CULL_TILE as their tile edge
  *   COVERAGE         gbuf plane 12 is the coverage α: outputs are α-premultiplied,
  *                    the beauty over the background (α·S + (1 − α)·background)
  *   N_GROUPS         number of light-group layers (0: none); the host sorts lights by group
