@@ -156,14 +156,26 @@ def pack_cull_lights(point: np.ndarray, n_point: int) -> np.ndarray:
 
 
 @dataclass
-class TileLists:
-    """Per-tile point-light lists on the device, and what culling achieved."""
+class ListedTiles:
+    """Per-tile light lists on the device, as the shading kernel reads them: (offset,
+    count) per tile and the light indices, and the tiles' geometry (16×16 pixels,
+    ``tiles_x`` a row; a work-item's tile is that of its first pixel)."""
 
     ranges: object            # cl.Buffer of uint2 (offset, count) per tile
     lights: object            # cl.Buffer of uint light indices
     width: int
     tiles_x: int
     n_tiles: int
+
+    def kernel_args(self) -> list:
+        return [self.ranges, self.lights, np.uint32(self.width), np.uint32(self.tiles_x),
+                np.uint32(self.n_tiles)]
+
+
+@dataclass
+class TileLists(ListedTiles):
+    """Per-tile point-light lists on the device, and what culling achieved."""
+
     kept: int                 # Σ over tiles of the kept lights
     n_point: int
     seconds: float            # device time of the three culling kernels
@@ -195,10 +207,6 @@ class TileLists:
     def kept_fraction(self) -> float:
         """Mean fraction of the point lights a tile with shaded pixels keeps."""
         return self.kept / max(self.active_tiles * self.n_point, 1)
-
-    def kernel_args(self) -> list:
-        return [self.ranges, self.lights, np.uint32(self.width), np.uint32(self.tiles_x),
-                np.uint32(self.n_tiles)]
 
 
 #: Floats per tile record (T_PLANES in kernels/cull.cl).
@@ -602,15 +610,10 @@ def tile_of_pixels(shape, lanes: int, tiles_x: int | None = None) -> np.ndarray:
 
 
 @dataclass
-class DirLists:
+class DirLists(ListedTiles):
     """Per-tile directional-light lists on the device (DIR_CULLING): each tile's lights
     that some normal of it may face, in light order (kernels/cull.cl dir_count)."""
 
-    ranges: object            # cl.Buffer of uint2 (offset, count) per tile
-    lights: object            # cl.Buffer of uint light indices
-    width: int
-    tiles_x: int
-    n_tiles: int
     kept: int                 # Σ over tiles of the kept lights
     n_dir: int
     active_tiles: int
@@ -620,10 +623,6 @@ class DirLists:
     def kept_fraction(self) -> float:
         """Mean fraction of the directional lights a tile with shaded pixels keeps."""
         return self.kept / max(self.active_tiles * self.n_dir, 1)
-
-    def kernel_args(self) -> list:
-        return [self.ranges, self.lights, np.uint32(self.width), np.uint32(self.tiles_x),
-                np.uint32(self.n_tiles)]
 
 
 def build_dir_lists(runtime, plan, frame, directional, n_dir: int, *, k_d, S,

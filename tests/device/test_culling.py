@@ -38,9 +38,10 @@ def _shade_through_the_lists(monkeypatch):
     monkeypatch.setattr(culling, "TREE_ABOVE", 2.0)
 
 
-def dropped_sum(scene, gbuffer, renderer, cull):
+def dropped_sum(scene, gbuffer, renderer, cull, members=None):
     """Per pixel and channel, Σ of the float64 contributions of the lights the tile dropped
-    (``cull``: the TileLists of the launch)."""
+    (``cull``: the TileLists of the launch); ``members``: only the point lights with these
+    indices (scene.light_arrays order), else all."""
     lists = read_tile_lists(renderer.runtime, cull)
     tile = tile_of_pixels(gbuffer.shape, renderer.lanes).reshape(-1)
     px, C, D, S, fg = reference._inputs(scene, gbuffer)
@@ -57,8 +58,9 @@ def dropped_sum(scene, gbuffer, renderer, cull):
         if kind != "point":
             continue
         for k in range(len(diffuse)):
-            contrib = L[k] * (D * diffuse[k][:, None] + S * specular[k][:, None])
-            total += np.where(kept[tile_fg, j][:, None], 0.0, contrib)
+            if members is None or j in members:
+                contrib = L[k] * (D * diffuse[k][:, None] + S * specular[k][:, None])
+                total += np.where(kept[tile_fg, j][:, None], 0.0, contrib)
             j += 1
     assert j == n_point
     return total

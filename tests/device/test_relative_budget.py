@@ -294,32 +294,6 @@ def test_relative_needs_a_budget(device):
         Renderer(scene, relative=True, device=device)
 
 
-def group_dropped(scene, gbuffer, renderer, cull, members):
-    """Per pixel and channel, Σ of the float64 contributions of the point lights with
-    index in ``members`` (scene.light_arrays order) that the tile dropped."""
-    from clphong.device.culling import read_tile_lists, tile_of_pixels
-
-    lists = read_tile_lists(renderer.runtime, cull)
-    tile = tile_of_pixels(gbuffer.shape, renderer.lanes).reshape(-1)
-    px, C, D, S, fg = reference._inputs(scene, gbuffer)
-    tile_fg = tile[fg]
-    n_point = len(scene.light_arrays["point_position"])
-    kept = np.zeros((cull.n_tiles, n_point), bool)
-    for t, idx in enumerate(lists):
-        kept[t, idx] = True
-    total = np.zeros((len(tile_fg), 3))
-    j = 0
-    for kind, L, _, diffuse, specular in reference._light_terms(scene, px):
-        if kind != "point":
-            continue
-        for k in range(len(diffuse)):
-            if j in members:
-                contrib = L[k] * (D * diffuse[k][:, None] + S * specular[k][:, None])
-                total += np.where(kept[tile_fg, j][:, None], 0.0, contrib)
-            j += 1
-    return total
-
-
 @pytest.mark.parametrize("eps", [1e-1, 1e-2])
 def test_every_light_group_keeps_its_own_relative_budget(eps):
     """Two groups (a key with its ambient, a dim fill with a directional light), listed
@@ -344,7 +318,7 @@ def test_every_light_group_keeps_its_own_relative_budget(eps):
         sub = make_scene([lt for lt in lights if lt["group"] == name], model="phong", h=10.0,
                          k_a=0.5)
         T_g = totals(sub, gb)
-        dropped = group_dropped(scene, gb, r, cull, members)
+        dropped = dropped_sum(scene, gb, r, cull, members)
         assert np.all(np.abs(dropped) <= eps * T_g * (1 + F64_SLACK)), name
     if eps >= 1e-1:
         assert cull.kept_fraction < 1.0          # something was dropped
@@ -367,7 +341,7 @@ def test_a_dim_group_is_held_to_its_own_floor_not_the_beautys():
     sub = make_scene(fill, model="phong", k_a=0.0, k_d=0.8, k_s=0.0, h=10.0,
                      camera=dict(type="orthographic", direction=(0.0, 0.0, -1.0)))
     T_fill = totals(sub, gb)
-    dropped = group_dropped(scene, gb, r, cull, set(range(1, 2002)))
+    dropped = dropped_sum(scene, gb, r, cull, set(range(1, 2002)))
     assert np.all(dropped <= eps * T_fill * (1 + F64_SLACK))
     assert (dropped / (eps * T_fill)).max() >= 0.9              # and it does use it
 
