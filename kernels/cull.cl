@@ -686,6 +686,17 @@ inline int tile_is_empty(__global const float *tiles, uint n_tiles_pad, uint t)
     return tiles[T_LOX * n_tiles_pad + t] > tiles[T_HIX * n_tiles_pad + t];
 }
 
+/* A tile whose inputs hold a NaN or an infinity (--nonfinite pass lets them through):
+ * there a light facing away adds ∞·0 = NaN, not 0, so the tile keeps every light. Its
+ * box, |P|, D and S planes not finite, or tile_bounds' NaN flag (min D_r = −∞). */
+inline int tile_is_nonfinite(__global const float *tiles, uint n_tiles_pad, uint t)
+{
+    int bad = tiles[T_DMR * n_tiles_pad + t] == -INFINITY;
+    for (int k = T_LOX; k <= T_R; ++k)
+        bad |= !isfinite(tiles[k * n_tiles_pad + t]);
+    return bad;
+}
+
 __kernel void dir_count(__global const float *restrict tiles, const uint n_tiles_pad,
                         const uint n_tiles, __global const float4 *restrict dirs,
                         const uint n_dir, __global uint *restrict count_out)
@@ -694,22 +705,26 @@ __kernel void dir_count(__global const float *restrict tiles, const uint n_tiles
     if (t >= n_tiles_pad)
         return;
     uint n = 0;
-    if (t < n_tiles && !tile_is_empty(tiles, n_tiles_pad, t))
+    if (t < n_tiles && !tile_is_empty(tiles, n_tiles_pad, t)) {
+        const int all = tile_is_nonfinite(tiles, n_tiles_pad, t);
         for (uint j = 0; j < n_dir; ++j)
-            n += dir_reaches(tiles, n_tiles_pad, t, dirs[6 * j]);
+            n += all || dir_reaches(tiles, n_tiles_pad, t, dirs[6 * j]);
+    }
     count_out[t] = n;
 }
 
 __kernel void dir_write(__global const float *restrict tiles, const uint n_tiles_pad,
                         const uint n_tiles, __global const float4 *restrict dirs,
                         const uint n_dir, __global const uint *restrict offsets,
-                        __global uint *restrict lists)
+                        __global const uint *restrict counts, __global uint *restrict lists)
 {
     const uint t = get_global_id(0);
     if (t >= n_tiles || tile_is_empty(tiles, n_tiles_pad, t))
         return;
+    const int all = tile_is_nonfinite(tiles, n_tiles_pad, t);
     uint k = offsets[t];
-    for (uint j = 0; j < n_dir; ++j)
-        if (dir_reaches(tiles, n_tiles_pad, t, dirs[6 * j]))
+    const uint end = k + counts[t];      /* dir_count's: never past it, whatever the compiler */
+    for (uint j = 0; j < n_dir && k < end; ++j)
+        if (all || dir_reaches(tiles, n_tiles_pad, t, dirs[6 * j]))
             lists[k++] = j;
 }

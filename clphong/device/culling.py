@@ -626,10 +626,12 @@ class DirLists(ListedTiles):
 
 
 def build_dir_lists(runtime, plan, frame, directional, n_dir: int, *, k_d, S,
-                    gbuf_buffer=None, maps_buffer=None) -> DirLists:
+                    gbuf_buffer=None, maps_buffer=None) -> DirLists | None:
     """The directional lists of one frame (plan with DIR_CULLING): the tiles' bounds
     (``tile_bounds``), then per tile the count of lights it keeps, a prefix sum here,
-    and the indices. ``directional``: the records as the shading kernel reads them."""
+    and the indices. ``directional``: the records as the shading kernel reads them.
+    None where the lists would pass :data:`MAX_LIST_ENTRIES` (the frame is shaded
+    with the plain loop)."""
     import pyopencl as cl
 
     with runtime.lock:
@@ -655,18 +657,22 @@ def build_dir_lists(runtime, plan, frame, directional, n_dir: int, *, k_d, S,
         k1.set_args(tiles, np.uint32(n_pad), np.uint32(n_tiles), db, np.uint32(n_dir), cb)
         e1 = cl.enqueue_nd_range_kernel(queue, k1, (n_pad,), (CULL_LOCAL,), wait_for=[e0])
         cl.enqueue_copy(queue, counts, cb, wait_for=[e1]).wait()
+        total = int(counts[:n_tiles].sum(dtype=np.int64))
+        if total > MAX_LIST_ENTRIES:          # uint32 offsets, and memory: the plain loop
+            return None
         offsets = np.zeros(n_pad, np.uint32)
         offsets[1:] = np.cumsum(counts[:-1], dtype=np.uint64).astype(np.uint32)
-        total = int(counts[:n_tiles].sum(dtype=np.int64))
         ob = cl.Buffer(ctx, ro, hostbuf=offsets)
         lists = cl.Buffer(ctx, mf.READ_WRITE, max(total, 1) * 4)
         k2 = runtime.kernel(prog, "dir_write")
-        k2.set_args(tiles, np.uint32(n_pad), np.uint32(n_tiles), db, np.uint32(n_dir), ob, lists)
+        k2.set_args(tiles, np.uint32(n_pad), np.uint32(n_tiles), db, np.uint32(n_dir), ob, cb,
+                    lists)
         e2 = cl.enqueue_nd_range_kernel(queue, k2, (n_pad,), (CULL_LOCAL,))
         e2.wait()
         ranges = np.stack([offsets[:n_tiles], counts[:n_tiles]], axis=1).astype(np.uint32)
         rb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(ranges))
-        active = int(np.count_nonzero(counts[:n_tiles])) or 1
+        shaded = tile_of_pixels(frame.shape, lanes, tiles_x).reshape(-1)[~frame.background]
+        active = int(np.unique(shaded).size)
         seconds = sum((e.profile.end - e.profile.start) * 1e-9 for e in (e0, e1, e2))
         return DirLists(ranges=rb, lights=lists, width=w, tiles_x=tiles_x, n_tiles=n_tiles,
                         kept=total, n_dir=n_dir, active_tiles=active, seconds=seconds)

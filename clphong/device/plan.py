@@ -174,7 +174,8 @@ def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated
 
 def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp64_directions,
                   int_pow, max_error, light_tile, sum_fp64, rsqrt_builtin=False,
-                  light_unroll=0, rsqrt_native=False, relative=False, groups=()) -> None:
+                  light_unroll=0, rsqrt_native=False, relative=False, groups=(),
+                  dir_lists=True) -> None:
     """The lane kernel's own defines (culling, the light loop, the number formats and the
     specular power), each with its reason, through ``put`` (see :func:`make_plan`)."""
     m = scene.material
@@ -189,13 +190,14 @@ def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp
               else "no --max-error budget: every light shades every pixel"))
     if culling:
         put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel culling tiles (clphong.device.culling.TILE)")
-    dir_cull = n_dir >= DIR_CULL_MIN and not groups and not light_tile
+    dir_cull = n_dir >= DIR_CULL_MIN and not groups and not light_tile and dir_lists
     put("DIR_CULLING", dir_cull,
         f"{n_dir} directional lights: per-tile lists keep those some normal of the tile may "
         "face (n·l > 0); the others add exactly 0 there (kernels/cull.cl dir_count)"
         if dir_cull else f"fewer than {DIR_CULL_MIN} directional lights: no per-tile lists"
         if n_dir < DIR_CULL_MIN else "directional lights in one loop (light groups or a "
-        "staged GPU loop: their lists are not built)")
+        "staged GPU loop: their lists are not built)" if dir_lists else
+        "directional lights in one loop: this frame's lists would pass MAX_LIST_ENTRIES")
     if dir_cull and not culling:
         put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel tiles of the directional lists")
     native_float = bool(rsqrt_native) and not fp64_directions
@@ -278,7 +280,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
               int_pow: bool | str = True, coverage: bool = False, groups: Sequence[str] = (),
               aovs: Sequence[str] = (), light_tile: int = 0,
               rsqrt_builtin: bool = False, light_unroll: int = 0,
-              rsqrt_native: bool = False, relative: bool = False) -> ShadingPlan:
+              rsqrt_native: bool = False, relative: bool = False,
+              dir_lists: bool = True) -> ShadingPlan:
     """Choose the kernel variant for ``scene`` and the material ``maps`` present.
 
     Parameters
@@ -317,6 +320,9 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     relative : bool
         ``max_error`` is a fraction of each pixel's own value (``--relative``): the
         plan's reasons say so (the variant is the same).
+    dir_lists : bool
+        With :data:`DIR_CULL_MIN` directional lights or more: read them from per-tile
+        lists (DIR_CULLING; False: the frame's lists would be too long).
     coverage : bool
         The frame has partly covered pixels: gbuf plane 12 holds α and every
         output is α-premultiplied (COVERAGE).
@@ -380,7 +386,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
                       blinn=blinn, fp64=fp64, fp64_directions=fp64_directions, int_pow=int_pow,
                       max_error=max_error, light_tile=light_tile, sum_fp64=sum_fp64,
                       rsqrt_builtin=rsqrt_builtin, light_unroll=light_unroll,
-                      rsqrt_native=rsqrt_native, relative=relative, groups=groups)
+                      rsqrt_native=rsqrt_native, relative=relative, groups=groups,
+                      dir_lists=dir_lists)
     if kernel != "lanes" and (groups or aovs):
         raise SceneError(f"{scene.source}: the obvious kernel shades the beauty only; light groups "
                          "and AOV layers need the lane kernel")

@@ -368,7 +368,8 @@ class Renderer:
         plan, _ = self._plan_and_program(map_names, culling=culling)
         return plan
 
-    def _plan_and_program(self, map_names, *, culling: bool = True, coverage: bool = False):
+    def _plan_and_program(self, map_names, *, culling: bool = True, coverage: bool = False,
+                          dir_lists: bool = True):
         plan = make_plan(self.scene, map_names, kernel=self.kernel_kind, lanes=self.lanes,
                          compensated=self.compensated, fp64_directions=self.fp64_directions,
                          max_error=self.max_error if culling else None,
@@ -377,7 +378,8 @@ class Renderer:
                          light_tile=self.light_tile if self.kernel_kind == "lanes" else 0,
                          rsqrt_builtin=self.runtime.rsqrt_builtin,
                          light_unroll=self.light_unroll if self.kernel_kind == "lanes" else 0,
-                         rsqrt_native=self.runtime.rsqrt_native(self.lanes))
+                         rsqrt_native=self.runtime.rsqrt_native(self.lanes),
+                         dir_lists=dir_lists)
         return plan, self.runtime.program(plan.entry_file, plan.defines)
 
     # ------------------------------------------------------------------ a whole frame
@@ -598,7 +600,12 @@ class Renderer:
                 dirs = build_dir_lists(self.runtime, plan, frame, lights.directional,
                                        plan.n_directional, k_d=k_d, S=S, gbuf_buffer=g,
                                        maps_buffer=mp)
-                dir_args = dirs.kernel_args()
+                if dirs is None:                      # too long: the plain loop this frame
+                    plan, prog = self._plan_and_program(
+                        frame.map_names, culling=bool(plan.defines.get("CULLING")),
+                        coverage=frame.coverage, dir_lists=False)
+                else:
+                    dir_args = dirs.kernel_args()
             kern = self.runtime.kernel(prog, "shade")
             kern.set_args(
                 g, mp, ob, np.uint32(frame.stride), np.uint32(0),

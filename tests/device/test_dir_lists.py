@@ -91,3 +91,83 @@ def test_render_stats_say_what_the_lists_keep(tmp_path, capsys):
     assert main(args) == 0
     err = capsys.readouterr().err
     assert "-DDIR_CULLING=1" in err and "directional lists:" in err and "face away" in err
+
+
+def test_lights_grazing_a_flat_tile_are_kept(monkeypatch):
+    """Normals exactly +z and lights within 1e-7 of the tangent plane, on both sides: the
+    kernel's n·l is l_z, so those above must be kept (the bound's margin, not its sign,
+    decides), and the image is the loop's."""
+    from conftest import make_gbuffer
+
+    P = np.zeros((20, 40, 3))
+    P[..., 0] = np.arange(40) * 0.1
+    P[..., 1] = np.arange(20)[:, None] * 0.1
+    gb = make_gbuffer(P, np.broadcast_to([0.0, 0.0, 1.0], P.shape), np.full(P.shape, 0.5))
+    rng = np.random.default_rng(2)
+    lights = []
+    for z in np.linspace(-1e-7, 1e-7, 80):
+        a = rng.uniform(0, 2 * np.pi)
+        lights.append(dict(type="directional", direction=(-np.cos(a), -np.sin(a), -z),
+                           intensity=1.0))
+    scene = make_scene(lights, model="phong", h=5.0, k_a=0.0,
+                       camera=dict(type="perspective", position=(2.0, 1.0, 3.0)))
+    for path in (None, "float"):
+        listed, plain = both(scene, gb, monkeypatch, path=path)
+        assert np.array_equal(listed.image, plain.image)
+        assert listed.dir_lists.kept_fraction == 1.0      # within the margin: all kept
+
+
+@pytest.mark.parametrize("case", ["ortho_blinn_fresnel", "lanes4_bands", "coverage"])
+def test_other_variants_change_no_pixel(case, monkeypatch):
+    rng = np.random.default_rng(6)
+    gb = heightfield(rng, 37, 53, bumps=0.15)
+    kw, scene_kw = {}, dict(camera=dict(type="perspective", position=(2.0, 1.5, 4.0)))
+    if case == "ortho_blinn_fresnel":
+        scene_kw = dict(camera=dict(type="orthographic", direction=(0.0, 0.0, -1.0)),
+                        model="blinn-phong", fresnel="schlick", f0=0.04)
+    elif case == "lanes4_bands":
+        kw = dict(lanes=4)
+    scene = make_scene(sphere_lights(rng, 120), h=16.0, **{"model": "phong", **scene_kw})
+    if case == "lanes4_bands":
+        listed = Renderer(scene, **kw).render(gb, rows=9)
+        monkeypatch.setattr(plan_module, "DIR_CULL_MIN", 10 ** 9)
+        plain = Renderer(scene, **kw).render(gb, rows=9)
+        assert listed.bands > 1 and listed.plan.defines["DIR_CULLING"] == 1
+    else:
+        if case != "coverage":
+            gb.coverage[...] = 1.0
+        listed, plain = both(scene, gb, monkeypatch, **kw)
+    assert np.array_equal(listed.image, plain.image)
+
+
+def test_nonfinite_inputs_keep_every_light(monkeypatch):
+    """--nonfinite pass: a NaN k_d times a light facing away is NaN in the loop over every
+    light. Under lights from below only, an upward tile's list is empty, yet the tile
+    holding the NaN keeps every light, so the lists give the loop's NaN there (and the
+    other tiles' pixels are unchanged)."""
+    rng = np.random.default_rng(3)
+    gb = heightfield(rng, 32, 48, bumps=0.05, maps=("k_d",))
+    gb.maps["k_d"][5, 9] = np.nan
+    below = [dict(lt, direction=(lt["direction"][0], lt["direction"][1],
+                                 abs(lt["direction"][2]) + 0.2)) for lt in sphere_lights(rng, 100)]
+    scene = make_scene(below + [dict(type="ambient", intensity=0.1)], model="phong", h=10.0,
+                       k_a=0.2)
+    with pytest.warns(UserWarning, match="non-finite"):
+        listed, plain = both(scene, gb, monkeypatch, nonfinite="pass")
+    assert np.isnan(plain.image[5, 9]).any()
+    assert np.array_equal(listed.image, plain.image, equal_nan=True)
+
+
+def test_lists_too_long_fall_back_to_the_loop(monkeypatch):
+    from clphong.device import culling
+
+    rng = np.random.default_rng(5)
+    gb = heightfield(rng, 30, 40)
+    scene = make_scene(sphere_lights(rng, 100), model="phong", h=10.0)
+    plain = Renderer(scene).render(gb)
+    monkeypatch.setattr(culling, "MAX_LIST_ENTRIES", 10)
+    r = Renderer(scene)
+    result = r.render(gb)
+    assert result.plan.defines["DIR_CULLING"] == 0 and result.dir_lists is None
+    assert "MAX_LIST_ENTRIES" in str(result.plan)
+    assert np.array_equal(result.image, plain.image)
