@@ -44,12 +44,13 @@
 #error "LIGHT_TILE must be set by the shading plan (clphong/device/plan.py)"
 #endif
 /* DIR_CULLING: directional lights from per-tile lists (cull.cl dir_count/dir_write),
- * only where no light groups and no staging (plan.py); CULL_TILE is their tile edge. */
+ * not with staging (plan.py); CULL_TILE is their tile edge. The lists are in light
+ * order, so with light groups each group walks on while the index is below its end. */
 #ifndef DIR_CULLING
 #error "DIR_CULLING must be set by the shading plan (clphong/device/plan.py)"
 #endif
-#if DIR_CULLING && (N_GROUPS || LIGHT_TILE || !defined(CULL_TILE))
-#error "DIR_CULLING needs CULL_TILE, and neither light groups nor LIGHT_TILE"
+#if DIR_CULLING && (LIGHT_TILE || !defined(CULL_TILE))
+#error "DIR_CULLING needs CULL_TILE, and not LIGHT_TILE"
 #endif
 /* LIGHT_TILE: the staged records, F float4s (pointrec_t) each, then the light loop
    over the tile; every work-item of the group runs the loads and both barriers, a
@@ -342,6 +343,7 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
     const uint dq0 = (uint)(i * LANES);
     const uint dtile = (dq0 / dir_width / CULL_TILE) * dir_tiles_x + (dq0 % dir_width) / CULL_TILE;
     const uint2 dir_range = dtile < dir_n_tiles && lit ? dir_ranges[dtile] : (uint2)(0, 0);
+    uint dm = dir_range.x;  /* the tile's directional list, walked once across the groups */
 #endif
     /* Light groups: the host sorts the lights by group; group g's directional lights
        are [dir_end[g-1], dir_end[g]), its point lights [point_end[g-1], point_end[g])
@@ -367,9 +369,14 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
             ADD_LIGHT(W_HI_LO(L.x, L_lo.x), W_HI_LO(L.y, L_lo.y), W_HI_LO(L.z, L_lo.z), w); }
 #if DIR_CULLING
         /* the lights some normal of this work-item's tile may face (the others add exactly
-           0 there: n·l ≤ 0 for each of its pixels); no groups, no staging (plan.py) */
+           0 there: n·l ≤ 0 for each of its pixels); with groups, this group's entries */
+#if N_GROUPS
+        for (; dm < dir_range.x + dir_range.y && dir_lights[dm] < d_end; ++dm)
+            DIRECTIONAL_BODY(directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * dir_lights[dm])
+#else
 #define DIR_LISTED_RECORD(j) (directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * dir_lights[j])
-        FOR_LIGHTS(dir_range.x, dir_range.x + dir_range.y, DIR_LISTED_RECORD, DIRECTIONAL_BODY)
+        FOR_LIGHTS(dm, dir_range.x + dir_range.y, DIR_LISTED_RECORD, DIRECTIONAL_BODY)
+#endif
 #elif LIGHT_TILE
         STAGE(directional_tile, directional_lights, DIRECTIONAL_LIGHT_FLOAT4S, d_begin, d_end,
               DIRECTIONAL_BODY)

@@ -190,13 +190,13 @@ def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp
               else "no --max-error budget: every light shades every pixel"))
     if culling:
         put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel culling tiles (clphong.device.culling.TILE)")
-    dir_cull = n_dir >= DIR_CULL_MIN and not groups and not light_tile and dir_lists
+    dir_cull = n_dir >= DIR_CULL_MIN and not light_tile and dir_lists
     put("DIR_CULLING", dir_cull,
         f"{n_dir} directional lights: per-tile lists keep those some normal of the tile may "
         "face (n·l > 0); the others add exactly 0 there (kernels/cull.cl dir_count)"
         if dir_cull else f"fewer than {DIR_CULL_MIN} directional lights: no per-tile lists"
-        if n_dir < DIR_CULL_MIN else "directional lights in one loop (light groups or a "
-        "staged GPU loop: their lists are not built)" if dir_lists else
+        if n_dir < DIR_CULL_MIN else "directional lights in one loop (the staged GPU loop "
+        "reads every light)" if dir_lists else
         "directional lights in one loop: this frame's lists would pass MAX_LIST_ENTRIES")
     if dir_cull and not culling:
         put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel tiles of the directional lists")

@@ -59,14 +59,29 @@ def test_lists_with_culled_points_and_layers(monkeypatch):
         assert np.array_equal(listed.layers[k], plain.layers[k])
 
 
-def test_few_directional_lights_or_groups_take_no_lists():
+def test_few_directional_lights_take_no_lists():
     rng = np.random.default_rng(1)
     few = make_scene(sphere_lights(rng, 3), model="phong", h=10.0)
-    assert Renderer(few).plan_for(()).defines["DIR_CULLING"] == 0
-    grouped = make_scene([dict(lt, group="sky") for lt in sphere_lights(rng, 100)], model="phong",
-                         h=10.0)
-    p = Renderer(grouped).plan_for(())
-    assert p.defines["DIR_CULLING"] == 0 and "light groups" in str(p)
+    p = Renderer(few).plan_for(())
+    assert p.defines["DIR_CULLING"] == 0 and "fewer than 64" in str(p)
+
+
+def test_light_groups_walk_their_part_of_the_lists(monkeypatch):
+    """A sky group of directional lights, listed between a key group's: the beauty and
+    every group layer equal the loop's."""
+    rng = np.random.default_rng(12)
+    gb = heightfield(rng, 40, 44, bumps=0.2)
+    sky = sphere_lights(rng, 90)
+    lights = ([dict(lt, group="key") for lt in sphere_lights(rng, 40)]
+              + [dict(lt, group="sky") for lt in sky]
+              + [dict(lt, group="key") for lt in point_lights(rng, 6)]
+              + [dict(lt, group="rim") for lt in sphere_lights(rng, 30)])
+    scene = make_scene(lights, model="blinn-phong", h=12.0)
+    listed, plain = both(scene, gb, monkeypatch, aovs=("key", "sky", "rim"))
+    assert np.array_equal(listed.image, plain.image)
+    assert set(listed.layers) == {"key", "sky", "rim"}
+    for k in listed.layers:
+        assert np.array_equal(listed.layers[k], plain.layers[k]), k
 
 
 def test_the_sample_environment_is_unchanged(monkeypatch):
