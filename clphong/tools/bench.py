@@ -577,7 +577,11 @@ def plot_pareto(report: dict, path) -> None:
     import matplotlib.pyplot as plt
 
     env = report.get("environment") or []
-    fig, axes = plt.subplots(1, 3 if env else 2, figsize=(18 if env else 12, 5))
+    tree = report.get("tree") or []
+    tree_scenes = list(dict.fromkeys(r["scene"] for r in tree))
+    panels = 2 + bool(env) + len(tree_scenes)
+    fig, axes = plt.subplots(1, panels, figsize=(6 * panels, 5), squeeze=False)
+    axes = axes[0]
     ax = axes[0]
     for r in report["runs"]:
         if r["max_error"] is not None:
@@ -607,6 +611,8 @@ def plot_pareto(report: dict, path) -> None:
     ax.set_title("tiled culling, budget ε")
     if env:
         _plot_environment(axes[2], env)
+    for ax, scene in zip(axes[2 + bool(env):], tree_scenes):
+        _plot_tree(ax, [r for r in tree if r["scene"] == scene], scene)
     fig.suptitle(f"clphong bench: {report['machine']['device']}", fontsize=9)
     fig.tight_layout()
 
@@ -615,6 +621,30 @@ def plot_pareto(report: dict, path) -> None:
             fig.savefig(tmp, dpi=110, format="png")
     finally:
         plt.close(fig)
+
+
+def _plot_tree(ax, rows, scene: str) -> None:
+    """One scene's light-tree rows: ms per frame against the max error relative to each
+    pixel's own value, for brute force, culling and the tree (issue 27); hollow markers
+    for a relative budget, filled for an absolute one."""
+    style = {"brute": ("k", "x"), "culling": ("tab:blue", "o"), "tree": ("tab:orange", "s")}
+    for r in rows:
+        for label, (color, marker) in style.items():
+            x = r[label]
+            err = max(x.get("max_rel_error", 0.0), 1e-9)
+            hollow = r.get("relative") and label != "brute"
+            ax.scatter(err, x["ms_per_frame"], color=color, marker=marker,
+                       facecolors="none" if hollow else None,
+                       label=label if r is rows[0] else None)
+            if label != "brute":
+                ax.annotate(f"N={r['lights']} ε={r['max_error']:g}{'r' if r.get('relative') else ''}",
+                            (err, x["ms_per_frame"]), fontsize=6)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("max error relative to each pixel's own value (float64)")
+    ax.set_ylabel("ms per frame")
+    ax.set_title(f"light tree, {scene}: brute force, culling, tree (hollow: --relative)")
+    ax.legend(fontsize=7)
 
 
 def _plot_environment(ax, rows) -> None:
