@@ -100,6 +100,17 @@
     for (uint j_ = (begin); j_ < (end); ++j_) { body(rec(j_)) }
 #endif
 
+/* A tile's list (cull.cl: light indices, in light order) from the cursor cur on, to
+ * last: with light groups only this group's entries (indices below end), the cursor
+ * staying where the next group's begin; without, every entry (FOR_LIGHTS). rec(j):
+ * the record of the list's entry j. */
+#if N_GROUPS
+#define WALK_LIST(cur, last, list, end, rec, body) \
+    for (; (cur) < (last) && (list)[cur] < (end); ++(cur)) { body(rec(cur)) }
+#else
+#define WALK_LIST(cur, last, list, end, rec, body) FOR_LIGHTS(cur, last, rec, body)
+#endif
+
 /* Add x to the running sum s (POCL-NOTES "Light sums"). SUM_FP64: s is double,
  * so N float terms err by ≤ N·2⁻⁵³ of Σ|x| before the one final rounding to
  * float (c is unused); it ran 4 % (fp64 directions) to 9 % (float directions)
@@ -370,13 +381,9 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
 #if DIR_CULLING
         /* the lights some normal of this work-item's tile may face (the others add exactly
            0 there: n·l ≤ 0 for each of its pixels); with groups, this group's entries */
-#if N_GROUPS
-        for (; dm < dir_range.x + dir_range.y && dir_lights[dm] < d_end; ++dm)
-            DIRECTIONAL_BODY(directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * dir_lights[dm])
-#else
 #define DIR_LISTED_RECORD(j) (directional_lights + DIRECTIONAL_LIGHT_FLOAT4S * dir_lights[j])
-        FOR_LIGHTS(dm, dir_range.x + dir_range.y, DIR_LISTED_RECORD, DIRECTIONAL_BODY)
-#endif
+        WALK_LIST(dm, dir_range.x + dir_range.y, dir_lights, d_end, DIR_LISTED_RECORD,
+                  DIRECTIONAL_BODY)
 #elif LIGHT_TILE
         STAGE(directional_tile, directional_lights, DIRECTIONAL_LIGHT_FLOAT4S, d_begin, d_end,
               DIRECTIONAL_BODY)
@@ -403,13 +410,8 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
             ADD_LIGHT(ar, ag, ab, w); }
 #if CULLING
         /* this group's part of the tile's list: its entries below p_end */
-#if N_GROUPS
-        for (; m < range.x + range.y && tile_lights[m] < p_end; ++m)
-            POINT_BODY(point_lights + POINT_LIGHT_FLOAT4S * tile_lights[m])
-#else
 #define LISTED_RECORD(j) (point_lights + POINT_LIGHT_FLOAT4S * tile_lights[j])
-        FOR_LIGHTS(m, range.x + range.y, LISTED_RECORD, POINT_BODY)
-#endif
+        WALK_LIST(m, range.x + range.y, tile_lights, p_end, LISTED_RECORD, POINT_BODY)
 #elif LIGHT_TILE
         STAGE(point_tile, point_lights, POINT_LIGHT_FLOAT4S, p_begin, p_end, POINT_BODY)
 #else
