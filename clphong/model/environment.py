@@ -65,7 +65,6 @@ about 2e-2 relative at 1024 lights on the bench map).
 
 from __future__ import annotations
 
-import heapq
 import os
 import math
 import time
@@ -196,11 +195,18 @@ class LightTree:
     directions : (H, W, 3) array
         Per texel: unit direction towards it (rotation applied).
 
-    Splits are made on demand (:meth:`grow`) in priority order, so the leaves
-    after ``n - 1`` splits (:meth:`lights` of ``n``) refine those of any smaller
-    n. Each node's light is summed from its own texels when the node is made
-    (not from the summed-area tables, whose roundings scale with the whole
-    map's energy).
+    Each node's split is its best row or column cut; its priority is its score,
+    capped by its parent's (a child's variance is at most its parent's, and the
+    cap keeps that true through the roundings). The leaves after ``n - 1``
+    splits (:meth:`lights` of ``n``) are those of the ``n - 1`` nodes of highest
+    priority (ties: the node made first), which is the order in which one split
+    at a time of the largest would make them, so they refine those of any
+    smaller n. :meth:`grow` makes the nodes in rounds, every candidate at once:
+    a round splits every unsplit node whose priority is at least the ``n - 1``-th
+    known one (no node below that can be among the first ``n - 1``: its
+    descendants rank lower still). Each node's light is summed from its own
+    texels when the node is made (not from the summed-area tables, whose
+    roundings scale with the whole map's energy).
     """
 
     def __init__(self, energy: np.ndarray, directions: np.ndarray):
@@ -210,14 +216,19 @@ class LightTree:
         w = self.energy.sum(axis=-1)
         # one table of (w, w·l): a split's candidates cost four gathers
         self._sat = _sat(np.concatenate([w[..., None], w[..., None] * self.directions], axis=-1))
+        # per texel, E_c·l_xyz: a node's light is the sum of these over its texels
+        self._moments = (self.energy[..., :, None] * self.directions[..., None, :]).reshape(
+            self.height * self.width, 9)
         #: Every node as (y0, y1, x0, x1); node 0 is the whole map.
-        self.nodes: list[tuple[int, int, int, int]] = []
-        #: The node split by each step, in order.
-        self.split_order: list[int] = []
-        self._l = np.empty((64, 3))         # per node: unit direction, radiance (grown by doubling)
-        self._rad = np.empty((64, 3))
-        self._heap: list = []
-        self._add((0, self.height, 0, self.width))
+        self.nodes = np.zeros((0, 4), np.int64)
+        self._prio = np.zeros(0)                 # capped score; -inf: never split
+        self._kids = np.zeros((0, 2), np.int64)  # -1 until split
+        self._l = np.zeros((0, 3))
+        self._rad = np.zeros((0, 3))
+        #: The nodes split, in order: the first n - 1 give the leaves of n.
+        self.split_order = np.zeros(0, np.int64)
+        self._exhausted = False
+        self._make(np.array([[0, self.height, 0, self.width]]), None, np.array([np.inf]))
 
     def _score(self, y0, y1, x0, x1):
         """e − |m|²/e of rectangles (bounds broadcast): the energy-weighted angular variance."""
@@ -231,43 +242,70 @@ class LightTree:
         q = r[..., 1] ** 2 + r[..., 2] ** 2 + r[..., 3] ** 2
         return np.maximum(e - q / np.maximum(e, 1e-300), 0.0)
 
-    def _cut_scores(self, y0, y1, x0, x1):
-        """The scores of both parts of every row cut (y0..c, c..y1) and column cut of a
-        node: (top, bottom, left, right), from slices of the summed-area table, each
-        rectangle summed in :meth:`_score`'s order (the same roundings)."""
-        s = self._sat
-        A, B, C, D = s[y0, x0], s[y0, x1], s[y1, x0], s[y1, x1]
-        r1, r0 = s[y0 + 1:y1, x1], s[y0 + 1:y1, x0]          # rows c, at x1 and x0
-        c1, c0 = s[y1, x0 + 1:x1], s[y0, x0 + 1:x1]          # columns c, at y1 and y0
-        ny, nx = len(r1), len(c1)
-        v = self._variance(np.concatenate([r1 - B - r0 + A, D - r1 - C + r0,
-                                           c1 - c0 - C + A, D - B - c1 + c0]))
-        return v[:ny], v[ny:2 * ny], v[2 * ny:2 * ny + nx], v[2 * ny + nx:]
+    def _make(self, rects: np.ndarray, scores, cap: np.ndarray) -> np.ndarray:
+        """Add nodes (rects (K, 4)) with their scores (None: from the tables) capped by
+        ``cap``: their lights from their own texels; their ids."""
+        y0, y1, x0, x1 = rects.T
+        if scores is None:
+            scores = self._score(y0, y1, x0, x1)
+        h, w = y1 - y0, x1 - x0
+        area = h * w
+        # every texel of every rectangle, rectangle by rectangle, row by row
+        start = np.concatenate([[0], np.cumsum(area)[:-1]])
+        owner = np.repeat(np.arange(len(rects)), area)
+        q = np.arange(int(area.sum())) - start[owner]
+        texel = (y0[owner] + q // w[owner]) * self.width + x0[owner] + q % w[owner]
+        # each rectangle's texels in order, summed in turn: its own roundings only
+        mc = np.add.reduceat(self._moments[texel], start, axis=0).reshape(-1, 3, 3)  # (node, c, xyz)
+        m = mc.sum(axis=1)
+        norm = np.sqrt(np.einsum("ij,ij->i", m, m))
+        lit = norm > 0
+        mh = np.where(lit[:, None], m / np.where(lit, norm, 1.0)[:, None], 0.0)
+        # m_c·m̂: the exact diffuse on the lit side; no energy, or none net: no light
+        rad = np.where(lit[:, None], np.maximum(np.einsum("ncx,nx->nc", mc, mh), 0.0), 0.0)
+        prio = np.minimum(scores, cap)
+        prio = np.where((area > 1) & (prio > 0), prio, -np.inf)  # one texel is exact already
+        ids = np.arange(len(self.nodes), len(self.nodes) + len(rects))
+        self.nodes = np.concatenate([self.nodes, rects])
+        self._prio = np.concatenate([self._prio, prio])
+        self._kids = np.concatenate([self._kids, np.full((len(rects), 2), -1)])
+        self._l = np.concatenate([self._l, mh])
+        self._rad = np.concatenate([self._rad, rad])
+        return ids
 
-    def _add(self, rect, score=None) -> None:
-        k = len(self.nodes)
-        self.nodes.append(rect)
-        y0, y1, x0, x1 = rect
-        E = self.energy[y0:y1, x0:x1].reshape(-1, 3)
-        d = self.directions[y0:y1, x0:x1].reshape(-1, 3)
-        mc = E.T @ d                                   # (channel, xyz): Σ E_c·l
-        m = mc.sum(axis=0)
-        norm = math.sqrt(float(m @ m))
-        if norm > 0:
-            mh = m / norm
-            rad = np.maximum(mc @ mh, 0.0)             # m_c·m̂: the exact diffuse on the lit side
-        else:                                          # no energy, or none net: no light
-            mh, rad = np.zeros(3), np.zeros(3)
-        if k == len(self._l):
-            self._l = np.concatenate([self._l, np.empty_like(self._l)])
-            self._rad = np.concatenate([self._rad, np.empty_like(self._rad)])
-        self._l[k] = mh
-        self._rad[k] = rad
-        if (y1 - y0) * (x1 - x0) > 1:                  # one texel is exact already
-            if score is None:
-                score = float(self._score(y0, y1, x0, x1))
-            if score > 0:
-                heapq.heappush(self._heap, (-score, k))
+    def _split(self, ids: np.ndarray) -> None:
+        """Split the nodes ``ids`` at once, each at the row or column cut that minimises
+        its parts' summed score (rows first, then columns; the first of equals)."""
+        y0, y1, x0, x1 = self.nodes[ids].T
+        ny, nx = y1 - y0 - 1, x1 - x0 - 1
+        count = ny + nx
+        seg = np.repeat(np.arange(len(ids)), count)
+        start = np.concatenate([[0], np.cumsum(count)[:-1]])
+        j = np.arange(int(count.sum())) - start[seg]          # candidate within its node
+        row = j < ny[seg]
+        c = np.where(row, y0[seg] + 1 + j, x0[seg] + 1 + (j - ny[seg]))
+        # the two parts of each cut: (a) above / left of c, (b) below / right of it
+        ay0, ay1 = y0[seg], np.where(row, c, y1[seg])
+        ax0, ax1 = x0[seg], np.where(row, x1[seg], c)
+        by0, by1 = np.where(row, c, y0[seg]), y1[seg]
+        bx0, bx1 = np.where(row, x0[seg], c), x1[seg]
+        sa = self._score(ay0, ay1, ax0, ax1)
+        sb = self._score(by0, by1, bx0, bx1)
+        total = sa + sb
+        best = np.minimum.reduceat(total, start)
+        pick = np.flatnonzero(total == best[seg])
+        first = pick[np.unique(seg[pick], return_index=True)[1]]   # per node, its first best
+        a = np.stack([ay0[first], ay1[first], ax0[first], ax1[first]], axis=1)
+        b = np.stack([by0[first], by1[first], bx0[first], bx1[first]], axis=1)
+        cap = self._prio[ids]
+        ka = self._make(a, sa[first], cap)
+        kb = self._make(b, sb[first], cap)
+        self._kids[ids] = np.stack([ka, kb], axis=1)
+
+    def _ranked(self) -> np.ndarray:
+        """The splittable nodes made so far, highest priority first (ties: lower id)."""
+        ok = np.flatnonzero(self._prio > -np.inf)
+        return ok[np.lexsort((ok, -self._prio[ok]))]
 
     @property
     def leaves(self) -> int:
@@ -275,41 +313,38 @@ class LightTree:
         return len(self.split_order) + 1
 
     def grow(self, n: int) -> int:
-        """Split until there are ``n`` leaves, or nothing is left to split; the leaves."""
-        while self.leaves < n and self._heap:
-            _, k = heapq.heappop(self._heap)
-            y0, y1, x0, x1 = self.nodes[k]
-            # every row and column cut at once: first parts (a) and second parts (b)
-            cy = np.arange(y0 + 1, y1)
-            cx = np.arange(x0 + 1, x1)
-            ny = len(cy)
-            top, bottom, left, right = self._cut_scores(y0, y1, x0, x1)
-            i = int(np.argmin(np.concatenate([top + bottom, left + right])))
-            if i < ny:
-                a, b, sa, sb = (y0, int(cy[i]), x0, x1), (int(cy[i]), y1, x0, x1), top[i], bottom[i]
-            else:
-                j = i - ny
-                a, b = (y0, y1, x0, int(cx[j])), (y0, y1, int(cx[j]), x1)
-                sa, sb = left[j], right[j]
-            self.split_order.append(k)
-            self._add(a, float(sa))
-            self._add(b, float(sb))
+        """Make the first ``n - 1`` splits (or every one the map has); the leaves."""
+        want = int(n) - 1
+        while want > len(self.split_order) and not self._exhausted:
+            prio = self._prio
+            known = prio[prio > -np.inf]
+            # the (n-1)-th priority known; a node below it and its descendants rank lower
+            bar = -np.partition(-known, want - 1)[want - 1] if len(known) >= want else -np.inf
+            todo = np.flatnonzero((prio >= bar) & (prio > -np.inf) & (self._kids[:, 0] < 0))
+            if len(todo):
+                self._split(todo)
+                continue
+            ranked = self._ranked()
+            self._exhausted = len(ranked) < want
+            self.split_order = ranked[:want]
         return self.leaves
 
     def leaf_nodes(self, n: int) -> np.ndarray:
         """The nodes that are the leaves after ``n - 1`` splits (grown as needed)."""
         n = min(n, self.grow(n))
-        keep = np.ones(2 * n - 1, bool)
-        keep[self.split_order[:n - 1]] = False
-        return np.flatnonzero(keep)
+        split = self.split_order[:n - 1]
+        leaf = np.zeros(len(self.nodes), bool)
+        leaf[0] = True
+        leaf[self._kids[split].ravel()] = True
+        leaf[split] = False
+        return np.flatnonzero(leaf)
 
     def lights(self, n: int):
         """The first ``n`` leaves as lights: (l (K, 3) unit towards the light, radiance
         (K, 3)), K ≤ n (leaves without energy give no light)."""
         k = self.leaf_nodes(n)
-        l = self._l[k] if len(k) else np.zeros((0, 3))
-        rad = self._rad[k] if len(k) else np.zeros((0, 3))
-        lit = rad.max(axis=1, initial=0.0) > 0 if len(k) else np.zeros(0, bool)
+        l, rad = self._l[k], self._rad[k]
+        lit = rad.max(axis=1, initial=0.0) > 0
         return l[lit], rad[lit]
 
 

@@ -97,6 +97,48 @@ def test_tree_leaves_partition_the_map_and_nest():
         prev = owner
 
 
+def _greedy_leaves(tree, n):
+    """The tree's definition, one split at a time: split the leaf of largest score
+    e − |m|²/e (the tree's own :meth:`_score`, so that a region of one direction, whose
+    score is 0 up to the tables' roundings, is split alike) at the row or column cut
+    (rows first) that minimises its parts' sum of it; the leaves after n − 1 splits."""
+    def score(r):
+        return float(tree._score(*r))
+
+    def cuts(r):
+        y0, y1, x0, x1 = r
+        return [((y0, c, x0, x1), (c, y1, x0, x1)) for c in range(y0 + 1, y1)] + \
+               [((y0, y1, x0, c), (y0, y1, c, x1)) for c in range(x0 + 1, x1)]
+
+    leaves = [(0, tree.height, 0, tree.width)]
+    for _ in range(n - 1):
+        ok = [r for r in leaves if (r[1] - r[0]) * (r[3] - r[2]) > 1 and score(r) > 0]
+        if not ok:
+            break
+        r = max(ok, key=score)
+        a, b = min(cuts(r), key=lambda ab: score(ab[0]) + score(ab[1]))
+        leaves.remove(r)
+        leaves += [a, b]
+    return set(leaves)
+
+
+@pytest.mark.parametrize("sun", [False, True])
+def test_tree_rounds_make_the_greedy_splits(sun):
+    # grow() splits many nodes a round; its leaves must be those of the definition's one
+    # split at a time, for every n (a round that splits a node below the bar, or misses
+    # one above it, changes some n's leaves). A 1-texel sun makes a deep, lopsided tree.
+    w, h = 16, 8
+    L = _sky(w, h).astype(np.float64)
+    if sun:
+        L[2, 11] = 5e4
+    E = L * env.texel_solid_angles(w, h)[..., None]
+    d = env.texel_directions(w, h)
+    tree = env.LightTree(E, d)
+    for n in (1, 2, 3, 5, 8, 13, 21, 34, 55, 89, w * h, w * h + 5):
+        got = {tuple(int(x) for x in tree.nodes[k]) for k in tree.leaf_nodes(n)}
+        assert got == _greedy_leaves(env.LightTree(E, d), n), n
+
+
 def test_grey_tree_lights_keep_energy_and_first_moment_exactly():
     # radiance_c = m_c·m̂ with m̂ ∥ m_c for a grey map: Σ rad·l = Σ E·l per channel, and the
     # energy lost is the leaves' |m| < e (their spread), never gained.
