@@ -104,11 +104,12 @@ class Trip:
         return n
 
 
-def trace(argv: list[str]) -> tuple[int, Trip]:
-    """Run ``clphong render`` with ``argv`` under the profiler: (exit code, the trip)."""
+def trace(argv: list[str], only: str | None = None) -> tuple[int, Trip]:
+    """Run ``clphong render`` with ``argv`` under the profiler: (exit code, the trip of
+    every traced option's value, or of option ``only``'s alone)."""
     wanted = set()
     for opt, val in TRACED.items():
-        if opt in argv:
+        if opt in argv and (only is None or opt == only):
             v = argv[argv.index(opt) + 1]
             wanted.add(v)
             try:
@@ -173,6 +174,14 @@ def main(argv=None) -> int:
     print(f"exit {rc}; {len(trip.rooms)} rooms, {len(trip.climbs)} climbs back up, "
           f"{trip.returns} returns to a room already left, {len(trip.calls)} calls")
     print("rooms: " + ", ".join(r.removeprefix("clphong.") for r in trip.rooms))
+    if not a.render_args:
+        print("each option alone:")
+        with tempfile.TemporaryDirectory() as tmp:
+            argv = default_argv(tmp)
+            for opt in TRACED:
+                _, one = trace(argv, only=opt)
+                print(f"  {opt:18} {len(one.rooms)} rooms, {len(one.climbs):2} climbs: "
+                      + ", ".join(r.removeprefix("clphong.") for r in one.rooms))
     return 0
 
 

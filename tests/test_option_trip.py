@@ -26,14 +26,14 @@ from clphong.pipeline.relighter import Relighter
 #: and deliver/ (write_exr, write_scene_linear) and io.nonfinite.apply_nonfinite_policy,
 #: which a library user calls directly.
 ALLOWED = {
-    "clphong.model.environment.check_env_error": 2,        # argparse, RendererOptions
+    "clphong.model.options.check_env_error": 2,        # argparse, RendererOptions
     "clphong.deliver.writers.check_compression": 3,        # argparse, OutputOptions, writer
     "clphong.io.atomic.check_pixel_type": 2,               # OutputOptions, write_exr
     "clphong.model.options.check_nonfinite": 2,            # RendererOptions, the frame's policy
 }
 VALIDATORS = ("clphong.model.options.check_budget", "clphong.model.options.check_nonfinite",
               "clphong.model.options.check_exposure", "clphong.model.options.check_fp64_directions",
-              "clphong.model.options.path_options", "clphong.model.environment.check_env_error",
+              "clphong.model.options.path_options", "clphong.model.options.check_env_error",
               "clphong.deliver.writers.check_bits", "clphong.deliver.writers.check_compression",
               "clphong.io.atomic.check_pixel_type", "clphong.deliver.outputs.check_outputs",
               "clphong.device.display.DisplayTransform.__post_init__")
@@ -56,9 +56,10 @@ def test_every_option_is_checked_once(trip):
 
 
 def test_the_trip_is_no_longer_than_measured(trip):
-    """14 rooms, 27 climbs back up and 28 returns at a562dde's successor; a change
+    """13 rooms, 27 climbs back up and 28 returns (14 rooms at a562dde's successor, before
+    check_env_error joined the registry in model.options); a change
     that sends the options back up to be checked again fails here."""
-    assert len(trip.rooms) <= 14, trip.rooms
+    assert len(trip.rooms) <= 13, trip.rooms
     assert len(trip.climbs) <= 27, trip.climbs
     assert trip.returns <= 28
 

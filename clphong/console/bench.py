@@ -5,8 +5,7 @@ from __future__ import annotations
 import sys
 
 from ..io.atomic import check_output_path, same_file
-from ..model.environment import DEFAULT_ENV_ERROR, check_env_error
-from ..model.options import check_lanes
+from ..model.options import DEFAULT_ENV_ERROR, check_env_error, check_lanes
 from ..tools.bench import (
     ENV_ERRORS,
     TREE_CASES,

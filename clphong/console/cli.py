@@ -40,13 +40,21 @@ from ..device.culling import BRUTE_ABOVE
 from ..device.hostrule import host
 from ..device.renderer import Renderer
 from ..device.selection import describe_devices
-from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
 from ..io import envmap as _envmap
+from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
 from ..io.envmap import resolve_environment
 from ..io.gbuffer import parse_channel_mapping, read_gbuffer
 from ..io.inspection import METRICS, DiffError, diff_images, format_report, inspect_file
-from ..model.environment import DEFAULT_ENV_ERROR, check_env_error
-from ..model.options import KERNELS, LANES, NONFINITE_POLICIES, PATHS, RendererOptions, check_number
+from ..model.options import (
+    DEFAULT_ENV_ERROR,
+    KERNELS,
+    LANES,
+    NONFINITE_POLICIES,
+    PATHS,
+    RendererOptions,
+    check_env_error,
+    check_number,
+)
 from ..model.scene import MAP_KEYS, load_scene
 from ..model.tonemap import OPERATORS
 from ..pipeline.batch import (

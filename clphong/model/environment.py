@@ -65,21 +65,21 @@ about 2e-2 relative at 1024 lights on the bench map).
 
 from __future__ import annotations
 
-import os
 import math
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .options import DEFAULT_ENV_ERROR, check_env_error
+
 __all__ = ["texel_directions", "texel_solid_angles", "rotation_about_up", "texel_lights",
            "LightTree", "EnvironmentLights", "environment_lights", "probe_pairs", "probe_sums",
            "probe_error", "check_env_error", "DEFAULT_ENV_ERROR", "PROBES", "FLOOR", "REFINE",
            "RATE", "EXTRAPOLATION", "MAX_ENV_LIGHTS", "MIN_LIGHTS"]
 
-#: The default relative error of an environment light (``--env-error``).
-DEFAULT_ENV_ERROR = 1e-3
 #: Probe pixels of the error estimate.
 PROBES = 2048
 #: Probes (and image pixels) below this fraction of the maximum are not held to
@@ -95,17 +95,6 @@ EXTRAPOLATION = 1.0 / (1.0 - REFINE ** -RATE)
 MAX_ENV_LIGHTS = 65536
 #: The search starts here (fewer lights are never worth the estimate).
 MIN_LIGHTS = 16
-
-
-def check_env_error(value) -> float:
-    """``value`` as a float if it is a finite number > 0, else a ValueError saying so."""
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"the environment error must be a number > 0, not {value!r}") from None
-    if not (math.isfinite(x) and x > 0):
-        raise ValueError(f"the environment error must be a finite number > 0, not {value!r}")
-    return x
 
 
 # ------------------------------------------------------------------------ geometry

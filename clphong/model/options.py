@@ -14,14 +14,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from ..core.errors import ClphongError, ToneMapError, abbreviate
-from .environment import DEFAULT_ENV_ERROR, check_env_error
 
 __all__ = ["validate_method", "PATHS", "path_options", "NONFINITE_POLICIES", "check_nonfinite",
            "KERNELS", "check_kernel", "LANES", "check_lanes", "UNROLLS", "check_unroll",
            "INT_POW", "check_int_pow",
            "check_fp64_directions", "check_float_power",
            "MAX_EXPOSURE", "check_exposure", "ENCODINGS", "CullingError", "check_budget",
-           "NUMBERS", "check_number", "RendererOptions", "finished"]
+           "NUMBERS", "check_number", "RendererOptions", "finished", "DEFAULT_ENV_ERROR",
+           "check_env_error"]
 
 
 def validate_method(value, methods, what: str, error: type[Exception] = ValueError):
@@ -51,6 +51,22 @@ PATHS: Mapping[str, Mapping] = {
 def path_options(path: str) -> dict:
     """The Renderer options of a shading path (``PATHS``); a bad name lists the valid ones."""
     return dict(PATHS[validate_method(path, PATHS, "path")])
+
+
+#: The default relative error of an environment light (``--env-error``;
+#: clphong.model.environment says how it is measured).
+DEFAULT_ENV_ERROR = 1e-3
+
+
+def check_env_error(value) -> float:
+    """``value`` as a float if it is a finite number > 0, else a ValueError saying so."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"the environment error must be a number > 0, not {value!r}") from None
+    if not (math.isfinite(x) and x > 0):
+        raise ValueError(f"the environment error must be a finite number > 0, not {value!r}")
+    return x
 
 
 #: What happens to NaN/Inf G-buffer values (``--nonfinite``; clphong.io.nonfinite).

@@ -51,8 +51,12 @@ from ..io.atomic import same_file
 from ..io.camera import resolve_camera
 from ..io.envmap import resolve_environment
 from ..io.gbuffer import MAP_KEYS, GBuffer, read_gbuffer
-from ..model.environment import DEFAULT_ENV_ERROR, check_env_error
-from ..model.options import RendererOptions, finished
+from ..model.options import (
+    DEFAULT_ENV_ERROR,
+    RendererOptions,
+    check_env_error,
+    finished,
+)
 from ..model.scene import MATERIAL_MAPS, Scene, load_scene
 
 __all__ = ["Relighter", "OutputOptions", "OutputPaths", "write_output", "as_gbuffer",
