@@ -139,6 +139,29 @@ def test_tree_rounds_make_the_greedy_splits(sun):
         assert got == _greedy_leaves(env.LightTree(E, d), n), n
 
 
+def test_leaf_sums_from_a_nearby_set_equal_fresh_sums():
+    # LeafSums forms k's sums from the nearest set already summed (adding the leaves it
+    # lacks, subtracting the others); the search's order of counts, up and back down.
+    w, h = 64, 32
+    L = _sky(w, h).astype(np.float64)
+    L[5, 40] = 4e3                                       # a sun: sums far apart in size
+    l_t, E_t = env.texel_lights(L)
+    tree = env.LightTree(E_t.reshape(h, w, 3), l_t.reshape(h, w, 3))
+    n, v = env.probe_pairs(64)
+    sums = env.LeafSums(tree, n, v, BLINN)
+    summed = []
+    fresh_sum = sums._sum
+    sums._sum = lambda ids: (summed.append(len(ids)), fresh_sum(ids))[1]
+    for k in (16, 64, 256, 1024, 300, 1200, 600, 700, 650):
+        summed.clear()
+        d, s = sums(k)
+        d0, s0 = env.probe_sums(n, v, *tree.lights(k), BLINN)
+        assert np.allclose(d, d0, rtol=1e-12, atol=1e-12 * d0.max())
+        assert np.allclose(s, s0, rtol=1e-12, atol=1e-12 * s0.max())
+        if k == 650:      # from 600 or 700: a hundred-odd leaves summed, not 650
+            assert sum(summed) < 300, summed
+
+
 def test_grey_tree_lights_keep_energy_and_first_moment_exactly():
     # radiance_c = m_c·m̂ with m̂ ∥ m_c for a grey map: Σ rad·l = Σ E·l per channel, and the
     # energy lost is the leaves' |m| < e (their spread), never gained.
