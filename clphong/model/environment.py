@@ -205,9 +205,8 @@ class LightTree:
         w = self.energy.sum(axis=-1)
         # one table of (w, w·l): a split's candidates cost four gathers
         self._sat = _sat(np.concatenate([w[..., None], w[..., None] * self.directions], axis=-1))
-        # per texel, E_c·l_xyz: a node's light is the sum of these over its texels
-        self._moments = (self.energy[..., :, None] * self.directions[..., None, :]).reshape(
-            self.height * self.width, 9)
+        self._flat_energy = self.energy.reshape(-1, 3)
+        self._flat_directions = self.directions.reshape(-1, 3)
         #: Every node as (y0, y1, x0, x1); node 0 is the whole map.
         self.nodes = np.zeros((0, 4), np.int64)
         self._prio = np.zeros(0)                 # capped score; -inf: never split
@@ -237,15 +236,8 @@ class LightTree:
         y0, y1, x0, x1 = rects.T
         if scores is None:
             scores = self._score(y0, y1, x0, x1)
-        h, w = y1 - y0, x1 - x0
-        area = h * w
-        # every texel of every rectangle, rectangle by rectangle, row by row
-        start = np.concatenate([[0], np.cumsum(area)[:-1]])
-        owner = np.repeat(np.arange(len(rects)), area)
-        q = np.arange(int(area.sum())) - start[owner]
-        texel = (y0[owner] + q // w[owner]) * self.width + x0[owner] + q % w[owner]
-        # each rectangle's texels in order, summed in turn: its own roundings only
-        mc = np.add.reduceat(self._moments[texel], start, axis=0).reshape(-1, 3, 3)  # (node, c, xyz)
+        area = (y1 - y0) * (x1 - x0)
+        mc = self._moments(y0, y1, x0, x1, area)                      # (node, c, xyz)
         m = mc.sum(axis=1)
         norm = np.sqrt(np.einsum("ij,ij->i", m, m))
         lit = norm > 0
@@ -261,6 +253,36 @@ class LightTree:
         self._l = np.concatenate([self._l, mh])
         self._rad = np.concatenate([self._rad, rad])
         return ids
+
+    #: A rectangle of at least this many texels is summed alone (a slice and a matrix
+    #: product); smaller ones together, by gathers, at most CHUNK texels at a time.
+    BIG = 64
+    CHUNK = 1 << 18
+
+    def _moments(self, y0, y1, x0, x1, area) -> np.ndarray:
+        """Σ E_c·l_xyz over each rectangle's own texels, (K, 3, 3): each sum has its own
+        roundings only, whatever else the map holds."""
+        mc = np.empty((len(area), 3, 3))
+        for i in np.flatnonzero(area >= self.BIG):
+            E = self.energy[y0[i]:y1[i], x0[i]:x1[i]].reshape(-1, 3)
+            mc[i] = E.T @ self.directions[y0[i]:y1[i], x0[i]:x1[i]].reshape(-1, 3)
+        small = np.flatnonzero(area < self.BIG)
+        ends = np.cumsum(area[small])
+        a = 0
+        while a < len(small):
+            b = max(int(np.searchsorted(ends, (ends[a - 1] if a else 0) + self.CHUNK, "right")),
+                    a + 1)
+            k = small[a:b]
+            w = x1[k] - x0[k]
+            # every texel of these rectangles, rectangle by rectangle, row by row
+            start = np.concatenate([[0], np.cumsum(area[k])[:-1]])
+            owner = np.repeat(np.arange(len(k)), area[k])
+            q = np.arange(int(area[k].sum())) - start[owner]
+            texel = (y0[k][owner] + q // w[owner]) * self.width + x0[k][owner] + q % w[owner]
+            prod = self._flat_energy[texel][:, :, None] * self._flat_directions[texel][:, None, :]
+            mc[k] = np.add.reduceat(prod.reshape(-1, 9), start, axis=0).reshape(-1, 3, 3)
+            a = b
+        return mc
 
     def _split(self, ids: np.ndarray) -> None:
         """Split the nodes ``ids`` at once, each at the row or column cut that minimises

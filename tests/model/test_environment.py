@@ -162,6 +162,27 @@ def test_leaf_sums_from_a_nearby_set_equal_fresh_sums():
             assert sum(summed) < 300, summed
 
 
+def test_node_moments_are_their_own_texels_sums():
+    # _moments sums a large rectangle alone and small ones together by gathers, in
+    # chunks: both ways, and a chunk boundary, against the plain sum of each rectangle
+    rng = np.random.default_rng(5)
+    w, h = 64, 32
+    E = rng.uniform(0, 1, (h, w, 3)) * env.texel_solid_angles(w, h)[..., None]
+    tree = env.LightTree(E, env.texel_directions(w, h))
+    tree.CHUNK = 100
+    y0 = rng.integers(0, h - 1, 40)
+    x0 = rng.integers(0, w - 1, 40)
+    y1 = np.minimum(y0 + rng.integers(1, 20, 40), h)
+    x1 = np.minimum(x0 + rng.integers(1, 40, 40), w)
+    area = (y1 - y0) * (x1 - x0)
+    assert (area >= tree.BIG).any() and (area < tree.BIG).sum() > 5
+    got = tree._moments(y0, y1, x0, x1, area)
+    for i in range(40):
+        Ei = E[y0[i]:y1[i], x0[i]:x1[i]].reshape(-1, 3)
+        di = tree.directions[y0[i]:y1[i], x0[i]:x1[i]].reshape(-1, 3)
+        assert np.allclose(got[i], Ei.T @ di, rtol=1e-13, atol=0)
+
+
 def test_grey_tree_lights_keep_energy_and_first_moment_exactly():
     # radiance_c = m_c·m̂ with m̂ ∥ m_c for a grey map: Σ rad·l = Σ E·l per channel, and the
     # energy lost is the leaves' |m| < e (their spread), never gained.
