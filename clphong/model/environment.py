@@ -640,13 +640,10 @@ def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: 
     E = L.astype(np.float64) * (texel_solid_angles(W, H) * float(intensity))[..., None]
     tree = LightTree(E, d)
     n, v = probe_pairs(probes, view)
-    sums = LeafSums(tree, n, v, material)
-    cache: dict[int, np.ndarray] = {}
+    sums = LeafSums(tree, n, v, material)          # each count's sums, kept
 
     def pixels(k: int) -> np.ndarray:
-        if k not in cache:
-            cache[k] = _pixels(*sums(k), material)
-        return cache[k]
+        return _pixels(*sums(k), material)
 
     def estimate(k: int, fine: int | None = None) -> float:
         """The error estimate of k leaves against ``fine`` ≥ REFINE·k leaves (default
