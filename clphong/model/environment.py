@@ -342,7 +342,7 @@ class LightTree:
 
     def leaf_nodes(self, n: int) -> np.ndarray:
         """The nodes that are the leaves after ``n - 1`` splits (grown as needed)."""
-        n = min(n, self.grow(n))
+        n = max(1, min(n, self.grow(n)))                  # at least the whole map
         split = self.split_order[:n - 1]
         leaf = np.zeros(len(self.nodes), bool)
         leaf[0] = True

@@ -134,6 +134,7 @@ def test_tree_rounds_make_the_greedy_splits(sun):
     E = L * env.texel_solid_angles(w, h)[..., None]
     d = env.texel_directions(w, h)
     tree = env.LightTree(E, d)
+    assert {tuple(int(x) for x in tree.nodes[k]) for k in tree.leaf_nodes(0)} == {(0, h, 0, w)}
     for n in (1, 2, 3, 5, 8, 13, 21, 34, 55, 89, w * h, w * h + 5):
         got = {tuple(int(x) for x in tree.nodes[k]) for k in tree.leaf_nodes(n)}
         assert got == _greedy_leaves(env.LightTree(E, d), n), n
