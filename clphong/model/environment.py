@@ -188,14 +188,15 @@ class LightTree:
     capped by its parent's (a child's variance is at most its parent's, and the
     cap keeps that true through the roundings). The leaves after ``n - 1``
     splits (:meth:`lights` of ``n``) are those of the ``n - 1`` nodes of highest
-    priority (ties: the node made first), which is the order in which one split
-    at a time of the largest would make them, so they refine those of any
-    smaller n. :meth:`grow` makes the nodes in rounds, every candidate at once:
-    a round splits every unsplit node whose priority is at least the ``n - 1``-th
-    known one (no node below that can be among the first ``n - 1``: its
-    descendants rank lower still). Each node's light is summed from its own
-    texels when the node is made (not from the summed-area tables, whose
-    roundings scale with the whole map's energy).
+    priority, equal ones by depth and then by their top-left texel: the order in
+    which one split at a time of the largest would make them, so they refine
+    those of any smaller n, and the same whatever counts were grown before.
+    :meth:`grow` makes the nodes in rounds, every candidate at once: a round
+    splits every unsplit node whose priority is at least the ``n - 1``-th known
+    one (no node below that can be among the first ``n - 1``: its descendants
+    rank lower still). Each node's light is summed from its own texels when the
+    node is made (not from the summed-area tables, whose roundings scale with
+    the whole map's energy).
     """
 
     def __init__(self, energy: np.ndarray, directions: np.ndarray):
@@ -211,12 +212,14 @@ class LightTree:
         self.nodes = np.zeros((0, 4), np.int64)
         self._prio = np.zeros(0)                 # capped score; -inf: never split
         self._kids = np.zeros((0, 2), np.int64)  # -1 until split
+        self._depth = np.zeros(0, np.int64)
         self._l = np.zeros((0, 3))
         self._rad = np.zeros((0, 3))
         #: The nodes split, in order: the first n - 1 give the leaves of n.
         self.split_order = np.zeros(0, np.int64)
         self._exhausted = False
-        self._make(np.array([[0, self.height, 0, self.width]]), None, np.array([np.inf]))
+        self._make(np.array([[0, self.height, 0, self.width]]), None, np.array([np.inf]),
+                   np.zeros(1, np.int64))
 
     def _score(self, y0, y1, x0, x1):
         """e − |m|²/e of rectangles (bounds broadcast): the energy-weighted angular variance."""
@@ -230,9 +233,9 @@ class LightTree:
         q = r[..., 1] ** 2 + r[..., 2] ** 2 + r[..., 3] ** 2
         return np.maximum(e - q / np.maximum(e, 1e-300), 0.0)
 
-    def _make(self, rects: np.ndarray, scores, cap: np.ndarray) -> np.ndarray:
-        """Add nodes (rects (K, 4)) with their scores (None: from the tables) capped by
-        ``cap``: their lights from their own texels; their ids."""
+    def _make(self, rects: np.ndarray, scores, cap: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """Add nodes (rects (K, 4), at ``depth``) with their scores (None: from the
+        tables) capped by ``cap``: their lights from their own texels; their ids."""
         y0, y1, x0, x1 = rects.T
         if scores is None:
             scores = self._score(y0, y1, x0, x1)
@@ -250,6 +253,7 @@ class LightTree:
         self.nodes = np.concatenate([self.nodes, rects])
         self._prio = np.concatenate([self._prio, prio])
         self._kids = np.concatenate([self._kids, np.full((len(rects), 2), -1)])
+        self._depth = np.concatenate([self._depth, depth])
         self._l = np.concatenate([self._l, mh])
         self._rad = np.concatenate([self._rad, rad])
         return ids
@@ -308,15 +312,19 @@ class LightTree:
         first = pick[np.unique(seg[pick], return_index=True)[1]]   # per node, its first best
         a = np.stack([ay0[first], ay1[first], ax0[first], ax1[first]], axis=1)
         b = np.stack([by0[first], by1[first], bx0[first], bx1[first]], axis=1)
-        cap = self._prio[ids]
-        ka = self._make(a, sa[first], cap)
-        kb = self._make(b, sb[first], cap)
+        cap, depth = self._prio[ids], self._depth[ids] + 1
+        ka = self._make(a, sa[first], cap, depth)
+        kb = self._make(b, sb[first], cap, depth)
         self._kids[ids] = np.stack([ka, kb], axis=1)
 
     def _ranked(self) -> np.ndarray:
-        """The splittable nodes made so far, highest priority first (ties: lower id)."""
+        """The splittable nodes made so far, highest priority first. Equal priorities
+        go by depth, then by the top-left texel (unique among the nodes of one depth,
+        which are disjoint): an order of the nodes alone, not of the rounds that made
+        them, so the leaves of n never depend on which counts were grown before."""
         ok = np.flatnonzero(self._prio > -np.inf)
-        return ok[np.lexsort((ok, -self._prio[ok]))]
+        y0, x0 = self.nodes[ok, 0], self.nodes[ok, 2]
+        return ok[np.lexsort((x0, y0, self._depth[ok], -self._prio[ok]))]
 
     @property
     def leaves(self) -> int:

@@ -98,10 +98,10 @@ def test_tree_leaves_partition_the_map_and_nest():
 
 
 def _greedy_leaves(tree, n):
-    """The tree's definition, one split at a time: split the leaf of largest score
-    e − |m|²/e (the tree's own :meth:`_score`, so that a region of one direction, whose
-    score is 0 up to the tables' roundings, is split alike) at the row or column cut
-    (rows first) that minimises its parts' sum of it; the leaves after n − 1 splits."""
+    """The tree's definition, one split at a time: split the leaf of highest priority
+    (its score e − |m|²/e, the tree's own :meth:`_score`, capped by its parent's; equal
+    ones by depth, then top-left texel) at the row or column cut (rows first) that
+    minimises its parts' sum of scores; the leaves' rectangles after n − 1 splits."""
     def score(r):
         return float(tree._score(*r))
 
@@ -110,30 +110,35 @@ def _greedy_leaves(tree, n):
         return [((y0, c, x0, x1), (c, y1, x0, x1)) for c in range(y0 + 1, y1)] + \
                [((y0, y1, x0, c), (y0, y1, c, x1)) for c in range(x0 + 1, x1)]
 
-    leaves = [(0, tree.height, 0, tree.width)]
+    root = (0, tree.height, 0, tree.width)
+    leaves = [(root, score(root), 0)]                    # (rect, priority, depth)
     for _ in range(n - 1):
-        ok = [r for r in leaves if (r[1] - r[0]) * (r[3] - r[2]) > 1 and score(r) > 0]
+        ok = [f for f in leaves if (f[0][1] - f[0][0]) * (f[0][3] - f[0][2]) > 1 and f[1] > 0]
         if not ok:
             break
-        r = max(ok, key=score)
-        a, b = min(cuts(r), key=lambda ab: score(ab[0]) + score(ab[1]))
-        leaves.remove(r)
-        leaves += [a, b]
-    return set(leaves)
+        f = max(ok, key=lambda f: (f[1], -f[2], -f[0][0], -f[0][2]))
+        a, b = min(cuts(f[0]), key=lambda ab: score(ab[0]) + score(ab[1]))
+        leaves.remove(f)
+        leaves += [(r, min(score(r), f[1]), f[2] + 1) for r in (a, b)]
+    return {f[0] for f in leaves}
 
 
-@pytest.mark.parametrize("sun", [False, True])
-def test_tree_rounds_make_the_greedy_splits(sun):
+@pytest.mark.parametrize("kind", ["sky", "sun", "constant"])
+def test_tree_rounds_make_the_greedy_splits(kind):
     # grow() splits many nodes a round; its leaves must be those of the definition's one
     # split at a time, for every n (a round that splits a node below the bar, or misses
-    # one above it, changes some n's leaves). A 1-texel sun makes a deep, lopsided tree.
+    # one above it, changes some n's leaves). A 1-texel sun makes a deep, lopsided tree;
+    # a constant map ties scores everywhere, so the order of equals shows, and a tree
+    # grown to every texel first must give the same leaves as one grown step by step.
     w, h = 16, 8
-    L = _sky(w, h).astype(np.float64)
-    if sun:
+    L = _sky(w, h).astype(np.float64) if kind != "constant" else np.ones((h, w, 3))
+    if kind == "sun":
         L[2, 11] = 5e4
     E = L * env.texel_solid_angles(w, h)[..., None]
     d = env.texel_directions(w, h)
     tree = env.LightTree(E, d)
+    if kind == "constant":
+        tree.grow(w * h)
     assert {tuple(int(x) for x in tree.nodes[k]) for k in tree.leaf_nodes(0)} == {(0, h, 0, w)}
     for n in (1, 2, 3, 5, 8, 13, 21, 34, 55, 89, w * h, w * h + 5):
         got = {tuple(int(x) for x in tree.nodes[k]) for k in tree.leaf_nodes(n)}
