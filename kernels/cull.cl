@@ -428,8 +428,9 @@ inline floatL interval_product_min(floatL a, floatL b, floatL lo, floatL hi)
  *                p⁺ = p(d⁺) for c0, c1, c2 ≥ 0 (p increasing); 0 for a spot (its cone
  *                is not bounded below) or any other falloff;
  * each rounded down (1 − 32u), and the float32 sum of n terms by (1 − 2nu). Only
- * lights j < n_real count: the light tree's representatives (j ≥ n_real) stand for
- * lights within an error, not below them, and the lights they stand for add ≥ 0. A tile
+ * lights count, not the light tree's representatives (F.z = 1, as pack_cull_lights marks
+ * them): they stand for lights within an error, not below them, and the lights they
+ * stand for add ≥ 0. A tile
  * with a negative minimum of D, C_d or S, or a NaN in any of its pixels' inputs
  * (tile_bounds writes min D_r = −∞ then), has no floor: budget 0 (nothing dropped
  * that could matter). Lights are the candidates (the super-tile's kept lights at the fine
@@ -440,7 +441,7 @@ __kernel void tile_floor(__global const float *restrict tiles, const uint n_tile
                          __global const uint *restrict cand_lights, const uint use_cand,
                          const uint tiles_x, const uint super_tiles,
                          __global const float4 *restrict dirs, const uint n_dir,
-                         const float4 ambient, const float scale, const uint n_real,
+                         const float4 ambient, const float scale,
                          /* light groups (n_groups > 0): each group's point and directional
                             ends (the lights are in group order) and k_a·A_g, rounded down */
                          const uint n_groups, __global const uint *restrict point_end,
@@ -493,10 +494,10 @@ __kernel void tile_floor(__global const float *restrict tiles, const uint n_tile
                 break;                     /* the next group's */
             const __global float4 *Lr = lights + CULL_LIGHT_FLOAT4S * j;
             const float4 A = Lr[0], B = Lr[1], C = Lr[2], E = Lr[3], F = Lr[4];
-            if (j >= n_real || F.x != 0.0f || F.z != 0.0f || A.w < 0.0f || B.x < 0.0f
+            if (F.x != 0.0f || F.z != 0.0f || A.w < 0.0f || B.x < 0.0f
                 || B.y < 0.0f)
-                continue;  /* a representative, a spot, a falloff not increasing in d or with a
-                              coefficient float32 cannot hold to a relative u (F.z) */
+                continue;  /* a spot, a representative or a coefficient float32 cannot hold
+                              to a relative u (F.z), a falloff not increasing in d */
             const floatL dx = MAX_(t.lox - A.x, 0.0f) + MAX_(A.x - t.hix, 0.0f);
             const floatL dy = MAX_(t.loy - A.y, 0.0f) + MAX_(A.y - t.hiy, 0.0f);
             const floatL dz = MAX_(t.loz - A.z, 0.0f) + MAX_(A.z - t.hiz, 0.0f);

@@ -91,7 +91,7 @@ def super_tiles(lanes: int) -> int:
     return max(SUPER, int(lanes))
 
 
-def pack_cull_lights(point: np.ndarray, n_point: int) -> np.ndarray:
+def pack_cull_lights(point: np.ndarray, n_point: int, representative=None) -> np.ndarray:
     """Cull records, 5 float4 per light (CULL_RECORD), from the float path's point records.
 
     The positions, coefficients and radiance are the float32 values the float
@@ -111,8 +111,10 @@ def pack_cull_lights(point: np.ndarray, n_point: int) -> np.ndarray:
       the error of n·l;
     * a spot's axis and cone ``(s, o)`` as the point record holds them (a point
       light's ``s = 0``: no cone), for the cone's bound of the factor t²;
-    * 1 where a falloff coefficient is nonzero and below FLT_MIN: the relative
-      budget's floor (``tile_floor``) leaves such a light out.
+    * 1 where a falloff coefficient is nonzero and below FLT_MIN, or where the record
+      is one of the light tree's representatives (``representative``: (n,) bool): the
+      relative budget's floor (``tile_floor``) leaves such a light out (a
+      representative stands for its lights within an error, not below them).
     """
     rec = np.zeros((max(n_point, 1), CULL_RECORD, 4), np.float32)
     if n_point == 0:
@@ -152,6 +154,8 @@ def pack_cull_lights(point: np.ndarray, n_point: int) -> np.ndarray:
     # kernels read it as 0 (denormals flushed), an absolute, not relative, rounding
     coef = np.abs(np.stack([c0, c1, c2], axis=1))
     rec[:, 4, 2] = ((coef > 0) & (coef < np.finfo(np.float32).tiny)).any(axis=1)
+    if representative is not None:
+        rec[np.asarray(representative, bool)[:n_point], 4, 2] = 1
     return rec.reshape(-1, 4)
 
 
@@ -181,10 +185,14 @@ class TileLists(ListedTiles):
     seconds: float            # device time of the three culling kernels
     active_tiles: int = 0     # tiles with at least one shaded pixel
     brute: bool = False       # the lists kept too much to pay off: shaded brute force
-    #: with the light tree's clusters: the point records the lists index (the
-    #: scene's, then the representatives'), float32 rebased and float64; else None
+    #: with the light tree's clusters: the point records the lists index (each light
+    #: group's lights, then its representatives: ExtendedLayout), float32 rebased and
+    #: float64; each record's source (light j, or n_point + node k); with light groups,
+    #: each group's end among them (the shading kernel's group table); else None
     records: np.ndarray | None = None
     records64: np.ndarray | None = None
+    record_source: np.ndarray | None = None
+    point_end: np.ndarray | None = None
     clusters: int = 0         # Σ over super-tiles of the clusters their cuts use
     covered: int = 0          # Σ over super-tiles of the lights those clusters stand for
     tree_seconds: float = 0.0  # the host's cut (bounds and choice)
@@ -257,8 +265,8 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
     None when too long.
 
     ``floor``: the relative budget, ``budget`` a fraction of each pixel's own value:
-    (directional records buffer, their number, ambient float4, the number of real
-    lights: the light tree's representatives follow them) for
+    (directional records buffer, their number, ambient float4, the groups: their
+    number and the point and directional ends, their ambient) for
     kernels/cull.cl ``tile_floor``, which gives each tile ``budget·T⁻`` (T⁻ a proven
     lower bound of its pixels' totals, scaled by :data:`FLOOR_SCALE`)."""
     import pyopencl as cl
@@ -278,15 +286,15 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
         cand = (candidates[0], candidates[1], np.uint32(1))
     cand_args = (*cand, np.uint32(tiles_x), np.uint32(super_tiles))
     events = list(bounds_events)
-    n_groups = floor[4] if floor is not None else 0
+    n_groups = floor[3] if floor is not None else 0
     planes = max(n_groups, 1)
     tile_budget = cl.Buffer(ctx, mf.READ_WRITE, planes * n_pad * 4 if floor is not None else 16)
     if floor is not None:
-        dirs, n_dir, ambient, n_real, _, pend, dend, gamb = floor
+        dirs, n_dir, ambient, _, pend, dend, gamb = floor
         k0 = runtime.kernel(prog, "tile_floor")
         k0.set_args(tiles, np.uint32(n_pad), lb, np.uint32(n_point), *cand_args, dirs,
                     np.uint32(n_dir), ambient, np.float32(budget * FLOOR_SCALE),
-                    np.uint32(n_real), np.uint32(n_groups), pend, dend, gamb, tile_budget)
+                    np.uint32(n_groups), pend, dend, gamb, tile_budget)
         events.append(cl.enqueue_nd_range_kernel(queue, k0, (n_pad // lanes,), (CULL_LOCAL,),
                                                  wait_for=events[-1:]))
         group_args = (np.uint32(n_groups), pend)
@@ -378,8 +386,10 @@ class RelativeInput:
         return cls(directional=lights.directional, n_dir=n_dir,
                    ambient=np.asarray(lights.ambient, np.float64), nonnegative=nonneg, **groups)
 
-    def floor_args(self, ctx, n_real: int) -> tuple:
-        """kernels/cull.cl tile_floor's arguments (see :func:`_cull_level`'s ``floor``)."""
+    def floor_args(self, ctx, point_end=None) -> tuple:
+        """kernels/cull.cl tile_floor's arguments (see :func:`_cull_level`'s ``floor``);
+        ``point_end``: the groups' ends among the point records where they hold the light
+        tree's representatives too (:class:`ExtendedLayout`), else the lights' own."""
         import pyopencl as cl
 
         ro = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
@@ -392,12 +402,13 @@ class RelativeInput:
         ends = np.zeros((2, max(G, 1)), np.uint32)
         gamb = np.zeros((max(G, 1), 4), np.float32)
         if G:
-            ends[0], ends[1] = self.point_end, self.dir_end
+            ends[0] = self.point_end if point_end is None else point_end
+            ends[1] = self.dir_end
             gamb[:, :3] = down(self.group_ambient)
         pend = cl.Buffer(ctx, ro, hostbuf=ends[0].copy())
         dend = cl.Buffer(ctx, ro, hostbuf=ends[1].copy())
         gb = cl.Buffer(ctx, ro, hostbuf=gamb)
-        return dirs, self.n_dir, float4(*down(self.ambient)), n_real, G, pend, dend, gb
+        return dirs, self.n_dir, float4(*down(self.ambient)), G, pend, dend, gb
 
 
 #: Test-only: the factor the relative budget's floor is multiplied by (1: the proof).
@@ -414,6 +425,7 @@ class TreeInput:
     tree: Callable[[], LightTree | None]
     spec: SpecularModel
     point64: np.ndarray
+    point_end: np.ndarray | None = None      # light groups: each group's end, else None
 
 
 def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k_d, S,
@@ -457,7 +469,7 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
     coarse_tiles, e_coarse = _merge_bounds(runtime, prog, fine_tiles, fine_tiles_x=tiles_x,
                                            fine_tiles_y=tiles_y, sup=sup, tiles_x=super_x,
                                            tiles_y=super_y, lanes=lanes, wait_for=[e_fine])
-    floor = None if relative is None else relative.floor_args(ctx, n_point)
+    floor = None if relative is None else relative.floor_args(ctx)
     if relative is not None and not relative.nonnegative:
         budget = 0.0
     coarse_budget = budget * COARSE_SHARE
@@ -471,13 +483,13 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
     shaded = tile_of_pixels(frame.shape, lanes, tiles_x).reshape(-1)[~frame.background]
     active = int(np.unique(shaded).size)
 
-    def fine_level(ranges_, lists_, lb_, n_lists, rest):
+    def fine_level(ranges_, lists_, lb_, n_lists, rest, floor_=floor):
         crb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(ranges_))
         # the rest of the budget, rounded down so that the parts never sum past it
         fb = float(np.nextafter(np.float32(rest), np.float32(0)))
         return _cull_level(runtime, prog, fine_tiles, [], lb_, n_lists, budget=max(fb, 0.0),
                            tiles_x=tiles_x, tiles_y=tiles_y, lanes=lanes,
-                           candidates=(crb, lists_), super_tiles=super_x * super_y, floor=floor)
+                           candidates=(crb, lists_), super_tiles=super_x * super_y, floor=floor_)
 
     fine = fine_level(c_ranges, c_lists, lb, n_point, budget - coarse_budget)
     spent = 0.0
@@ -489,19 +501,24 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
         tree_budget = budget * TREE_SHARE * (1.0 if c_floors is None else c_floors)
         cut = _tree_cut(runtime, tree, coarse_tiles, c_ranges, c_lists, point_records, n_point,
                         frame.origin, n_super=super_x * super_y, budget=tree_budget,
-                        lanes=lanes)
+                        lanes=lanes, point_end=tree.point_end)
         if cut is not None:
-            t_ranges, t_lists, records, records64, clusters, covered, tree_s = cut
+            t_ranges, t_lists, records, records64, clusters, covered, layout, tree_s = cut
             n_ext = len(records) // POINT_RECORD
-            lb_ext = cl.Buffer(ctx, ro, hostbuf=pack_cull_lights(records, n_ext))
+            lb_ext = cl.Buffer(ctx, ro, hostbuf=pack_cull_lights(
+                records, n_ext, representative=layout.representative))
+            floor_ext = (None if floor is None
+                         else relative.floor_args(ctx, point_end=layout.point_end))
             with_tree = fine_level(t_ranges, t_lists, lb_ext, n_ext,
-                                   budget - coarse_budget - budget * TREE_SHARE)
+                                   budget - coarse_budget - budget * TREE_SHARE, floor_ext)
             if with_tree is not None and (fine is None or with_tree[2] < fine[2]):
                 if fine is not None:
                     spent += fine[3]                 # the pass without the tree, not used
                 fine = with_tree
                 t = tree.tree()
                 extra.update(records=records, records64=records64, clusters=clusters,
+                             record_source=layout.source,
+                             point_end=None if tree.point_end is None else layout.point_end,
                              covered=covered, tree_seconds=tree_s, tree_nodes=t.n_nodes,
                              tree_lights=t.clusterable, tree_build_seconds=t.seconds)
             else:
@@ -528,15 +545,17 @@ def read_tile_boxes(runtime, tiles_buffer, n_tiles: int, lanes: int) -> TileBoxe
 
 
 def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_records,
-              n_point, origin, *, n_super, budget, lanes):
+              n_point, origin, *, n_super, budget, lanes, point_end=None):
     """The super-tiles' lists with the tree's clusters: per super-tile, the cut of
     :func:`~clphong.model.light_tree.choose_cut` within ``budget`` (a number, or one per
     super-tile: the relative budget's; 0 takes no cluster); its clusters
     replace the lights they stand for, and the culled lights stay out. None where
-    no cluster fits.
+    no cluster fits. With light groups (``point_end``: each group's end), a group's
+    clusters are its own lights' and use its own floor (``budget`` (G, super-tiles)),
+    and its representatives follow its lights (:class:`ExtendedLayout`).
 
     Returns (ranges, lists buffer, float32 records, float64 records, clusters,
-    covered, seconds).
+    covered, layout, seconds).
     """
     import pyopencl as cl
 
@@ -547,14 +566,18 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
     boxes = read_tile_boxes(runtime, coarse_tiles, n_super, lanes)
     flat = np.zeros(max(c_lists.size // 4, 1), np.uint32)    # capacities ≥ counts
     cl.enqueue_copy(runtime.queue, flat, c_lists).wait()
+    layout = ExtendedLayout.of(tree, n_point, point_end)
     new_lists, clusters, covered_n = [], 0, 0
     for s0 in range(0, n_super, TREE_CHUNK):
         s1 = min(s0 + TREE_CHUNK, n_super)
         part = TileBoxes(*(getattr(boxes, f)[s0:s1] for f in ("lo", "hi", "nlo", "nhi", "D", "S")))
         b = cluster_bounds(tree, part, tin.spec, origin)
         if np.ndim(budget):
-            # per super-tile: the bounds in units of its budget (none: +inf, no cluster)
-            share = np.asarray(budget, np.float64)[s0:s1, None]
+            # per super-tile (and light group: a node's own group's floor): the bounds
+            # in units of its budget (none: +inf, no cluster)
+            budget_ = np.asarray(budget, np.float64)
+            share = (budget_[s0:s1, None] if budget_.ndim == 1
+                     else budget_[tree.group][:, s0:s1].T)
             with np.errstate(divide="ignore", invalid="ignore"):
                 b = np.where(share > 0, b / np.where(share > 0, share, 1.0) * (1 + 1e-12), np.inf)
             used, covered = choose_cut(tree, b, 1.0)
@@ -567,7 +590,7 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
             nodes = np.flatnonzero(used[t])
             clusters += nodes.size
             covered_n += int(covered[t].sum())
-            new_lists.append(np.concatenate([kept, (n_point + nodes).astype(np.uint32)]))
+            new_lists.append(np.sort(np.concatenate([layout.light[kept], layout.node[nodes]])))
     if clusters == 0:
         return None
     sizes = np.array([len(x) for x in new_lists], np.int64)
@@ -577,9 +600,54 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
     buf = cl.Buffer(runtime.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                     hostbuf=lists)
     rep32, rep64 = representative_records(tree, origin)
-    records = np.concatenate([point_records[:n_point * POINT_RECORD], rep32])
-    records64 = np.concatenate([tin.point64[:n_point * POINT_RECORD], rep64])
-    return ranges, buf, records, records64, clusters, covered_n, time.perf_counter() - t0
+    records = layout.records(point_records, rep32)
+    records64 = layout.records(tin.point64, rep64)
+    return (ranges, buf, records, records64, clusters, covered_n, layout,
+            time.perf_counter() - t0)
+
+
+@dataclass(frozen=True)
+class ExtendedLayout:
+    """The point records with the light tree's representatives: each light group's
+    lights, then its representatives, so that the tile lists (in record order) stay
+    in group order, as the kernels walk them (one group without light groups: the
+    lights, then the representatives)."""
+
+    light: np.ndarray        # (n,) uint32: each light's record
+    node: np.ndarray         # (K,) uint32: each internal node's record
+    point_end: np.ndarray    # (G,) uint32: each group's end among the records
+    source: np.ndarray       # (n + K,): each record's light j, or n + k for node k
+
+    @classmethod
+    def of(cls, tree: LightTree, n_point: int, point_end=None) -> "ExtendedLayout":
+        ends = (np.asarray(point_end, np.int64) if point_end is not None and len(point_end)
+                else np.array([n_point], np.int64))
+        K = tree.n_nodes
+        group = np.asarray(tree.group, np.int64)
+        reps = np.bincount(group, minlength=len(ends))
+        before = np.r_[0, np.cumsum(reps)[:-1]]          # representatives before group g
+        light = np.arange(n_point) + before[np.searchsorted(ends, np.arange(n_point),
+                                                             side="right")]
+        order = np.argsort(group, kind="stable")
+        rank = np.empty(K, np.int64)
+        rank[order] = np.arange(K) - before[group[order]]
+        node = ends[group] + before[group] + rank
+        source = np.empty(n_point + K, np.int64)
+        source[light] = np.arange(n_point)
+        source[node] = n_point + np.arange(K)
+        return cls(light=light.astype(np.uint32), node=node.astype(np.uint32),
+                   point_end=(ends + np.cumsum(reps)).astype(np.uint32), source=source)
+
+    def records(self, lights: np.ndarray, representatives: np.ndarray) -> np.ndarray:
+        """The records in this order, from the lights' (at least n) and the nodes'."""
+        n = len(self.light)
+        both = np.concatenate([lights[:n * POINT_RECORD], representatives])
+        return both.reshape(-1, POINT_RECORD, 4)[self.source].reshape(-1, 4)
+
+    @property
+    def representative(self) -> np.ndarray:
+        """(n + K,) bool: the records that are representatives."""
+        return self.source >= len(self.light)
 
 
 def read_tile_lists(runtime, lists: TileLists) -> list[np.ndarray]:

@@ -515,16 +515,17 @@ class Renderer:
         return self._light_tree
 
     def _tree_input(self, plan, frame, lights):
-        """What culling's light-tree cut needs, or None (no tree; light groups, whose
-        lists are read in group order, do not take clusters yet)."""
-        if not self.use_tree or plan.defines.get("N_GROUPS") or plan.n_spot == plan.n_point:
+        """What culling's light-tree cut needs, or None (no tree)."""
+        if not self.use_tree:
             return None
         if not self.always_tree and not tree_can_pay(self.runtime.pair_rate,
                                                      frame.shape[0] * frame.shape[1] * plan.n_point):
             return None
         spec = SpecularModel.of_scene(self.scene, lights.eye,
                                       shininess_map="h" in frame.map_names)
-        return TreeInput(tree=self.light_tree, spec=spec, point64=lights.point64)
+        ends = (np.asarray(self.scene.light_arrays["point_group_end"], np.uint32)
+                if self.scene.light_groups else None)
+        return TreeInput(tree=self.light_tree, spec=spec, point64=lights.point64, point_end=ends)
 
     # ------------------------------------------------------------------ one launch
 
@@ -595,6 +596,10 @@ class Renderer:
             if records is not None:                  # the lists name the tree's clusters too
                 pl = cl.Buffer(ctx, ro, hostbuf=shading_records(records[1] if fp64 else records[0],
                                                                 spots))
+                if cull.point_end is not None:       # each group's representatives follow it
+                    table = lights.group_table.copy()
+                    table[len(cull.point_end):] = cull.point_end
+                    gt = cl.Buffer(ctx, ro, hostbuf=table)
             dirs, dir_args = None, []
             if plan.defines.get("DIR_CULLING"):       # the lights some normal of a tile faces
                 dirs = build_dir_lists(self.runtime, plan, frame, lights.directional,

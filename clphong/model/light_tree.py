@@ -8,11 +8,19 @@ radiance-weighted centroid ``p_k`` of its lights, with their summed radiance
 the point-light records after the scene's own lights, so a tile's list may name
 either (:func:`representative_records`).
 
-Which lights may share a node: plain point lights (no cone) with the same falloff
-coefficients ``c0, c1, c2 ≥ 0`` (so the falloff ``A(d) = 1/p(d)`` decreases in
-``d``), finite non-negative radiance and at least one positive channel. Spots,
-lights with another falloff of their own and lights with negative radiance are
-leaves that are never clustered.
+Which lights may share a node: point lights with the same falloff coefficients
+``c0, c1, c2 ≥ 0`` (so the falloff ``A(d) = 1/p(d)`` decreases in ``d``), finite
+non-negative radiance and at least one positive channel, in the same light group (so
+each group layer keeps its own guarantee), and the same cone: none, or a spot's axis
+and ``(s, o)`` (a rig of spots; the representative is a spot with that cone). Lights
+with a falloff or cone of their own and lights with negative radiance are leaves
+that are never clustered.
+
+A spot's factor t² (t = clamp(cos θ·s + o, 0, 1)) multiplies each term below: its
+largest value t⁺² over the box pair scales the range; |∇t²| ≤ 2t⁺·s/d joins the
+gradient by the product rule; ‖∇²t²‖ ≤ (2s² + 6t⁺·s)/d² joins the Hessian, which is
+used only where t has no kink over the pair (all inside the inner cone, t ≡ 1, or all
+on the ramp) (:func:`spot_factor_bounds`).
 
 The tree is a kd-tree (median split on the longest axis of the node's lights),
 built level by level with vectorised sorts: 65 536 lights in about 0.1 s.
@@ -97,6 +105,8 @@ class LightTree:
     quadratic: np.ndarray   # (K, 3) Σ_i R_ic·|p_i − p_k|²
     first: np.ndarray       # (K, 3) |Σ_i R_ic·(p_i − p_k)| (0 for lights of one colour)
     attenuation: np.ndarray  # (K, 3) the shared c0, c1, c2
+    cone: np.ndarray        # (K, 5) the shared cone: a spot's axis, (s, o); (0, 0, 0, 0, 1)
+    group: np.ndarray       # (K,) the light group of the node's lights (0 without groups)
     children: np.ndarray    # (K, 2) combined numbers
     levels: tuple           # tuple of int arrays of internal-node numbers (0-based k)
     clusterable: int        # lights under some internal node
@@ -107,20 +117,33 @@ class LightTree:
         return len(self.lo)
 
 
+def light_groups_of(arrays) -> np.ndarray:
+    """(N,) the light group of each point light (0 without groups): the lights are in
+    group order, ``point_group_end`` each group's end."""
+    n = len(arrays["point_position"])
+    ends = np.asarray(arrays.get("point_group_end", ()), np.int64)
+    return np.searchsorted(ends, np.arange(n), side="right") if ends.size else np.zeros(n, np.int64)
+
+
 def clusterable_classes(arrays) -> list[np.ndarray]:
-    """Index arrays of the point lights that may share nodes, one per falloff."""
+    """Index arrays of the point lights that may share nodes: one per falloff, cone
+    (spots with the same axis and ``(s, o)``, ``s ≥ 0``; a plain point light's is
+    ``(0, 1)``) and light group, so that a group's clusters stand for its own lights."""
     pos = arrays["point_position"]
     if len(pos) == 0:
         return []
     R = arrays["point_radiance"]
     att = arrays["point_attenuation"]
-    ok = (~arrays["point_is_spot"] & np.isfinite(R).all(axis=1) & (R >= 0).all(axis=1)
+    cone = np.asarray(arrays["point_cone"], np.float64)
+    ok = (np.isfinite(R).all(axis=1) & (R >= 0).all(axis=1)
           & (R.sum(axis=1) > 0) & np.isfinite(pos).all(axis=1)
-          & (att >= 0).all(axis=1) & np.isfinite(att).all(axis=1) & (att.sum(axis=1) > 0))
+          & (att >= 0).all(axis=1) & np.isfinite(att).all(axis=1) & (att.sum(axis=1) > 0)
+          & np.isfinite(cone).all(axis=1) & (cone[:, 3] >= 0))
     idx = np.flatnonzero(ok)
     if idx.size == 0:
         return []
-    _, inv = np.unique(att[idx], axis=0, return_inverse=True)
+    key = np.column_stack([att[idx], cone[idx], light_groups_of(arrays)[idx]])
+    _, inv = np.unique(key, axis=0, return_inverse=True)
     inv = inv.reshape(-1)
     return [idx[inv == c] for c in range(inv.max() + 1) if (inv == c).sum() >= 2]
 
@@ -136,7 +159,10 @@ def build_light_tree(arrays) -> LightTree | None:
     P = np.asarray(arrays["point_position"], np.float64)
     R = np.asarray(arrays["point_radiance"], np.float64)
     A = np.asarray(arrays["point_attenuation"], np.float64)
+    Cn = np.asarray(arrays["point_cone"], np.float64)
+    gid = light_groups_of(arrays)
     los, his, reps, rads, moms, atts, kids = [], [], [], [], [], [], []
+    cones, groups = [], []
     quads, firsts = [], []
     levels: list[list[np.ndarray]] = []
     base = 0                                    # internal nodes numbered so far
@@ -175,6 +201,8 @@ def build_light_tree(arrays) -> LightTree | None:
             his.append(hi)
             reps.append(cent)
             atts.append(A[order[starts]])
+            cones.append(Cn[order[starts]])
+            groups.append(gid[order[starts]])
             while len(levels) <= depth:
                 levels.append([])
             levels[depth].append(ids)
@@ -210,8 +238,8 @@ def build_light_tree(arrays) -> LightTree | None:
     children = place([c for _, c in kids])
     return LightTree(n_leaves=n, lo=place(los), hi=place(his), position=place(reps),
                      radiance=place(rads), moment=place(moms), quadratic=place(quads),
-                     first=place(firsts), attenuation=place(atts),
-                     children=children, levels=tuple(np.concatenate(lv) for lv in levels),
+                     first=place(firsts), attenuation=place(atts), cone=place(cones),
+                     group=place(groups), children=children, levels=tuple(np.concatenate(lv) for lv in levels),
                      clusterable=sum(len(c) for c in classes),
                      seconds=time.perf_counter() - t0)
 
@@ -225,7 +253,8 @@ def representative_records(tree: LightTree, origin) -> tuple[np.ndarray, np.ndar
     rec[:, 1, :3] = tree.radiance
     rec[:, 1, 3] = tree.attenuation[:, 1]
     rec[:, 2, 0] = tree.attenuation[:, 2]
-    rec[:, 3, 1] = 1.0                          # (s, o) = (0, 1): no cone
+    rec[:, 2, 1:4] = tree.cone[:, :3]           # a spot's axis, and its (s, o); a point
+    rec[:, 3, 0:2] = tree.cone[:, 3:5]          # light's (0, 1): no cone
     rec64 = rec.reshape(-1, 4).copy()
     rec[:, 0, :3] -= np.asarray(origin, np.float64)
     return rec.reshape(-1, 4).astype(np.float32), rec64
@@ -361,6 +390,9 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
     gap = np.maximum(blo - thi, 0) + np.maximum(tlo - bhi, 0)
     d_lo = np.sqrt((gap * gap).sum(axis=-1))         # (T, K)
     c0, c1, c2 = (tree.attenuation[k, i][None] for i in range(3))
+    # a spot's cone factor t² (1 for a point light): t ≤ t⁺ over the box pair
+    t_hi, smooth_t, slope = spot_factor_bounds(tree.cone[k], tlo, thi, blo, bhi)
+    t2 = t_hi * t_hi
     D = tiles.D[:, None]                             # (T, 1, 3)
     S = tiles.S[:, None]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -387,13 +419,23 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
         # diffuse: both sums lie in [0, R·A(d⁻)·(n·u)⁺]; Lipschitz Λ_d = 3A/d; where
         # surely lit, Taylor to second order: |∇²| ≤ 15 A/d², the first-order term
         # |∇f(p_k)·Σ R_i (p_i − p_k)| ≤ 3A/d·F
-        e_rng = Rk * (A_lo * nu_hi)[..., None]
-        e_lip = 3.0 * lip[..., None] * M
-        e_two = 3.0 * lip[..., None] * F + 7.5 * (lip / d_lo)[..., None] * Q
-        e = D * np.fmin(np.fmin(e_rng, e_lip), np.where(lit[..., None], e_two, np.inf))
+        # |∇t²| ≤ 2t⁺·s/d and ‖∇²t²‖ ≤ (2s² + 6t⁺·s)/d² (|∇cos θ| ≤ 1/d, ‖∇²cos θ‖ ≤
+        # 3/d²); 0 where t ≡ 1 (slope 0: a point light, or inside the inner cone)
+        spot = slope > 0
+        spot_lip = np.where(spot, 2.0 * t_hi * slope / d_lo, 0.0)
+        spot_hess = np.where(spot, (2.0 * slope * slope + 6.0 * t_hi * slope) / d_lo ** 2, 0.0)
+        g_hi = A_lo * nu_hi                          # the diffuse weight's range
+        e_rng = Rk * (g_hi * t2)[..., None]
+        grad = 3.0 * lip * t2 + np.where(spot, g_hi * spot_lip, 0.0)
+        e_lip = grad[..., None] * M
+        hess = (15.0 * lip / d_lo * t2
+                + np.where(spot, 2.0 * spot_lip * 3.0 * lip + g_hi * spot_hess, 0.0))
+        e_two = grad[..., None] * F + 0.5 * hess[..., None] * Q
+        smooth = (lit & smooth_t)[..., None]         # the second order: no kink in the pair
+        e = D * np.fmin(np.fmin(e_rng, e_lip), np.where(smooth, e_two, np.inf))
         if tiles.S.any():
             e = e + S * _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q,
-                                        spec)
+                                        spec, spot=(t2, spot_lip, spot_hess, smooth_t))
         e = e + U * Rk * A_lo[..., None] * (D + S)
         b = e.max(axis=-1) * (1 + 1e-6)
     b = np.where(np.isfinite(b) & (d_lo > 0), b, np.inf)
@@ -401,7 +443,55 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
     return np.where(empty[:, None], 0.0, b)
 
 
-def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spec):
+def spot_factor_bounds(cone, tlo, thi, blo, bhi):
+    """Bounds of a spot's cone factor t = clamp(cos θ·s + o, 0, 1), cos θ = a·w/|w| with
+    w = x − p from the light to the pixel, over the tile boxes ``tlo, thi`` (T, 1, 3) ×
+    the node boxes ``blo, bhi`` (1, K, 3) with the nodes' ``cone`` (K, 5) (axis a, s ≥
+    0, o). θ lies within the cone of the directions from the node's ball to the tile's
+    ball, and cos θ within the interval of a·w over the boxes divided by |w| ∈ [d⁻, d⁺];
+    the tighter of the two is taken. Returns (T, K) each:
+
+    * t⁺, the largest t;
+    * smooth: t has no kink in the pair (inside the inner cone, t ≡ 1; or on the ramp,
+      0 < t = cos θ·s + o ≤ 1, unclamped);
+    * the slope: s, or 0 where t ≡ 1.
+
+    A point light's (s, o) = (0, 1) gives t⁺ = 1, smooth, slope 0."""
+    a = cone[None, :, :3]
+    s, o = cone[None, :, 3], cone[None, :, 4]
+    ct, rt = 0.5 * (tlo + thi), 0.5 * _unit(thi - tlo)[1]
+    cb, rb = 0.5 * (blo + bhi), 0.5 * _unit(bhi - blo)[1]
+    w0, dist = _unit(ct - cb)                          # (T, K, 3), (T, K)
+    half = _cone(None, rt + rb, dist)
+    with np.errstate(invalid="ignore"):
+        theta = np.nan_to_num(_angle(np.broadcast_to(a, w0.shape), w0), nan=0.0)
+    # a point light's axis is 0: s = 0 there, so its θ does not matter
+    spot = s > 0
+    # and by intervals: a·w over the box of w = x − p, over |w| ∈ [d⁻, d⁺] (better for
+    # large tiles far off the axis)
+    aw_lo, aw_hi = _interval_dot(tlo - bhi, thi - blo, a, a)
+    gap = np.maximum(blo - thi, 0) + np.maximum(tlo - bhi, 0)
+    span = np.maximum(bhi, thi) - np.minimum(blo, tlo)
+    d_lo, d_hi = _unit(gap)[1], _unit(span)[1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        i_hi = np.where(aw_hi > 0, aw_hi / d_lo, aw_hi / d_hi)
+        i_lo = np.where(aw_lo < 0, aw_lo / d_lo, aw_lo / d_hi)
+    i_hi = np.where(np.isfinite(i_hi), np.minimum(i_hi, 1.0), 1.0)
+    i_lo = np.where(np.isfinite(i_lo), np.maximum(i_lo, -1.0), -1.0)
+    # 1e-9: the float64 reference's own roundings of cos θ
+    cos_hi = np.minimum(np.where(half >= np.pi, 1.0, np.cos(np.clip(theta - half, 0.0, np.pi))),
+                        i_hi) + 1e-9
+    cos_lo = np.maximum(np.where(half >= np.pi, -1.0, np.cos(np.clip(theta + half, 0.0, np.pi))),
+                        i_lo) - 1e-9
+    t_hi = np.where(spot, np.clip(cos_hi * s + o, 0.0, 1.0), np.clip(o, 0.0, 1.0))
+    inner = np.where(spot, cos_lo * s + o >= 1.0, o >= 1.0)
+    ramp = spot & (cos_lo * s + o > 0.0) & (cos_hi * s + o <= 1.0)
+    slope = np.where(inner, 0.0, np.broadcast_to(s, t_hi.shape))
+    return t_hi, inner | ramp, slope
+
+
+def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spec, *,
+                    spot=(1.0, 0.0, 0.0, True)):
     """(T, K, 3) bound of the specular error per unit S (see the module docstring):
     the range R·A(d⁻)·c^K everywhere; where surely lit, also the Lipschitz bound and
     the second-order Taylor bound, with the cosine x ≤ c (:func:`specular_cosine`):
@@ -409,14 +499,17 @@ def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spe
     3/|u + v|⁻)/d²; Phong: g = 3/d, η = 9/d²), so for P = x^K
     |∇(P·A)| ≤ A·(K·c^(K−1)·g + 2c^K/d) (+ 5g·c^K·A for Blinn-Phong's Schlick weight)
     and |∇²(P·A)| ≤ A·(K(K−1)c^(K−2)g² + K·c^(K−1)·η + 4K·c^(K−1)·g/d + 8c^K/d²)
-    (K ≥ 2, and not with Blinn-Phong's Schlick weight)."""
+    (K ≥ 2, and not with Blinn-Phong's Schlick weight). A spot's factor: ``spot`` = (t⁺²,
+    bounds of |∇t²| and ‖∇²t²‖, smooth): the product rule on t²·P·A, the second order
+    only where t is smooth (:func:`spot_factor_bounds`)."""
+    t2, spot_lip, spot_hess, smooth_t = spot
     K = spec.exponent
     if K is None or K < 1:                           # a shininess map, or x^K not Lipschitz
-        return Rk * A_lo[..., None]
+        return Rk * (A_lo * t2)[..., None]
     c = specular_cosine(tiles, blo, bhi, spec)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         cK = c ** K
-        rng = Rk * (A_lo * cK)[..., None]
+        rng = Rk * (A_lo * cK * t2)[..., None]
         if spec.blinn:
             uv = _view_dot_lower(tiles, blo, bhi, thi, tlo, d_lo, spec)
             huv = np.sqrt(np.maximum(2.0 + 2.0 * uv, 0.0))
@@ -432,13 +525,18 @@ def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spe
         # and x^(K−2)·(1 − x²); |∇²x| ≤ (2 sin θ + cos θ)·g² + sin θ·t
         h1 = _peak(c, K - 1.0, 0.5)
         grad = A_lo * (K * h1 * g + 2.0 * cK / d_lo + (5.0 * g * cK if fres else 0.0))
-        e_lip = grad[..., None] * M
+        g_hi = A_lo * cK                             # the term's range
+        grad_t = grad * t2 + np.where(spot_lip > 0, g_hi * spot_lip, 0.0)
+        e_lip = grad_t[..., None] * M
         if K >= 2 and not fres:
             f1 = _peak(c, K - 2.0, 1.0)
             hess = A_lo * (K * (K - 1) * f1 * g * g + K * (2.0 * h1 + cK) * g * g + K * h1 * t
                            + 4.0 * K * h1 * g / d_lo + 8.0 * cK / d_lo ** 2)
-            e_two = grad[..., None] * F + 0.5 * hess[..., None] * Q
-            e_lip = np.fmin(e_lip, e_two)
+            hess_t = hess * t2 + np.where(spot_hess > 0, 2.0 * spot_lip * grad + g_hi * spot_hess,
+                                          0.0)
+            e_two = grad_t[..., None] * F + 0.5 * hess_t[..., None] * Q
+            e_lip = np.fmin(e_lip, np.where(np.broadcast_to(smooth_t, A_lo.shape)[..., None],
+                                            e_two, np.inf))
         return np.where(lit[..., None], np.fmin(e_lip, rng), rng)
 
 

@@ -24,18 +24,24 @@ from clphong.model.light_tree import (
     choose_cut,
     cluster_bounds,
     clusterable_classes,
+    spot_factor_bounds,
 )
 from clphong.reference import shading as reference
 from clphong.tools.hardcases import make_gbuffer, make_scene
 
 
-def clustered_lights(rng, n, *, centre, spread, att=(1.0, 0.0, 0.01), grey=False):
+def clustered_lights(rng, n, *, centre, spread, att=(1.0, 0.0, 0.01), grey=False, cone=None):
+    """``n`` point lights about ``centre``; ``cone`` = (axis, inner, outer): spots of that
+    one cone instead."""
     out = []
     for _ in range(n):
         pos = np.asarray(centre) + rng.normal(0, spread, 3)
         col = (1.0, 1.0, 1.0) if grey else tuple(rng.uniform(0.3, 1.0, 3))
         out.append(dict(type="point", position=tuple(pos), color=col,
                         intensity=float(rng.uniform(0.5, 2.0)), attenuation=att))
+        if cone is not None:
+            out[-1].update(type="spot", direction=tuple(cone[0]), inner_angle=cone[1],
+                           outer_angle=cone[2])
     return out
 
 
@@ -97,8 +103,15 @@ def node_errors(scene, tree, px, D, S):
     """(K,) max over the pixels and channels of |Σ leaves − representative|, exactly
     (float64), with the reference's per-light contributions."""
     arrays = scene.light_arrays
-    reps = [dict(type="point", position=tuple(tree.position[k]), color=tuple(tree.radiance[k]),
-                 intensity=1.0, attenuation=tuple(tree.attenuation[k])) for k in range(tree.n_nodes)]
+    reps = []
+    for k in range(tree.n_nodes):
+        member = scene.lights[arrays["point_index"][subtree_leaves(tree, k)[0]]]
+        reps.append(dict(type=member.type, position=tuple(tree.position[k]),
+                         color=tuple(tree.radiance[k]), intensity=1.0,
+                         attenuation=tuple(tree.attenuation[k])))
+        if member.type == "spot":               # the members' cone (they share it)
+            reps[-1].update(direction=member.direction, inner_angle=member.inner_angle,
+                            outer_angle=member.outer_angle)
     both = make_scene(list(scene.lights) + reps, model=scene.material.model,
                       k_s=scene.material.k_s, h=scene.material.h, camera=dataclasses.asdict(scene.camera),
                       fresnel=scene.material.fresnel,
@@ -125,8 +138,10 @@ def patch(rng, *, centre, size, tilt, m=60):
     return P, N
 
 
-def check_bound(rng, *, model, h, k_s, fresnel, camera, spread, dist, att, size, tilt, grey):
-    lights = clustered_lights(rng, 70, centre=(0.0, 0.0, dist), spread=spread, att=att, grey=grey)
+def check_bound(rng, *, model, h, k_s, fresnel, camera, spread, dist, att, size, tilt, grey,
+                cone=None):
+    lights = clustered_lights(rng, 70, centre=(0.0, 0.0, dist), spread=spread, att=att, grey=grey,
+                              cone=cone)
     f0 = (0.04, 0.05, 0.06) if fresnel == "schlick" else None
     scene = make_scene(lights, model=model, h=h, k_s=k_s, camera=camera, fresnel=fresnel, f0=f0)
     tree = build_light_tree(scene.light_arrays)
@@ -157,12 +172,39 @@ CAMERAS = [dict(type="perspective", position=(0.0, -3.0, 6.0)),
        spread=st.sampled_from([0.05, 0.3, 1.5]), dist=st.sampled_from([1.5, 4.0, 20.0]),
        att=st.sampled_from([(1.0, 0.0, 0.01), (0.0, 0.0, 1.0), (1.0, 0.5, 0.0), (0.2, 0.1, 0.3)]),
        size=st.sampled_from([0.05, 0.5, 2.0]), tilt=st.sampled_from([0.0, 0.3, 2.0]),
-       grey=st.booleans())
+       grey=st.booleans(), cone=st.sampled_from([None, 0, 1, 2, 3]))
 def test_cluster_bound_holds_on_random_scenes(seed, model, h, k_s, fresnel, cam, spread, dist,
-                                              att, size, tilt, grey):
+                                              att, size, tilt, grey, cone):
     check_bound(np.random.default_rng(seed), model=model, h=h, k_s=k_s, fresnel=fresnel,
                 camera=CAMERAS[cam], spread=spread, dist=dist, att=att, size=size, tilt=tilt,
-                grey=grey)
+                grey=grey, cone=None if cone is None else CONES[cone])
+
+
+#: Spots' cones for the bound's checks (axis, inner and outer angle in degrees): wide and
+#: narrow downlights, whose edges cross the pixels at some distances, a tilted one, and a
+#: sharp edge (inner = outer − 1°: the steepest ramp).
+CONES = [((0.0, 0.0, -1.0), 30.0, 50.0), ((0.0, 0.0, -1.0), 5.0, 15.0),
+         ((0.6, -0.2, -1.0), 20.0, 40.0), ((0.0, 0.0, -1.0), 24.0, 25.0)]
+
+
+@pytest.mark.parametrize("cone", range(len(CONES)))
+@pytest.mark.parametrize("dist,size,spread", [(4.0, 0.5, 0.3), (20.0, 2.0, 1.5), (1.5, 0.05, 0.05)])
+def test_spot_cluster_bound_holds_across_the_cone(cone, dist, size, spread):
+    """Spots of one cone whose edge crosses the pixels, or misses them: the bound holds,
+    (where they lie inside the inner cone: the next test)."""
+    kw = dict(model="phong", h=8.0, k_s=0.3, fresnel="none", camera=CAMERAS[0], dist=dist,
+              att=(1.0, 0.0, 0.01), size=size, tilt=0.3, grey=False, spread=spread)
+    check_bound(np.random.default_rng(cone), cone=CONES[cone], **kw)
+
+
+def test_spots_inside_the_inner_cone_are_bounded_like_point_lights():
+    """Pixels well inside every spot's inner cone: t ≡ 1 there, so the bound is the
+    point lights' own (the same lights without a cone), to the rounding."""
+    kw = dict(model="blinn-phong", h=16.0, k_s=0.3, fresnel="none", camera=CAMERAS[0],
+              dist=10.0, att=(1.0, 0.0, 0.01), size=0.5, tilt=0.1, grey=True, spread=0.3)
+    _, spot = check_bound(np.random.default_rng(4), cone=((0.0, 0.0, -1.0), 60.0, 70.0), **kw)
+    _, point = check_bound(np.random.default_rng(4), **kw)
+    np.testing.assert_allclose(spot, point, rtol=1e-12)
 
 
 def test_bound_falls_with_the_square_of_the_cluster_size():
@@ -216,3 +258,69 @@ def test_cut_sums_within_the_budget_and_covers_each_light_once(budget):
                                  if set(subtree_leaves(tree, j)) < set(subtree_leaves(tree, k))]])
     if budget == 1.0:
         assert used.any(), "a loose budget takes clusters"
+
+
+def axis_on_ramp(dist, inner, outer, at=0.5):
+    """A spot axis whose cone puts check_bound's patch (about (0.5, −0.3, 0), lights about
+    (0, 0, dist)) on the ramp between the inner and outer angle, ``at`` of the way."""
+    w = np.array([0.5, -0.3, -dist])
+    w /= np.linalg.norm(w)
+    q = np.cross(w, [1.0, 0.0, 0.0])
+    q /= np.linalg.norm(q)
+    theta = np.radians(inner + at * (outer - inner))
+    return tuple(np.cos(theta) * w + np.sin(theta) * q)
+
+
+@pytest.mark.parametrize("grey", [True, False], ids=["grey", "coloured"])
+@pytest.mark.parametrize("inner,outer", [(24.0, 25.0), (20.0, 40.0)])
+@pytest.mark.parametrize("dist", [4.0, 10.0])
+def test_spot_cluster_bound_holds_on_the_cones_ramp(inner, outer, dist, grey):
+    """Pixels and a compact cluster whose every pair lies on the cone's ramp (0 < t < 1,
+    no kink): the second order is taken there, with the cone factor's own slope (2t·s/d,
+    in the first-order term where the lights' colours differ) and curvature (2s²/d²
+    dominates it at a sharp edge), and it must hold."""
+    cone = (axis_on_ramp(dist, inner, outer), inner, outer)
+    kw = dict(model="phong", h=8.0, k_s=0.3, fresnel="none", camera=CAMERAS[0], dist=dist,
+              att=(1.0, 0.0, 0.01), size=0.002, tilt=0.05, grey=grey, spread=0.003)
+    rng = np.random.default_rng(6)
+    lights = clustered_lights(np.random.default_rng(6), 70, centre=(0.0, 0.0, dist),
+                              spread=0.003, grey=grey, cone=cone)
+    tree = build_light_tree(make_scene(lights).light_arrays)
+    P, _ = patch(np.random.default_rng(6), centre=(0.5, -0.3, 0.0), size=0.002, tilt=0.05)
+    lo, hi = P.min(axis=0)[None, None], P.max(axis=0)[None, None]
+    t_hi, smooth, slope = spot_factor_bounds(tree.cone, lo, hi, tree.lo[None], tree.hi[None])
+    assert np.all(smooth) and np.all(slope > 0) and np.all((0 < t_hi) & (t_hi < 1)), \
+        "every pair on the ramp"
+    err, bound = check_bound(rng, cone=cone, **kw)
+    assert err.max() > 0
+
+
+@pytest.mark.parametrize("cone", range(len(CONES)))
+def test_spot_factor_bounds_hold_and_are_tight_for_small_boxes(cone):
+    """t⁺ ≥ every t = clamp(cos θ·s + o, 0, 1) of the reference (spot_factor) over random
+    points of the two boxes; 'smooth' pairs are all unclamped (or all t = 1); and for
+    boxes shrunk to points t⁺ is the point's t within 1e-6·s."""
+    axis, inner, outer = CONES[cone]
+    scene = make_scene(clustered_lights(np.random.default_rng(0), 2, centre=(0, 0, 3),
+                                        spread=0.1, cone=CONES[cone]))
+    c = scene.light_arrays["point_cone"][0]
+    rng = np.random.default_rng(cone)
+    for size, light_size in ((1.0, 0.5), (0.2, 0.05), (1e-9, 1e-9)):
+        for _ in range(40):
+            x0 = rng.uniform(-3, 3, 3) * [1, 1, 0]
+            p0 = rng.uniform(-2, 2, 3) + [0, 0, 3]
+            tlo, thi = x0 - size, x0 + size
+            blo, bhi = p0 - light_size, p0 + light_size
+            t_hi, smooth, _ = spot_factor_bounds(c[None], tlo[None, None], thi[None, None],
+                                                 blo[None, None], bhi[None, None])
+            x = rng.uniform(tlo, thi, (200, 3))
+            p = rng.uniform(blo, bhi, (200, 3))
+            w = x - p
+            l = -w / np.linalg.norm(w, axis=1)[:, None]      # pixel → light
+            t = np.sqrt(reference.spot_factor(l, c[:3], c[3], c[4]))
+            assert np.all(t <= t_hi[0, 0] + 1e-12)
+            raw = (-l @ c[:3]) * c[3] + c[4]
+            if smooth[0, 0]:
+                assert np.all(raw >= 1.0) or np.all((raw > 0) & (raw <= 1.0))
+            if size < 1e-6:
+                assert t_hi[0, 0] - t.max() <= 1e-6 * max(c[3], 1.0)
