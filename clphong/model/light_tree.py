@@ -391,7 +391,10 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
     d_lo = np.sqrt((gap * gap).sum(axis=-1))         # (T, K)
     c0, c1, c2 = (tree.attenuation[k, i][None] for i in range(3))
     # a spot's cone factor t² (1 for a point light): t ≤ t⁺ over the box pair
-    t_hi, smooth_t, slope = spot_factor_bounds(tree.cone[k], tlo, thi, blo, bhi)
+    if (tree.cone[k, 3] > 0).any():
+        t_hi, smooth_t, slope = spot_factor_bounds(tree.cone[k], tlo, thi, blo, bhi)
+    else:                                           # point lights only: t ≡ 1 (no cost)
+        t_hi, smooth_t, slope = np.ones(1), np.ones(1, bool), np.zeros(1)
     t2 = t_hi * t_hi
     D = tiles.D[:, None]                             # (T, 1, 3)
     S = tiles.S[:, None]
