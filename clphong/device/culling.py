@@ -35,6 +35,7 @@ from ..model.light_tree import (
     TileBoxes,
     choose_cut,
     cluster_bounds,
+    group_of,
     representative_records,
 )
 from .runtime import float4
@@ -626,8 +627,7 @@ class ExtendedLayout:
         group = np.asarray(tree.group, np.int64)
         reps = np.bincount(group, minlength=len(ends))
         before = np.r_[0, np.cumsum(reps)[:-1]]          # representatives before group g
-        light = np.arange(n_point) + before[np.searchsorted(ends, np.arange(n_point),
-                                                             side="right")]
+        light = np.arange(n_point) + before[group_of(ends, n_point)]
         order = np.argsort(group, kind="stable")
         rank = np.empty(K, np.int64)
         rank[order] = np.arange(K) - before[group[order]]

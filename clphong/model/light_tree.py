@@ -4,9 +4,10 @@ Lightcuts (Walter et al. 2005) and the light trees of Cycles and pbrt-v4 replace
 the lights under a node by one *representative* that carries their summed
 radiance. Here a node's representative is a virtual point light at the
 radiance-weighted centroid ``p_k`` of its lights, with their summed radiance
-``R_k`` and their shared falloff polynomial; the representatives are appended to
-the point-light records after the scene's own lights, so a tile's list may name
-either (:func:`representative_records`).
+``R_k`` and their shared falloff polynomial (and cone); the representatives join
+the point-light records, each light group's after its own lights
+(clphong/device/culling.py ``ExtendedLayout``), so a tile's list may name either
+(:func:`representative_records`).
 
 Which lights may share a node: point lights with the same falloff coefficients
 ``c0, c1, c2 ≥ 0`` (so the falloff ``A(d) = 1/p(d)`` decreases in ``d``), finite
@@ -117,12 +118,17 @@ class LightTree:
         return len(self.lo)
 
 
+def group_of(ends, n: int) -> np.ndarray:
+    """(n,) the group of each of n records in group order, ``ends`` each group's end
+    (empty: one group, 0)."""
+    ends = np.asarray(ends, np.int64)
+    return np.searchsorted(ends, np.arange(n), side="right") if ends.size else np.zeros(n, np.int64)
+
+
 def light_groups_of(arrays) -> np.ndarray:
     """(N,) the light group of each point light (0 without groups): the lights are in
     group order, ``point_group_end`` each group's end."""
-    n = len(arrays["point_position"])
-    ends = np.asarray(arrays.get("point_group_end", ()), np.int64)
-    return np.searchsorted(ends, np.arange(n), side="right") if ends.size else np.zeros(n, np.int64)
+    return group_of(arrays.get("point_group_end", ()), len(arrays["point_position"]))
 
 
 def clusterable_classes(arrays) -> list[np.ndarray]:
