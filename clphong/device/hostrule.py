@@ -186,7 +186,9 @@ RULES: tuple[Rule, ...] = (
          "LLVM 14 calls Zen 4 znver3 but uses its AVX-512: 16 lanes gave 1.3 M wrong pixels "
          "with exit 0, 8 aborted (LLVM 'Cannot select'), 4 and 1 were right (2026-12-03)"),
     Rule("pocl", "an AVX-512 target on an AVX-512 host", _pocl_wide, (16, 8, 4, 1),
-         "16 lanes fill a 512-bit register; right and fastest on Ice Lake (issue 4)"),
+         "16 lanes fill a 512-bit register; right and fastest on Ice Lake (issue 4); right at "
+         "16, 8, 4, 1 on Emerald Rapids (family 6 model 207, target icelake-client), 16 lanes "
+         "1.01x 8 accurate, 1.57x fast (2026-12-06)"),
     Rule("pocl", "znver3 on an AVX2 host", _pocl_wide_avx2, (16, 8, 4, 1),
          "16 lanes (two 256-bit halves) right and 1.3x faster than 8 on Zen 3 (issue 4)"),
     Rule("pocl", "any other CPU target", _always, (8, 4, 1),
@@ -195,7 +197,8 @@ RULES: tuple[Rule, ...] = (
     Rule("intel-cpu", "any x86-64 host", _always, (16, 8, 4, 1),
          "Intel's CPU runtime dispatches on the host's own features: 1, 4 and 16 lanes "
          "bit-identical on Zen 4, 16 fastest (0.42-0.44 s against 0.71 at 4, 1080p x 256 "
-         "lights); right at every width on Zen 5 (2026-12-04)"),
+         "lights); right at every width on Zen 5 (2026-12-04); on Emerald Rapids 16 lanes 1.20x 8 accurate, "
+         "2.2x fast (2026-12-06)"),
     Rule("gpu", "a GPU or accelerator", _always, (1,),
          "its hardware runs work-items in SIMD already: one pixel a work-item"),
     Rule("other", "another CPU platform", _always, (8, 4, 1),
