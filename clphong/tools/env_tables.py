@@ -1,0 +1,94 @@
+"""How well lat-long tables hold an environment's sums, and what they cost to build (issue 25):
+``python -m clphong.tools.env_tables [--map WxH] [--diffuse ROWS:STEP,...]
+[--specular H:ROWS:STEP,...] [--probes N] [--keep-sun]``.
+
+The map is the bench's sky (:func:`clphong.tools.samples.sky_envmap`: sky, clouds, ground,
+and a 1° sun of radiance 2000). Unless ``--keep-sun``, the sun's texels (radiance summed
+over the channels above :data:`SUN_RATIO` × the median) are left out of the map, as the
+table path would shade them as explicit directional lights. Each row builds one table with
+:func:`clphong.model.env_table.zonal_table` (diffuse: power 1; specular: power h, the
+Phong lobe without its horizon), then compares :func:`~clphong.model.env_table.lookup`
+at ``--probes`` held-out directions (a Fibonacci lattice, not the nodes) with the exact
+float64 texel sum of the same map: the maximum relative error per channel on values ≥
+1e-3 of the largest, as ``clphong bench`` measures images. Not a timed test: the
+figures are this machine's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from ..model.env_table import lookup, weighted_map, zonal_table
+from ..model.environment import FLOOR, _fibonacci, probe_error, texel_lights
+from .samples import sky_envmap
+
+#: Texels brighter than this many times the median (radiance summed over channels) are the
+#: sun's, split out of the table.
+SUN_RATIO = 50.0
+
+
+def _exact(dirs: np.ndarray, l: np.ndarray, E: np.ndarray, power: float, chunk: int = 256):
+    out = np.empty((len(dirs), E.shape[1]))
+    for i in range(0, len(dirs), chunk):
+        c = np.maximum(dirs[i:i + chunk] @ l.T, 0.0)
+        out[i:i + chunk] = (c if power == 1 else c ** power) @ E
+    return out
+
+
+def measure(size=(1024, 512), diffuse=((128, 3),), specular=((32.0, 256, 1),),
+            probes: int = 1500, keep_sun: bool = False, log=print) -> list[dict]:
+    """One row per table: its shape, build seconds and error at the probes."""
+    L = np.asarray(sky_envmap(*size), np.float64)
+    lum = L.sum(-1)
+    sun = lum > SUN_RATIO * np.median(lum)
+    if not keep_sun:
+        L[sun] = 0.0
+    log(f"map {size[0]}x{size[1]}: {int(sun.sum())} sun texels "
+        f"{'kept' if keep_sun else 'split out (explicit lights)'}")
+    l, E = texel_lights(L)
+    M = weighted_map(L)
+    dirs = _fibonacci(probes, offset=0.25)
+    rows = []
+    for kind, power, r, step in ([("diffuse", 1.0, r, s) for r, s in diffuse] +
+                                 [("specular", float(h), r, s) for h, r, s in specular]):
+        t0 = time.perf_counter()
+        table = zonal_table(M, power, r, step)
+        seconds = time.perf_counter() - t0
+        err = probe_error(lookup(table, dirs), _exact(dirs, l, E, power), FLOOR)
+        row = dict(kind=kind, power=power, rows=table.shape[0], cols=table.shape[1],
+                   build_s=seconds, max_rel=err)
+        log(f"{kind:8s} h={power:<6g} table {table.shape[1]:4d}x{table.shape[0]:<4d} "
+            f"build {seconds:6.2f} s   max rel {err:.2e} at {probes} held-out directions")
+        rows.append(row)
+    return rows
+
+
+def _pairs(text: str, n: int):
+    out = []
+    for item in filter(None, text.split(",")):
+        parts = item.split(":")
+        if len(parts) != n:
+            raise SystemExit(f"env_tables: {item!r}: expected {n} numbers separated by ':'")
+        out.append(tuple(float(p) if i == 0 and n == 3 else int(p) for i, p in enumerate(parts)))
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m clphong.tools.env_tables", description=__doc__.split("\n\n")[0])
+    p.add_argument("--map", default="1024x512", help="sky size WxH (default 1024x512)")
+    p.add_argument("--diffuse", default="128:3,256:3", help="diffuse tables ROWS:STEP,...")
+    p.add_argument("--specular", default="32:256:1,32:512:1", help="specular tables H:ROWS:STEP,...")
+    p.add_argument("--probes", type=int, default=1500)
+    p.add_argument("--keep-sun", action="store_true", help="table the sun too")
+    a = p.parse_args(argv)
+    w, h = (int(x) for x in a.map.lower().split("x"))
+    measure((w, h), _pairs(a.diffuse, 2), _pairs(a.specular, 3), a.probes, a.keep_sun)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
