@@ -1,6 +1,6 @@
 """How well lat-long tables hold an environment's sums, and what they cost to build (issue 25):
 ``python -m clphong.tools.env_tables [--map WxH] [--diffuse ROWS:STEP,...]
-[--specular H:ROWS:STEP,...] [--probes N] [--keep-sun]``.
+[--specular H:ROWS:STEP,...] [--probes N] [--keep-sun] [--pixels H:DROWS:SROWS]``.
 
 The map is the bench's sky (:func:`clphong.tools.samples.sky_envmap`: sky, clouds, ground,
 and a 1° sun of radiance 2000). Unless ``--keep-sun``, the sun's texels (radiance summed
@@ -10,8 +10,16 @@ table path would shade them as explicit directional lights. Each row builds one 
 Phong lobe without its horizon), then compares :func:`~clphong.model.env_table.lookup`
 at ``--probes`` held-out directions (a Fibonacci lattice, not the nodes) with the exact
 float64 texel sum of the same map: the maximum relative error per channel on values ≥
-1e-3 of the largest, as ``clphong bench`` measures images. Not a timed test: the
-figures are this machine's.
+1e-3 of the largest, as ``clphong bench`` measures images.
+
+``--pixels H:DROWS:SROWS`` then shades whole pixels (:func:`pixels`): the probe pairs of
+:func:`clphong.model.environment.probe_pairs` (every normal, views on its hemisphere),
+Phong with k_d = 0.7, k_s = 0.2 and exponent H, white albedo, the sun as exact lights,
+the rest from a diffuse table of DROWS rows and a lobe table of SROWS rows, against the
+model's exact texel sum (:func:`clphong.model.environment.probe_sums`). The lobe table
+has no horizon: the model counts a texel's specular only where n·l > 0, and the rows
+say how much that costs and on which views. Not a timed test: the figures are this
+machine's.
 """
 
 from __future__ import annotations
@@ -23,7 +31,9 @@ import time
 import numpy as np
 
 from ..model.env_table import lookup, weighted_map, zonal_table
-from ..model.environment import FLOOR, _fibonacci, probe_error, texel_lights
+from ..model.environment import (FLOOR, _fibonacci, probe_error, probe_pairs, probe_sums,
+                                 texel_lights)
+from ..model.scene import parse_scene
 from .samples import sky_envmap
 
 #: Texels brighter than this many times the median (radiance summed over channels) are the
@@ -42,12 +52,9 @@ def _exact(dirs: np.ndarray, l: np.ndarray, E: np.ndarray, power: float, chunk: 
 def measure(size=(1024, 512), diffuse=((128, 3),), specular=((32.0, 256, 1),),
             probes: int = 1500, keep_sun: bool = False, log=print) -> list[dict]:
     """One row per table: its shape, build seconds and error at the probes."""
-    L = np.asarray(sky_envmap(*size), np.float64)
-    lum = L.sum(-1)
-    sun = lum > SUN_RATIO * np.median(lum)
-    if not keep_sun:
-        L[sun] = 0.0
-    log(f"map {size[0]}x{size[1]}: {int(sun.sum())} sun texels "
+    L, sun = _sky(size, keep_sun)
+    count = int((sun.max(axis=-1) > 0).sum()) if not keep_sun else "its"
+    log(f"map {size[0]}x{size[1]}: {count} sun texels "
         f"{'kept' if keep_sun else 'split out (explicit lights)'}")
     l, E = texel_lights(L)
     M = weighted_map(L)
@@ -67,6 +74,57 @@ def measure(size=(1024, 512), diffuse=((128, 3),), specular=((32.0, 256, 1),),
     return rows
 
 
+def _sky(size, keep_sun: bool):
+    """(the map less its sun, the sun alone), float64 (H, W, 3)."""
+    L = np.asarray(sky_envmap(*size), np.float64)
+    lum = L.sum(-1)
+    sun = (lum > SUN_RATIO * np.median(lum)) & (not keep_sun)
+    S = np.where(sun[..., None], L, 0.0)
+    return L - S, S
+
+
+def pixels(size=(1024, 512), h: float = 32.0, diffuse_rows: int = 128, lobe_rows: int = 256,
+           probes: int = 1500, log=print) -> dict:
+    """Whole pixels from the tables against the exact texel sum (module docstring)."""
+    sky, sun = _sky(size, keep_sun=False)
+    material = parse_scene({"camera": {"type": "perspective", "position": [0.0, 0.0, 5.0]},
+                            "material": {"model": "phong", "k_a": 0.0, "k_d": 0.7, "k_s": 0.2,
+                                         "h": float(h)}, "light": []}, "env_tables").material
+    n, v = probe_pairs(probes)
+    NoV = np.einsum("ij,ij->i", n, v)
+    R = 2.0 * NoV[:, None] * n - v                        # l·R = r·v: the lobe's axis
+    parts = {}
+    for name, L in (("sky", sky), ("sun", sun)):
+        l, E = texel_lights(L)
+        keep = E.max(axis=1) > 0
+        parts[name] = probe_sums(n, v, l[keep], E[keep], material)
+    l, E = texel_lights(sky)
+    lobe = _exact(R, l, E, h)                             # the sky's lobe without its horizon
+    step = next(s for s in (3, 1) if (size[0] - 1) % s == 0)
+    M = weighted_map(sky)
+    t0 = time.perf_counter()
+    d_t = lookup(zonal_table(M, 1.0, diffuse_rows, step), n)
+    s_t = lookup(zonal_table(M, h, lobe_rows, 1), R)
+    seconds = time.perf_counter() - t0
+    (d_sky, s_sky), (d_sun, s_sun) = parts["sky"], parts["sun"]
+    truth = 0.7 * (d_sky + d_sun) + 0.2 * (s_sky + s_sun)
+    tables = 0.7 * (d_t + d_sun) + 0.2 * (s_t + s_sun)
+    no_horizon = 0.7 * (d_sky + d_sun) + 0.2 * (lobe + s_sun)
+    over = (0.2 * (lobe - s_sky)).max(axis=1) / truth.max(axis=1)
+    row = dict(h=h, build_s=seconds, tables=probe_error(tables, truth),
+               horizon=probe_error(no_horizon, truth), diffuse=probe_error(d_t, d_sky),
+               lobe=probe_error(s_t, lobe))
+    log(f"pixels, h={h:g}, tables {diffuse_rows}/{lobe_rows} rows (build {seconds:.1f} s): max rel "
+        f"{row['tables']:.2e}; the horizon alone {row['horizon']:.2e}; the diffuse table "
+        f"{row['diffuse']:.2e}; the lobe table {row['lobe']:.2e}")
+    for budget in (1e-3, 1e-4):
+        bad = over > budget
+        row[f"over_{budget:g}"] = float(bad.mean())
+        log(f"  the horizon over-counts by more than {budget:g} of the pixel on {100 * bad.mean():.1f} % "
+            f"of the probes; their n·v is at most {NoV[bad].max() if bad.any() else float('nan'):.3f}")
+    return row
+
+
 def _pairs(text: str, n: int):
     out = []
     for item in filter(None, text.split(",")):
@@ -84,9 +142,12 @@ def main(argv=None) -> int:
     p.add_argument("--specular", default="32:256:1,32:512:1", help="specular tables H:ROWS:STEP,...")
     p.add_argument("--probes", type=int, default=1500)
     p.add_argument("--keep-sun", action="store_true", help="table the sun too")
+    p.add_argument("--pixels", default="", help="whole pixels: H:DROWS:SROWS (module docstring)")
     a = p.parse_args(argv)
     w, h = (int(x) for x in a.map.lower().split("x"))
     measure((w, h), _pairs(a.diffuse, 2), _pairs(a.specular, 3), a.probes, a.keep_sun)
+    for hh, dr, sr in _pairs(a.pixels, 3):
+        pixels((w, h), hh, dr, sr, a.probes)
     return 0
 
 

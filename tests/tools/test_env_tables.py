@@ -1,0 +1,22 @@
+"""python -m clphong.tools.env_tables on a small sky: its rows are what they say."""
+
+from clphong.tools import env_tables
+
+
+def test_rows_on_a_small_sky():
+    lines = []
+    rows = env_tables.measure((65, 33), diffuse=((17, 1),), specular=((8.0, 33, 1),), probes=200,
+                              log=lines.append)
+    assert [r["kind"] for r in rows] == ["diffuse", "specular"]
+    assert rows[0]["cols"] == 65 and rows[0]["rows"] == 17
+    assert all(0 < r["max_rel"] < 0.5 for r in rows)
+    assert lines[0].startswith("map 65x33: ")
+
+
+def test_pixel_rows_split_the_horizon_from_the_tables():
+    p = env_tables.pixels((65, 33), h=8.0, diffuse_rows=33, lobe_rows=33, probes=200, log=lambda s: None)
+    # the tables hold the zonal sums closely; the horizon (n·l > 0 for specular) is what
+    # a lobe table cannot hold, and at h = 8 it costs far more than the tables do
+    assert p["diffuse"] < 0.05 and p["lobe"] < 0.05
+    assert p["horizon"] > 10 * max(p["diffuse"], p["lobe"])
+    assert p["over_0.0001"] >= p["over_0.001"] > 0
