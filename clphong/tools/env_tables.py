@@ -18,7 +18,10 @@ Phong with k_d = 0.7, k_s = 0.2 and exponent H, white albedo, the sun as exact l
 the rest from a diffuse table of DROWS rows and a lobe table of SROWS rows, against the
 model's exact texel sum (:func:`clphong.model.environment.probe_sums`). The lobe table
 has no horizon: the model counts a texel's specular only where n·l > 0, and the rows
-say how much that costs and on which views. Not a timed test: the figures are this
+say how much that costs and on which views. ``--lower EPS,...`` tries one correction:
+subtract the lobe of the lights below each pixel's tangent plane, the sky converted to
+directional lights at ``EPS`` (:func:`clphong.model.environment.environment_lights`), and
+counts the lights a pixel would visit (below the plane, lobe weight above 1e-4). Not a timed test: the figures are this
 machine's.
 """
 
@@ -31,8 +34,8 @@ import time
 import numpy as np
 
 from ..model.env_table import lookup, weighted_map, zonal_table
-from ..model.environment import (FLOOR, _fibonacci, probe_error, probe_pairs, probe_sums,
-                                 texel_lights)
+from ..model.environment import (FLOOR, _fibonacci, environment_lights, probe_error, probe_pairs,
+                                 probe_sums, texel_lights)
 from ..model.scene import parse_scene
 from .samples import sky_envmap
 
@@ -84,7 +87,7 @@ def _sky(size, keep_sun: bool):
 
 
 def pixels(size=(1024, 512), h: float = 32.0, diffuse_rows: int = 128, lobe_rows: int = 256,
-           probes: int = 1500, log=print) -> dict:
+           probes: int = 1500, lower=(), log=print) -> dict:
     """Whole pixels from the tables against the exact texel sum (module docstring)."""
     sky, sun = _sky(size, keep_sun=False)
     material = parse_scene({"camera": {"type": "perspective", "position": [0.0, 0.0, 5.0]},
@@ -122,6 +125,18 @@ def pixels(size=(1024, 512), h: float = 32.0, diffuse_rows: int = 128, lobe_rows
         row[f"over_{budget:g}"] = float(bad.mean())
         log(f"  the horizon over-counts by more than {budget:g} of the pixel on {100 * bad.mean():.1f} % "
             f"of the probes; their n·v is at most {NoV[bad].max() if bad.any() else float('nan'):.3f}")
+    for eps in lower:
+        env = environment_lights(sky, material, max_error=eps)
+        w = np.maximum(R @ env.l.T, 0.0) ** h
+        below = (n @ env.l.T) <= 0.0
+        corrected = tables - 0.2 * (np.where(below, w, 0.0) @ env.radiance)
+        visits = (below & (w > 1e-4)).sum(axis=1)
+        row[f"lower_{eps:g}"] = dict(lights=len(env.l), max_rel=probe_error(corrected, truth),
+                                     visits_median=float(np.median(visits)),
+                                     visits_p90=float(np.percentile(visits, 90)), visits_max=int(visits.max()))
+        log(f"  less the lights below the tangent plane (the sky as {len(env.l)} lights at {eps:g}): "
+            f"max rel {row[f'lower_{eps:g}']['max_rel']:.2e}; a pixel visits {np.median(visits):.0f} "
+            f"of them (median), {np.percentile(visits, 90):.0f} (90 %), {visits.max()} (max)")
     return row
 
 
@@ -143,11 +158,13 @@ def main(argv=None) -> int:
     p.add_argument("--probes", type=int, default=1500)
     p.add_argument("--keep-sun", action="store_true", help="table the sun too")
     p.add_argument("--pixels", default="", help="whole pixels: H:DROWS:SROWS (module docstring)")
+    p.add_argument("--lower", default="", help="with --pixels: the below-the-plane correction at these "
+                   "conversion errors EPS,...")
     a = p.parse_args(argv)
     w, h = (int(x) for x in a.map.lower().split("x"))
     measure((w, h), _pairs(a.diffuse, 2), _pairs(a.specular, 3), a.probes, a.keep_sun)
     for hh, dr, sr in _pairs(a.pixels, 3):
-        pixels((w, h), hh, dr, sr, a.probes)
+        pixels((w, h), hh, dr, sr, a.probes, [float(x) for x in filter(None, a.lower.split(","))])
     return 0
 
 
