@@ -56,9 +56,8 @@ def measure(size=(1024, 512), diffuse=((128, 3),), specular=((32.0, 256, 1),),
             probes: int = 1500, keep_sun: bool = False, log=print) -> list[dict]:
     """One row per table: its shape, build seconds and error at the probes."""
     L, sun = _sky(size, keep_sun)
-    count = int((sun.max(axis=-1) > 0).sum()) if not keep_sun else "its"
-    log(f"map {size[0]}x{size[1]}: {count} sun texels "
-        f"{'kept' if keep_sun else 'split out (explicit lights)'}")
+    log(f"map {size[0]}x{size[1]}: " + ("the sun kept in the tables" if keep_sun else
+        f"{int((sun.max(axis=-1) > 0).sum())} sun texels split out (explicit lights)"))
     l, E = texel_lights(L)
     M = weighted_map(L)
     dirs = _fibonacci(probes, offset=0.25)
