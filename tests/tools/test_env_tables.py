@@ -23,3 +23,11 @@ def test_pixel_rows_split_the_horizon_from_the_tables():
     assert p["over_0.0001"] >= p["over_0.001"] > 0
     # subtracting the lights below the tangent plane takes most of the horizon's error away
     assert p["lower_0.01"]["max_rel"] < p["horizon"] / 3
+
+
+def test_on_a_floor_the_upper_half_table_holds_the_horizon():
+    f = env_tables.floor((129, 65), h=8.0, lobe_rows=65, probes=300)
+    # the clipped table is the model's sum at its nodes; the whole map's over-counts
+    # the lower half near grazing views
+    assert f["clipped"] < 0.05 < f["whole"]
+    assert f["whole"] > 10 * f["clipped"]
