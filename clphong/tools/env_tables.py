@@ -88,13 +88,18 @@ def _sky(size, keep_sun: bool):
     return L - S, S
 
 
+def _phong(h: float, *, k_d: float, k_s: float):
+    """A Phong material (white albedo is the probes' own) with exponent ``h``."""
+    return parse_scene({"camera": {"type": "perspective", "position": [0.0, 0.0, 5.0]},
+                        "material": {"model": "phong", "k_a": 0.0, "k_d": k_d, "k_s": k_s,
+                                     "h": float(h)}, "light": []}, "env_tables").material
+
+
 def pixels(size=(1024, 512), h: float = 32.0, diffuse_rows: int = 128, lobe_rows: int = 256,
            probes: int = 1500, lower=(), log=print) -> dict:
     """Whole pixels from the tables against the exact texel sum (module docstring)."""
     sky, sun = _sky(size, keep_sun=False)
-    material = parse_scene({"camera": {"type": "perspective", "position": [0.0, 0.0, 5.0]},
-                            "material": {"model": "phong", "k_a": 0.0, "k_d": 0.7, "k_s": 0.2,
-                                         "h": float(h)}, "light": []}, "env_tables").material
+    material = _phong(h, k_d=0.7, k_s=0.2)
     n, v = probe_pairs(probes)
     NoV = np.einsum("ij,ij->i", n, v)
     R = 2.0 * NoV[:, None] * n - v                        # l·R = r·v: the lobe's axis
@@ -103,8 +108,8 @@ def pixels(size=(1024, 512), h: float = 32.0, diffuse_rows: int = 128, lobe_rows
         l, E = texel_lights(L)
         keep = E.max(axis=1) > 0
         parts[name] = probe_sums(n, v, l[keep], E[keep], material)
-    l, E = texel_lights(sky)
-    lobe = _exact(R, l, E, h)                             # the sky's lobe without its horizon
+        if name == "sky":
+            lobe = _exact(R, l[keep], E[keep], h)         # the sky's lobe without its horizon
     step = next(s for s in (3, 1) if (size[0] - 1) % s == 0)
     M = weighted_map(sky)
     t0 = time.perf_counter()
@@ -148,9 +153,7 @@ def floor(size=(1024, 512), h: float = 32.0, lobe_rows: int = 256, probes: int =
     map's upper half (the horizon clipped exactly) and the lobe table of the whole map,
     against the model's exact texel sum."""
     sky, _ = _sky(size, keep_sun=False)
-    material = parse_scene({"camera": {"type": "perspective", "position": [0.0, 0.0, 5.0]},
-                            "material": {"model": "phong", "k_a": 0.0, "k_d": 0.0, "k_s": 1.0,
-                                         "h": float(h)}, "light": []}, "env_tables").material
+    material = _phong(h, k_d=0.0, k_s=1.0)
     _, v = probe_pairs(probes)
     v = v * np.sign(v[:, 1:2])
     v = v[np.abs(v[:, 1]) > 0.0]
