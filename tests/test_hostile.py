@@ -698,7 +698,10 @@ def test_stopped_while_writing_leaves_nothing(work, capsys, monkeypatch, how, co
 
         def write_image(self, data):
             if how.startswith("SIG"):
-                os.kill(os.getpid(), getattr(signal, how))   # handled by the CLI as an interrupt
+                # raise_signal: to this (the main) thread, so the handler runs before the
+                # write returns; os.kill may land on another thread (pytest-xdist's I/O
+                # thread, the runtime's) and be handled a few steps later
+                signal.raise_signal(getattr(signal, how))    # handled by the CLI as an interrupt
             else:
                 raise KeyboardInterrupt
             return True

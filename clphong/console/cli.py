@@ -750,8 +750,10 @@ def _main(argv: list[str] | None) -> int:
 
     def _one_line_warning(message, category, filename, lineno, file=None, line=None):
         # clphong's own warnings (policies applied, suspicious scenes) as one line each,
-        # control bytes from a file or a library escaped, an endless one cut
-        print(f"clphong: warning: {clean_line(message)}", file=sys.stderr if file is None else file)
+        # control bytes from a file or a library escaped, an endless one cut; one write with
+        # its newline (print writes the two apart, and a frame's reader thread may warn
+        # beside the main thread: two lines ran together once)
+        (sys.stderr if file is None else file).write(f"clphong: warning: {clean_line(message)}\n")
 
     try:
         import numpy as np
