@@ -19,16 +19,11 @@ from clphong.tools.hardcases import make_gbuffer, make_scene  # noqa: E402,F401
 #: The bad-input catalogue: (case, exit code, the one error line) of every case of
 #: tests/test_hostile.py that runs the CLI through its fails(); printed as a Markdown
 #: table at the end of the run when CLPHONG_CATALOGUE is set:
-#: ``CLPHONG_CATALOGUE=1 python -m pytest -q -n 0 tests/test_hostile.py`` (in one process:
-#: pytest-xdist's workers would each keep their own list).
+#: ``CLPHONG_CATALOGUE=1 python -m pytest -q tests/test_hostile.py``.
 CATALOGUE: list[tuple[str, int, str]] = []
 
 
 def pytest_terminal_summary(terminalreporter):
-    if os.environ.get("CLPHONG_CATALOGUE") and not CATALOGUE and \
-            getattr(terminalreporter.config.option, "numprocesses", None):
-        terminalreporter.write_line("\nbad-input catalogue: run with -n 0 (pytest-xdist's workers "
-                                    "keep their own cases)")
     if os.environ.get("CLPHONG_CATALOGUE") and CATALOGUE:
         from clphong.tools.report import markdown_table
 
