@@ -77,6 +77,7 @@ from .options import DEFAULT_ENV_ERROR, check_env_error
 
 __all__ = ["texel_directions", "texel_solid_angles", "rotation_about_up", "texel_lights",
            "LightTree", "LeafSums", "EnvironmentLights", "environment_lights", "probe_pairs", "probe_sums",
+           "lobe_weights",
            "probe_error", "check_env_error", "DEFAULT_ENV_ERROR", "PROBES", "FLOOR", "REFINE",
            "RATE", "EXTRAPOLATION", "MAX_ENV_LIGHTS", "MIN_LIGHTS"]
 
@@ -479,26 +480,10 @@ def _probe_sums(n, v, l, radiance, material, *, chunk: int = 128, specular: bool
         li, Li = l[a:a + chunk], radiance[a:a + chunk]
         NoL = n @ li.T
         LoV = v @ li.T
-        lit = NoL > 0
         diffuse += np.maximum(NoL, 0.0) @ Li
         if not want_specular:
             continue
-        if blinn:
-            # (n·h)² = max(n·l + n·v, 0)²/(2 + 2 l·v), at most 1; 0 where l = −v
-            x = np.add(NoL, NoV)
-            np.maximum(x, 0.0, out=x)
-            np.multiply(x, x, out=x)
-            hh = np.multiply(LoV, 2.0)
-            hh += 2.0
-            np.divide(x, np.maximum(hh, 1e-300), out=x)
-            np.minimum(x, 1.0, out=x)
-            s = _power(x, k / 2.0)
-        else:
-            x = np.multiply(NoL, 2.0 * NoV)
-            x -= LoV
-            np.maximum(x, 0.0, out=x)
-            s = _power(x, k)
-        s = np.where(lit, s, 0.0)
+        s = _lobe(NoL, NoV, LoV, blinn, k)
         if f0 is None:
             specular += s @ Li
         else:
@@ -507,6 +492,35 @@ def _probe_sums(n, v, l, radiance, material, *, chunk: int = 128, specular: bool
             for c in range(3):
                 specular[:, c] += (s * (f0[c] + (1.0 - f0[c]) * g)) @ Li[:, c]
     return diffuse, specular
+
+
+def _lobe(NoL, NoV, LoV, blinn: bool, k: float) -> np.ndarray:
+    """The specular weight of each (probe, light) pair without Fresnel: Blinn-Phong's
+    ``(n·h)^k`` or Phong's ``(r·v)^k`` in their SPEC_COS forms, 0 where n·l ≤ 0."""
+    if blinn:
+        # (n·h)² = max(n·l + n·v, 0)²/(2 + 2 l·v), at most 1; 0 where l = −v
+        x = np.add(NoL, NoV)
+        np.maximum(x, 0.0, out=x)
+        np.multiply(x, x, out=x)
+        hh = np.multiply(LoV, 2.0)
+        hh += 2.0
+        np.divide(x, np.maximum(hh, 1e-300), out=x)
+        np.minimum(x, 1.0, out=x)
+        s = _power(x, k / 2.0)
+    else:
+        x = np.multiply(NoL, 2.0 * NoV)
+        x -= LoV
+        np.maximum(x, 0.0, out=x)
+        s = _power(x, k)
+    return np.where(NoL > 0, s, 0.0)
+
+
+def lobe_weights(n, v, l, material) -> np.ndarray:
+    """(P, K): the specular weight of light ``l[k]`` at probe (``n[p]``, ``v[p]``) as
+    :func:`probe_sums` forms it, less Fresnel (a factor of at most 1)."""
+    n, v, l = (np.asarray(a, np.float64) for a in (n, v, l))
+    NoV = np.einsum("ij,ij->i", n, v)[:, None]
+    return _lobe(n @ l.T, NoV, v @ l.T, material.model == "blinn-phong", material.exponent)
 
 
 class LeafSums:

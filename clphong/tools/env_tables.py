@@ -24,8 +24,28 @@ directional lights at ``EPS`` (:func:`clphong.model.environment.environment_ligh
 counts the lights a pixel would visit (below the plane, lobe weight above 1e-4). The
 last row is the floor: normals along the map's up axis (+y, which ``rotation`` keeps),
 where n·l > 0 is "latitude > 0", so a lobe table of the upper rows alone is exact at its
-nodes, horizon included (:func:`floor`). Not a timed test: the figures are this
-machine's.
+nodes, horizon included (:func:`floor`).
+
+Two measurements ask what a diffuse table alone would buy, with the specular kept as
+directional lights (the only path for Blinn-Phong, whose lobe is not a function of one
+direction):
+
+``--split N,...`` (:func:`split`) grows the conversion's light tree
+(:class:`clphong.model.environment.LightTree`) of the whole sky, sun included, to N
+lights and measures the pixel error on the probe pairs against the exact texel sum three
+ways: every term from the N lights; the diffuse exact (a perfect table) and the specular
+from the N lights; the specular exact and the diffuse from the lights. The material is
+``--model`` (default the bench's Blinn-Phong, k_d 0.7, k_s 0.2, h 32). If the second
+column is no smaller than the first, a diffuse table does not let the conversion use
+fewer lights.
+
+``--tile-floor EPS,...`` (:func:`tile_floor`) takes the conversion's lights at 1e-3 on the
+1080p bench G-buffer and, for 8×8 tiles, drops a tile's specular lights while the sum of
+their largest contribution to any of its pixels stays within EPS of the tile's darkest
+pixel, the diffuse exact. That bound is the true maximum over the tile's pixels, tighter
+than any bound from the tile's normal and view cones, so the lights kept are a floor for a
+"diffuse table plus per-tile specular culling" design. Not a timed test: the figures are
+this machine's.
 """
 
 from __future__ import annotations
@@ -37,7 +57,8 @@ import time
 import numpy as np
 
 from ..model.env_table import lookup, weighted_map, zonal_table
-from ..model.environment import (FLOOR, _fibonacci, _latitudes, environment_lights, probe_error, probe_pairs,
+from ..model.environment import (FLOOR, LightTree, _fibonacci, _latitudes, _pixels, environment_lights,
+                                 lobe_weights, probe_error, probe_pairs,
                                  probe_sums, texel_lights)
 from ..model.scene import parse_scene
 from .samples import sky_envmap
@@ -172,6 +193,85 @@ def floor(size=(1024, 512), h: float = 32.0, lobe_rows: int = 256, probes: int =
     return row
 
 
+def _material(model: str):
+    return parse_scene({"camera": {"type": "perspective", "position": [0.0, 0.0, 5.0]},
+                        "material": {"model": model, "k_a": 0.0, "k_d": 0.7, "k_s": 0.2, "h": 32.0},
+                        "light": []}, "env_tables").material
+
+
+def split(size=(1024, 512), counts=(1024, 4096, 16384), model: str = "blinn-phong",
+          probes: int = 1500, log=print) -> list[dict]:
+    """Pixel errors of N tree lights: all terms, the diffuse exact, the specular exact
+    (module docstring)."""
+    material = _material(model)
+    L = np.asarray(sky_envmap(*size), np.float64)
+    l, E = texel_lights(L)
+    keep = E.max(axis=1) > 0
+    n, v = probe_pairs(probes)
+    D, S = probe_sums(n, v, l[keep], E[keep], material)
+    truth = _pixels(D, S, material)
+    H, W = L.shape[:2]
+    tree = LightTree(E.reshape(H, W, 3), l.reshape(H, W, 3))
+    rows = []
+    for k in counts:
+        tree.grow(k)
+        d, s = probe_sums(n, v, *tree.lights(k), material)
+        row = dict(model=model, lights=k, all=probe_error(_pixels(d, s, material), truth),
+                   diffuse_exact=probe_error(_pixels(D, s, material), truth),
+                   specular_exact=probe_error(_pixels(d, S, material), truth))
+        log(f"{model} {k:6d} lights: max rel {row['all']:.2e}; the diffuse exact "
+            f"{row['diffuse_exact']:.2e}; the specular exact {row['specular_exact']:.2e}")
+        rows.append(row)
+    return rows
+
+
+def tile_floor(size=(1024, 512), eps=(5e-4,), tiles: int = 150, tile: int = 8,
+               frame=(1920, 1080), log=print) -> list[dict]:
+    """Specular lights an 8×8 tile of the bench G-buffer keeps under an oracle bound
+    (module docstring)."""
+    from .bench_scenes import bench_gbuffer, bench_scene
+
+    scene = bench_scene("wide", 1)
+    material = scene.material
+    env = environment_lights(sky_envmap(*size), material, max_error=1e-3)
+    l, rad = env.l, env.radiance
+    gb = bench_gbuffer(*frame)
+    rng = np.random.default_rng(1)
+    eye = np.asarray(scene.camera.position, np.float64)
+    kept = {e: [] for e in eps}
+    for _ in range(tiles):
+        y0, x0 = int(rng.integers(0, frame[1] - tile)), int(rng.integers(0, frame[0] - tile))
+        win = (slice(y0, y0 + tile), slice(x0, x0 + tile))
+        if gb.coverage[win].min() == 0:
+            continue
+        P = gb.position[win].reshape(-1, 3).astype(np.float64)
+        N = gb.normal[win].reshape(-1, 3).astype(np.float64)
+        N /= np.linalg.norm(N, axis=1)[:, None]
+        V = eye - P
+        V /= np.linalg.norm(V, axis=1)[:, None]
+        d, s = probe_sums(N, V, l, rad, material)
+        white = _pixels(d, s, material)                        # k_d·E + k_s·S, white albedo
+        C = gb.albedo[win].reshape(-1, 3).astype(np.float64)
+        pixel = C * (white - material.k_s * s) + material.k_s * s
+        # each light's largest specular weight over the tile (Fresnel, at most 1, left out)
+        bound = material.k_s * lobe_weights(N, V, l, material).max(axis=0)[:, None] * rad
+        order = np.argsort(bound.max(axis=1))
+        cum = np.cumsum(bound[order], axis=0)
+        for e in eps:
+            ok = (cum <= e * pixel.min(axis=0)).all(axis=1)
+            kept[e].append(len(l) - (int(np.argmin(ok)) if not ok.all() else len(ok)))
+    rows = []
+    for e in eps:
+        k = np.asarray(kept[e])
+        row = dict(eps=e, lights=len(l), tiles=len(k), median=float(np.median(k)),
+                   p90=float(np.percentile(k, 90)), max=int(k.max()))
+        log(f"tile floor at {e:g} of the darkest pixel: a {tile}x{tile} tile keeps {row['median']:.0f} "
+            f"of {len(l)} specular lights (median of {len(k)} tiles), {row['p90']:.0f} (90 %), "
+            f"{row['max']} (max)")
+        rows.append(row)
+    return rows
+
+
 def _pairs(text: str, n: int):
     out = []
     for item in filter(None, text.split(",")):
@@ -192,8 +292,18 @@ def main(argv=None) -> int:
     p.add_argument("--pixels", default="", help="whole pixels: H:DROWS:SROWS (module docstring)")
     p.add_argument("--lower", default="", help="with --pixels: the below-the-plane correction at these "
                    "conversion errors EPS,...")
+    p.add_argument("--split", default="", help="tree light counts N,...: what a diffuse table "
+                   "alone buys (module docstring)")
+    p.add_argument("--model", default="blinn-phong", choices=("phong", "blinn-phong"),
+                   help="--split's material model")
+    p.add_argument("--tile-floor", default="", help="budgets EPS,...: the oracle floor of per-tile "
+                   "specular culling on the bench G-buffer")
     a = p.parse_args(argv)
     w, h = (int(x) for x in a.map.lower().split("x"))
+    if a.split:
+        split((w, h), [int(x) for x in a.split.split(",") if x], a.model, a.probes)
+    if a.tile_floor:
+        tile_floor((w, h), [float(x) for x in a.tile_floor.split(",") if x])
     measure((w, h), _pairs(a.diffuse, 2), _pairs(a.specular, 3), a.probes, a.keep_sun)
     for hh, dr, sr in _pairs(a.pixels, 3):
         pixels((w, h), hh, dr, sr, a.probes, [float(x) for x in filter(None, a.lower.split(","))])

@@ -322,3 +322,27 @@ def test_probe_sums_are_the_reference_shading(material):
     else:
         got = material.k_d * d + material.k_s * np.asarray(material.specular_color) * s
     assert np.allclose(got, ref, rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("material", [PHONG, BLINN, dataclasses.replace(BLINN, h=7.3)])
+def test_lobe_weights_are_the_specular_sums_one_light_at_a_time(material):
+    """lobe_weights(n, v, l) @ radiance is probe_sums' specular (no Fresnel), to rounding,
+    and each column is one light's own sum; lights below the horizon weigh 0."""
+    rng = np.random.default_rng(9)
+    n = rng.normal(size=(30, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    v = rng.normal(size=(30, 3))
+    v = np.where((np.einsum("ij,ij->i", n, v) < 0)[:, None], -v, v)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    l = rng.normal(size=(20, 3))
+    l /= np.linalg.norm(l, axis=1, keepdims=True)
+    rad = rng.uniform(0.1, 2.0, (20, 3))
+    w = env.lobe_weights(n, v, l, material)
+    # the two associate the dot products differently: the base x (a few unit products)
+    # differs by a few ulp of 1, and x^k by k times that at most (|d x^k/dx| <= k on [0, 1])
+    tol = material.exponent * 8 * np.finfo(float).eps
+    assert np.allclose(w @ rad, env.probe_sums(n, v, l, rad, material)[1], rtol=0, atol=tol * rad.sum(0))
+    j = 7
+    assert np.allclose(w[:, j], env.probe_sums(n, v, l[j:j + 1], np.ones((1, 3)), material)[1][:, 0],
+                       rtol=0, atol=tol)
+    assert (w[(n @ l.T) <= 0] == 0).all() and (w >= 0).all()

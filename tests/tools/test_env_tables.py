@@ -31,3 +31,22 @@ def test_on_a_floor_the_upper_half_table_holds_the_horizon():
     # the lower half near grazing views
     assert f["clipped"] < 0.05 < f["whole"]
     assert f["whole"] > 10 * f["clipped"]
+
+
+def test_split_rows_are_exact_with_every_texel_a_light():
+    """With as many lights as texels the tree is the texel sum: every column ~0; with few,
+    each column is an error of the lights it still uses."""
+    rows = env_tables.split((16, 8), counts=(4, 128), probes=200, log=lambda s: None)
+    few, every = rows
+    assert every["lights"] == 128 and max(every["all"], every["diffuse_exact"],
+                                          every["specular_exact"]) < 1e-12
+    assert few["all"] > 1e-3 and few["diffuse_exact"] > 0 and few["specular_exact"] > 0
+
+
+def test_tile_floor_keeps_more_lights_for_a_smaller_budget():
+    rows = env_tables.tile_floor((64, 32), eps=(1e-2, 1e-5, 0.0), tiles=12, frame=(96, 54),
+                                 log=lambda s: None)
+    loose, tight, none = rows
+    assert loose["tiles"] == tight["tiles"] > 0
+    assert loose["median"] <= tight["median"] <= none["median"] <= loose["lights"]
+    assert loose["median"] < none["median"]
