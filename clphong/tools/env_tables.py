@@ -61,6 +61,7 @@ from ..model.environment import (FLOOR, LightTree, _fibonacci, _latitudes, _pixe
                                  lobe_weights, probe_error, probe_pairs,
                                  probe_sums, texel_lights)
 from ..model.scene import parse_scene
+from .bench_scenes import bench_gbuffer, bench_scene
 from .samples import sky_envmap
 
 #: Texels brighter than this many times the median (radiance summed over channels) are the
@@ -229,8 +230,6 @@ def tile_floor(size=(1024, 512), eps=(5e-4,), tiles: int = 150, tile: int = 8,
                frame=(1920, 1080), log=print) -> list[dict]:
     """Specular lights an 8×8 tile of the bench G-buffer keeps under an oracle bound
     (module docstring)."""
-    from .bench_scenes import bench_gbuffer, bench_scene
-
     scene = bench_scene("wide", 1)
     material = scene.material
     env = environment_lights(sky_envmap(*size), material, max_error=1e-3)
