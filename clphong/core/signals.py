@@ -45,6 +45,41 @@ def signal_name(signum: int) -> str:
         return f"SIGRTMIN+{signum - rtmin}" if rtmin is not None else f"signal {signum}"
 
 
+#: The exception a signal handler of clphong's raised last, until someone acts on it.
+_pending: BaseException | None = None
+
+
+def raised(exc: BaseException) -> BaseException:
+    """What a signal handler raises, recorded first (see :func:`raise_pending`)."""
+    global _pending
+    _pending = exc
+    return exc
+
+
+def clear_pending() -> None:
+    """The signal was acted on (the batch stops, the worker exits): nothing to raise again."""
+    global _pending
+    _pending = None
+
+
+def raise_pending() -> None:
+    """Raise again a signal's exception that C code swallowed; nothing if none (or not in
+    the main thread, where handlers run).
+
+    A Python signal handler runs at the main thread's next bytecode, which may be in
+    Python code that C code called: a ``__getattr__`` that pyopencl probes with
+    ``PyObject_HasAttr``, which clears every exception, was seen to drop a SIGTERM that
+    way, and the worker ran on as if no signal had come. The handlers record what they
+    raise (:func:`raised`); the checkpoints (between frames, before an output replaces
+    its file) call this.
+    """
+    global _pending
+    if _pending is None or threading.current_thread() is not threading.main_thread():
+        return
+    exc, _pending = _pending, None
+    raise exc
+
+
 class Terminated(KeyboardInterrupt):
     """A terminating signal (SIGTERM, SIGHUP, SIGQUIT, ...), raised like Ctrl-C so that
     every cleanup (temporary outputs) runs; the CLI exits 128 + its number."""
@@ -68,7 +103,7 @@ def signals_as_interrupt():
         return
 
     def _raise(signum, frame):
-        raise Terminated(signum, signal_name(signum))
+        raise raised(Terminated(signum, signal_name(signum)))
 
     previous = {}
     try:
@@ -84,3 +119,4 @@ def signals_as_interrupt():
     finally:
         for sig, old in previous.items():
             signal.signal(sig, old)
+        clear_pending()

@@ -39,6 +39,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from ..core.errors import OutputError, OutputWarning
+from ..core.signals import raise_pending
 
 try:
     import fcntl
@@ -477,6 +478,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
         try:
             yield tmp
             _sync(tmp, path)
+            raise_pending()        # a signal C code swallowed: the file is not put in place
         except BaseException:
             _remove_quietly(tmp)
             raise

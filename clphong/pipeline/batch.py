@@ -66,7 +66,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 from ..core.errors import ClphongError
-from ..core.signals import signal_name, terminating_signals
+from ..core.signals import clear_pending, raise_pending, signal_name, terminating_signals
 from ..deliver.outputs import OutputPaths, check_extensions
 from ..io.atomic import remove_live_temporaries
 from .distributed import CONNECT_TIMEOUT_S, run_on_dask
@@ -418,6 +418,7 @@ def _run_inline(jobs: Sequence[Job], specs: dict, on_outcomes: Callable, *,
             gbuffer = load_job(job, channels)
             on_outcomes(shade_job(job, gbuffer, relighters, read_seconds=time.perf_counter() - t0))
             del gbuffer
+            raise_pending()                      # a signal C code swallowed stops the batch here
         return
 
     stop = threading.Event()
@@ -451,6 +452,7 @@ def _run_inline(jobs: Sequence[Job], specs: dict, on_outcomes: Callable, *,
         if frame.error is not None:
             raise frame.error
         on_outcomes(frame.outcomes)
+        raise_pending()                          # a signal C code swallowed stops the batch here
 
     inflight: collections.deque = collections.deque()
     previous = None
@@ -562,6 +564,7 @@ def run_batch(plan: BatchPlan, specs: dict, *, jobs: int = 1, scheduler: str | N
     except KeyboardInterrupt:
         interrupted = signal.SIGINT
     finally:
+        clear_pending()
         if interrupted is not None:
             remove_live_temporaries()   # a write (inline mode) the interrupt caught before its own cleanup could
         if bar is not None:

@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass, field
 
 from ..core.errors import ClphongError
+from ..core.signals import raised
 from ..deliver.outputs import OutputPaths
 from ..io.gbuffer import read_gbuffer
 from .relighter import cached_relighter, deliver_staged
@@ -36,8 +37,9 @@ class Interrupted(KeyboardInterrupt):
 
     @classmethod
     def handler(cls, signum, frame):
-        """A signal handler that raises :class:`Interrupted` for ``signum``."""
-        raise cls(signum)
+        """A signal handler that raises :class:`Interrupted` for ``signum`` (recorded:
+        :func:`clphong.core.signals.raise_pending`)."""
+        raise raised(cls(signum))
 
 
 @dataclass(frozen=True)

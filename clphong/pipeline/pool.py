@@ -19,7 +19,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from ..core.memory import ENV_VAR, memory_budget
-from ..core.signals import signal_name, terminating_signals
+from ..core.signals import raise_pending, signal_name, terminating_signals
 from ..io.atomic import remove_live_temporaries
 from .jobs import Interrupted, Job, failed_outcomes, relight_job
 from .paths import remove_job_temporaries
@@ -61,6 +61,7 @@ def _worker_main(conn, specs, env: dict[str, str]) -> None:  # pragma: no cover 
             index, job = item
             with warnings.catch_warnings(record=True) as caught:
                 outcomes = relight_job(job, specs)
+            raise_pending()                   # a signal C code swallowed: this job is retried
             shown = [(w.category, str(w.message), w.filename, w.lineno) for w in caught]
             try:
                 try:

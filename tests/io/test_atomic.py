@@ -361,3 +361,29 @@ def test_atomic_path_missing_folder(tmp_path):
     with pytest.raises(OutputError, match="missing/x.exr: folder .* does not exist"):
         with atomic_path(tmp_path / "missing" / "x.exr"):
             pass  # pragma: no cover
+
+
+def test_a_swallowed_signal_is_raised_again_before_the_file_is_put_in_place(tmp_path):
+    """clphong render's handlers (signals_as_interrupt) record what they raise: when C code
+    drops the exception, the commit raises it, and neither the file nor its temporary stays."""
+    import signal
+
+    from clphong.core import signals
+
+    out = tmp_path / "frame.exr"
+    with signals.signals_as_interrupt():
+        with pytest.raises(signals.Terminated) as caught:
+            with atomic_path(out) as tmp:
+                with open(tmp, "wb") as f:
+                    f.write(b"a whole file")
+                try:
+                    signal.raise_signal(signal.SIGTERM)     # the handler raises here...
+                except KeyboardInterrupt:
+                    pass                                    # ...and the exception is dropped
+    assert caught.value.signum == signal.SIGTERM
+    assert os.listdir(tmp_path) == []
+    signals.raise_pending()                                 # acted on: nothing left to raise
+    with atomic_path(out) as tmp:                           # and the next write is whole
+        with open(tmp, "wb") as f:
+            f.write(b"x")
+    assert out.read_bytes() == b"x"

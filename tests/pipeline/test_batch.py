@@ -297,6 +297,9 @@ class _FaultySpec(RelighterSpec):
     fault_frame: int = 0
     fault_signal: int = int(signal.SIGKILL)
     fault_marker: str = ""
+    #: instead: send SIGTERM to itself where its exception is swallowed, as C code that
+    #: clears errors does (pyopencl probing a __getattr__ with PyObject_HasAttr), then go on
+    fault_swallow: bool = False
 
     def build(self):
         return _FaultyRelighter(super().build(), self)
@@ -314,6 +317,13 @@ class _FaultyRelighter:
                 and not (spec.fault_marker and os.path.exists(spec.fault_marker))):
             if spec.fault_marker:
                 open(spec.fault_marker, "x").close()
+            if spec.fault_swallow:
+                try:
+                    os.kill(os.getpid(), signal.SIGTERM)
+                    time.sleep(60)                # the handler raises here...
+                except KeyboardInterrupt:
+                    pass                          # ...and the exception is dropped
+                return self.inner.deliver(gbuffer, paths, **kw)
             with atomic_path(paths.files[0]) as tmp:
                 with open(tmp, "wb") as f:
                     f.write(b"half an image")
@@ -374,6 +384,41 @@ def test_a_worker_that_dies_mid_frame_is_replaced_and_the_frame_retried(shot, tm
     lines = result.summary()
     assert lines[0].startswith("8 written, 0 skipped (exist), 0 failed in ")
     assert lines[1:] == [f"retried frame 3 ({src}) on another worker: worker process died ({how})"]
+
+
+def test_a_signal_whose_exception_c_code_swallowed_still_ends_the_worker(shot, tmp_path):
+    """A SIGTERM whose Interrupted is dropped (C code clearing errors) is raised again before
+    the frame's output is put in place: the worker ends (exit 143) and the frame is retried,
+    where it had run on as if no signal had come."""
+    root, expected = shot
+    out = tmp_path / "out"
+    marker = tmp_path / "swallowed"
+    result = _faulty_batch(root, out, range(1, 7), fault_frame=3, fault_swallow=True,
+                           fault_marker=str(marker))
+    assert marker.exists()
+    assert result.interrupted is None and not result.failed
+    for f in range(1, 7):
+        assert np.array_equal(read_rgb(out / "key" / f"shot.{f:04d}.exr"), expected[(f, "key")]), f
+    _no_temporaries(out)
+    assert result.retried == [(3, str(root / "seq" / "shot.0003.exr"),
+                               "worker process died (SIGTERM, exit code 143)")]
+
+
+def test_a_swallowed_signal_stops_a_one_process_batch_before_the_frames_file(shot, tmp_path):
+    import clphong
+
+    root, _ = shot
+    out = tmp_path / "out"
+    scene = clphong.load_scene(root / "key.toml")
+    plan = plan_batch(str(root / "seq" / "shot.####.exr"), [Rig("key", scene)],
+                      str(out / "{rig}" / "{name}.####.exr"), frames=range(1, 6))
+    with _deadline(120):
+        result = run_batch(plan, {"key": _FaultySpec(scene=scene, fault_frame=3, fault_swallow=True)},
+                           jobs=1, overlap=False)
+    assert result.interrupted == signal.SIGTERM
+    assert sorted(o.frame for o in result.written) == [1, 2]
+    assert sorted(p.name for p in (out / "key").iterdir()) == ["shot.0001.exr", "shot.0002.exr"]
+    _no_temporaries(out)
 
 
 def test_a_frame_that_kills_every_worker_fails_after_one_retry(shot, tmp_path):
