@@ -92,7 +92,8 @@ class Terminated(KeyboardInterrupt):
 @contextlib.contextmanager
 def signals_as_interrupt():
     """Turn every catchable terminating signal (:func:`terminating_signals`) into
-    :class:`Terminated` while the block runs (main thread only; elsewhere nothing).
+    :class:`Terminated` while the block runs (main thread only; elsewhere nothing), and
+    record Ctrl-C's KeyboardInterrupt as they are recorded (:func:`raise_pending`).
 
     Their default actions end the process at once (SIGQUIT with a core dump),
     which would leave a half-written temporary output (``.NAME.tmp-XXXX.exr``)
@@ -105,10 +106,15 @@ def signals_as_interrupt():
     def _raise(signum, frame):
         raise raised(Terminated(signum, signal_name(signum)))
 
+    def _interrupt(signum, frame):
+        raise raised(KeyboardInterrupt())
+
     previous = {}
     try:
         for sig in terminating_signals():
             previous[sig] = signal.signal(sig, _raise)
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            previous[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupt)    # Ctrl-C, recorded
     except (ValueError, OSError):          # no signals here (e.g. an embedded interpreter)
         for sig, old in previous.items():
             signal.signal(sig, old)

@@ -363,7 +363,8 @@ def test_atomic_path_missing_folder(tmp_path):
             pass  # pragma: no cover
 
 
-def test_a_swallowed_signal_is_raised_again_before_the_file_is_put_in_place(tmp_path):
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
+def test_a_swallowed_signal_is_raised_again_before_the_file_is_put_in_place(tmp_path, sig):
     """clphong render's handlers (signals_as_interrupt) record what they raise: when C code
     drops the exception, the commit raises it, and neither the file nor its temporary stays."""
     import signal
@@ -371,16 +372,18 @@ def test_a_swallowed_signal_is_raised_again_before_the_file_is_put_in_place(tmp_
     from clphong.core import signals
 
     out = tmp_path / "frame.exr"
+    signum = getattr(signal, sig)
     with signals.signals_as_interrupt():
-        with pytest.raises(signals.Terminated) as caught:
+        with pytest.raises(signals.Terminated if sig == "SIGTERM" else KeyboardInterrupt) as caught:
             with atomic_path(out) as tmp:
                 with open(tmp, "wb") as f:
                     f.write(b"a whole file")
                 try:
-                    signal.raise_signal(signal.SIGTERM)     # the handler raises here...
+                    signal.raise_signal(signum)             # the handler raises here...
                 except KeyboardInterrupt:
                     pass                                    # ...and the exception is dropped
-    assert caught.value.signum == signal.SIGTERM
+    assert getattr(caught.value, "signum", signal.SIGINT) == signum
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     assert os.listdir(tmp_path) == []
     signals.raise_pending()                                 # acted on: nothing left to raise
     with atomic_path(out) as tmp:                           # and the next write is whole
