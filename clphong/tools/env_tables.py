@@ -44,7 +44,8 @@ fewer lights.
 their largest contribution to any of its pixels stays within EPS of the tile's darkest
 pixel, the diffuse exact. That bound is the true maximum over the tile's pixels, tighter
 than any bound from the tile's normal and view cones, so the lights kept are a floor for a
-"diffuse table plus per-tile specular culling" design. Not a timed test: the figures are
+"diffuse table plus per-tile specular culling" design. ``--cones`` bounds each weight from
+two cones instead (:func:`cone_weights`, Blinn-Phong): what such a design would keep. Not a timed test: the figures are
 this machine's.
 """
 
@@ -226,10 +227,35 @@ def split(size=(1024, 512), counts=(1024, 4096, 16384), model: str = "blinn-phon
     return rows
 
 
+def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angles between unit vectors along the last axis (atan2: accurate near 0 and pi)."""
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.einsum("...i,...i->...", a, b))
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def cone_weights(N: np.ndarray, V: np.ndarray, l: np.ndarray, exponent: float) -> np.ndarray:
+    """(K,): a bound of each light's Blinn-Phong weight ``max(n·h, 0)^exponent`` over a
+    tile, from two cones: the tile's normals (axis a, half-angle θ_n) and, per light, the
+    half-vectors of its pixels about ``h0 = unit(l + mean view)`` (half-angle θ_h). Then
+    n·h ≤ cos(max(0, ∠(a, h0) − θ_n − θ_h)), and 0 where every normal of the cone is
+    90° or more from l (n·l ≤ 0)."""
+    a = _unit(N.mean(axis=0))
+    theta_n = _angle(N, a[None]).max()
+    h = _unit(l[None, :, :] + V[:, None, :])                          # (P, K, 3)
+    h0 = _unit(l + _unit(V.mean(axis=0))[None])                      # (K, 3)
+    theta_h = _angle(h, h0[None]).max(axis=0)
+    gap = np.maximum(_angle(a[None], h0) - theta_n - theta_h, 0.0)
+    w = np.cos(np.minimum(gap, 0.5 * np.pi)) ** exponent
+    return np.where(_angle(a[None], l) - theta_n >= 0.5 * np.pi, 0.0, w)
+
+
 def tile_floor(size=(1024, 512), eps=(5e-4,), tiles: int = 150, tile: int = 8,
-               frame=(1920, 1080), log=print) -> list[dict]:
-    """Specular lights an 8×8 tile of the bench G-buffer keeps under an oracle bound
-    (module docstring)."""
+               frame=(1920, 1080), cones: bool = False, log=print) -> list[dict]:
+    """Specular lights an 8×8 tile of the bench G-buffer keeps under an oracle bound, or
+    with ``cones`` under :func:`cone_weights` (module docstring)."""
     scene = bench_scene("wide", 1)
     material = scene.material
     env = environment_lights(sky_envmap(*size), material, max_error=1e-3)
@@ -253,7 +279,9 @@ def tile_floor(size=(1024, 512), eps=(5e-4,), tiles: int = 150, tile: int = 8,
         C = gb.albedo[win].reshape(-1, 3).astype(np.float64)
         pixel = C * (white - material.k_s * s) + material.k_s * s
         # each light's largest specular weight over the tile (Fresnel, at most 1, left out)
-        bound = material.k_s * lobe_weights(N, V, l, material).max(axis=0)[:, None] * rad
+        w = (cone_weights(N, V, l, material.exponent) if cones
+             else lobe_weights(N, V, l, material).max(axis=0))
+        bound = material.k_s * w[:, None] * rad
         order = np.argsort(bound.max(axis=1))
         cum = np.cumsum(bound[order], axis=0)
         for e in eps:
@@ -264,7 +292,7 @@ def tile_floor(size=(1024, 512), eps=(5e-4,), tiles: int = 150, tile: int = 8,
         k = np.asarray(kept[e])
         row = dict(eps=e, lights=len(l), tiles=len(k), median=float(np.median(k)),
                    p90=float(np.percentile(k, 90)), max=int(k.max()))
-        log(f"tile floor at {e:g} of the darkest pixel: a {tile}x{tile} tile keeps {row['median']:.0f} "
+        log(f"tile {'cones' if cones else 'floor'} at {e:g} of the darkest pixel: a {tile}x{tile} tile keeps {row['median']:.0f} "
             f"of {len(l)} specular lights (median of {len(k)} tiles), {row['p90']:.0f} (90 %), "
             f"{row['max']} (max)")
         rows.append(row)
@@ -297,12 +325,14 @@ def main(argv=None) -> int:
                    help="--split's material model")
     p.add_argument("--tile-floor", default="", help="budgets EPS,...: the oracle floor of per-tile "
                    "specular culling on the bench G-buffer")
+    p.add_argument("--cones", action="store_true", help="--tile-floor with the bound of a tile's "
+                   "normal and half-vector cones instead of the oracle")
     a = p.parse_args(argv)
     w, h = (int(x) for x in a.map.lower().split("x"))
     if a.split:
         split((w, h), [int(x) for x in a.split.split(",") if x], a.model, a.probes)
     if a.tile_floor:
-        tile_floor((w, h), [float(x) for x in a.tile_floor.split(",") if x])
+        tile_floor((w, h), [float(x) for x in a.tile_floor.split(",") if x], cones=a.cones)
     measure((w, h), _pairs(a.diffuse, 2), _pairs(a.specular, 3), a.probes, a.keep_sun)
     for hh, dr, sr in _pairs(a.pixels, 3):
         pixels((w, h), hh, dr, sr, a.probes, [float(x) for x in filter(None, a.lower.split(","))])

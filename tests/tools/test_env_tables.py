@@ -50,3 +50,30 @@ def test_tile_floor_keeps_more_lights_for_a_smaller_budget():
     assert loose["tiles"] == tight["tiles"] > 0
     assert loose["median"] <= tight["median"] <= none["median"] <= loose["lights"]
     assert loose["median"] < none["median"]
+
+
+def test_cone_weights_bound_every_pixels_weight_and_are_exact_for_one_pixel():
+    """The cone bound is at least each pixel's Blinn-Phong weight (the spherical triangle
+    inequality), and for a one-pixel tile (both cones a point) it is that weight."""
+    import dataclasses
+
+    import numpy as np
+
+    from clphong.model.environment import lobe_weights
+    from clphong.tools.bench_scenes import bench_scene
+
+    material = dataclasses.replace(bench_scene("wide", 1).material, h=8.0)
+    rng = np.random.default_rng(3)
+    l = rng.normal(size=(300, 3))
+    l /= np.linalg.norm(l, axis=1, keepdims=True)
+    for spread in (0.02, 0.3):
+        N = np.array([0.2, 0.1, 1.0]) + spread * rng.normal(size=(16, 3))
+        N /= np.linalg.norm(N, axis=1, keepdims=True)
+        V = np.array([0.0, -0.4, 1.0]) + spread * rng.normal(size=(16, 3))
+        V /= np.linalg.norm(V, axis=1, keepdims=True)
+        exact = lobe_weights(N, V, l, material).max(axis=0)
+        bound = env_tables.cone_weights(N, V, l, material.exponent)
+        assert (bound >= exact * (1 - 1e-9)).all()
+        assert (bound > 2 * exact).any()              # a bound, not the weights themselves
+    one = env_tables.cone_weights(N[:1], V[:1], l, material.exponent)
+    assert np.allclose(one, lobe_weights(N[:1], V[:1], l, material)[0], rtol=1e-9, atol=1e-300)
