@@ -273,3 +273,25 @@ def _environment_cache_of_the_session(tmp_path_factory):
     envmap._DISK = Store(str(tmp_path_factory.mktemp("environment-cache")), ".npz", envmap.DISK_KEEP)
     yield
     envmap._DISK = saved
+
+
+@pytest.fixture
+def signals_not_ignored():
+    """SIGINT and SIGQUIT as an interactive shell leaves them, for the tests that send them.
+
+    A command run in the background by a shell without job control (``cmd &`` in a
+    script) starts with both ignored (POSIX), and clphong keeps an ignored signal
+    ignored (clphong.core.signals.terminating_signals), so a test that sends one would
+    see nothing happen. Set to Python's defaults for the test, restored after it."""
+    import signal
+
+    defaults = {signal.SIGINT: signal.default_int_handler, signal.SIGQUIT: signal.SIG_DFL}
+    saved = {sig: signal.getsignal(sig) for sig in defaults}
+    for sig, handler in defaults.items():
+        if saved[sig] is signal.SIG_IGN:
+            signal.signal(sig, handler)
+    try:
+        yield
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)

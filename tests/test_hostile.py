@@ -688,7 +688,8 @@ def test_disk_full_while_writing_any_output_keeps_the_previous_one(work, capsys,
     ("SIGRTMIN", 128 + signal.SIGRTMIN, "clphong: terminated (SIGRTMIN"),
     ("ctrl-c", 130, "clphong: interrupted"),
 ])
-def test_stopped_while_writing_leaves_nothing(work, capsys, monkeypatch, how, code, text):
+def test_stopped_while_writing_leaves_nothing(work, capsys, monkeypatch, how, code, text,
+                                            signals_not_ignored):
     """Every catchable terminating signal removes the temporary output and exits
     128 + N with one line (SIGHUP and SIGQUIT left .NAME.tmp-XXXX.exr behind)."""
     from clphong.io import atomic as output

@@ -364,7 +364,8 @@ def test_atomic_path_missing_folder(tmp_path):
 
 
 @pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
-def test_a_swallowed_signal_is_raised_again_before_the_file_is_put_in_place(tmp_path, sig):
+def test_a_swallowed_signal_is_raised_again_before_the_file_is_put_in_place(tmp_path, sig,
+                                                                               signals_not_ignored):
     """clphong render's handlers (signals_as_interrupt) record what they raise: when C code
     drops the exception, the commit raises it, and neither the file nor its temporary stays."""
     import signal
