@@ -433,6 +433,8 @@ def _rsqrt_dir_on_device(x, ctype, options, device=None, fn="rsqrt_dir", lanes=1
     from clphong.device.runtime import kernel_dir
     from clphong.device.selection import get_runtime
 
+    if lanes != 1:
+        skip_unless_lanes(lanes, device)    # a width the host rule refuses may abort or miscompile
     rt = get_runtime(device)
     n = len(x)
     x = np.concatenate([x, np.ones(-n % lanes, x.dtype)])
