@@ -236,6 +236,17 @@ typedef floatL dirL;
 
 #if RSQRT_GUESS_KIND == 3
 inline dirL rsqrt_dir(dirL x) { return rsqrt(x); }
+#elif RSQRT_GUESS_KIND == 4
+/* native_rsqrt's guess y and one Newton step written as (y/2)·(3 − (x·y)·y): the same
+ * roundings as y·(1.5 − (x/2)·y·y), each scaled by an exact 2, so the same bits for
+ * every x whose x/2 is normal; but x/2 is never formed, so x in [FLT_MIN, 2·FLT_MIN)
+ * needs no rescaling in rsqrt_dist (x·y ≈ 2⁻⁶³ there). */
+inline dirL rsqrt_dir(dirL x)
+{
+    const dirL y = RSQRT_GUESS(x);
+    const dirL y2 = ((dirL)(0.5f) * y) * ((dirL)(3.0f) - (x * y) * y);
+    return x == 0.0f ? (dirL)(INFINITY) : y2;   /* as rsqrt(0) = +inf */
+}
 #else
 inline dirL rsqrt_dir(dirL x)
 {
@@ -268,12 +279,19 @@ inline dirL rsqrt_dist(dirL x) { return rsqrt(x); }   /* the builtin has the gua
    already 0 (-cl-denorms-are-zero), which gives +∞ as rsqrt(0). Inline, where
    PoCL 3.0 calls the builtin out of line, spilling every vector register
    around the call, once per light: 1.02-1.07x on the fast path's lights loop. */
+#if RSQRT_GUESS_KIND == 4
+inline dirL rsqrt_dist(dirL x)
+{
+    return SELECT(rsqrt_dir(x), (dirL)(0.0f), x > FLT_MAX);
+}
+#else
 inline dirL rsqrt_dist(dirL x)
 {
     const intL tiny = x < 2.0f * FLT_MIN;
     const dirL y = rsqrt_dir(SELECT(x, x * 0x1p64f, tiny));
     return SELECT(SELECT(y, y * 0x1p32f, tiny), (dirL)(0.0f), x > FLT_MAX);
 }
+#endif
 #define RSQRT_DIST(x) rsqrt_dist(x)
 #endif
 

@@ -493,6 +493,26 @@ def test_native_rsqrt_is_taken_only_where_measured_within_two_ulp(device, lanes)
         rt.native_rsqrt_ulps.update(rt_ulps)
 
 
+@pytest.mark.parametrize("lanes", [1, 16])
+def test_native_rsqrt_step_has_the_bits_of_the_halved_form(device, lanes):
+    """RSQRT_NATIVE's Newton step (y/2)·(3 − (x·y)·y) (clphong.h) gives the bits of the
+    textbook y·(1.5 − (x/2)·y·y) wherever x/2 is normal: the same roundings, each scaled
+    by an exact 2. So the fast path's pixels did not move when the rewrite let
+    rsqrt_dist drop its rescaling of [FLT_MIN, 2·FLT_MIN) (1.10x on Zen 4, Intel's
+    runtime). A step that rounds differently fails here."""
+    skip_unless_lanes(lanes, device)
+    binade = np.arange(0x3F800000, 0x40800000, 5, dtype=np.uint32).view(np.float32)
+    spread = np.geomspace(4 * np.finfo(np.float32).tiny, 3e38, 100_001).astype(np.float32)
+    x = np.concatenate([binade, spread])
+    opts = ["-DDIRECTIONS_FP64=0", "-cl-denorms-are-zero", "-DRSQRT_GUESS_KIND=4"]
+    ours = _rsqrt_dir_on_device(x, "float", opts, device, fn="rsqrt_dist", lanes=lanes)
+    halved = _rsqrt_dir_on_device(
+        x, "float", [*opts, "-DHALVED(x)=(native_rsqrt(x)*(1.5f-((0.5f*(x))*native_rsqrt(x))*native_rsqrt(x)))"],
+        device, fn="HALVED", lanes=lanes)
+    assert np.array_equal(ours.view(np.uint32), halved.view(np.uint32)), \
+        int((ours != halved).sum())
+
+
 def test_native_rsqrt_follows_the_measure_not_the_platform_alone(monkeypatch):
     """A measure over 2 ulp, or none, keeps the builtin on Intel's runtime; PoCL and GPUs
     never take the native guess; the plan never takes it with double directions."""
