@@ -243,9 +243,12 @@ inline dirL rsqrt_dir(dirL x) { return rsqrt(x); }
  * needs no rescaling in rsqrt_dist (x·y ≈ 2⁻⁶³ there). */
 inline dirL rsqrt_dir(dirL x)
 {
+    /* no guard for 0 (NaN there): RSQRT_DIR's callers select their own value, and
+       rsqrt_dist adds rsqrt(0) = +inf, which the shading loop folds into its own
+       select for d² = 0; blinn_delta's select for |l + v|² = 0 now stands alone
+       (one compare and one blend fewer a light, the pixels' bits unchanged) */
     const dirL y = RSQRT_GUESS(x);
-    const dirL y2 = ((dirL)(0.5f) * y) * ((dirL)(3.0f) - (x * y) * y);
-    return x == 0.0f ? (dirL)(INFINITY) : y2;   /* as rsqrt(0) = +inf */
+    return ((dirL)(0.5f) * y) * ((dirL)(3.0f) - (x * y) * y);
 }
 #else
 inline dirL rsqrt_dir(dirL x)
@@ -282,7 +285,7 @@ inline dirL rsqrt_dist(dirL x) { return rsqrt(x); }   /* the builtin has the gua
 #if RSQRT_GUESS_KIND == 4
 inline dirL rsqrt_dist(dirL x)
 {
-    return SELECT(rsqrt_dir(x), (dirL)(0.0f), x > FLT_MAX);
+    return SELECT(SELECT(rsqrt_dir(x), (dirL)(INFINITY), x == 0.0f), (dirL)(0.0f), x > FLT_MAX);
 }
 #else
 inline dirL rsqrt_dist(dirL x)
