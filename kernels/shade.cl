@@ -220,6 +220,11 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
     const wL Sr_b = ks_w * FLOAT_TO_W(vloadL(i, maps + (plane + 0) * stride)) * W_HI_LO(S_uniform.x, S_lo.x);
     const wL Sg_b = ks_w * FLOAT_TO_W(vloadL(i, maps + (plane + 1) * stride)) * W_HI_LO(S_uniform.y, S_lo.y);
     const wL Sb_b = ks_w * FLOAT_TO_W(vloadL(i, maps + (plane + 2) * stride)) * W_HI_LO(S_uniform.z, S_lo.z);
+#elif SPEC_GREY
+    /* the three channels of k_s·C_s are equal (plan.h): one value, so that each light's
+       S·w_s is one product for the three sums, not three equal ones */
+    const wL Sr_b = ks_w * W_HI_LO(S_uniform.x, S_lo.x);
+    const wL Sg_b = Sr_b, Sb_b = Sr_b;
 #else
     const wL Sr_b = ks_w * W_HI_LO(S_uniform.x, S_lo.x);
     const wL Sg_b = ks_w * W_HI_LO(S_uniform.y, S_lo.y);

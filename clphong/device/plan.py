@@ -140,6 +140,10 @@ def _material_defines(put, scene, maps, *, kernel, specular, n_dir) -> None:
     put("MAP_H", "h" in maps and specular, "per-pixel shininess map" if "h" in maps else "uniform h")
     put("MAP_CS", "specular_color" in maps and specular,
         "per-pixel specular colour map" if "specular_color" in maps else "uniform specular_color")
+    cs = m.specular_color
+    grey = specular and not fresnel and "specular_color" not in maps and cs[0] == cs[1] == cs[2]
+    put("SPEC_GREY", grey, "k_s·C_s has equal channels: S·w_s once a light for all three" if grey
+        else "needs a grey specular_color, no specular colour map and no Fresnel weight")
 
 
 def _layer_defines(put, coverage, groups, aovs) -> None:

@@ -18,6 +18,8 @@
  *   BLINN_CONST_H    orthographic camera + Blinn: each directional light's half vector is
  *                    constant and precomputed on the host (Blinn 1977)
  *   MAP_KD, MAP_KS, MAP_H, MAP_CS   per-pixel material maps present
+ *   SPEC_GREY        k_s·C_s has three equal channels (no C_s map, no Fresnel): one S
+ *                    serves all three, so S·w_s is formed once a light (the same bits)
  *   COMPENSATED_SUM  Neumaier-compensated light sum (error ~2u instead of ~N·u)
  *   HAS_ATTENUATION  some point light has c1 ≠ 0 or c2 ≠ 0; 0: the falloff is 1/c0,
  *                    a constant per light (no distance polynomial, no division per pixel)
@@ -90,6 +92,9 @@
 #endif
 #ifndef MAP_CS
 #error "MAP_CS must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef SPEC_GREY
+#error "SPEC_GREY must be set by the shading plan (clphong/device/plan.py)"
 #endif
 #ifndef COMPENSATED_SUM
 #error "COMPENSATED_SUM must be set by the shading plan (clphong/device/plan.py)"

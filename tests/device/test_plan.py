@@ -51,3 +51,21 @@ def test_plan_uses_the_integer_power_only_where_it_applies():
     text = str(make_plan(make_scene([dict(type="point", position=(0, 0, 3))], h=37.5), (), lanes=8,
                          fp64_directions=True))
     assert "k = h = 37.5 is not a whole number" in text
+
+
+def test_grey_specular_is_formed_once_only_where_the_channels_are_equal():
+    """SPEC_GREY (one S·w_s a light for the three sums): a grey specular_color with no
+    colour map and no Fresnel weight; any other case keeps three products."""
+    from clphong.device.plan import make_plan
+
+    def grey(maps=(), **kw):
+        scene = make_scene([dict(type="point", position=(0, 0, 3))], model="blinn-phong", **kw)
+        return make_plan(scene, maps, lanes=8).defines["SPEC_GREY"]
+
+    assert grey() == 1                                            # the default, white
+    assert grey(specular_color=(0.4, 0.4, 0.4)) == 1
+    assert grey(maps=("k_s",)) == 1                               # a k_s map scales all three
+    assert grey(specular_color=(0.4, 0.4, 0.4000001)) == 0
+    assert grey(maps=("specular_color",)) == 0
+    assert grey(fresnel="schlick", f0=(0.04, 0.04, 0.04)) == 0
+    assert grey(k_s=0.0) == 0                                     # no specular term at all

@@ -6,6 +6,8 @@ docs/error-model.md), or for closed forms a bound stated next to the test.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from conftest import (
@@ -54,6 +56,22 @@ def test_random_gbuffers_match_reference(seed, fp64, device):
                        h=float(rng.choice([1.0, 8.0, 64.0, 500.0])), camera=camera,
                        specular_color=tuple(rng.uniform(0.5, 1, 3)))
     check_against_reference(scene, random_gbuffer(rng, maps=maps), fp64_directions=fp64, device=device)
+
+
+@pytest.mark.parametrize("path", ["fast", None])
+def test_grey_specular_once_has_the_bits_of_three_products(path, device):
+    """SPEC_GREY forms S·w_s once for the three channels: the beauty's bits are those
+    of the kernel that forms three, here the specular-colour map's kernel (SPEC_GREY 0)
+    with a map of ones, whose S is the same k_s·1·1."""
+    rng = np.random.default_rng(23)
+    scene = make_scene(random_lights(rng, 9, 2), model="blinn-phong", h=32.0)
+    gb = random_gbuffer(rng, 16, 48)
+    ones = dataclasses.replace(gb, maps={"specular_color": np.ones(gb.albedo.shape)})
+    grey, three = Renderer(scene, device=device, path=path), Renderer(scene, device=device, path=path)
+    assert grey.plan_for(()).defines["SPEC_GREY"] == 1
+    assert three.plan_for(("specular_color",)).defines["SPEC_GREY"] == 0
+    a, b = grey.render(gb).image, three.render(ones).image
+    assert np.array_equal(a.view(np.uint32), b.view(np.uint32)), int((a != b).sum())
 
 
 @pytest.mark.parametrize("fp64", [True, False], ids=["fp64-directions", "fp32-directions"])
