@@ -86,8 +86,9 @@ def native_rsqrt_inputs() -> np.ndarray:
     """Every float of [1, 4) (a factor 4 in x moves the hardware estimate and the Newton
     step by exactly ½, so this binade stands for every normal float where the estimate
     scales so), every third float of the bottom binades [FLT_MIN, 4·FLT_MIN) (where the
-    other guesses' rsqrt_dist rescales, and this one's Newton step never forms x/2), and 100,001 floats spread from FLT_MIN to FLT_MAX in case an
-    implementation's estimate does not scale."""
+    other guesses' rsqrt_dist rescales, and this one's Newton step never forms x/2),
+    and 100,001 floats spread from FLT_MIN to FLT_MAX in case an implementation's
+    estimate does not scale."""
     binade = np.arange(0x3F800000, 0x40800000, dtype=np.uint32).view(np.float32)
     bottom = np.arange(0x00800000, 0x01800000, 3, dtype=np.uint32).view(np.float32)
     f32 = np.finfo(np.float32)
