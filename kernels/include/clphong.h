@@ -283,6 +283,8 @@ inline dirL rsqrt_dist(dirL x) { return rsqrt(x); }   /* the builtin has the gua
    PoCL 3.0 calls the builtin out of line, spilling every vector register
    around the call, once per light: 1.02-1.07x on the fast path's lights loop. */
 #if RSQRT_GUESS_KIND == 4
+/* native_rsqrt's step never forms x/2 (rsqrt_dir above): no rescaling; rsqrt_dir leaves
+   0 to its callers, so rsqrt(0) = +∞ is selected here */
 inline dirL rsqrt_dist(dirL x)
 {
     return SELECT(SELECT(rsqrt_dir(x), (dirL)(INFINITY), x == 0.0f), (dirL)(0.0f), x > FLT_MAX);
