@@ -37,6 +37,7 @@ from ..deliver.writers import (
 )
 from ..device import runtime as _runtime
 from ..device.culling import BRUTE_ABOVE
+from ..device.envprobe import DeviceProbeShader
 from ..device.hostrule import host
 from ..device.renderer import Renderer
 from ..device.selection import describe_devices
@@ -437,7 +438,8 @@ def cmd_plan(args) -> int:
     opts = _renderer_options(args)
     original = load_scene(args.scene)
     env_error = opts.env_error
-    resolved = resolve_environment(original, max_error=env_error, nonfinite=opts.nonfinite)
+    resolved = resolve_environment(original, max_error=env_error, nonfinite=opts.nonfinite,
+                                   shade=DeviceProbeShader(args.device))
     scene = resolved.scene
     maps = ()
     if args.gbuffer or args.position or args.normal or args.albedo:

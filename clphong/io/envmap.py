@@ -196,14 +196,16 @@ conversion_notice = None
 NOTICE_AFTER_S = 1.0
 
 
-def _disk_key(digest: str, light: Light, material, view, max_error: float, policy: str) -> str:
+def _disk_key(digest: str, light: Light, material, view, max_error: float, policy: str,
+              shader: str = "numpy") -> str:
     """The disk cache's name of a conversion: the map file's SHA-256, what the conversion
-    depends on (rotation, intensity, the material, an orthographic view, the target), and
-    the code that converts (a changed model/environment.py converts again)."""
+    depends on (rotation, intensity, the material, an orthographic view, the target, the
+    probe shader's key), and the code that converts (a changed model/environment.py
+    converts again)."""
     h = hashlib.sha256()
     for part in (digest, repr(float(light.rotation)), repr(float(light.intensity)), repr(material),
                  None if view is None else tuple(map(float, view)), repr(float(max_error)),
-                 policy, _code_digest()):
+                 policy, _code_digest(), *(() if shader == "numpy" else (shader,))):
         h.update(str(part).encode() + b"\0")
     return h.hexdigest()[:40]
 
@@ -274,13 +276,15 @@ class _Progress:
 
 
 def _convert(light: Light, where: str, material, view, max_error: float,
-             nonfinite: str = "error") -> EnvironmentLights:
+             nonfinite: str = "error", shade=None) -> EnvironmentLights:
     name = light.file
     policy = "background" if nonfinite == "background" else "error"   # what reading does
+    shader = "numpy" if shade is None else shade.key
     try:
         st = os.stat(name)
         key = (os.path.realpath(name), st.st_ino, st.st_size, st.st_mtime_ns, light.rotation,
-               light.intensity, material, None if view is None else tuple(view), max_error, policy)
+               light.intensity, material, None if view is None else tuple(view), max_error, policy,
+               shader)
     except OSError:
         key = None                        # read_envmap says what is wrong
     with _LOCK:
@@ -288,7 +292,7 @@ def _convert(light: Light, where: str, material, view, max_error: float,
     if hit is None:
         digest = _file_digest(name) if key is not None else None
         disk = None if digest is None else _disk_key(digest, light, material, view, max_error,
-                                                     policy)
+                                                     policy, shader)
         found = None if disk is None else _DISK.get(disk)
         hit = None if found is None else _load(found)
         if hit is None:
@@ -298,7 +302,7 @@ def _convert(light: Light, where: str, material, view, max_error: float,
             notes = tuple(str(w.message) for w in said if issubclass(w.category, SceneWarning))
             result = environment_lights(L, material, rotation=light.rotation,
                                         intensity=light.intensity, view=view, max_error=max_error,
-                                        progress=_Progress(f"{where}: {name}"))
+                                        progress=_Progress(f"{where}: {name}"), shade=shade)
             hit = (result, notes)
             if disk is not None:
                 _save(disk, result, notes)
@@ -322,7 +326,7 @@ def directional_lights(env: EnvironmentLights, group: str | None = None) -> tupl
 
 
 def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
-                        nonfinite: str = "error") -> ResolvedScene:
+                        nonfinite: str = "error", shade=None) -> ResolvedScene:
     """Replace every environment light of ``scene`` by directional lights.
 
     Parameters
@@ -333,6 +337,10 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
         :func:`clphong.model.environment.environment_lights`.
     nonfinite : {"error", "background", "pass"}
         NaN/Inf texels (``--nonfinite``, :func:`read_envmap`).
+    shade : callable with a ``key``, optional
+        The conversion's probe shader (``environment_lights(shade=...)``), e.g.
+        :class:`clphong.device.envprobe.DeviceProbeShader`; None: float64 numpy. Its
+        ``key`` is part of the cache keys.
 
     Returns
     -------
@@ -358,7 +366,8 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
         if lt.type != "environment":
             lights.append(lt)
             continue
-        r = _convert(lt, environment_key(scene, i), scene.material, view, max_error, nonfinite)
+        r = _convert(lt, environment_key(scene, i), scene.material, view, max_error, nonfinite,
+                     shade)
         done.append((i, r))
         if not r.met:
             warnings.warn(SceneWarning(

@@ -76,8 +76,8 @@ import numpy as np
 from .options import DEFAULT_ENV_ERROR, check_env_error
 
 __all__ = ["texel_directions", "texel_solid_angles", "rotation_about_up", "texel_lights",
-           "LightTree", "LeafSums", "EnvironmentLights", "environment_lights", "probe_pairs", "probe_sums",
-           "lobe_weights",
+           "LightTree", "LeafSums", "probe_pixels", "EnvironmentLights", "environment_lights",
+           "probe_pairs", "probe_sums", "lobe_weights",
            "probe_error", "check_env_error", "DEFAULT_ENV_ERROR", "PROBES", "FLOOR", "REFINE",
            "RATE", "EXTRAPOLATION", "MAX_ENV_LIGHTS", "MIN_LIGHTS"]
 
@@ -523,9 +523,18 @@ def lobe_weights(n, v, l, material) -> np.ndarray:
     return _lobe(n @ l.T, NoV, v @ l.T, material.model == "blinn-phong", material.exponent)
 
 
+def probe_pixels(n, v, l, radiance, material) -> np.ndarray:
+    """(P, 3): the probes' pixel values at white albedo, without ambient (k_d·diffuse +
+    k_s·C_s·specular, Fresnel's W in the specular), from the float64 sums of
+    :func:`probe_sums`. The conversion's default probe shader; a device layer may pass
+    another with the same meaning (``environment_lights(shade=...)``)."""
+    return _pixels(*probe_sums(n, v, l, radiance, material), material)
+
+
 class LeafSums:
-    """The probes' sums (:func:`probe_sums`) of a tree's first k leaves, for the k the
-    search asks for, each formed from the set already summed that differs least.
+    """The probes' pixel sums (``shade``, by default :func:`probe_pixels`) of a tree's
+    first k leaves, for the k the search asks for, each formed from the set already
+    summed that differs least.
 
     The leaves of two counts differ only where one set split further: the sums of k
     are those of k′ minus the leaves of k′ that k lacks, plus k's that k′ lacks. The
@@ -536,35 +545,36 @@ class LeafSums:
     holds it to a fresh sum.
     """
 
-    def __init__(self, tree: LightTree, n, v, material):
-        self.tree, self.n, self.v, self.material = tree, n, v, material
-        self.done: dict[int, tuple] = {}       # k -> (leaf ids, diffuse, specular)
+    def __init__(self, tree: LightTree, n, v, material, shade=probe_pixels):
+        self.tree, self.n, self.v, self.material, self.shade = tree, n, v, material, shade
+        self.done: dict[int, tuple] = {}       # k -> (leaf ids, pixels)
 
-    def _sum(self, ids: np.ndarray):
+    def _sum(self, ids: np.ndarray) -> np.ndarray:
         rad = self.tree._rad[ids]
         lit = rad.max(axis=1, initial=0.0) > 0
-        return probe_sums(self.n, self.v, self.tree._l[ids][lit], rad[lit], self.material)
+        if not lit.any():
+            return np.zeros((len(self.n), 3))
+        return np.asarray(self.shade(self.n, self.v, self.tree._l[ids][lit], rad[lit],
+                                     self.material), np.float64)
 
-    def __call__(self, k: int):
-        """(diffuse, specular), (P, 3) each, of the first ``k`` leaves."""
+    def __call__(self, k: int) -> np.ndarray:
+        """(P, 3): the probes' pixels lit by the first ``k`` leaves."""
         if k in self.done:
-            return self.done[k][1:]
+            return self.done[k][1]
         leaves = self.tree.leaf_nodes(k)
         best = None
-        for ids, d, s in self.done.values():
+        for ids, p in self.done.values():
             gone = np.setdiff1d(ids, leaves, assume_unique=True)
             new = np.setdiff1d(leaves, ids, assume_unique=True)
             if best is None or len(gone) + len(new) < best[0]:
-                best = (len(gone) + len(new), gone, new, d, s)
+                best = (len(gone) + len(new), gone, new, p)
         if best is None or best[0] >= len(leaves):
-            d, s = self._sum(leaves)
+            p = self._sum(leaves)
         else:
-            _, gone, new, d, s = best
-            d_new, s_new = self._sum(new)
-            d_gone, s_gone = self._sum(gone)
-            d, s = d + d_new - d_gone, s + s_new - s_gone
-        self.done[k] = (leaves, d, s)
-        return d, s
+            _, gone, new, p = best
+            p = p + self._sum(new) - self._sum(gone)
+        self.done[k] = (leaves, p)
+        return p
 
 
 def _pixels(diffuse, specular, material) -> np.ndarray:
@@ -629,7 +639,7 @@ class EnvironmentLights:
 def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: float = 1.0,
                        view=None, max_error: float = DEFAULT_ENV_ERROR,
                        max_lights: int = MAX_ENV_LIGHTS, probes: int = PROBES,
-                       progress=None) -> EnvironmentLights:
+                       progress=None, shade=None) -> EnvironmentLights:
     """The fewest directional lights whose estimated error is within ``max_error``.
 
     Parameters
@@ -649,6 +659,13 @@ def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: 
     progress : callable, optional
         Called as ``progress(k, e)`` after each estimate of the search: k lights,
         estimated relative error e.
+    shade : callable, optional
+        The probe shader, ``shade(n, v, l, radiance, material)`` → (P, 3), with the
+        meaning of :func:`probe_pixels` (the default, float64 numpy).
+        :class:`clphong.device.envprobe.DeviceProbeShader` shades them on an OpenCL
+        device, at the probes' float32 roundings: that moves an estimate by about 1e-4
+        of itself, so the search ends on the same count or, where an estimate lies
+        that close to the target, a neighbouring one.
 
     Returns
     -------
@@ -662,10 +679,7 @@ def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: 
     E = L.astype(np.float64) * (texel_solid_angles(W, H) * float(intensity))[..., None]
     tree = LightTree(E, d)
     n, v = probe_pairs(probes, view)
-    sums = LeafSums(tree, n, v, material)          # each count's sums, kept
-
-    def pixels(k: int) -> np.ndarray:
-        return _pixels(*sums(k), material)
+    pixels = LeafSums(tree, n, v, material, shade or probe_pixels)   # each count's, kept
 
     def estimate(k: int, fine: int | None = None) -> float:
         """The error estimate of k leaves against ``fine`` ≥ REFINE·k leaves (default

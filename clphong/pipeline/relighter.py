@@ -45,6 +45,7 @@ from ..deliver.outputs import (
     render_outputs,
     write_output,
 )
+from ..device.envprobe import DeviceProbeShader
 from ..device.renderer import Renderer
 from ..device.renderer import render as render_resolved
 from ..io.atomic import same_file
@@ -281,7 +282,8 @@ class Relighter:
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
         # The kernels shade directional lights, not maps: environment lights resolved here.
-        resolved = resolve_environment(scene, max_error=options.env_error, nonfinite=options.nonfinite)
+        resolved = resolve_environment(scene, max_error=options.env_error, nonfinite=options.nonfinite,
+                                       shade=DeviceProbeShader(device))
         scene = resolved.scene
         self.environments = resolved.environments
         self.scene = scene
@@ -497,5 +499,6 @@ def render(scene, gbuffer, *, env_error: float = DEFAULT_ENV_ERROR, **kwargs) ->
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     resolved = resolve_environment(scene, max_error=env_error,
-                                   nonfinite=kwargs.get("nonfinite", "background"))
+                                   nonfinite=kwargs.get("nonfinite", "background"),
+                                   shade=DeviceProbeShader(kwargs.get("device")))
     return render_resolved(resolved.scene, gbuffer, **kwargs)

@@ -9,6 +9,7 @@ import time
 import numpy as np
 
 from ..device.culling import TILE, super_tiles
+from ..device.envprobe import DeviceProbeShader
 from ..device.renderer import Renderer, prepare_frame
 from ..io.envmap import directional_lights
 from ..model.environment import (
@@ -102,8 +103,9 @@ def run_environment(cfg, full, runs, log, env_size) -> list[dict]:
     p256 = next((r for r in runs if r["scene"] == "wide" and r["lights"] == 256
                  and r["path"] == "accurate" and r["max_error"] is None), None)
     slots = []
+    shade = DeviceProbeShader(cfg.device)          # the probes on the device, as the commands
     for target in cfg.env_errors:
-        conv = environment_lights(L, material, max_error=target)
+        conv = environment_lights(L, material, max_error=target, shade=shade)
         scene = environment_scene(directional_lights(conv))
         n = len(scene.lights)
         rows = _crop_rows(W, H, max(n, 1), cfg.crop_pairs)

@@ -302,13 +302,26 @@ def test_a_second_process_converts_nothing(disk, monkeypatch):
         first.count, first.estimated_error, first.met, first.texels, 0.0)
 
 
-@pytest.mark.parametrize("change", ["target", "map", "material"])
+class _KeyedShader:
+    """A probe shader with a cache key: the float64 numpy pixels under another name."""
+
+    key = "another probe shader"
+
+    def __call__(self, *args):
+        from clphong.model.environment import probe_pixels
+
+        return probe_pixels(*args)
+
+
+@pytest.mark.parametrize("change", ["target", "map", "material", "shader"])
 def test_what_the_conversion_depends_on_converts_again(disk, monkeypatch, tmp_path, change):
     store, scene = disk
     envmap.resolve_environment(scene, max_error=1e-2)
     monkeypatch.setattr(envmap, "_CACHE", {})
     eps = 1e-2
-    if change == "target":
+    if change == "shader":
+        envmap.resolve_environment(scene, max_error=eps, shade=_KeyedShader())
+    elif change == "target":
         eps = 2e-2
     elif change == "map":                     # other content (same name, size and shape)
         _write(tmp_path / "maps" / "sky.exr", samples.sky_envmap(64, 32) * 2.0)
@@ -316,7 +329,8 @@ def test_what_the_conversion_depends_on_converts_again(disk, monkeypatch, tmp_pa
         import dataclasses
 
         scene = dataclasses.replace(scene, material=dataclasses.replace(scene.material, h=8.0))
-    envmap.resolve_environment(scene, max_error=eps)
+    if change != "shader":
+        envmap.resolve_environment(scene, max_error=eps)
     assert len(list(store.folder.glob("*.npz"))) == 2
 
 

@@ -1,0 +1,74 @@
+"""An environment conversion's probe pixels on an OpenCL device (issue 25: the conversion).
+
+:func:`clphong.model.environment.environment_lights` estimates its error from the pixel
+values of a few thousand probes (a normal and a view each) lit by a tree's lights, again
+and again as its search moves; :func:`~clphong.model.environment.probe_pixels` forms
+them in float64 numpy, about 12 ns a probe-light pair on one core. Here the same pixels
+come from the shading kernel itself: the probes are a one-row G-buffer (normal n, white
+albedo, position −v before an eye at the origin, so the kernel's v is the probe's), the
+lights are directional lights (and no ambient light, so no ambient term), the material
+is the scene's, on the accurate path. Its relative error is within the accurate path's
+5e-6 target (tests/device/test_envprobe.py), far below the estimates' 1e-3. The probes'
+directions are the float32 roundings of the numpy ones: that moves the estimates by
+about 1e-4 of themselves (the sample sky, 1024 × 512, at 1e-3: 7.0562e-4 against
+7.0569e-4), and the search ended on the same 10,808 lights.
+
+Measured on 2 Ice Lake cores (Intel's runtime, 16 lanes): 2,048 probes × 43,232 lights
+in 0.12 s against 0.99 s in numpy (two threads).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..io.gbuffer import GBuffer
+from ..model.scene import Camera, Scene, new_light
+from .frame import prepare_frame
+from .renderer import Renderer
+from .selection import get_runtime
+
+__all__ = ["DeviceProbeShader"]
+
+
+class DeviceProbeShader:
+    """``shade(n, v, l, radiance, material)`` → (P, 3) float64 on an OpenCL device, with
+    the meaning of :func:`clphong.model.environment.probe_pixels` (``device`` as
+    :class:`~clphong.device.renderer.Renderer` takes it; None: the default device).
+
+    ``key`` names the device, for the conversion caches: a conversion on another
+    device may end one count apart where an estimate lies within 1e-7 of the target."""
+
+    def __init__(self, device: str | None = None):
+        self.device = device
+        self._frame = None            # (probes' bytes, lanes, Frame): the search reuses them
+        self._runtime = None
+
+    @property
+    def key(self) -> str:
+        return f"opencl probes: {self.runtime.name}"
+
+    @property
+    def runtime(self):
+        if self._runtime is None:
+            self._runtime = get_runtime(self.device)
+        return self._runtime
+
+    def __call__(self, n, v, l, radiance, material) -> np.ndarray:
+        n = np.asarray(n, np.float64)
+        v = np.asarray(v, np.float64)
+        lights = tuple(new_light(type="directional", color=tuple(c), intensity=1.0,
+                                 direction=tuple(d))
+                       for c, d in zip(np.asarray(radiance, np.float64).tolist(),
+                                       (-np.asarray(l, np.float64)).tolist()))
+        scene = Scene(camera=Camera(type="perspective", position=(0.0, 0.0, 0.0)),
+                      material=material, lights=lights,
+                      source="environment probes")
+        r = Renderer(scene, device=self.device, path="accurate", light_tree=False)
+        key = (n.tobytes(), v.tobytes(), r.lanes)
+        if self._frame is None or self._frame[0] != key:
+            P = len(n)
+            gb = GBuffer(position=(-v).astype(np.float32).reshape(1, P, 3),
+                         normal=n.astype(np.float32).reshape(1, P, 3),
+                         albedo=np.ones((1, P, 3), np.float32))
+            self._frame = (key, prepare_frame(gb, lanes=r.lanes))
+        return np.asarray(r.shade(self._frame[1]).image, np.float64).reshape(-1, 3)
