@@ -25,7 +25,6 @@ from ..io.gbuffer import GBuffer
 from ..model.scene import Camera, Scene, new_light
 from .frame import prepare_frame
 from .renderer import Renderer
-from .selection import get_runtime
 
 __all__ = ["DeviceProbeShader"]
 
@@ -35,23 +34,16 @@ class DeviceProbeShader:
     the meaning of :func:`clphong.model.environment.probe_pixels` (``device`` as
     :class:`~clphong.device.renderer.Renderer` takes it; None: the default device).
 
-    ``key`` names the device, for the conversion caches: a conversion on another
-    device may end one count apart where an estimate lies within 1e-7 of the target."""
+    ``key`` names it in the conversion caches. It does not name the device: every
+    conformant device shades the same float32 probes within the accurate path's 5e-6,
+    so a conversion made on one serves another; and reading the key starts nothing (a
+    map that cannot be read is refused before a device is opened)."""
+
+    key = "opencl probes, float32 directions"
 
     def __init__(self, device: str | None = None):
         self.device = device
-        self._frame = None            # (probes' bytes, lanes, Frame): the search reuses them
-        self._runtime = None
-
-    @property
-    def key(self) -> str:
-        return f"opencl probes: {self.runtime.name}"
-
-    @property
-    def runtime(self):
-        if self._runtime is None:
-            self._runtime = get_runtime(self.device)
-        return self._runtime
+        self._frame = None            # ((probes, lanes), Frame): the search reuses it
 
     def __call__(self, n, v, l, radiance, material) -> np.ndarray:
         n = np.asarray(n, np.float64)

@@ -54,7 +54,7 @@ def test_probe_pixels_on_the_device_are_the_float64_ones(device, name, view):
 def test_a_conversion_with_the_device_probes_ends_where_the_numpy_one_does(device):
     """The search on device pixels: the same lights as on float64 numpy pixels (the two
     estimates differ by the probes' float32 rounding, measured 1e-4 of themselves on the
-    sample sky), and a cache key that names the device."""
+    sample sky)."""
     sky = samples.sky_envmap(128, 64)
     material = MATERIALS["blinn"]
     shade = DeviceProbeShader(device)
@@ -64,4 +64,3 @@ def test_a_conversion_with_the_device_probes_ends_where_the_numpy_one_does(devic
         assert b.count == a.count and b.met and a.met
         assert np.array_equal(a.l, b.l)
         assert abs(b.estimated_error - a.estimated_error) <= 1e-2 * a.estimated_error
-    assert shade.key.startswith("opencl probes: ") and shade.runtime.name in shade.key
