@@ -71,6 +71,12 @@ roundings of the representative's record (position ``u·|p|``, radiance ``u``) a
 added; the shading arithmetic itself is the float error model's, the same for a
 representative as for any light. tests/model/test_light_tree.py holds the bound
 against the float64 reference's own contributions (hypothesis, random scenes).
+
+The cut (:func:`choose_cut`): per tile, the largest threshold τ on a grid whose cut
+(every topmost node with bound ≤ τ) has bounds summing to ≤ ε. :func:`threshold_cut`
+finds the same cut from the top down, bounding only the nodes above it and their
+children, which is what a large tree with a loose budget needs (65 535 nodes at
+relative 10⁻¹: 18× fewer seconds than the whole table; docs/bench.md).
 """
 
 from __future__ import annotations
@@ -313,22 +319,37 @@ class SpecularModel:
                    perspective=perspective)
 
 
+def _sum3(x):
+    """x[..., 0] + x[..., 1] + x[..., 2]: numpy's sum over a last axis of 3, in its order
+    and to the bit, without the reduction's per-row cost."""
+    return x[..., 0] + x[..., 1] + x[..., 2]
+
+
+def _max3(x):
+    """The largest of x[..., 0:3] (NaN if any is), as ``x.max(axis=-1)``."""
+    return np.maximum(np.maximum(x[..., 0], x[..., 1]), x[..., 2])
+
+
 def _interval_dot(alo, ahi, blo, bhi):
     """Bounds of a·b for a ∈ [alo, ahi], b ∈ [blo, bhi] (…, 3): (lo, hi)."""
-    c = np.stack([alo * blo, alo * bhi, ahi * blo, ahi * bhi])
-    return c.min(axis=0).sum(axis=-1), c.max(axis=0).sum(axis=-1)
+    p, q, r, s = alo * blo, alo * bhi, ahi * blo, ahi * bhi
+    lo = np.minimum(np.minimum(p, q), np.minimum(r, s))
+    hi = np.maximum(np.maximum(p, q), np.maximum(r, s))
+    return _sum3(lo), _sum3(hi)
 
 
 def _unit(x):
-    n = np.sqrt((x * x).sum(axis=-1, keepdims=True))
+    n = np.sqrt(_sum3(x * x))[..., None]
     with np.errstate(divide="ignore", invalid="ignore"):
         return x / n, n[..., 0]
 
 
 def _angle(a, b):
     """Angle between unit vectors (…, 3), from atan2 (accurate near 0 and π)."""
-    c = np.cross(a, b)
-    return np.arctan2(np.sqrt((c * c).sum(axis=-1)), (a * b).sum(axis=-1))
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0    # a × b
+    return np.arctan2(np.sqrt(c0 * c0 + c1 * c1 + c2 * c2), _sum3(a * b))
 
 
 def _cone(dirs_center, radius, dist):
@@ -346,7 +367,7 @@ def specular_cosine(tiles: TileBoxes, blo, bhi, spec: SpecularModel):
     T = len(tiles.lo)
     # normal cone: axis n0 the box's centre; cos α_n ≥ min over the box's corners of c·n0
     n0, _ = _unit(0.5 * (tiles.nlo + tiles.nhi))
-    corner = np.minimum(tiles.nlo * n0, tiles.nhi * n0).sum(axis=-1)
+    corner = _sum3(np.minimum(tiles.nlo * n0, tiles.nhi * n0))
     a_n = np.where(corner > 0, np.arccos(np.clip(corner, -1, 1)), np.pi)[:, None]
     ct, rt = 0.5 * (tiles.lo + tiles.hi), 0.5 * _unit(tiles.hi - tiles.lo)[1]
     cb, rb = 0.5 * (blo + bhi), 0.5 * _unit(bhi - blo)[1]
@@ -370,7 +391,7 @@ def specular_cosine(tiles: TileBoxes, blo, bhi, spec: SpecularModel):
             beta = np.where(gamma < np.pi, _angle(n0, h0) - a_n - d_h, -1.0)
         else:
             # r = 2n(n·u) − u, the reflection of u: moves by ≤ δu + 2δn
-            r0 = 2.0 * n0 * (n0 * u0).sum(axis=-1, keepdims=True) - u0
+            r0 = 2.0 * n0 * _sum3(n0 * u0)[..., None] - u0
             beta = _angle(r0, v0) - a_u - 2.0 * a_n - a_v
     beta = np.nan_to_num(beta, nan=-1.0)
     # + 1e-5: the kernel's cosine errs by a few u
@@ -379,26 +400,37 @@ def specular_cosine(tiles: TileBoxes, blo, bhi, spec: SpecularModel):
 
 
 def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
-                   origin, nodes: np.ndarray | None = None) -> np.ndarray:
+                   origin, nodes: np.ndarray | None = None, *, pairs: bool = False,
+                   parts: dict | None = None) -> np.ndarray:
     """(T, K) upper bounds of the error of using each internal node's representative
     for its lights, for any pixel and channel of each tile (see the module docstring);
     +inf where no bound holds, 0 for empty tiles. ``nodes``: a subset of the
-    internal nodes (their 0-based numbers), by default all."""
+    internal nodes (their 0-based numbers), by default all. ``pairs``: ``tiles`` and
+    ``nodes`` (P each) go together row by row, and the result is (P,): the same
+    numbers as the (T, K) form's at those pairs. ``parts``: a dict to receive the
+    terms, per channel (…, 3), for ``python -m clphong.tools.cut_floor --levels``: the
+    diffuse term and its three bounds (range, first and second order; the term is
+    their least; ``diffuse_second_F`` is the second order's Λ·F part), and, where the tiles have specular, the specular term (× S) and its
+    range and smooth (first or second order) bounds."""
     k = np.arange(tree.n_nodes) if nodes is None else np.asarray(nodes)
     o = np.asarray(origin, np.float64)
-    blo = (tree.lo[k] - o)[None]                     # (1, K, 3)
-    bhi = (tree.hi[k] - o)[None]
+    # a node's arrays face the tiles' (T, 1, …) as (1, K, …), or row by row as (P, 1, …)
+    side = (lambda x: x[:, None]) if pairs else (lambda x: x[None])
+    blo = side(tree.lo[k] - o)                       # (1, K, 3)
+    bhi = side(tree.hi[k] - o)
     # the tile boxes widened by the float32 rounding of the positions they hold
+    # (an empty tile's box is (+inf, −inf): NaN here, and its bound 0 below)
     pad = 4 * U * (np.abs(tiles.lo) + np.abs(tiles.hi)).max(axis=1, keepdims=True)
-    tlo = (tiles.lo - pad)[:, None]                  # (T, 1, 3)
-    thi = (tiles.hi + pad)[:, None]
+    with np.errstate(invalid="ignore"):
+        tlo = (tiles.lo - pad)[:, None]              # (T, 1, 3)
+        thi = (tiles.hi + pad)[:, None]
     empty = (tiles.lo > tiles.hi).any(axis=1)
     gap = np.maximum(blo - thi, 0) + np.maximum(tlo - bhi, 0)
-    d_lo = np.sqrt((gap * gap).sum(axis=-1))         # (T, K)
-    c0, c1, c2 = (tree.attenuation[k, i][None] for i in range(3))
+    d_lo = np.sqrt(_sum3(gap * gap))                 # (T, K)
+    c0, c1, c2 = (side(tree.attenuation[k, i]) for i in range(3))
     # a spot's cone factor t² (1 for a point light): t ≤ t⁺ over the box pair
     if (tree.cone[k, 3] > 0).any():
-        t_hi, smooth_t, slope = spot_factor_bounds(tree.cone[k], tlo, thi, blo, bhi)
+        t_hi, smooth_t, slope = spot_factor_bounds(side(tree.cone[k]), tlo, thi, blo, bhi)
     else:                                           # point lights only: t ≡ 1 (no cost)
         t_hi, smooth_t, slope = np.ones(1), np.ones(1, bool), np.zeros(1)
     t2 = t_hi * t_hi
@@ -412,19 +444,19 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
         # surely lit, only beyond it; n·u = n·(p − x)/d with d⁻ ≤ d ≤ d⁺
         nl_lo, nl_hi = _interval_dot(tiles.nlo[:, None], tiles.nhi[:, None], blo - thi, bhi - tlo)
         span = np.maximum(bhi, thi) - np.minimum(blo, tlo)
-        d_hi = np.sqrt((span * span).sum(axis=-1))
-        reach = (np.maximum(np.abs(tlo), np.abs(thi)).max(axis=-1)
-                 + np.maximum(np.abs(blo), np.abs(bhi)).max(axis=-1))
+        d_hi = np.sqrt(_sum3(span * span))
+        reach = (_max3(np.maximum(np.abs(tlo), np.abs(thi)))
+                 + _max3(np.maximum(np.abs(blo), np.abs(bhi))))
         margin = U * (12.0 + 2.0 * reach / d_lo)
         dark = nl_hi / d_hi + margin <= 0
         lit = nl_lo / d_hi - margin > 0              # the gate n·l > 0 surely on
         nu_hi = np.minimum(np.where(nl_hi > 0, nl_hi / d_lo, 0.0) + margin, 1.0)
-        Rk = tree.radiance[k][None]
+        Rk = side(tree.radiance[k])
         # the record's float32 roundings: position (u·|p|), added to the moments
-        rp = U * (np.abs(tree.position[k] - o).max(axis=1) + np.abs(o).max())[None, :, None]
-        M = tree.moment[k][None] + Rk * rp
-        F = tree.first[k][None] + Rk * rp
-        Q = tree.quadratic[k][None] + Rk * rp * (rp + 2 * tree.moment[k][None] / np.maximum(Rk, 1e-300))
+        rp = U * side(np.abs(tree.position[k] - o).max(axis=1) + np.abs(o).max())[..., None]
+        M = side(tree.moment[k]) + Rk * rp
+        F = side(tree.first[k]) + Rk * rp
+        Q = side(tree.quadratic[k]) + Rk * rp * (rp + 2 * side(tree.moment[k]) / np.maximum(Rk, 1e-300))
         # diffuse: both sums lie in [0, R·A(d⁻)·(n·u)⁺]; Lipschitz Λ_d = 3A/d; where
         # surely lit, Taylor to second order: |∇²| ≤ 15 A/d², the first-order term
         # |∇f(p_k)·Σ R_i (p_i − p_k)| ≤ 3A/d·F
@@ -442,14 +474,20 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
         e_two = grad[..., None] * F + 0.5 * hess[..., None] * Q
         smooth = (lit & smooth_t)[..., None]         # the second order: no kink in the pair
         e = D * np.fmin(np.fmin(e_rng, e_lip), np.where(smooth, e_two, np.inf))
+        if parts is not None:
+            parts.update(diffuse=e, diffuse_range=D * e_rng, diffuse_first=D * e_lip,
+                         diffuse_second=D * np.where(smooth, e_two, np.inf),
+                         diffuse_second_F=D * grad[..., None] * F)
         if tiles.S.any():
             e = e + S * _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q,
-                                        spec, spot=(t2, spot_lip, spot_hess, smooth_t))
+                                        spec, spot=(t2, spot_lip, spot_hess, smooth_t),
+                                        parts=parts, S=S)
         e = e + U * Rk * A_lo[..., None] * (D + S)
-        b = e.max(axis=-1) * (1 + 1e-6)
+        b = _max3(e) * (1 + 1e-6)
     b = np.where(np.isfinite(b) & (d_lo > 0), b, np.inf)
     b = np.where(dark, 0.0, b)
-    return np.where(empty[:, None], 0.0, b)
+    b = np.where(empty[:, None], 0.0, b)
+    return b[:, 0] if pairs else b
 
 
 def spot_factor_bounds(cone, tlo, thi, blo, bhi):
@@ -466,8 +504,9 @@ def spot_factor_bounds(cone, tlo, thi, blo, bhi):
     * the slope: s, or 0 where t ≡ 1.
 
     A point light's (s, o) = (0, 1) gives t⁺ = 1, smooth, slope 0."""
-    a = cone[None, :, :3]
-    s, o = cone[None, :, 3], cone[None, :, 4]
+    cone = cone[None] if cone.ndim == 2 else cone    # (K, 5), or already (…, 5) beside the boxes
+    a = cone[..., :3]
+    s, o = cone[..., 3], cone[..., 4]
     ct, rt = 0.5 * (tlo + thi), 0.5 * _unit(thi - tlo)[1]
     cb, rb = 0.5 * (blo + bhi), 0.5 * _unit(bhi - blo)[1]
     w0, dist = _unit(ct - cb)                          # (T, K, 3), (T, K)
@@ -500,7 +539,7 @@ def spot_factor_bounds(cone, tlo, thi, blo, bhi):
 
 
 def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spec, *,
-                    spot=(1.0, 0.0, 0.0, True)):
+                    spot=(1.0, 0.0, 0.0, True), parts=None, S=1.0):
     """(T, K, 3) bound of the specular error per unit S (see the module docstring):
     the range R·A(d⁻)·c^K everywhere; where surely lit, also the Lipschitz bound and
     the second-order Taylor bound, with the cosine x ≤ c (:func:`specular_cosine`):
@@ -510,11 +549,15 @@ def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spe
     and |∇²(P·A)| ≤ A·(K(K−1)c^(K−2)g² + K·c^(K−1)·η + 4K·c^(K−1)·g/d + 8c^K/d²)
     (K ≥ 2, and not with Blinn-Phong's Schlick weight). A spot's factor: ``spot`` = (t⁺²,
     bounds of |∇t²| and ‖∇²t²‖, smooth): the product rule on t²·P·A, the second order
-    only where t is smooth (:func:`spot_factor_bounds`)."""
+    only where t is smooth (:func:`spot_factor_bounds`). ``parts``: see
+    :func:`cluster_bounds` (its entries × ``S``)."""
     t2, spot_lip, spot_hess, smooth_t = spot
     K = spec.exponent
     if K is None or K < 1:                           # a shininess map, or x^K not Lipschitz
-        return Rk * (A_lo * t2)[..., None]
+        out = Rk * (A_lo * t2)[..., None]
+        if parts is not None:
+            parts.update(specular=S * out, specular_range=S * out, specular_smooth=S * np.inf)
+        return out
     c = specular_cosine(tiles, blo, bhi, spec)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         cK = c ** K
@@ -546,7 +589,11 @@ def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spe
             e_two = grad_t[..., None] * F + 0.5 * hess_t[..., None] * Q
             e_lip = np.fmin(e_lip, np.where(np.broadcast_to(smooth_t, A_lo.shape)[..., None],
                                             e_two, np.inf))
-        return np.where(lit[..., None], np.fmin(e_lip, rng), rng)
+        out = np.where(lit[..., None], np.fmin(e_lip, rng), rng)
+        if parts is not None:
+            parts.update(specular=S * out, specular_range=S * rng,
+                         specular_smooth=S * np.where(lit[..., None], e_lip, np.inf))
+        return out
 
 
 def _peak(c, a, b):
@@ -563,7 +610,7 @@ def _view_dot_lower(tiles, blo, bhi, thi, tlo, d_lo, spec):
         vlo, vhi = e - thi, e - tlo                  # e − x
         num_lo, _ = _interval_dot(blo - thi, bhi - tlo, vlo, vhi)
         far = (np.maximum(vlo, 0) + np.maximum(-vhi, 0))   # distance from the eye to the box
-        de_lo = np.sqrt((far * far).sum(axis=-1))
+        de_lo = np.sqrt(_sum3(far * far))
         den = d_lo * de_lo
     else:
         v = np.asarray(spec.eye, np.float64)
@@ -609,7 +656,12 @@ def choose_cut(tree: LightTree, bounds: np.ndarray, budget: float, *, steps: int
     best = np.where(fits.any(axis=1), steps - 1 - np.argmax(fits[:, ::-1], axis=1), -1)
     tau = np.where(best >= 0, grid[np.maximum(best, 0)], -np.inf)[:, None]
     used = (bounds <= tau) & (tau < a)
-    covered = np.zeros((T, tree.n_leaves), bool)
+    return used, covered_leaves(tree, used)
+
+
+def covered_leaves(tree: LightTree, used: np.ndarray) -> np.ndarray:
+    """(T, n_leaves) bool: the leaves under a used node (``used`` (T, K))."""
+    covered = np.zeros((len(used), tree.n_leaves), bool)
     # leaves under a used node: push "covered" down the levels
     cov_inner = used.copy()
     for lv in tree.levels:
@@ -619,4 +671,97 @@ def choose_cut(tree: LightTree, bounds: np.ndarray, budget: float, *, steps: int
             inner = c >= tree.n_leaves
             cov_inner[:, c[inner] - tree.n_leaves] |= cov_inner[:, lv[inner]]
             covered[:, c[~inner]] |= cov_inner[:, lv[~inner]]
-    return used, covered
+    return covered
+
+
+#: Most tile-node pairs bounded at once by :func:`threshold_cut`: its float64
+#: temporaries (3 numbers a pair) stay in cache; 2¹⁴ pairs at a time took 0.79 s where
+#: (40, 16 383) pairs at once took 1.45 s (Ice Lake, 2 cores), the same bits.
+PAIR_CHUNK = 1 << 14
+
+
+def threshold_cut(tree: LightTree, bound, n_tiles: int, budget: float, *, steps: int = 96,
+                  stride: int = 8):
+    """:func:`choose_cut`'s cut, found from the top down: only the nodes whose ancestors'
+    bounds all exceed the threshold are bounded.
+
+    ``bound(t, k)`` gives the (P,) bounds of tile rows ``t`` with internal nodes ``k``
+    (0-based), as :func:`cluster_bounds` with ``pairs=True`` does. The thresholds are
+    choose_cut's, τ_m = ``budget``·2^(−m/4). A threshold's cut is every topmost node
+    with bound ≤ τ, so lowering τ only splits nodes, and every node of the cut of any
+    τ ≥ τ_m has been bounded once the cut of τ_m has. So the search lowers τ by
+    ``stride`` thresholds at a time (or more: to the next one that splits a node) until
+    a cut's bounds sum to ≤ ``budget``; then the sums of every threshold above it come
+    from the nodes already bounded, as choose_cut forms them, and the largest that
+    fits is taken: choose_cut's own choice on the whole (T, K) table.
+
+    Returns (used (T, K) bool, covered (T, n_leaves) bool), as choose_cut.
+    """
+    grid = budget * 2.0 ** (-np.arange(steps)[::-1] / 4.0)     # ascending
+    limit = budget * (1 - 1e-9)
+    nl = tree.n_leaves
+
+    def bounded(t, k):
+        if len(t) <= PAIR_CHUNK:
+            return np.asarray(bound(t, k), np.float64)
+        return np.concatenate([np.asarray(bound(t[i:i + PAIR_CHUNK], k[i:i + PAIR_CHUNK]),
+                                          np.float64) for i in range(0, len(t), PAIR_CHUNK)])
+
+    # the nodes bounded and not split: tile, node, bound, the least bound of its ancestors;
+    # the split ones wait in ``done`` for the sums at the end
+    roots = np.asarray(tree.levels[0])
+    ct = np.repeat(np.arange(n_tiles), roots.size)
+    ck = np.tile(roots, n_tiles)
+    cb = bounded(ct, ck)
+    ca = np.full(cb.shape, np.inf)
+    done = []
+    m = np.full(n_tiles, steps - 1)
+    searching = np.ones(n_tiles, bool)
+    fitted = np.zeros(n_tiles, bool)
+    while searching.any():
+        tau = grid[np.maximum(m, 0)]
+        grow = searching[ct] & (cb > tau[ct])             # +inf (no bound) always splits
+        if grow.any():
+            gt, gk, gb, ga = ct[grow], ck[grow], cb[grow], ca[grow]
+            done.append((gt, gk, gb, ga))
+            kids = tree.children[gk] - nl                  # (S, 2): < 0 for leaves (exact)
+            kt = np.repeat(gt, 2)
+            ka = np.repeat(np.minimum(ga, gb), 2)
+            kk = kids.ravel()
+            inner = kk >= 0
+            kt, kk, ka = kt[inner], kk[inner], ka[inner]
+            keep = ~grow
+            ct = np.concatenate([ct[keep], kt])
+            ck = np.concatenate([ck[keep], kk])
+            ca = np.concatenate([ca[keep], ka])
+            cb = np.concatenate([cb[keep], bounded(kt, kk)])
+            continue
+        total = np.bincount(ct, weights=cb, minlength=n_tiles)
+        fits = searching & (total <= limit)
+        fitted |= fits
+        searching &= ~fits
+        # the next thresholds: ``stride`` down, or further, to the next that splits a node
+        top = np.full(n_tiles, -np.inf)
+        np.maximum.at(top, ct, cb)
+        nxt = np.searchsorted(grid, top, side="left") - 1
+        m = np.where(searching, np.minimum(m - stride, nxt), m)
+        searching &= m >= 0                               # none fits: no cluster at all
+    et, ek, eb, ea = (np.concatenate([d[i] for d in done] + [c])
+                      for i, c in enumerate((ct, ck, cb, ca)))
+    # choose_cut's sums over the thresholds from each fitting tile's m up: node e is in the
+    # cut of τ for b_e ≤ τ < a_e
+    i_lo = np.searchsorted(grid, eb, side="left")
+    i_hi = np.searchsorted(grid, ea, side="left")
+    on = fitted[et] & (i_lo < i_hi)
+    sums = np.zeros((n_tiles, steps + 1))
+    np.add.at(sums, (et[on], i_lo[on]), eb[on])
+    np.add.at(sums, (et[on], i_hi[on]), -eb[on])
+    S = np.cumsum(sums, axis=1)[:, :steps]
+    ok = (S <= limit) & (np.arange(steps)[None, :] >= m[:, None])
+    ok[np.flatnonzero(fitted), m[fitted]] = True         # fitted there (a direct sum)
+    best = steps - 1 - np.argmax(ok[:, ::-1], axis=1)
+    tau = np.where(fitted, grid[best], -np.inf)
+    pick = fitted[et] & (eb <= tau[et]) & (tau[et] < ea)
+    used = np.zeros((n_tiles, tree.n_nodes), bool)
+    used[et[pick], ek[pick]] = True
+    return used, covered_leaves(tree, used)

@@ -162,6 +162,104 @@ def _entries(tree, used, covered, n_lights):
     return int(used.sum()) + n_lights - int(covered.sum())
 
 
+def node_errors(tree, arrays, px, D, S, j: int) -> np.ndarray:
+    """(K, 3) each internal node's true error at sample pixel ``j``: |Σ of its lights'
+    contributions − its representative's|, float64 (the reference's shading)."""
+    one = reference.Pixels(p=px.p[j:j + 1], n=px.n[j:j + 1], v=px.v[j:j + 1],
+                           k=px.k[j:j + 1], blinn=px.blinn, specular=px.specular)
+    leaves = light_contributions(one, D[j:j + 1], S[j:j + 1], arrays["point_position"],
+                                 arrays["point_radiance"], arrays["point_attenuation"])[:, 0]
+    reps = light_contributions(one, D[j:j + 1], S[j:j + 1], tree.position, tree.radiance,
+                               tree.attenuation)[:, 0]
+    sums = np.zeros_like(reps)
+    for lv in reversed(tree.levels):              # deepest first: children before parents
+        for side in (0, 1):
+            c = tree.children[lv, side]
+            inner = c >= tree.n_leaves
+            sums[lv[~inner]] += leaves[c[~inner]]
+            sums[lv[inner]] += sums[c[inner] - tree.n_leaves]
+    return np.abs(sums - reps)
+
+
+#: cluster_bounds' terms, in the order :func:`level_slack` reports their shares.
+TERMS = ("diffuse_range", "diffuse_first", "diffuse_second", "specular_range",
+         "specular_smooth")
+
+
+def level_slack(scene, gbuffer, n_pixels: int, seed: int = 0) -> list[dict]:
+    """Per depth of the scene's light tree, the proven bound (one-pixel tiles) against
+    each node's true error at sample pixels: the median and 10th percentile of bound /
+    error, and which term sets the bound. At a node's worst channel, the bound is the
+    diffuse term plus the specular term (plus rounding); each is the least of its
+    bounds, and a row gives how often each bound is the one taken: the diffuse
+    term's range (R·A(d⁻)·(n·u)⁺), first order (Λ·M) or second order (Λ·F + ½H·Q);
+    the specular term's range or smooth (first or second order) bound, counted
+    where the specular term is the larger; and, where the diffuse second order sets
+    it, the median share of its first-moment part Λ·F (F = |Σ R_i (p_i − p_k)|, 0
+    for lights of one colour) against its curvature part ½H·Q."""
+    tree = build_light_tree(scene.light_arrays)
+    if tree is None:
+        raise ValueError("the scene has too few clusterable point lights for a tree")
+    a = scene.light_arrays
+    spec = SpecularModel.of_scene(scene)
+    fg = np.flatnonzero(~gbuffer.background_mask().reshape(-1))
+    rng = np.random.default_rng(seed)
+    idx = rng.choice(fg, size=min(n_pixels, len(fg)), replace=False)
+    px, D, S = _pixels_of(scene, gbuffer, idx)
+    w = gbuffer.shape[1]
+    depth = np.zeros(tree.n_nodes, np.int64)
+    for d, lv in enumerate(tree.levels):
+        depth[lv] = d
+    rows = {d: {"ratio": [], "error": [], "bound": [], "F": [], "spec": 0, **{t: 0 for t in TERMS}}
+            for d in range(len(tree.levels))}
+    for j, flat in enumerate(idx):
+        err = node_errors(tree, a, px, D, S, j)                    # (K, 3)
+        y, x = divmod(int(flat), w)
+        parts = {}
+        b = cluster_bounds(tree, _tile_boxes(scene, gbuffer, y, x, 1), spec, np.zeros(3),
+                           parts=parts)[0]
+        c = err.argmax(axis=1)                                     # the worst channel
+        k = np.arange(tree.n_nodes)
+        e = err[k, c]
+        ok = (e > 0) & np.isfinite(b) & (b > 0)
+        at = {name: np.broadcast_to(v, (1, tree.n_nodes, 3))[0, k, c] for name, v in parts.items()}
+        dif = at["diffuse"]
+        spc = at.get("specular", np.zeros(tree.n_nodes))
+        dterm = np.argmin(np.stack([at["diffuse_range"], at["diffuse_first"],
+                                    at["diffuse_second"]]), axis=0)
+        sterm = (np.argmin(np.stack([at["specular_range"], at["specular_smooth"]]), axis=0)
+                 if "specular" in at else np.zeros(tree.n_nodes, np.int64))
+        m2 = ok & (dterm == 2) & (spc <= dif)           # the second order sets it
+        fshare = np.where(m2, at["diffuse_second_F"] / np.where(m2, at["diffuse_second"],
+                                                                    1.0), np.nan)
+        for d, row in rows.items():
+            m = ok & (depth == d)
+            row["F"].append(fshare[m & m2])
+            row["ratio"].append(b[m] / e[m])
+            row["error"].append(e[m])
+            row["bound"].append(b[m])
+            sp = m & (spc > dif)
+            row["spec"] += int(sp.sum())
+            for i, t in enumerate(TERMS[:3]):
+                row[t] += int((m & ~sp & (dterm == i)).sum())
+            for i, t in enumerate(TERMS[3:]):
+                row[t] += int((sp & (sterm == i)).sum())
+    out = []
+    for d, row in rows.items():
+        r = np.concatenate(row["ratio"])
+        if r.size == 0:
+            continue
+        out.append({"depth": d, "nodes": len(tree.levels[d]), "pairs": int(r.size),
+                    "error": float(np.median(np.concatenate(row["error"]))),
+                    "bound": float(np.median(np.concatenate(row["bound"]))),
+                    "slack": float(np.median(r)), "slack_p10": float(np.percentile(r, 10)),
+                    "specular_share": row["spec"] / r.size,
+                    "first_moment_share": (float(np.median(np.concatenate(row["F"])))
+                                           if sum(len(x) for x in row["F"]) else None),
+                    **{t: row[t] / r.size for t in TERMS}})
+    return out
+
+
 def bound_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, tiles=(1, 16, 128), seed: int = 0):
     """{(what, ε): [list entries per sample pixel]} of the threshold cut
     (:func:`clphong.model.light_tree.choose_cut`) of the scene's light tree: ``what``
@@ -182,20 +280,7 @@ def bound_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, tiles=(1, 16, 128),
     h, w = gbuffer.shape
     out = {}
     for j, flat in enumerate(idx):
-        one = reference.Pixels(p=px.p[j:j + 1], n=px.n[j:j + 1], v=px.v[j:j + 1],
-                               k=px.k[j:j + 1], blinn=px.blinn, specular=px.specular)
-        leaves = light_contributions(one, D[j:j + 1], S[j:j + 1], a["point_position"],
-                                     a["point_radiance"], a["point_attenuation"])[:, 0]
-        reps = light_contributions(one, D[j:j + 1], S[j:j + 1], tree.position, tree.radiance,
-                                   tree.attenuation)[:, 0]
-        sums = np.zeros_like(reps)
-        for lv in reversed(tree.levels):              # deepest first: children before parents
-            for side in (0, 1):
-                c = tree.children[lv, side]
-                inner = c >= tree.n_leaves
-                sums[lv[~inner]] += leaves[c[~inner]]
-                sums[lv[inner]] += sums[c[inner] - tree.n_leaves]
-        exact = np.abs(sums - reps).max(axis=1)[None]
+        exact = node_errors(tree, a, px, D, S, j).max(axis=1)[None]
         y, x = divmod(int(flat), w)
         for e in eps_list:
             out.setdefault(("exact", e), []).append(_entries(tree, *choose_cut(tree, exact, e), n))
@@ -216,8 +301,24 @@ def main(argv=None) -> int:
     p.add_argument("--bound", action="store_true",
                    help="also the threshold cut of the light tree itself: with the true errors, "
                         "and with the proven bound on tiles of 1, 16 and 128 pixels")
+    p.add_argument("--levels", action="store_true",
+                   help="only the bound against the true error per depth of the tree, and "
+                        "the terms that set it (level_slack)")
     args = p.parse_args(argv)
     eps = [float(x) for x in args.eps.split(",")]
+    if args.levels:
+        got = level_slack(bench_scene(args.scene, args.lights), bench_gbuffer(1920, 1080),
+                          args.pixels)
+        heads = ["depth", "nodes", "pairs", "median error", "median bound", "bound / error",
+                 "10th pct", "specular sets it", "d: range", "d: 1st", "d: 2nd", "s: range",
+                 "s: smooth", "Λ·F of d: 2nd"]
+        print(markdown_table(heads, [
+            [r["depth"], r["nodes"], r["pairs"], f"{r['error']:.2g}", f"{r['bound']:.2g}",
+             f"{r['slack']:.3g}", f"{r['slack_p10']:.3g}", f"{r['specular_share']:.0%}"]
+            + [f"{r[t]:.0%}" for t in TERMS]
+            + ["–" if r["first_moment_share"] is None else f"{r['first_moment_share']:.0%}"]
+            for r in got]))
+        return 0
     if args.bound:
         scene = bench_scene(args.scene, args.lights)
         got = bound_cut_sizes(scene, bench_gbuffer(1920, 1080), eps, args.pixels)

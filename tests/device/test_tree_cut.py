@@ -319,3 +319,32 @@ def test_representatives_are_marked_out_of_the_floor():
     flag = packed.reshape(-1, culling.CULL_RECORD, 4)[:, 4, 2]
     assert np.array_equal(flag == 1, layout.representative)
     assert layout.representative.sum() == tree.n_nodes
+
+
+@pytest.mark.parametrize("case", ["groups-absolute", "groups-relative", "spots"])
+def test_the_top_down_cut_lists_what_the_whole_table_lists(case, monkeypatch):
+    """Large trees are cut from the top down (culling.TOP_DOWN_NODES), small ones from their
+    whole table of bounds: the two give the same lists and the same pixels, with light
+    groups' own floors and with spots' cones."""
+    rng = np.random.default_rng(9)
+    if case == "spots":
+        scene = make_scene(spot_rig(rng, inner=60.0, outer=75.0), model="phong", k_s=0.05,
+                           h=16.0, camera=dict(type="perspective", position=(2.0, 1.5, 8.0)))
+        eps, relative = 1e-2, False
+        gb = heightfield(rng, 64, 96, bumps=0.1)
+    else:
+        relative = case == "groups-relative"
+        scene = grouped(clustered_scene(rng, grey=False), fill=1e-3 if relative else 1.0)
+        eps = 1e-1 if relative else 3e-2
+        gb = heightfield(rng, 40, 48, bumps=0.1)
+    got = []
+    for nodes in (0, 1 << 60):
+        monkeypatch.setattr(culling, "TOP_DOWN_NODES", nodes)
+        r = Renderer(scene, max_error=eps, relative=relative, light_tree="always")
+        result = r.shade(prepare_frame(gb, lanes=r.lanes))
+        assert result.cull is not None and result.cull.clusters > 0
+        got.append((result.image, read_tile_lists(r.runtime, result.cull), result.cull.clusters))
+    (a, la, ca), (b, lb, cb) = got
+    assert ca == cb
+    assert all(np.array_equal(x, y) for x, y in zip(la, lb, strict=True))
+    assert np.array_equal(a, b)

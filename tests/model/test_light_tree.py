@@ -25,6 +25,7 @@ from clphong.model.light_tree import (
     cluster_bounds,
     clusterable_classes,
     spot_factor_bounds,
+    threshold_cut,
 )
 from clphong.reference import shading as reference
 from clphong.tools.hardcases import make_gbuffer, make_scene
@@ -269,6 +270,73 @@ def axis_on_ramp(dist, inner, outer, at=0.5):
     q /= np.linalg.norm(q)
     theta = np.radians(inner + at * (outer - inner))
     return tuple(np.cos(theta) * w + np.sin(theta) * q)
+
+
+@pytest.mark.parametrize("budget", [1e-4, 1e-2, 1.0])
+@pytest.mark.parametrize("seed", range(4))
+def test_the_top_down_cut_is_the_whole_tables_cut(budget, seed):
+    """threshold_cut bounds nodes only as it needs them, and finds choose_cut's cut:
+    on arbitrary bound tables (not monotone down the tree), with zeros, +inf and
+    tiles where nothing fits."""
+    rng = np.random.default_rng(seed)
+    scene = make_scene(clustered_lights(rng, 300, centre=(0, 0, 8), spread=1.0)
+                       + clustered_lights(rng, 100, centre=(4, 0, 8), spread=0.5,
+                                          att=(1.0, 0.1, 0.0)))
+    tree = build_light_tree(scene.light_arrays)
+    T = 6
+    b = rng.exponential(budget, (T, tree.n_nodes)) * rng.choice([0.1, 1, 10], (T, tree.n_nodes))
+    b[rng.random(b.shape) < 0.05] = 0.0
+    b[rng.random(b.shape) < 0.02] = np.inf
+    b[T - 1] = 2.0 * budget                       # no node fits: no cut
+    asked = []
+
+    def bound(t, k):
+        asked.append(len(t))
+        return b[t, k]
+
+    used, covered = threshold_cut(tree, bound, T, budget)
+    want_used, want_covered = choose_cut(tree, b, budget)
+    assert np.array_equal(used, want_used)
+    assert np.array_equal(covered, want_covered)
+    assert not used[T - 1].any()
+
+
+def test_the_top_down_cut_bounds_few_nodes_on_a_real_tile():
+    """On a real tile and tree the pairs form is the table's, pair by pair, and the top-down
+    cut asks for a small part of the table to find the same cut."""
+    rng = np.random.default_rng(11)
+    scene = make_scene(clustered_lights(rng, 1000, centre=(0.0, 0.0, 12.0), spread=3.0)
+                       + clustered_lights(rng, 500, centre=(6.0, 2.0, 9.0), spread=1.0))
+    tree = build_light_tree(scene.light_arrays)
+    tiles = []
+    for c in [(0.5, -0.3, 0.0), (-2.0, 1.0, 0.5), (3.0, 3.0, -0.5)]:
+        P, N = patch(rng, centre=c, size=0.2, tilt=0.3)
+        C = rng.uniform(0.1, 1.0, (len(P), 3))
+        gb = make_gbuffer(P.reshape(1, -1, 3), N.reshape(1, -1, 3), C.reshape(1, -1, 3))
+        px, _, D, S, _ = reference._inputs(scene, gb)
+        tiles.append(TileBoxes.of_pixels(px.p, px.n, D, S))
+    boxes = TileBoxes(*(np.concatenate([getattr(t, f) for t in tiles])
+                        for f in ("lo", "hi", "nlo", "nhi", "D", "S")))
+    spec = SpecularModel.of_scene(scene)
+    table = cluster_bounds(tree, boxes, spec, np.zeros(3))
+    asked = [0]
+
+    def bound(t, k):
+        asked[0] += len(t)
+        part = TileBoxes(*(getattr(boxes, f)[t] for f in ("lo", "hi", "nlo", "nhi", "D", "S")))
+        got = cluster_bounds(tree, part, spec, np.zeros(3), k, pairs=True)
+        np.testing.assert_array_equal(got, table[t, k])
+        return got
+
+    # budgets from a cut of about 300 clusters to one of about 40 (the table's bounds run
+    # from 6e-4 to 1e3; a tile's sum is about 5e3)
+    for budget in (30.0, 100.0, 300.0):
+        used, covered = threshold_cut(tree, bound, 3, budget)
+        want = choose_cut(tree, table, budget)
+        assert np.array_equal(used, want[0]) and np.array_equal(covered, want[1])
+        assert used.any()
+    # the nodes above the cut, and the subtrees of the lights it leaves, are bounded
+    assert asked[0] < 0.5 * 3 * table.size, (asked[0], table.size)
 
 
 @pytest.mark.parametrize("grey", [True, False], ids=["grey", "coloured"])
