@@ -88,7 +88,8 @@ TREE_SHARE = 0.5
 TREE_CHUNK = 64
 #: Trees of at least this many internal nodes are cut from the top down
 #: (:func:`~clphong.model.light_tree.threshold_cut`), smaller ones from their whole
-#: table of bounds; the same cut either way. Measured on the bench at 1080p (Ice Lake,
+#: table of bounds; the same cut either way (but where a sum lies within rounding of
+#: the budget: threshold_cut's docstring). Measured on the bench at 1080p (Ice Lake,
 #: 2 cores; 40 super-tiles), top down against the whole table: 65 535 nodes, relative
 #: 10⁻¹ 0.17 / 3.16 s, relative 10⁻² 0.94 / 3.16 s; 16 383 nodes, relative 10⁻² 0.44 /
 #: 0.62 s, absolute 10⁻³ 0.63 / 0.53 s; 4 095 nodes 0.18–0.19 / 0.11 s. Where the cut

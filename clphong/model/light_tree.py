@@ -693,19 +693,26 @@ def threshold_cut(tree: LightTree, bound, n_tiles: int, budget: float, *, steps:
     ``stride`` thresholds at a time (or more: to the next one that splits a node) until
     a cut's bounds sum to ≤ ``budget``; then the sums of every threshold above it come
     from the nodes already bounded, as choose_cut forms them, and the largest that
-    fits is taken: choose_cut's own choice on the whole (T, K) table.
+    fits is taken: choose_cut's own choice on the whole (T, K) table. (Its sums run over
+    the deeper nodes too, in another order: where a cut's sum lies within a few
+    roundings of the budget the two may choose neighbouring thresholds, each within the
+    budget. A NaN bound counts as +inf, no bound, where choose_cut drops its subtree.)
 
     Returns (used (T, K) bool, covered (T, n_leaves) bool), as choose_cut.
     """
+    if stride < 1:
+        raise ValueError(f"stride must be >= 1, not {stride}")
     grid = budget * 2.0 ** (-np.arange(steps)[::-1] / 4.0)     # ascending
     limit = budget * (1 - 1e-9)
     nl = tree.n_leaves
 
     def bounded(t, k):
         if len(t) <= PAIR_CHUNK:
-            return np.asarray(bound(t, k), np.float64)
-        return np.concatenate([np.asarray(bound(t[i:i + PAIR_CHUNK], k[i:i + PAIR_CHUNK]),
-                                          np.float64) for i in range(0, len(t), PAIR_CHUNK)])
+            b = np.asarray(bound(t, k), np.float64)
+        else:
+            b = np.concatenate([np.asarray(bound(t[i:i + PAIR_CHUNK], k[i:i + PAIR_CHUNK]),
+                                           np.float64) for i in range(0, len(t), PAIR_CHUNK)])
+        return np.where(np.isnan(b), np.inf, b)
 
     # the nodes bounded and not split: tile, node, bound, the least bound of its ancestors;
     # the split ones wait in ``done`` for the sums at the end
@@ -744,7 +751,8 @@ def threshold_cut(tree: LightTree, bound, n_tiles: int, budget: float, *, steps:
         top = np.full(n_tiles, -np.inf)
         np.maximum.at(top, ct, cb)
         nxt = np.searchsorted(grid, top, side="left") - 1
-        m = np.where(searching, np.minimum(m - stride, nxt), m)
+        # (never past the lowest threshold: a cut that still changes is tried there)
+        m = np.where(searching, np.minimum(np.maximum(m - stride, 0), nxt), m)
         searching &= m >= 0                               # none fits: no cluster at all
     et, ek, eb, ea = (np.concatenate([d[i] for d in done] + [c])
                       for i, c in enumerate((ct, ck, cb, ca)))

@@ -294,11 +294,34 @@ def test_the_top_down_cut_is_the_whole_tables_cut(budget, seed):
         asked.append(len(t))
         return b[t, k]
 
-    used, covered = threshold_cut(tree, bound, T, budget)
-    want_used, want_covered = choose_cut(tree, b, budget)
-    assert np.array_equal(used, want_used)
-    assert np.array_equal(covered, want_covered)
-    assert not used[T - 1].any()
+    for stride in (1, 8):
+        used, covered = threshold_cut(tree, bound, T, budget, stride=stride)
+        want_used, want_covered = choose_cut(tree, b, budget)
+        assert np.array_equal(used, want_used)
+        assert np.array_equal(covered, want_covered)
+        assert not used[T - 1].any()
+
+
+def test_the_top_down_cut_tries_the_lowest_thresholds():
+    """A cut that fits only low on the grid is found, whatever the stride (a search that
+    stepped past the bottom would take none). 16 thresholds, 1·2^(−m/4): depth-2 nodes
+    bound 0.3 split below τ = 0.3; depth-3 nodes 0.2 each sum past the budget until
+    τ < 0.2 splits them, and the deeper nodes fit."""
+    rng = np.random.default_rng(5)
+    tree = build_light_tree(make_scene(clustered_lights(rng, 200, centre=(0, 0, 8),
+                                                        spread=1.0)).light_arrays)
+    depth = np.zeros(tree.n_nodes, int)
+    for d, lv in enumerate(tree.levels):
+        depth[lv] = d
+    b = np.full((1, tree.n_nodes), 1e-6)
+    b[0, depth < 2] = np.inf
+    b[0, depth == 2] = 0.3
+    b[0, depth == 3] = 0.2
+    want = choose_cut(tree, b, 1.0, steps=16)
+    assert want[0].any() and not want[0][0, depth <= 3].any()
+    for stride in (1, 3, 8, 20):
+        got = threshold_cut(tree, lambda t, k: b[t, k], 1, 1.0, steps=16, stride=stride)
+        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1]), stride
 
 
 def test_the_top_down_cut_bounds_few_nodes_on_a_real_tile():
