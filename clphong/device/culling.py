@@ -602,11 +602,10 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
                 b = np.where(share > 0, b / np.where(share > 0, share, 1.0) * (1 + 1e-12), np.inf)
         return b
 
+    limit = 1.0 if budget_.ndim else float(budget)     # the bounds' units
     new_lists, clusters, covered_n = [], 0, 0
     for s0 in range(0, n_super, TREE_CHUNK):
         s1 = min(s0 + TREE_CHUNK, n_super)
-
-        limit = 1.0 if np.ndim(budget) else budget
         if tree.n_nodes >= TOP_DOWN_NODES:
             # the same cut, bounding only the nodes it needs
             used, covered = threshold_cut(

@@ -410,8 +410,9 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
     numbers as the (T, K) form's at those pairs. ``parts``: a dict to receive the
     terms, per channel (…, 3), for ``python -m clphong.tools.cut_floor --levels``: the
     diffuse term and its three bounds (range, first and second order; the term is
-    their least; ``diffuse_second_F`` is the second order's Λ·F part), and, where the tiles have specular, the specular term (× S) and its
-    range and smooth (first or second order) bounds."""
+    their least; ``diffuse_second_F`` is the second order's Λ·F part), and, where the
+    tiles have specular, the specular term (× S) and its range and smooth (first or
+    second order) bounds."""
     k = np.arange(tree.n_nodes) if nodes is None else np.asarray(nodes)
     o = np.asarray(origin, np.float64)
     # a node's arrays face the tiles' (T, 1, …) as (1, K, …), or row by row as (P, 1, …)
