@@ -83,6 +83,20 @@ TREE_ABOVE = 0.25
 #: TREE_ABOVE): the clustered bench scene, 4096 lights at ε = 10⁻², keeps 45 % of
 #: the lights with 1/4, 33 % with 1/2.
 TREE_SHARE = 0.5
+#: Where a tree is given, the tiles' pass without it runs first on a sample of the
+#: super-tiles: one in PROBE_EVERY, rounded up (evenly spread over those with shaded
+#: tiles; all where there is one). Where the sample keeps more than TREE_ABOVE the
+#: tree goes first, and the whole pass runs only if the tree's lists keep more than
+#: 1/PROBE_MARGIN of what the sample foretells for the whole pass; then the shorter
+#: lists win, as without a sample. That pass, over ~65 536 candidates a tile, was a
+#: quarter of the `clusters` frame at 65 536 lights (relative 10⁻², Ice Lake: the tree
+#: kept 1/15 of it) and was thrown away; the sample costs an eighth of it.
+PROBE_EVERY = 8
+#: How much shorter than the sample's forecast the tree's lists must be to be taken
+#: without the whole pass. One middle super-tile of six foretold 1.31x the whole pass
+#: (tests/device/test_bands.py's frame, 400 lights: 47.8 % kept against 36.5 %), and
+#: there the pass without the tree wins; the choice changes only speed, never the bound.
+PROBE_MARGIN = 2.0
 #: Super-tiles per chunk of the host's cut (its tables are (chunk, nodes) bool; the
 #: bounds are formed PAIR_CHUNK pairs at a time, clphong.model.light_tree).
 TREE_CHUNK = 64
@@ -507,12 +521,27 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                            tiles_x=tiles_x, tiles_y=tiles_y, lanes=lanes,
                            candidates=(crb, lists_), super_tiles=super_x * super_y, floor=floor_)
 
-    fine = fine_level(c_ranges, c_lists, lb, n_point, budget - coarse_budget)
+    def plain():
+        return fine_level(c_ranges, c_lists, lb, n_point, budget - coarse_budget)
+
     spent = 0.0
+    fine, probe, share, took_tree = None, None, None, False
+    if tree is None or budget <= 0:
+        fine = plain()
+    else:
+        probe = _probe(c_ranges, shaded, tiles_x=tiles_x, sup=sup, super_x=super_x)
+        if probe is None:                 # the sample is every super-tile: the whole pass
+            fine = plain()
+            share = None if fine is None else fine[2] / max(active * n_point, 1)
+        else:
+            p_ranges, p_active = probe
+            sample = fine_level(p_ranges, c_lists, lb, n_point, budget - coarse_budget)
+            share = None if sample is None else sample[2] / max(p_active * n_point, 1)
+            spent += 0.0 if sample is None else sample[3]
     # The light tree where culling alone keeps much (TREE_ABOVE of the lights on
     # average, or lists too long): the tiles cull again from the super-tiles' cuts,
     # and the shorter lists win. Elsewhere nothing changes (nor is the tree built).
-    if tree is not None and budget > 0 and (fine is None or fine[2] > TREE_ABOVE * active * n_point):
+    if tree is not None and budget > 0 and (share is None or share > TREE_ABOVE):
         # relative: each super-tile's share is ε·TREE_SHARE times its floor
         tree_budget = budget * TREE_SHARE * (1.0 if c_floors is None else c_floors)
         cut = _tree_cut(runtime, tree, coarse_tiles, c_ranges, c_lists, point_records, n_point,
@@ -527,6 +556,11 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                          else relative.floor_args(ctx, point_end=layout.point_end))
             with_tree = fine_level(t_ranges, t_lists, lb_ext, n_ext,
                                    budget - coarse_budget - budget * TREE_SHARE, floor_ext)
+            # only the sample ran: the whole pass too where the tree's lists are not
+            # shorter than the sample foretells
+            if probe is not None and (with_tree is None or share is None or with_tree[2]
+                                      * PROBE_MARGIN > share * active * n_point):
+                probe, fine = None, plain()
             if with_tree is not None and (fine is None or with_tree[2] < fine[2]):
                 if fine is not None:
                     spent += fine[3]                 # the pass without the tree, not used
@@ -537,8 +571,11 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                              point_end=None if tree.point_end is None else layout.point_end,
                              covered=covered, tree_seconds=tree_s, tree_nodes=t.n_nodes,
                              tree_lights=t.clusterable, tree_build_seconds=t.seconds)
+                took_tree = True
             else:
                 spent += tree_s + (with_tree[3] if with_tree is not None else 0.0)
+    if probe is not None and not took_tree:
+        fine = plain()
     if fine is None:
         return None
     ranges, lists, kept, seconds, floors = fine
@@ -546,6 +583,24 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
     return TileLists(ranges=rb, lights=lists, width=w, tiles_x=tiles_x, n_tiles=tiles_x * tiles_y,
                      kept=kept, n_point=n_point, seconds=c_seconds + seconds + spent,
                      active_tiles=active, floors=floors, **extra)
+
+
+def _probe(c_ranges, shaded, *, tiles_x, sup, super_x):
+    """The sample of super-tiles the tiles' pass without the tree runs on first
+    (:data:`PROBE_EVERY`): their ranges, the others' emptied, and how many tiles with
+    shaded pixels the sample holds; None where the sample would be every super-tile."""
+    tiles = np.unique(shaded)
+    owner = (tiles // tiles_x // sup) * super_x + (tiles % tiles_x) // sup
+    supers = np.unique(owner)
+    k = -(-len(supers) // PROBE_EVERY)
+    if k >= len(supers):
+        return None
+    chosen = supers[((np.arange(k) + 0.5) * len(supers) / k).astype(np.int64)]
+    ranges = np.array(c_ranges, copy=True)
+    keep = np.zeros(len(ranges), bool)
+    keep[chosen] = True
+    ranges[~keep, 1] = 0
+    return ranges, int(np.isin(owner, chosen).sum())
 
 
 def read_tile_boxes(runtime, tiles_buffer, n_tiles: int, lanes: int) -> TileBoxes:

@@ -508,3 +508,24 @@ def test_culling_that_lost_is_skipped_for_a_few_frames_then_tried_again(monkeypa
     assert results[3].cull is not None and results[3].cull.brute
     assert all(x.plan.defines["CULLING"] == 0 for x in results)
     assert all(np.array_equal(x.image, results[0].image) for x in results)
+
+
+def test_the_probe_samples_super_tiles_with_shaded_tiles_evenly():
+    """culling._probe: one super-tile in PROBE_EVERY (rounded up) among those with shaded
+    tiles, spread over them; the others' ranges emptied, offsets kept; None where the sample
+    would be every super-tile."""
+    PROBE_EVERY, _probe = culling.PROBE_EVERY, culling._probe
+    sup, super_x = 2, 10                    # 4 rows of super-tiles
+    tiles_x = sup * super_x
+    ranges = np.stack([np.arange(40, dtype=np.uint32) * 7, np.full(40, 5, np.uint32)], 1)
+    # shaded: every tile of the top three super-tile rows, one tile of the last row's first
+    ty, tx = np.mgrid[0:3 * sup, 0:tiles_x]
+    shaded = np.concatenate([(ty * tiles_x + tx).ravel(), [(3 * sup) * tiles_x]])
+    got, active = _probe(ranges, np.repeat(shaded, 3), tiles_x=tiles_x, sup=sup, super_x=super_x)
+    kept = np.flatnonzero(got[:, 1])
+    assert len(kept) == -(-31 // PROBE_EVERY)                   # 30 full + 1 with one tile
+    assert np.all(np.diff(kept) >= PROBE_EVERY - 1) and kept.max() <= 30
+    assert np.array_equal(got[:, 0], ranges[:, 0]) and np.all(got[kept, 1] == 5)
+    assert active == sum(sup * sup if k < 30 else 1 for k in kept)
+    one = np.arange(sup)                                         # one super-tile's tiles
+    assert _probe(ranges, one, tiles_x=tiles_x, sup=sup, super_x=super_x) is None

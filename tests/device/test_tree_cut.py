@@ -348,3 +348,36 @@ def test_the_top_down_cut_lists_what_the_whole_table_lists(case, monkeypatch):
     assert ca == cb
     assert all(np.array_equal(x, y) for x, y in zip(la, lb, strict=True))
     assert np.array_equal(a, b)
+
+
+def test_a_sample_of_super_tiles_spares_the_pass_the_tree_makes_useless(monkeypatch):
+    """Where the tree is given, the tiles' pass without it runs first on one super-tile in
+    culling.PROBE_EVERY; where the tree's lists are far shorter than that sample foretells,
+    the whole pass never runs, and the lists and pixels are those chosen after it ran."""
+    rng = np.random.default_rng(3)
+    scene = clustered_scene(rng, grey=True)
+    gb = heightfield(rng, 64, 1024, bumps=0.1)
+    passes = []
+    level = culling._cull_level
+
+    def counted(*args, **kw):
+        out = level(*args, **kw)
+        passes.append(out[2])
+        return out
+
+    monkeypatch.setattr(culling, "_cull_level", counted)
+    got = []
+    for margin in (culling.PROBE_MARGIN, float("inf")):      # inf: the whole pass always runs
+        monkeypatch.setattr(culling, "PROBE_MARGIN", margin)
+        passes.clear()
+        r = Renderer(scene, max_error=3e-2, light_tree="always")
+        result = r.shade(prepare_frame(gb, lanes=r.lanes))
+        assert result.cull is not None and result.cull.clusters > 0
+        got.append((result.image, read_tile_lists(r.runtime, result.cull), list(passes)))
+    (a, la, spared), (b, lb, whole) = got
+    # super-tiles, the sample, the tiles with the tree, and at an infinite margin the
+    # whole pass without it, which keeps more than the sample and the tree's lists
+    assert len(spared) == 3 and len(whole) == 4 and spared == whole[:3]
+    assert spared[1] < whole[3] and whole[2] < whole[3]
+    assert all(np.array_equal(x, y) for x, y in zip(la, lb, strict=True))
+    assert np.array_equal(a, b)
