@@ -26,10 +26,14 @@ require_memory
     Raise a given ClphongError class when a step needs more than the budget.
 output_bytes
     The memory model of writing a frame's outputs.
+gc_paused
+    The cyclic garbage collector off while objects are made by the hundred thousand.
 """
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import math
 import os
 import re
@@ -42,8 +46,8 @@ try:
 except ImportError:  # pragma: no cover - not on Windows
     resource = None
 
-__all__ = ["memory_budget", "parse_size", "format_size", "require_memory", "MemoryBudget",
-           "output_bytes", "HEADROOM", "ENV_VAR", "MODEL_MARGIN", "F32"]
+__all__ = ["gc_paused", "memory_budget", "parse_size", "format_size", "require_memory",
+           "MemoryBudget", "output_bytes", "HEADROOM", "ENV_VAR", "MODEL_MARGIN", "F32"]
 
 #: Environment variable capping the memory clphong plans to use.
 ENV_VAR = "CLPHONG_MAX_MEMORY"
@@ -246,3 +250,21 @@ def output_bytes(shape: tuple[int, int], kinds) -> int:
     per_pixel = F32 * 3 + sum(OUTPUT_BYTES_PER_PIXEL[k] for k in kinds)
     return int(math.ceil(MODEL_MARGIN * per_pixel * int(shape[0]) * int(shape[1])))
 
+
+@contextlib.contextmanager
+def gc_paused():
+    """The cyclic garbage collector off for a while (if it was on): parsing a scene and
+    making an environment's directional lights make objects by the hundred thousand
+    and no cycles, and each of the collector's passes over the growing heap took
+    20-50% of validating 65 536 lights, and, in a process that has loaded scenes
+    before, a quarter of rtoml's parse of them (Zen 5: 0.37-0.38 s against 0.46-0.56 s;
+    the whole load's median 0.92 s against 1.13-1.19 s; a fresh process's first load
+    was about the same either way, 0.74-0.85 s). Making 200 000 directional lights
+    took 0.86 s with it on, 0.26 s off (Ice Lake, 2 cores)."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..io.gbuffer import GBuffer
-from ..model.scene import Camera, Scene, new_light
+from ..model.scene import Camera, Scene, directional_lights
 from .frame import prepare_frame
 from .renderer import Renderer
 
@@ -48,10 +48,7 @@ class DeviceProbeShader:
     def __call__(self, n, v, l, radiance, material) -> np.ndarray:
         n = np.asarray(n, np.float64)
         v = np.asarray(v, np.float64)
-        lights = tuple(new_light(type="directional", color=tuple(c), intensity=1.0,
-                                 direction=tuple(d))
-                       for c, d in zip(np.asarray(radiance, np.float64).tolist(),
-                                       (-np.asarray(l, np.float64)).tolist()))
+        lights = directional_lights(l, radiance)
         scene = Scene(camera=Camera(type="perspective", position=(0.0, 0.0, 0.0)),
                       material=material, lights=lights,
                       source="environment probes")

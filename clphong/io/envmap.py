@@ -40,6 +40,7 @@ from ..core.geometry import view_vector
 from ..core.memory import require_memory
 from ..model import environment as _environment
 from ..model.environment import DEFAULT_ENV_ERROR, EnvironmentLights, environment_lights
+from ..model import scene as _scene
 from ..model.scene import Light, Scene, SceneWarning
 from .exrfile import oiio_message
 
@@ -320,9 +321,7 @@ def _convert(light: Light, where: str, material, view, max_error: float,
 def directional_lights(env: EnvironmentLights, group: str | None = None) -> tuple[Light, ...]:
     """``env``'s lights as ``directional`` :class:`~clphong.model.scene.Light` objects
     (``direction = -l``, ``color`` the radiance, ``intensity`` 1) in ``group``."""
-    return tuple(Light(type="directional", color=(float(r[0]), float(r[1]), float(r[2])),
-                       intensity=1.0, direction=(float(-x[0]), float(-x[1]), float(-x[2])), group=group)
-                 for x, r in zip(env.l, env.radiance))
+    return _scene.directional_lights(env.l, env.radiance, group)
 
 
 def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,

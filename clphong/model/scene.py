@@ -92,8 +92,6 @@ emitted with :func:`warnings.warn` as :class:`SceneWarning`.
 
 from __future__ import annotations
 
-import contextlib
-import gc
 import os
 import re
 import warnings as _warnings
@@ -110,7 +108,7 @@ except ImportError:  # pragma: no cover - a platform without the compiled wheel
 
 from ..core.errors import SceneError
 from ..core.files import image_kind, open_regular
-from ..core.memory import format_size, require_memory
+from ..core.memory import format_size, gc_paused, require_memory
 from .falloff import (
     attenuation_problem,
     kernel_falloff_bound,
@@ -145,6 +143,7 @@ from .scene_types import (
     Material,
     Scene,
     SceneWarning,
+    directional_lights,
     new_light,
 )
 
@@ -172,6 +171,7 @@ __all__ = [
     "DEFAULT_GROUP",
     "AOV_NAMES",
     "new_light",
+    "directional_lights",
     "spot_angles_from_blender",
     "spot_scale_offset",
 ]
@@ -188,25 +188,8 @@ def _emit(scene: Scene, stacklevel: int) -> None:
 
 
 def _parse(data: Mapping, source: str, base_dir: str = "") -> Scene:
-    with _gc_paused():
+    with gc_paused():
         return _Parser(source, base_dir, table_parser=_TableParser).scene(data)
-
-
-@contextlib.contextmanager
-def _gc_paused():
-    """The cyclic garbage collector off for a while (if it was on): parsing makes
-    objects by the million and no cycles, and each of the collector's passes over
-    the growing heap took 20-50% of validating 65 536 lights, and, in a process that
-    has loaded scenes before, a quarter of rtoml's parse of them (Zen 5: 0.37-0.38 s
-    against 0.46-0.56 s; the whole load's median 0.92 s against 1.13-1.19 s). A fresh
-    process's first load was about the same either way (0.74-0.85 s)."""
-    was = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was:
-            gc.enable()
 
 
 def parse_scene(data: Mapping, source: str = "<scene>") -> Scene:
@@ -291,7 +274,7 @@ def load_scene(path: str | os.PathLike) -> Scene:
         raise SceneError(f"{source}:{line}: invalid TOML: not UTF-8 (byte {exc.start}); "
                          "save the file as UTF-8") from None
     try:
-        with _gc_paused():          # the parsers make dicts and lists by the million, no cycles
+        with gc_paused():          # the parsers make dicts and lists by the million, no cycles
             data = _loads(text)
     except _toml.TOMLDecodeError as exc:
         raise SceneError(_toml_message(source, exc, text)) from None

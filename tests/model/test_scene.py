@@ -1281,6 +1281,33 @@ def test_new_light_is_the_dataclass():
         a.intensity = 3.0                    # still frozen
 
 
+@pytest.mark.parametrize("group", [None, "sky"])
+def test_directional_lights_from_columns_are_the_dataclass(group):
+    """scene.directional_lights (an environment's lights, its probes' sums): each light is
+    Light(...) of its row, travelling along −l, and the collector is left as it was."""
+    import gc
+
+    from clphong.model.scene import directional_lights
+
+    rng = np.random.default_rng(5)
+    l = rng.normal(size=(7, 3))
+    l /= np.linalg.norm(l, axis=1)[:, None]
+    rad = rng.uniform(0, 2, (7, 3)).astype(np.float32)       # any float dtype, as float64
+    for enabled in (True, False):
+        (gc.enable if enabled else gc.disable)()
+        try:
+            got = directional_lights(l, rad, group)
+            assert gc.isenabled() == enabled
+        finally:
+            gc.enable()
+        want = tuple(Light(type="directional", color=tuple(float(c) for c in r), intensity=1.0,
+                           direction=tuple(float(-x) for x in d), group=group)
+                     for r, d in zip(rad, l))
+        assert got == want and [vars(a) for a in got] == [vars(b) for b in want]
+        assert all(type(x) is float for a in got for x in (*a.color, *a.direction))
+    assert directional_lights(np.zeros((0, 3)), np.zeros((0, 3))) == ()
+
+
 def test_shared_attenuation_still_checks_every_lights_radiance():
     """The polynomial's checks run once per distinct polynomial; each light's own
     radiance x falloff is still checked, and the message names that light."""
