@@ -9,6 +9,8 @@ import struct
 from decimal import MAX_EMAX, MIN_EMIN, Context, Decimal, localcontext
 from fractions import Fraction
 
+import numpy as np
+
 from ..core.floats import FLT_MAX, U
 from .scene_messages import (
     _g,
@@ -179,6 +181,65 @@ def kernel_falloff_bound(c0: float, c1: float, c2: float) -> float:
     if attenuation_problem(*lo) is not None:
         return math.inf
     return largest_falloff(*lo) * (1 + 3 * U)
+
+
+#: Slack on the sups of :func:`falloff_slopes`: their float64 evaluation (a few u) and a
+#: root's error (the function is flat at its peak, so second order in it).
+SLOPE_SLACK = 1e-9
+
+
+def falloff_peaks(att) -> tuple:
+    """Where the slopes of the falloff ``A(d) = 1/p(d)``, ``p = c0 + c1·d + c2·d²``
+    (``c0, c1, c2 ≥ 0``, one row of ``att`` (K, 3) each), may peak for ``d > 0``.
+
+    ``A′ = −(c1 + 2c2·d)/p²`` and ``A″ = 2N/p³`` with ``N(d) = 3c2²d² + 3c1c2·d + c1² −
+    c0c2``, so ``|A′|`` turns where ``N = 0``; ``A‴ = 2C/p⁴`` with ``C = N′·p − 3N·p′``,
+    so ``A″`` turns where that cubic is 0. Returns ((K, 2), (K, 3)): the positive real
+    roots of N and of C, NaN where none. One root search per distinct row."""
+    att = np.asarray(att, np.float64).reshape(-1, 3)
+    rows, inv = np.unique(att, axis=0, return_inverse=True)
+    one, two = np.full((len(rows), 2), np.nan), np.full((len(rows), 3), np.nan)
+    P = np.polynomial.polynomial
+    for i, (c0, c1, c2) in enumerate(rows.tolist()):
+        N = np.array([c1 * c1 - c0 * c2, 3 * c1 * c2, 3 * c2 * c2])     # lowest degree first
+        C = P.polysub(P.polymul([3 * c1 * c2, 6 * c2 * c2], [c0, c1, c2]),
+                      P.polymul(3 * N, [c1, 2 * c2]))
+        for out, poly in ((one, N), (two, C)):
+            poly = P.polytrim(np.asarray(poly, np.float64))
+            r = P.polyroots(poly) if len(poly) > 1 else np.zeros(0)
+            real = np.real(r[np.abs(np.imag(r)) <= 1e-9 * (np.abs(r) + 1.0)])
+            real = np.sort(real[real > 0])[:out.shape[1]]
+            out[i, :len(real)] = real
+    inv = inv.reshape(-1)
+    return one[inv], two[inv]
+
+
+def falloff_slopes(c0, c1, c2, d, peaks):
+    """``(|A′(d)|, sup |A′|, sup |A″|)``, the sups over ``[d, ∞)``, for ``A = 1/(c0 + c1·d
+    + c2·d²)`` (arrays that broadcast; ``peaks``: :func:`falloff_peaks`'s pair, indexed
+    alike with a trailing axis). A smooth function's sup over ``[d, ∞)`` is its value at
+    ``d``, at a turning point beyond ``d``, or its limit (0 here); the sups carry
+    :data:`SLOPE_SLACK`."""
+    def slope(x):
+        p = c0 + x * (c1 + x * c2)
+        return (c1 + 2.0 * c2 * x) / (p * p)
+
+    def curve(x):
+        p = c0 + x * (c1 + x * c2)
+        n = x * (3.0 * c2 * c2 * x + 3.0 * c1 * c2) + (c1 * c1 - c0 * c2)
+        return 2.0 * np.abs(n) / (p * p * p)
+
+    at = slope(d)
+    s1, s2 = at, curve(d)
+    one, two = peaks
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        for j in range(one.shape[-1]):
+            r = one[..., j]
+            s1 = np.fmax(s1, np.where(r > d, slope(r), 0.0))
+        for j in range(two.shape[-1]):
+            r = two[..., j]
+            s2 = np.fmax(s2, np.where(r > d, curve(r), 0.0))
+    return at, s1 * (1 + SLOPE_SLACK), s2 * (1 + SLOPE_SLACK)
 
 
 def radiance_problem(radiance: float, att: Vec3) -> str:

@@ -48,10 +48,17 @@ hold, and the smallest is taken, per term:
   of one colour), ``Q_kc = Σ_i R_ic·|p_i − p_k|²`` and ``H`` a bound of the Hessian;
   only where ``n·u > 0`` over the whole box pair (the terms are smooth there).
 
-The constants, with ``A = A(d⁻)`` and ``d = d⁻`` (each is decreasing in ``d``):
-``|∇(n·u)| ≤ 1/d``, ``|∇²(n·u)| ≤ 3/d²``, ``|A'| = (c1 + 2c2·d)/p² ≤ 2A/d`` (``p ≥
-c1·d + c2·d²`` for ``c0 ≥ 0``), ``‖∇²A‖ ≤ 8A/d²``, so for the diffuse term ``Λ_d =
-3A/d`` and ``H_d = 15A/d²``. The specular cosine ``x = cos θ`` (``n·h``, or ``r·v``
+The constants, with ``A = A(d⁻)`` and ``d = d⁻`` where a term is decreasing in ``d``,
+and the falloff's own slopes ``A₁ = sup |A′|`` and ``A₂ = sup |A″|`` over ``d ≥ d⁻``
+(:func:`~clphong.model.falloff.falloff_slopes`: the value at ``d⁻`` or at a turning
+point beyond it; ``|A′| ≤ 2A/d`` and ``|A″| ≤ 8A/d²`` always). With ``c = n·u ≥ 0``,
+``s = √(1 − c²)`` and ``w`` the unit vector of ``n − c·u``, the diffuse weight ``g =
+c·A`` has ``∇g = A·s/d·w + c·A′·u``, so ``|∇g| ≤ Λ_d = max(A/d, A₁)``; its Hessian is,
+in the frame (u, w, u × w), ``[[c·A″, −s·m, 0], [−s·m, −c·m, 0], [0, 0, −c·m]]`` with
+``m = A/d² + |A′|/d`` (both decreasing in d), whose norm is at most its Frobenius
+norm's largest value over c: ``H_d = √(m² + max(m, A₂)²)``. That is √2·A/d² without
+falloff (the constants 3A/d and 15A/d², used before 2026-12-06, were 3× and 10× that),
+and 6.7A/d² for 1/d². The specular cosine ``x = cos θ`` (``n·h``, or ``r·v``
 for Phong) moves with ``|∇θ| ≤ g``: Phong's ``r = (2nnᵀ − I)u`` is an orthogonal map
 of ``u``, so ``g = 1/d``; Blinn-Phong's half vector moves by ``|∇u|/|u + v|``, so
 ``g = 1/(d·|u + v|⁻)``, ``|u + v|⁻`` from a lower bound of ``u·v``. Then ``|∇x| ≤
@@ -59,9 +66,10 @@ sin θ·g`` and ``|∇²x| ≤ (2 sin θ + cos θ)·g² + sin θ·t`` (``t = 3g/
 Blinn-Phong, the curvature of ``u``; 0 for Phong), so for ``P = x^K`` (``K ≥ 1``;
 ``K ≥ 2`` for the second order) with ``h1, f1`` the maxima over ``x ∈ [0, c]`` of
 ``x^(K−1)·√(1 − x²)`` and ``x^(K−2)·(1 − x²)``:
-``Λ_s = A·(K·h1·g + 2c^K/d)`` (``+ 5g·c^K·A`` with Blinn-Phong's Schlick weight,
-which depends on ``v·h``) and ``H_s = A·(K(K−1)·f1·g² + K(2h1 + c^K)·g² + K·h1·t +
-4K·h1·g/d + 8c^K/d²)`` (not used with Blinn-Phong's Schlick weight). A shininess map
+``Λ_s = A·K·h1·g + c^K·A₁`` (``+ 5g·c^K·A`` with Blinn-Phong's Schlick weight,
+which depends on ``v·h``) and ``H_s = A·(K(K−1)·f1·g² + K(2h1 + c^K)·g² + K·h1·t) +
+2K·h1·g·A₁ + c^K·max(A₂, |A′(d⁻)|/d⁻)`` (‖∇²A‖: radially A″, across A′/d; not used
+with Blinn-Phong's Schlick weight). A shininess map
 or ``K < 1`` leaves the specular term its range ``R·A`` alone.
 
 Where ``n·u ≤ 0`` over the whole box pair both sums are 0 (bound 0); where the
@@ -88,6 +96,7 @@ import numpy as np
 
 from ..core.floats import U
 from ..core.geometry import view_vector
+from .falloff import falloff_peaks, falloff_slopes
 
 #: Fewest clusterable lights worth a tree (below it every list is short anyway).
 MIN_TREE_LIGHTS = 64
@@ -112,6 +121,7 @@ class LightTree:
     quadratic: np.ndarray   # (K, 3) Σ_i R_ic·|p_i − p_k|²
     first: np.ndarray       # (K, 3) |Σ_i R_ic·(p_i − p_k)| (0 for lights of one colour)
     attenuation: np.ndarray  # (K, 3) the shared c0, c1, c2
+    peaks: tuple            # ((K, 2), (K, 3)) where |A′| and |A″| may peak (falloff_peaks)
     cone: np.ndarray        # (K, 5) the shared cone: a spot's axis, (s, o); (0, 0, 0, 0, 1)
     group: np.ndarray       # (K,) the light group of the node's lights (0 without groups)
     children: np.ndarray    # (K, 2) combined numbers
@@ -248,9 +258,11 @@ def build_light_tree(arrays) -> LightTree | None:
         return out
 
     children = place([c for _, c in kids])
+    att = place(atts)
     return LightTree(n_leaves=n, lo=place(los), hi=place(his), position=place(reps),
                      radiance=place(rads), moment=place(moms), quadratic=place(quads),
-                     first=place(firsts), attenuation=place(atts), cone=place(cones),
+                     first=place(firsts), attenuation=att, peaks=falloff_peaks(att),
+                     cone=place(cones),
                      group=place(groups), children=children, levels=tuple(np.concatenate(lv) for lv in levels),
                      clusterable=sum(len(c) for c in classes),
                      seconds=time.perf_counter() - t0)
@@ -458,9 +470,12 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
         M = side(tree.moment[k]) + Rk * rp
         F = side(tree.first[k]) + Rk * rp
         Q = side(tree.quadratic[k]) + Rk * rp * (rp + 2 * side(tree.moment[k]) / np.maximum(Rk, 1e-300))
-        # diffuse: both sums lie in [0, R·A(d⁻)·(n·u)⁺]; Lipschitz Λ_d = 3A/d; where
-        # surely lit, Taylor to second order: |∇²| ≤ 15 A/d², the first-order term
-        # |∇f(p_k)·Σ R_i (p_i − p_k)| ≤ 3A/d·F
+        # the falloff's slopes over d ≥ d⁻: |A′(d⁻)|, sup |A′|, sup |A″|
+        a1_lo, a1, a2 = falloff_slopes(c0, c1, c2, d_lo, tuple(side(x[k]) for x in tree.peaks))
+        # diffuse g = (n·u)·A: both sums lie in [0, R·A(d⁻)·(n·u)⁺]; |∇g| ≤ Λ_d =
+        # max(A/d, sup|A′|); where surely lit, Taylor to second order: ‖∇²g‖ ≤ H_d =
+        # √(m² + max(m, sup|A″|)²), m = A/d² + |A′|/d (both decreasing in d), and the
+        # first-order term |∇g(p_k)·Σ R_i (p_i − p_k)| ≤ Λ_d·F
         # |∇t²| ≤ 2t⁺·s/d and ‖∇²t²‖ ≤ (2s² + 6t⁺·s)/d² (|∇cos θ| ≤ 1/d, ‖∇²cos θ‖ ≤
         # 3/d²); 0 where t ≡ 1 (slope 0: a point light, or inside the inner cone)
         spot = slope > 0
@@ -468,10 +483,12 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
         spot_hess = np.where(spot, (2.0 * slope * slope + 6.0 * t_hi * slope) / d_lo ** 2, 0.0)
         g_hi = A_lo * nu_hi                          # the diffuse weight's range
         e_rng = Rk * (g_hi * t2)[..., None]
-        grad = 3.0 * lip * t2 + np.where(spot, g_hi * spot_lip, 0.0)
+        grad_g = np.maximum(lip, a1)
+        m = (lip + a1_lo) / d_lo
+        hess_g = np.sqrt(m * m + np.maximum(m, a2) ** 2)
+        grad = grad_g * t2 + np.where(spot, g_hi * spot_lip, 0.0)
         e_lip = grad[..., None] * M
-        hess = (15.0 * lip / d_lo * t2
-                + np.where(spot, 2.0 * spot_lip * 3.0 * lip + g_hi * spot_hess, 0.0))
+        hess = hess_g * t2 + np.where(spot, 2.0 * spot_lip * grad_g + g_hi * spot_hess, 0.0)
         e_two = grad[..., None] * F + 0.5 * hess[..., None] * Q
         smooth = (lit & smooth_t)[..., None]         # the second order: no kink in the pair
         e = D * np.fmin(np.fmin(e_rng, e_lip), np.where(smooth, e_two, np.inf))
@@ -480,8 +497,10 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
                          diffuse_second=D * np.where(smooth, e_two, np.inf),
                          diffuse_second_F=D * grad[..., None] * F)
         if tiles.S.any():
+            # ‖∇²A‖ = max(|A″|, |A′|/d) (radially and across)
+            slopes = (a1, np.maximum(a2, a1_lo / d_lo))
             e = e + S * _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q,
-                                        spec, spot=(t2, spot_lip, spot_hess, smooth_t),
+                                        spec, slopes, spot=(t2, spot_lip, spot_hess, smooth_t),
                                         parts=parts, S=S)
         e = e + U * Rk * A_lo[..., None] * (D + S)
         b = _max3(e) * (1 + 1e-6)
@@ -539,16 +558,18 @@ def spot_factor_bounds(cone, tlo, thi, blo, bhi):
     return t_hi, inner | ramp, slope
 
 
-def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spec, *,
+def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spec, slopes, *,
                     spot=(1.0, 0.0, 0.0, True), parts=None, S=1.0):
     """(T, K, 3) bound of the specular error per unit S (see the module docstring):
     the range R·A(d⁻)·c^K everywhere; where surely lit, also the Lipschitz bound and
     the second-order Taylor bound, with the cosine x ≤ c (:func:`specular_cosine`):
     |∇x| ≤ g, |∇²x| ≤ η (Blinn-Phong: g = 1/(d·|u + v|⁻), η = (3/|u + v|⁻² +
     3/|u + v|⁻)/d²; Phong: g = 3/d, η = 9/d²), so for P = x^K
-    |∇(P·A)| ≤ A·(K·c^(K−1)·g + 2c^K/d) (+ 5g·c^K·A for Blinn-Phong's Schlick weight)
-    and |∇²(P·A)| ≤ A·(K(K−1)c^(K−2)g² + K·c^(K−1)·η + 4K·c^(K−1)·g/d + 8c^K/d²)
-    (K ≥ 2, and not with Blinn-Phong's Schlick weight). A spot's factor: ``spot`` = (t⁺²,
+    |∇(P·A)| ≤ A·K·c^(K−1)·g + c^K·A₁ (+ 5g·c^K·A for Blinn-Phong's Schlick weight)
+    and |∇²(P·A)| ≤ A·(K(K−1)c^(K−2)g² + K·c^(K−1)·η) + 2K·c^(K−1)·g·A₁ + c^K·A₂
+    (K ≥ 2, and not with Blinn-Phong's Schlick weight), ``slopes`` = (A₁, A₂) the sups
+    of |∇A| = |A′| and ‖∇²A‖ over d ≥ d⁻ (:func:`~clphong.model.falloff.falloff_slopes`;
+    at most 2A/d and 8A/d²). A spot's factor: ``spot`` = (t⁺²,
     bounds of |∇t²| and ‖∇²t²‖, smooth): the product rule on t²·P·A, the second order
     only where t is smooth (:func:`spot_factor_bounds`). ``parts``: see
     :func:`cluster_bounds` (its entries × ``S``)."""
@@ -577,14 +598,15 @@ def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spe
         # K(K−1)·f1·g², h1 and f1 the maxima over x ∈ [0, c] of x^(K−1)·√(1 − x²)
         # and x^(K−2)·(1 − x²); |∇²x| ≤ (2 sin θ + cos θ)·g² + sin θ·t
         h1 = _peak(c, K - 1.0, 0.5)
-        grad = A_lo * (K * h1 * g + 2.0 * cK / d_lo + (5.0 * g * cK if fres else 0.0))
+        A1, A2 = slopes
+        grad = A_lo * (K * h1 * g + (5.0 * g * cK if fres else 0.0)) + cK * A1
         g_hi = A_lo * cK                             # the term's range
         grad_t = grad * t2 + np.where(spot_lip > 0, g_hi * spot_lip, 0.0)
         e_lip = grad_t[..., None] * M
         if K >= 2 and not fres:
             f1 = _peak(c, K - 2.0, 1.0)
-            hess = A_lo * (K * (K - 1) * f1 * g * g + K * (2.0 * h1 + cK) * g * g + K * h1 * t
-                           + 4.0 * K * h1 * g / d_lo + 8.0 * cK / d_lo ** 2)
+            hess = (A_lo * (K * (K - 1) * f1 * g * g + K * (2.0 * h1 + cK) * g * g + K * h1 * t)
+                    + 2.0 * K * h1 * g * A1 + cK * A2)
             hess_t = hess * t2 + np.where(spot_hess > 0, 2.0 * spot_lip * grad + g_hi * spot_hess,
                                           0.0)
             e_two = grad_t[..., None] * F + 0.5 * hess_t[..., None] * Q

@@ -415,3 +415,20 @@ def test_spot_factor_bounds_hold_and_are_tight_for_small_boxes(cone):
                 assert np.all(raw >= 1.0) or np.all((raw > 0) & (raw <= 1.0))
             if size < 1e-6:
                 assert t_hi[0, 0] - t.max() <= 1e-6 * max(c[3], 1.0)
+
+
+@pytest.mark.parametrize("att", [(1.0, 0.0, 0.0), (1.0, 0.0, 0.01), (1.0, 0.1, 0.05),
+                                 (0.0, 0.0, 1.0)])
+@pytest.mark.parametrize("dist,spread", [(4.0, 0.3), (20.0, 1.5)])
+def test_the_diffuse_bound_is_within_a_few_times_the_error(att, dist, spread):
+    """Grey clusters above a small flat patch, diffuse only: the bound holds and its median
+    over the nodes is at most 8× the true error. With the falloff's own slopes (sup |A′|,
+    sup |A″| over d ≥ d⁻) and the Hessian of (n·u)·A taken as a matrix, it measured
+    1.9–5.6× on these scenes (seeds 0–4); with the constants 3A/d and 15A/d² it was
+    8.0–28×."""
+    for seed in range(3):
+        err, bound = check_bound(np.random.default_rng(seed), model="phong", h=8.0, k_s=0.0,
+                                 fresnel="none", camera=CAMERAS[0], spread=spread, dist=dist,
+                                 att=att, size=0.05, tilt=0.0, grey=True)
+        lit = err > 0
+        assert np.median(bound[lit] / err[lit]) <= 8.0

@@ -1,0 +1,53 @@
+"""The falloff's slopes over d ≥ d⁻ (clphong/model/falloff.py falloff_peaks and
+falloff_slopes), which the light tree's bound uses: each sup is the largest value of the
+function on a dense grid of [d⁻, ∞), never below it (a missed turning point would show
+as a grid value above the sup), and within the slack of it."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from clphong.model.falloff import SLOPE_SLACK, falloff_peaks, falloff_slopes
+
+coefficient = st.one_of(st.just(0.0), st.floats(1e-4, 1e4))
+
+
+def _on_grid(c0, c1, c2, d):
+    x = d * np.exp(np.linspace(0.0, 16.0, 400_001))       # d … d·e¹⁶, then the tail → 0
+    p = c0 + x * (c1 + x * c2)
+    first = (c1 + 2 * c2 * x) / p ** 2
+    second = 2 * np.abs(3 * c2 * c2 * x * x + 3 * c1 * c2 * x + c1 * c1 - c0 * c2) / p ** 3
+    return first[0], first.max(), second.max()
+
+
+@settings(max_examples=300, deadline=None)
+@given(c0=coefficient, c1=coefficient, c2=coefficient, d=st.floats(1e-3, 1e3))
+def test_the_slopes_sups_are_the_largest_values_beyond_d(c0, c1, c2, d):
+    if c0 + c1 + c2 == 0 or (c0 == 0 and c1 == 0 and c2 * d * d < 1e-300):
+        return
+    at, s1, s2 = falloff_slopes(c0, c1, c2, np.array([d]),
+                                tuple(x for x in falloff_peaks([[c0, c1, c2]])))
+    a0, m1, m2 = _on_grid(c0, c1, c2, d)
+    assert at[0] == a0
+    assert m1 <= s1[0] <= m1 * (1 + 1e-6) + 1e-300
+    # A″'s sup: the grid's step (relative 4e-5) lies within 1e-6 of a smooth peak
+    assert m2 <= s2[0] <= m2 * (1 + 1e-6) + 1e-300
+
+
+def test_the_turning_points_of_known_falloffs():
+    """(1, 0, c2): |A′| peaks where 3c2d² = 1; 1/d² and linear falloffs only fall; no
+    falloff has no slope. A row's roots go with it through np.unique."""
+    one, two = falloff_peaks([[1.0, 0.0, 0.01], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0],
+                              [1.0, 0.0, 0.01]])
+    assert np.isclose(one[0, 0], np.sqrt(1 / 0.03)) and np.isnan(one[0, 1])
+    assert np.array_equal(one[0], one[3], equal_nan=True) and np.array_equal(two[0], two[3],
+                                                                              equal_nan=True)
+    assert np.isnan(one[1]).all() and np.isnan(one[2]).all() and np.isnan(two[2]).all()
+    _, s1, s2 = falloff_slopes(1.0, 0.0, 0.0, np.array([2.0]), (one[2:3], two[2:3]))
+    assert s1[0] == 0 and s2[0] == 0
+    # A = 1/d²: |A′| = 2/d³ and |A″| = 6/d⁴ fall, so the sups are the values at d
+    _, s1, s2 = falloff_slopes(0.0, 0.0, 1.0, np.array([2.0]), (one[1:2], two[1:2]))
+    assert np.isclose(s1[0], 2 / 8 * (1 + SLOPE_SLACK), rtol=1e-15)
+    assert np.isclose(s2[0], 6 / 16 * (1 + SLOPE_SLACK), rtol=1e-15)
