@@ -51,3 +51,47 @@ def test_the_turning_points_of_known_falloffs():
     _, s1, s2 = falloff_slopes(0.0, 0.0, 1.0, np.array([2.0]), (one[1:2], two[1:2]))
     assert np.isclose(s1[0], 2 / 8 * (1 + SLOPE_SLACK), rtol=1e-15)
     assert np.isclose(s2[0], 6 / 16 * (1 + SLOPE_SLACK), rtol=1e-15)
+
+
+def _diffuse_weight(c0, c1, c2, n, x):
+    """g(p) = max(n·u, 0)·A(|p − x|), u = (p − x)/|p − x|: the light tree's diffuse weight."""
+    def g(p):
+        v = p - x
+        d = np.sqrt(v @ v)
+        return max(n @ v / d, 0.0) / (c0 + d * (c1 + d * c2))
+    return g
+
+
+@settings(max_examples=200, deadline=None)
+@given(c0=st.floats(0.0, 10.0), c1=st.floats(0.0, 10.0), c2=st.floats(0.0, 10.0),
+       d=st.floats(0.05, 50.0), cos=st.floats(0.05, 1.0), az=st.floats(0.0, 6.283),
+       seed=st.integers(0, 2**31 - 1))
+def test_the_diffuse_weights_slopes_are_within_the_trees_constants(c0, c1, c2, d, cos, az, seed):
+    """light_tree.cluster_bounds' diffuse constants, at a point: |∇g| ≤ max(A/d, |A′|) and
+    ‖∇²g‖ ≤ √(m² + max(m, |A″|)²), m = A/d² + |A′|/d, against central differences of g
+    itself (the module docstring derives them from the Hessian in the frame (u, w, u × w))."""
+    if c0 + c1 + c2 < 1e-3:
+        return
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=3)
+    n /= np.linalg.norm(n)
+    t = np.cross(n, rng.normal(size=3))
+    t /= np.linalg.norm(t)
+    b = np.cross(n, t)
+    sin = np.sqrt(1.0 - cos * cos)
+    u = cos * n + sin * (np.cos(az) * t + np.sin(az) * b)
+    x = rng.normal(size=3)
+    p = x + d * u
+    g = _diffuse_weight(c0, c1, c2, n, x)
+    h = 1e-4 * d * min(cos, 1.0)              # stays on the lit side: g is smooth there
+    E = np.eye(3) * h
+    grad = np.array([(g(p + e) - g(p - e)) / (2 * h) for e in E])
+    hess = np.array([[(g(p + ei + ej) - g(p + ei - ej) - g(p - ei + ej) + g(p - ei - ej))
+                      / (4 * h * h) for ej in E] for ei in E])
+    P = c0 + d * (c1 + d * c2)
+    A, A1 = 1.0 / P, (c1 + 2 * c2 * d) / P ** 2
+    A2 = 2 * abs(3 * c2 * c2 * d * d + 3 * c1 * c2 * d + c1 * c1 - c0 * c2) / P ** 3
+    m = A / d ** 2 + A1 / d
+    # central differences err by O(h²) relative: 1e-5 of the bound covers them
+    assert np.linalg.norm(grad) <= max(A / d, A1) * (1 + 1e-5)
+    assert np.linalg.norm(hess, 2) <= np.sqrt(m * m + max(m, A2) ** 2) * (1 + 1e-4)
