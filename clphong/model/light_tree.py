@@ -562,17 +562,18 @@ def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spe
                     spot=(1.0, 0.0, 0.0, True), parts=None, S=1.0):
     """(T, K, 3) bound of the specular error per unit S (see the module docstring):
     the range R·A(d⁻)·c^K everywhere; where surely lit, also the Lipschitz bound and
-    the second-order Taylor bound, with the cosine x ≤ c (:func:`specular_cosine`):
-    |∇x| ≤ g, |∇²x| ≤ η (Blinn-Phong: g = 1/(d·|u + v|⁻), η = (3/|u + v|⁻² +
-    3/|u + v|⁻)/d²; Phong: g = 3/d, η = 9/d²), so for P = x^K
-    |∇(P·A)| ≤ A·K·c^(K−1)·g + c^K·A₁ (+ 5g·c^K·A for Blinn-Phong's Schlick weight)
-    and |∇²(P·A)| ≤ A·(K(K−1)c^(K−2)g² + K·c^(K−1)·η) + 2K·c^(K−1)·g·A₁ + c^K·A₂
+    the second-order Taylor bound, with the cosine x = cos θ ≤ c (:func:`specular_cosine`)
+    and |∇θ| ≤ g (Phong: g = 1/d, r being an orthogonal map of u; Blinn-Phong: g =
+    1/(d·|u + v|⁻), and t = 3g/d for the curvature of u). For P = x^K, with h1 and f1
+    the power's slopes at their maxima over [0, c] (:func:`_peak`):
+    |∇(P·A)| ≤ A·K·h1·g + c^K·A₁ (+ 5g·c^K·A for Blinn-Phong's Schlick weight) and
+    ‖∇²(P·A)‖ ≤ A·(K(K−1)·f1·g² + K(2h1 + c^K)·g² + K·h1·t) + 2K·h1·g·A₁ + c^K·A₂
     (K ≥ 2, and not with Blinn-Phong's Schlick weight), ``slopes`` = (A₁, A₂) the sups
-    of |∇A| = |A′| and ‖∇²A‖ over d ≥ d⁻ (:func:`~clphong.model.falloff.falloff_slopes`;
-    at most 2A/d and 8A/d²). A spot's factor: ``spot`` = (t⁺²,
-    bounds of |∇t²| and ‖∇²t²‖, smooth): the product rule on t²·P·A, the second order
-    only where t is smooth (:func:`spot_factor_bounds`). ``parts``: see
-    :func:`cluster_bounds` (its entries × ``S``)."""
+    of |∇A| = |A′| and ‖∇²A‖ = max(|A″|, |A′|/d) over d ≥ d⁻
+    (:func:`~clphong.model.falloff.falloff_slopes`; at most 2A/d and 8A/d²). A spot's
+    factor: ``spot`` = (t⁺², bounds of |∇t²| and ‖∇²t²‖, smooth): the product rule on
+    t²·P·A, the second order only where t is smooth (:func:`spot_factor_bounds`).
+    ``parts``: see :func:`cluster_bounds` (its entries × ``S``)."""
     t2, spot_lip, spot_hess, smooth_t = spot
     K = spec.exponent
     if K is None or K < 1:                           # a shininess map, or x^K not Lipschitz
