@@ -620,7 +620,9 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
                          __global const float *restrict tile_budget, const uint relative,
                          const uint n_groups, __global const uint *restrict point_end,
                          __global const float *restrict tau_in,
-                         __global const float *restrict left_in,
+                         /* cull_count's unused budget in; what the greedy drops below
+                            leave of it out (the light tree's cut adds a super-tile's) */
+                         __global float *restrict left_io,
                          __global const uint *restrict offsets,
                          __global uint *restrict counts_out,
                          __global uint *restrict tile_lights)
@@ -630,7 +632,7 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
         return;
     const tile_t t = load_tiles(tiles, i, n_tiles_pad);
     const floatL tau = vloadL(i, tau_in);
-    floatL left = vloadL(i, left_in);
+    floatL left = vloadL(i, left_io);
     floatL inv = budget_inverse(tile_budget, relative, i);
     uint g = 0, g_end = n_groups ? point_end[0] : 0xffffffffu;
     uint off[LANES], cnt[LANES];
@@ -663,6 +665,7 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
     }
     for (int m = 0; m < LANES; ++m)
         counts_out[i * LANES + m] = cnt[m];
+    vstoreL(left, i, left_io);
 }
 
 /* Directional lights per tile (DIR_CULLING, clphong/device/culling.py build_dir_lists):

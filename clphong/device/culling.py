@@ -291,8 +291,10 @@ def _merge_bounds(runtime, prog, fine, *, fine_tiles_x, fine_tiles_y, sup, tiles
 def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, tiles_x, tiles_y,
                 lanes, candidates=None, super_tiles=0, floor=None):
     """One level, from its tile records: capacities, lists. Returns (ranges (n, 2) uint32
-    host array, lists buffer, total kept, device seconds, the tiles' floors or None), or
-    None when too long.
+    host array, lists buffer, total kept, device seconds, the tiles' floors or None, the
+    budget each tile left unused (n,) float64: a lower bound, in units of the tile's
+    budget (relative: of ``budget`` times its floor), with the kernel's roundings taken
+    off), or None when too long.
 
     ``floor``: the relative budget, ``budget`` a fraction of each pixel's own value:
     (directional records buffer, their number, ambient float4, the groups: their
@@ -352,6 +354,17 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
     events.append(cl.enqueue_nd_range_kernel(queue, k2, (n_pad // lanes,), (CULL_LOCAL,)))
     cl.enqueue_copy(queue, counts, cb, wait_for=events[-1:]).wait()
     ranges = np.stack([offsets[:n_tiles], counts[:n_tiles]], axis=1).astype(np.uint32)
+    unused = np.zeros(n_pad, np.float32)
+    cl.enqueue_copy(queue, unused, left).wait()
+    # left: cull_count's ε′ − Σ (the dropped bounds' sum, rounded; ε′ the budget less the
+    # reserve for the sum's and the scaling's roundings), less what cull_write then
+    # dropped greedily: the reserve covers those subtractions' roundings too, so it is
+    # at most the exact unused part but for its last roundings. Here in units of the
+    # tile's budget (absolute: of ``budget``), less 64u relative and 64u of the budget.
+    unused = unused[:n_tiles].astype(np.float64)
+    if floor is None:
+        unused = unused / budget if budget > 0 else np.zeros_like(unused)
+    unused = np.maximum(unused * (1 - 64 * U) - 64 * U, 0.0)
     seconds = sum((e.profile.end - e.profile.start) * 1e-9 for e in events)
     floors = None
     if floor is not None:          # the tiles' floors T⁻ (what tile_floor gave, over ε)
@@ -361,7 +374,7 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
         floors = floors[:, :n_tiles].astype(np.float64) / budget if budget > 0 else None
         if floors is not None and not n_groups:
             floors = floors[0]
-    return ranges, lists, int(counts[:n_tiles].sum(dtype=np.int64)), seconds, floors
+    return ranges, lists, int(counts[:n_tiles].sum(dtype=np.int64)), seconds, floors, unused
 
 
 #: The plan defines kernels/cull.cl reads; passing only these keeps one cull
@@ -508,7 +521,7 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                          floor=floor)
     if coarse is None:
         return None
-    c_ranges, c_lists, _, c_seconds, c_floors = coarse
+    c_ranges, c_lists, _, c_seconds, c_floors, c_unused = coarse
     extra = {} if c_floors is None else {"coarse_floors": c_floors}
     shaded = tile_of_pixels(frame.shape, lanes, tiles_x).reshape(-1)[~frame.background]
     active = int(np.unique(shaded).size)
@@ -542,8 +555,12 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
     # average, or lists too long): the tiles cull again from the super-tiles' cuts,
     # and the shorter lists win. Elsewhere nothing changes (nor is the tree built).
     if tree is not None and budget > 0 and (share is None or share > TREE_ABOVE):
-        # relative: each super-tile's share is ε·TREE_SHARE times its floor
-        tree_budget = budget * TREE_SHARE * (1.0 if c_floors is None else c_floors)
+        # relative: each super-tile's share is ε·TREE_SHARE times its floor; and what the
+        # super-tiles' culling left of its ε·COARSE_SHARE (where the tree is tried, that
+        # culling drops little): a pixel's error stays within what the super-tile dropped
+        # + its cut + its tile's culling ≤ ε (relative: times the floors)
+        tree_budget = ((budget * TREE_SHARE + coarse_budget * c_unused)
+                       * (1.0 if c_floors is None else c_floors))
         cut = _tree_cut(runtime, tree, coarse_tiles, c_ranges, c_lists, point_records, n_point,
                         frame.origin, n_super=super_x * super_y, budget=tree_budget,
                         lanes=lanes, point_end=tree.point_end)
@@ -578,7 +595,7 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
         fine = plain()
     if fine is None:
         return None
-    ranges, lists, kept, seconds, floors = fine
+    ranges, lists, kept, seconds, floors, _ = fine
     rb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(ranges))
     return TileLists(ranges=rb, lights=lists, width=w, tiles_x=tiles_x, n_tiles=tiles_x * tiles_y,
                      kept=kept, n_point=n_point, seconds=c_seconds + seconds + spent,

@@ -48,12 +48,13 @@ def test_band_align_is_the_culling_super_tile_edge():
 @pytest.mark.parametrize("rows", [128, 384, 640])
 def test_culled_frame_in_bands_equals_one_launch(lanes, rows, device):
     """Bit-identical (np.array_equal) to the whole-frame launch, bands asked for at odd
-    multiples of 128 rows; tolerance: none."""
+    multiples of 128 rows; tolerance: none. Culling alone: whether the light tree's
+    lists are used is each launch's own choice (the next test)."""
     skip_unless_lanes(lanes, device)
     rng = np.random.default_rng(3)
     gb = _tall_frame(rng)
     r = Renderer(make_scene(_lights(rng), model="blinn-phong", h=30.0), lanes=lanes,
-                 max_error=1e-3, device=device)
+                 max_error=1e-3, device=device, light_tree=False)
     whole = r.render(gb)
     assert whole.bands == 1 and whole.plan.defines["CULLING"] == 1
     assert whole.cull.kept_fraction < 0.5            # culling really drops lights here
@@ -69,3 +70,20 @@ def test_culled_frame_in_bands_equals_one_launch(lanes, rows, device):
         # ε per pixel and channel, so the two differ by at most 2ε (plus the sums'
         # rounding, below 1e-6 here), never more.
         assert np.abs(banded.image - whole.image).max() <= 2 * 1e-3 + 1e-6
+
+
+@pytest.mark.parametrize("rows", [128, 384])
+def test_with_the_light_tree_each_band_keeps_the_budget(rows, device):
+    """With the light tree, each launch chooses its own lists (with clusters or without:
+    culling._build_tile_lists), so a band may choose otherwise than the whole frame: on
+    this frame at 8 lanes, 128-row bands took clusters where the whole frame did not.
+    Each is within ε of the exact sum, so the two differ by at most 2ε (plus the sums'
+    rounding, below 1e-6 here)."""
+    rng = np.random.default_rng(3)
+    gb = _tall_frame(rng)
+    r = Renderer(make_scene(_lights(rng), model="blinn-phong", h=30.0), max_error=1e-3,
+                 device=device, light_tree="always")
+    whole = r.render(gb)
+    banded = r.render(gb, rows=rows)
+    assert banded.bands > 1
+    assert np.abs(banded.image - whole.image).max() <= 2 * 1e-3 + 1e-6

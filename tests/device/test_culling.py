@@ -319,6 +319,40 @@ def test_budget_holds_where_the_bound_is_tight(case):
     assert (0.35 if case == "dipping_polynomial" else 0.7) * eps <= dropped.max() <= eps
 
 
+def test_what_a_level_leaves_unused_is_never_more_than_it_left(monkeypatch):
+    """culling._cull_level's unused budget (the light tree's cut adds the super-tiles'
+    to its own share) against the exact sum: 100 identical lights above one pixel of a
+    flat tile, each contributing exactly ε/10 there (the bound's own value: n·l = 1 at
+    the nearest distance); the super-tiles' level, with ε/4, drops 2 of them, so what it
+    left is at most ε/4 − 2ε/10 of the budget, and (the bound being tight) not much less."""
+    eps = 1e-3
+    ys, xs = np.mgrid[0:20, 0:20].astype(np.float64) * 0.1
+    P = np.stack([xs, ys, np.zeros_like(xs)], -1)
+    gb = make_gbuffer(P, np.broadcast_to([0.0, 0.0, 1.0], P.shape), np.full(P.shape, 0.5))
+    p_min = 1.0 + 4.0 * 0.3 ** 2
+    lights = [dict(type="point", position=(0.4, 0.4, 0.3), intensity=eps / 10 * p_min / 0.4,
+                   attenuation=(1.0, 0.0, 4.0)) for _ in range(100)]
+    scene = make_scene(lights, model="blinn-phong", k_a=0.0, k_d=0.8, k_s=0.0, h=10.0,
+                       camera=dict(type="orthographic", direction=(0.0, 0.0, -1.0)))
+    levels = []
+    level = culling._cull_level
+
+    def kept(*args, **kw):
+        levels.append(level(*args, **kw))
+        return levels[-1]
+
+    monkeypatch.setattr(culling, "_cull_level", kept)
+    r = Renderer(scene, max_error=eps)
+    r.shade(prepare_frame(gb, lanes=r.lanes))
+    c_ranges, unused = levels[0][0], levels[0][5]
+    dropped = 100 - int(c_ranges[0, 1])
+    share = eps * culling.COARSE_SHARE
+    assert dropped == 2
+    # each dropped light takes ε/10 from the pixel below it: the rest is all there is
+    assert dropped * eps / 10 + unused[0] * share <= share * (1 + 1e-9)
+    assert unused[0] * share >= (share - dropped * eps / 10) * 0.999
+
+
 def test_cli_render_with_a_budget(tmp_path, capsys):
     """--max-error through the CLI: within ε of brute force; a bad budget is one line, exit 1."""
     from conftest import GBUFFERS
