@@ -538,19 +538,30 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
         return fine_level(c_ranges, c_lists, lb, n_point, budget - coarse_budget)
 
     spent = 0.0
-    fine, probe, share, took_tree = None, None, None, False
+    fine, share, took_tree, too_long = None, None, False, False
+    ran_whole = False                # the whole pass without the tree ran (fine: its lists)
+
+    def whole():
+        nonlocal fine, ran_whole
+        if not ran_whole:
+            fine, ran_whole = plain(), True
+        return fine
+
     if tree is None or budget <= 0:
-        fine = plain()
+        whole()
     else:
         probe = _probe(c_ranges, shaded, tiles_x=tiles_x, sup=sup, super_x=super_x)
         if probe is None:                 # the sample is every super-tile: the whole pass
-            fine = plain()
-            share = None if fine is None else fine[2] / max(active * n_point, 1)
+            share = None if whole() is None else fine[2] / max(active * n_point, 1)
         else:
             p_ranges, p_active = probe
             sample = fine_level(p_ranges, c_lists, lb, n_point, budget - coarse_budget)
-            share = None if sample is None else sample[2] / max(p_active * n_point, 1)
-            spent += 0.0 if sample is None else sample[3]
+            # the sample's lists too long: the whole pass's (which hold them) are too
+            too_long = sample is None
+            share = None if too_long else sample[2] / max(p_active * n_point, 1)
+            spent += 0.0 if too_long else sample[3]
+        if share is not None and share <= TREE_ABOVE and whole() is None:
+            share = None                  # culling alone keeps little, but too much for the lists
     # The light tree where culling alone keeps much (TREE_ABOVE of the lights on
     # average, or lists too long): the tiles cull again from the super-tiles' cuts,
     # and the shorter lists win. Elsewhere nothing changes (nor is the tree built).
@@ -573,11 +584,11 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                          else relative.floor_args(ctx, point_end=layout.point_end))
             with_tree = fine_level(t_ranges, t_lists, lb_ext, n_ext,
                                    budget - coarse_budget - budget * TREE_SHARE, floor_ext)
-            # only the sample ran: the whole pass too where the tree's lists are not
+            # only the sample ran: the whole pass too where the tree's lists are not far
             # shorter than the sample foretells
-            if probe is not None and (with_tree is None or share is None or with_tree[2]
-                                      * PROBE_MARGIN > share * active * n_point):
-                probe, fine = None, plain()
+            if not ran_whole and not too_long and (with_tree is None or with_tree[2]
+                                                   * PROBE_MARGIN > share * active * n_point):
+                whole()
             if with_tree is not None and (fine is None or with_tree[2] < fine[2]):
                 if fine is not None:
                     spent += fine[3]                 # the pass without the tree, not used
@@ -591,8 +602,8 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                 took_tree = True
             else:
                 spent += tree_s + (with_tree[3] if with_tree is not None else 0.0)
-    if probe is not None and not took_tree:
-        fine = plain()
+    if not took_tree and not too_long:
+        whole()
     if fine is None:
         return None
     ranges, lists, kept, seconds, floors, _ = fine

@@ -381,3 +381,24 @@ def test_a_sample_of_super_tiles_spares_the_pass_the_tree_makes_useless(monkeypa
     assert spared[1] < whole[3] and whole[2] < whole[3]
     assert all(np.array_equal(x, y) for x, y in zip(la, lb, strict=True))
     assert np.array_equal(a, b)
+
+
+def test_where_the_sample_keeps_little_but_the_lists_are_too_long_the_tree_is_tried(monkeypatch):
+    """The sampled super-tile (culling.PROBE_EVERY) lies far from the lights, so it keeps
+    little; the whole pass's lists are too long (MAX_LIST_ENTRIES, lowered to this frame's
+    scale): the tree is tried, as without a sample, rather than culling given up. (A
+    review found this path returning no lists.)"""
+    scene = clustered_scene(np.random.default_rng(3), grey=True)
+    gb = heightfield(np.random.default_rng(0), 48, 400, bumps=0.1)
+    P = np.array(gb.position)
+    P[:, 256:384, 0] += 1000.0                  # super-tile 2 of 4 (the sample): far away
+    gb = dataclasses.replace(gb, position=P)
+    monkeypatch.setattr(culling, "MAX_LIST_ENTRIES", 12_000)
+    got = {}
+    for every in (1, culling.PROBE_EVERY):      # 1: no sample (the whole pass first)
+        monkeypatch.setattr(culling, "PROBE_EVERY", every)
+        r = Renderer(scene, max_error=3e-2, light_tree="always")
+        c = r.shade(prepare_frame(gb, lanes=r.lanes)).cull
+        assert c is not None and not c.brute and c.clusters > 0
+        got[every] = c.kept
+    assert got[1] == got[culling.PROBE_EVERY]
