@@ -200,7 +200,10 @@ def falloff_peaks(att) -> tuple:
     rows, inv = np.unique(att, axis=0, return_inverse=True)
     one, two = np.full((len(rows), 2), np.nan), np.full((len(rows), 3), np.nan)
     P = np.polynomial.polynomial
-    for i, (c0, c1, c2) in enumerate(rows.tolist()):
+    # a row's roots are those of the row over its largest coefficient (N scales by its
+    # square, C by its cube): no overflow of c2³ nor underflow of products
+    scale = np.maximum(rows.max(axis=1, keepdims=True), np.finfo(np.float64).tiny)
+    for i, (c0, c1, c2) in enumerate((rows / scale).tolist()):
         N = np.array([c1 * c1 - c0 * c2, 3 * c1 * c2, 3 * c2 * c2])     # lowest degree first
         C = P.polysub(P.polymul([3 * c1 * c2, 6 * c2 * c2], [c0, c1, c2]),
                       P.polymul(3 * N, [c1, 2 * c2]))

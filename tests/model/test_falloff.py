@@ -95,3 +95,18 @@ def test_the_diffuse_weights_slopes_are_within_the_trees_constants(c0, c1, c2, d
     # central differences err by O(h²) relative: 1e-5 of the bound covers them
     assert np.linalg.norm(grad) <= max(A / d, A1) * (1 + 1e-5)
     assert np.linalg.norm(hess, 2) <= np.sqrt(m * m + max(m, A2) ** 2) * (1 + 1e-4)
+
+
+def test_the_slopes_hold_at_the_float32_extremes_a_scene_allows():
+    """Coefficients at the ends of the normal float32 range, which the scene parser
+    accepts: the turning points are found (the roots are searched on the row over its
+    largest coefficient, so c2³ neither overflows nor underflows), and each sup is the
+    grid's largest value."""
+    tiny, huge = float(np.finfo(np.float32).tiny), float(np.finfo(np.float32).max)
+    for row, d in (((huge, 0.0, tiny), 1e37), ((tiny, 0.0, huge), 1e-40),
+                   ((1.0, tiny, tiny), 1e18)):
+        peaks = falloff_peaks([row])
+        assert not np.isnan(peaks[0][0, 0])           # |A′| turns beyond 0 in each
+        _, s1, s2 = falloff_slopes(*row, np.array([d]), peaks)
+        _, m1, m2 = _on_grid(*row, d)
+        assert m1 <= s1[0] <= m1 * (1 + 1e-6) and m2 <= s2[0] <= m2 * (1 + 1e-6), row
