@@ -39,8 +39,8 @@ from ..core.files import not_regular
 from ..core.geometry import view_vector
 from ..core.memory import require_memory
 from ..model import environment as _environment
-from ..model.environment import DEFAULT_ENV_ERROR, EnvironmentLights, environment_lights
 from ..model import scene as _scene
+from ..model.environment import DEFAULT_ENV_ERROR, EnvironmentLights, environment_lights
 from ..model.scene import Light, Scene, SceneWarning
 from .exrfile import oiio_message
 
