@@ -196,6 +196,11 @@ class Renderer:
         LIGHT_UNROLL): by default the device's
         (:attr:`clphong.device.runtime.Runtime.light_unroll`: 4 on Intel's CPU runtime);
         0 for one (the pixels are bit-identical either way).
+    dir_lists : bool
+        Per-tile lists of the directional lights some normal of a tile faces (the plan's
+        DIR_CULLING, where there are many; exact). False: every tile walks them all, where
+        a tile's normals face every way and the lists would cost more than they drop
+        (the environment conversion's probes: clphong.device.envprobe).
     options : clphong.model.options.RendererOptions, optional
         The renderer options checked where they came in (a command, a Relighter): taken
         as they are, in place of ``fp64_directions``, ``max_error``, ``reference_white``,
@@ -218,7 +223,7 @@ class Renderer:
                  aovs: Sequence[str] = (), straight_alpha: bool = False,
                  light_tree: bool = True, light_tile: bool | None = None,
                  light_unroll: int | None = None, relative: bool = False,
-                 options: RendererOptions | None = None):
+                 dir_lists: bool = True, options: RendererOptions | None = None):
         if options is not None:
             given = dict(fp64_directions=fp64_directions, max_error=max_error,
                          reference_white=reference_white, nonfinite=nonfinite, path=path,
@@ -234,6 +239,7 @@ class Renderer:
             aovs, light_tree, relative = options.aovs, options.light_tree, options.relative
         self._light_unroll = None if light_unroll is None else check_unroll(light_unroll)
         self.scene = scene
+        self.dir_lists = bool(dir_lists)
         self.use_tree = bool(light_tree)
         self.always_tree = light_tree == "always"
         self._cull_rest = 0          # frames left that skip culling after it lost (CULL_RETRY)
@@ -379,7 +385,7 @@ class Renderer:
                          rsqrt_builtin=self.runtime.rsqrt_builtin,
                          light_unroll=self.light_unroll if self.kernel_kind == "lanes" else 0,
                          rsqrt_native=self.runtime.rsqrt_native(self.lanes),
-                         dir_lists=dir_lists)
+                         dir_lists=dir_lists and self.dir_lists)
         return plan, self.runtime.program(plan.entry_file, plan.defines)
 
     # ------------------------------------------------------------------ a whole frame

@@ -64,3 +64,32 @@ def test_a_conversion_with_the_device_probes_ends_where_the_numpy_one_does(devic
         assert b.count == a.count and b.met and a.met
         assert np.array_equal(a.l, b.l)
         assert abs(b.estimated_error - a.estimated_error) <= 1e-2 * a.estimated_error
+
+
+def test_the_probes_walk_every_light_and_match_the_lists_bit_for_bit(device, monkeypatch):
+    """The probes shade without directional lists (Renderer(dir_lists=False): a tile's
+    probes face every way, so the lists cost more than they drop); the lists are exact,
+    so the pixels are the same bits either way."""
+    import clphong.device.envprobe as envprobe
+
+    made = []
+    renderer = envprobe.Renderer
+
+    def kept(*args, **kw):
+        made.append(renderer(*args, **kw))
+        return made[-1]
+
+    monkeypatch.setattr(envprobe, "Renderer", kept)
+    rng = np.random.default_rng(5)
+    l = rng.normal(size=(300, 3))                  # ≥ plan.DIR_CULL_MIN: lists would be made
+    l /= np.linalg.norm(l, axis=1, keepdims=True)
+    rad = rng.random((300, 3))
+    n, v = env.probe_pairs(257, None)
+    shader = DeviceProbeShader(device)
+    got = shader(n, v, l, rad, MATERIALS["blinn"])
+    r, frame = made[-1], shader._frame[1]
+    assert r.shade(frame).plan.defines["DIR_CULLING"] == 0
+    r.dir_lists = True
+    with_lists = r.shade(frame)
+    assert with_lists.plan.defines["DIR_CULLING"] == 1
+    assert np.array_equal(np.asarray(with_lists.image, np.float64).reshape(-1, 3), got)
