@@ -160,6 +160,19 @@ def patch_everywhere(monkeypatch, module, name, replacement):
             monkeypatch.setattr(mod, name, replacement)
 
 
+def record_calls(monkeypatch, owner, name) -> list:
+    """Wrap ``owner.name`` so that each call's result is appended to the list returned
+    (and still returned to the caller): which passes ran, what they gave."""
+    real, calls = getattr(owner, name), []
+
+    def recorded(*args, **kw):
+        calls.append(real(*args, **kw))
+        return calls[-1]
+
+    monkeypatch.setattr(owner, name, recorded)
+    return calls
+
+
 # ------------------------------------------------------------------------- OpenCL devices
 #
 # In the style of PyOpenCL's ``pytest_generate_tests_for_pyopencl``: a test that takes a

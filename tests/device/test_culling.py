@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import heightfield, make_gbuffer, make_scene, point_lights, skip_unless_lanes
+from conftest import (heightfield, make_gbuffer, make_scene, point_lights, record_calls,
+                      skip_unless_lanes)
 
 from clphong.core.floats import U
 from clphong.device import culling
@@ -334,14 +335,7 @@ def test_what_a_level_leaves_unused_is_never_more_than_it_left(monkeypatch):
                    attenuation=(1.0, 0.0, 4.0)) for _ in range(100)]
     scene = make_scene(lights, model="blinn-phong", k_a=0.0, k_d=0.8, k_s=0.0, h=10.0,
                        camera=dict(type="orthographic", direction=(0.0, 0.0, -1.0)))
-    levels = []
-    level = culling._cull_level
-
-    def kept(*args, **kw):
-        levels.append(level(*args, **kw))
-        return levels[-1]
-
-    monkeypatch.setattr(culling, "_cull_level", kept)
+    levels = record_calls(monkeypatch, culling, "_cull_level")
     r = Renderer(scene, max_error=eps)
     r.shade(prepare_frame(gb, lanes=r.lanes))
     c_ranges, unused = levels[0][0], levels[0][5]

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from conftest import record_calls
 
 from clphong.device.envprobe import DeviceProbeShader
 from clphong.model import environment as env
@@ -72,14 +73,7 @@ def test_the_probes_walk_every_light_and_match_the_lists_bit_for_bit(device, mon
     so the pixels are the same bits either way."""
     import clphong.device.envprobe as envprobe
 
-    made = []
-    renderer = envprobe.Renderer
-
-    def kept(*args, **kw):
-        made.append(renderer(*args, **kw))
-        return made[-1]
-
-    monkeypatch.setattr(envprobe, "Renderer", kept)
+    made = record_calls(monkeypatch, envprobe, "Renderer")
     rng = np.random.default_rng(5)
     l = rng.normal(size=(300, 3))                  # ≥ plan.DIR_CULL_MIN: lists would be made
     l /= np.linalg.norm(l, axis=1, keepdims=True)

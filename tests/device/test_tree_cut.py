@@ -17,7 +17,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import heightfield, make_scene
+from conftest import heightfield, make_scene, record_calls
 
 from clphong.device import culling
 from clphong.device.culling import read_tile_lists, tile_of_pixels
@@ -357,23 +357,16 @@ def test_a_sample_of_super_tiles_spares_the_pass_the_tree_makes_useless(monkeypa
     rng = np.random.default_rng(3)
     scene = clustered_scene(rng, grey=True)
     gb = heightfield(rng, 64, 1024, bumps=0.1)
-    passes = []
-    level = culling._cull_level
-
-    def counted(*args, **kw):
-        out = level(*args, **kw)
-        passes.append(out[2])
-        return out
-
-    monkeypatch.setattr(culling, "_cull_level", counted)
+    levels = record_calls(monkeypatch, culling, "_cull_level")
     got = []
     for margin in (culling.PROBE_MARGIN, float("inf")):      # inf: the whole pass always runs
         monkeypatch.setattr(culling, "PROBE_MARGIN", margin)
-        passes.clear()
+        levels.clear()
         r = Renderer(scene, max_error=3e-2, light_tree="always")
         result = r.shade(prepare_frame(gb, lanes=r.lanes))
         assert result.cull is not None and result.cull.clusters > 0
-        got.append((result.image, read_tile_lists(r.runtime, result.cull), list(passes)))
+        got.append((result.image, read_tile_lists(r.runtime, result.cull),
+                    [level[2] for level in levels]))             # each pass's kept entries
     (a, la, spared), (b, lb, whole) = got
     # super-tiles, the sample, the tiles with the tree, and at an infinite margin the
     # whole pass without it, which keeps more than the sample and the tree's lists
