@@ -317,23 +317,12 @@ def directional_lights(l, radiance, group: str | None = None) -> tuple[Light, ..
     and intensity 1, in ``group``: an environment's lights (clphong.io.envmap) and its
     conversion's probe sums (clphong.device.envprobe), a few hundred thousand at a time,
     with the garbage collector paused (:func:`~clphong.core.memory.gc_paused`)."""
-    colors = map(tuple, np.asarray(radiance, np.float64).tolist())
-    toward = map(tuple, (-np.asarray(l, np.float64)).tolist())
-    if not _LIGHT_PLAIN:                                    # pragma: no cover
-        return tuple(Light(type="directional", color=c, intensity=1.0, direction=d, group=group)
+    colors = np.asarray(radiance, np.float64).tolist()
+    toward = (-np.asarray(l, np.float64)).tolist()
+    with gc_paused():
+        return tuple(new_light(type="directional", color=tuple(c), intensity=1.0,
+                               direction=tuple(d), group=group)
                      for c, d in zip(colors, toward))
-    proto = {**_LIGHT_FIELDS, "type": "directional", "intensity": 1.0, "group": group}
-    copy, new, set_dict = proto.copy, object.__new__, object.__setattr__
-    out = []
-    with gc_paused():            # new_light's work, inlined: half the time a light
-        for c, d in zip(colors, toward):
-            fields_ = copy()
-            fields_["color"], fields_["direction"] = c, d
-            lt = new(Light)
-            set_dict(lt, "__dict__", fields_)
-            out.append(lt)
-        return tuple(out)
-
 
 
 @dataclass(frozen=True)
