@@ -76,7 +76,12 @@ def light_bytes(scene) -> int:
     # culling a point light's records (64) and their packing (~200): 576 bytes;
     # with the spot cone in every point record (4 float4 instead of 3: +16 float32,
     # +32 float64 and its temporaries, +32 on the device, +16 culling), scaled to 704.
-    return 704 * sum(1 for lt in scene.lights if lt.type != "ambient")
+    return 704 * shaded_lights(scene)
+
+
+def shaded_lights(scene) -> int:
+    """The lights of ``scene`` that have records: all but the ambient ones."""
+    return len(scene.lights) - len(scene.lights_of("ambient"))
 
 
 def band_rows(shape: tuple[int, int], *, n_map_planes: int, lanes: int, light_bytes: int = 0,

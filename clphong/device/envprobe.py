@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..io.gbuffer import GBuffer
-from ..model.scene import Camera, Scene, directional_lights
+from ..model.scene import Camera, directional_scene
 from .frame import prepare_frame
 from .renderer import Renderer
 
@@ -48,10 +48,9 @@ class DeviceProbeShader:
     def __call__(self, n, v, l, radiance, material) -> np.ndarray:
         n = np.asarray(n, np.float64)
         v = np.asarray(v, np.float64)
-        lights = directional_lights(l, radiance)
-        scene = Scene(camera=Camera(type="perspective", position=(0.0, 0.0, 0.0)),
-                      material=material, lights=lights,
-                      source="environment probes")
+        # columns, not a Light object a light (scene.directional_scene: the same scene)
+        scene = directional_scene(Camera(type="perspective", position=(0.0, 0.0, 0.0)),
+                                  material, l, radiance, source="environment probes")
         # no directional lists: a tile's 16 probes face every way, so the lists keep
         # nearly every light and cost their build (the conversion of the 1024 × 512 sky
         # with spheres_sky's material: 3.56-3.86 s without them, 4.18-4.24 s with them;

@@ -48,6 +48,7 @@ from .bands import (
     map_planes,
     plan_bands,
     render_bytes_per_pixel,
+    shaded_lights,
 )
 from .culling import (
     DirLists,
@@ -477,7 +478,7 @@ class Renderer:
         records = light_bytes(self.scene)
         max_alloc, global_mem = self.runtime.limits()
         if max_alloc is not None and records > max_alloc:
-            n = sum(1 for lt in self.scene.lights if lt.type != "ambient")
+            n = shaded_lights(self.scene)
             raise DeviceError(
                 f"{self.scene.source}: {n} point and directional lights need about "
                 f"{format_size(records)} of light records, more than the largest buffer "

@@ -207,8 +207,10 @@ class LightTree:
         w = self.energy.sum(axis=-1)
         # one table of (w, w·l): a split's candidates cost four gathers
         self._sat = _sat(np.concatenate([w[..., None], w[..., None] * self.directions], axis=-1))
-        self._flat_energy = self.energy.reshape(-1, 3)
-        self._flat_directions = self.directions.reshape(-1, 3)
+        # each texel's E_c·l_xyz, (H·W, 9): the small rectangles' moments gather these
+        # products rather than form them at each of the ~16 depths a texel is summed at
+        self._flat_products = (self.energy[..., :, None] * self.directions[..., None, :]
+                               ).reshape(-1, 9)
         #: Every node as (y0, y1, x0, x1); node 0 is the whole map.
         self.nodes = np.zeros((0, 4), np.int64)
         self._prio = np.zeros(0)                 # capped score; -inf: never split
@@ -284,8 +286,7 @@ class LightTree:
             owner = np.repeat(np.arange(len(k)), area[k])
             q = np.arange(int(area[k].sum())) - start[owner]
             texel = (y0[k][owner] + q // w[owner]) * self.width + x0[k][owner] + q % w[owner]
-            prod = self._flat_energy[texel][:, :, None] * self._flat_directions[texel][:, None, :]
-            mc[k] = np.add.reduceat(prod.reshape(-1, 9), start, axis=0).reshape(-1, 3, 3)
+            mc[k] = np.add.reduceat(self._flat_products[texel], start, axis=0).reshape(-1, 3, 3)
             a = b
         return mc
 

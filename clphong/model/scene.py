@@ -143,7 +143,9 @@ from .scene_types import (
     Material,
     Scene,
     SceneWarning,
+    LightColumns,
     directional_lights,
+    directional_scene,
     new_light,
 )
 
@@ -172,6 +174,8 @@ __all__ = [
     "AOV_NAMES",
     "new_light",
     "directional_lights",
+    "directional_scene",
+    "LightColumns",
     "spot_angles_from_blender",
     "spot_scale_offset",
 ]

@@ -87,3 +87,26 @@ def test_the_probes_walk_every_light_and_match_the_lists_bit_for_bit(device, mon
     with_lists = r.shade(frame)
     assert with_lists.plan.defines["DIR_CULLING"] == 1
     assert np.array_equal(np.asarray(with_lists.image, np.float64).reshape(-1, 3), got)
+
+
+def test_the_probes_scene_of_columns_shades_the_bits_of_light_objects(device, monkeypatch):
+    """The probes' scene is made from columns (scene.directional_scene), not a Light object
+    a light: the kernel sees the same records, so the same bits as a Scene of Lights."""
+    import clphong.device.envprobe as envprobe
+    from clphong.device.renderer import Renderer
+    from clphong.model.scene import Scene, directional_lights
+
+    made = record_calls(monkeypatch, envprobe, "Renderer")
+    rng = np.random.default_rng(6)
+    l = rng.normal(size=(40, 3))
+    l /= np.linalg.norm(l, axis=1, keepdims=True)
+    rad = rng.random((40, 3))
+    n, v = env.probe_pairs(64, None)
+    shader = DeviceProbeShader(device)
+    got = shader(n, v, l, rad, MATERIALS["phong-schlick"])
+    r = made[-1]
+    objects = Scene(camera=r.scene.camera, material=r.scene.material,
+                    lights=directional_lights(l, rad), source="objects")
+    want = Renderer(objects, device=device, path="accurate", light_tree=False,
+                    dir_lists=False).shade(shader._frame[1])
+    assert np.array_equal(np.asarray(want.image, np.float64).reshape(-1, 3), got)

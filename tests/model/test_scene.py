@@ -1436,3 +1436,34 @@ def test_a_large_scene_file_parses_with_rtoml_to_the_same_scene_and_errors(tmp_p
     with pytest.raises(SceneError) as e:
         load_scene(bad)
     assert str(e.value) == tomli_error and ": invalid TOML: " in tomli_error
+
+
+def test_a_scene_of_columns_is_the_scene_of_light_objects():
+    """scene.directional_scene (an environment's probe sums): the caches it fills from the
+    columns are those a Scene of the same Light objects computes, to the bit, and its
+    lights are those objects when asked for."""
+    from clphong.model.scene import Camera, LightColumns, Scene, directional_lights, directional_scene
+
+    rng = np.random.default_rng(8)
+    l = rng.normal(size=(9, 3))
+    l /= np.linalg.norm(l, axis=1)[:, None]
+    rad = rng.uniform(0, 3, (9, 3))
+    cam = Camera(type="perspective", position=(0.0, 0.0, 0.0))
+    mat = Material(model="phong", k_a=0.0, k_d=0.7, k_s=0.2, h=32.0)
+    got = directional_scene(cam, mat, l, rad, source="probes")
+    want = Scene(camera=cam, material=mat, lights=directional_lights(l, rad), source="probes")
+    assert isinstance(got.lights, LightColumns) and len(got.lights) == 9
+    a, b = got.light_arrays, want.light_arrays
+    assert a.keys() == b.keys()
+    for k in a:
+        assert np.asarray(a[k]).dtype == np.asarray(b[k]).dtype, k
+        assert np.array_equal(a[k], b[k]) and np.shape(a[k]) == np.shape(b[k]), k
+        assert not np.asarray(a[k]).flags.writeable, k
+    assert got.light_groups == want.light_groups == ()
+    for t in ("point", "spot", "ambient", "environment"):
+        assert tuple(got.lights_of(t)) == want.lights_of(t) == ()
+    assert tuple(got.lights_of("directional")) == want.lights_of("directional") == want.lights
+    assert got.lights[3] == want.lights[3] and tuple(got.lights[2:5]) == want.lights[2:5]
+    assert isinstance(got.lights[2:5], LightColumns)
+    with pytest.raises(ValueError, match="9 directions but 8 radiances"):
+        directional_scene(cam, mat, l, rad[:8], source="probes")
