@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from ..io.atomic import check_output_path, same_file
-from ..model.options import DEFAULT_ENV_ERROR, check_env_error, check_lanes
+from ..model.options import DEFAULT_ENV_ERROR, ENV_PROBES, check_env_error, check_lanes
 from ..tools.bench import (
     ENV_ERRORS,
     TREE_CASES,
@@ -54,6 +54,10 @@ def _add_bench_parser(sub):
                    help="environment rows (the sample sky on the bench G-buffer, at each of "
                         "--env-sizes): their error targets (default "
                         f"{DEFAULT_ENV_ERROR:g},0.01, none with --sizes; '' for none)")
+    b.add_argument("--env-probes", metavar="WHERE[,WHERE]",
+                   help="the environment rows' probes: 'frame' (the bench G-buffer's own pixels, "
+                        "the commands' default) and/or 'all' (every normal and view) "
+                        "(default frame,all)")
     b.add_argument("--env-sizes", metavar="WxH[,WxH]",
                    help="the environment rows' sky sizes (default 256x128,1024x512,4096x2048)")
     b.add_argument("--tree", metavar="SCENE:N:EPS[:rel][,...]",
@@ -141,6 +145,12 @@ def cmd_bench(args) -> int:
             kw["env_errors"] = tuple(check_env_error(x) for x in kw["env_errors"])
         except ValueError as exc:
             raise _Usage(f"--env-error: {exc}") from None
+    if args.env_probes is not None:
+        kw["env_probes"] = _csv(args.env_probes, str, "--env-probes")
+        bad = [x for x in kw["env_probes"] if x not in ENV_PROBES]
+        if bad or not kw["env_probes"]:
+            raise _Usage(f"--env-probes: expected {' and/or '.join(ENV_PROBES)}, not "
+                         f"{args.env_probes!r}")
     if args.env_sizes:
         kw["env_sizes"] = tuple(_env_size(x) for x in args.env_sizes.split(",") if x.strip())
     kw["tree_cases"] = (BenchConfig.quick().tree_cases if args.quick

@@ -43,11 +43,12 @@ from ..device.renderer import Renderer
 from ..device.selection import describe_devices
 from ..io import envmap as _envmap
 from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
-from ..io.envmap import resolve_environment
+from ..io.envmap import check_environment_maps, frame_pairs, resolve_environment
 from ..io.gbuffer import parse_channel_mapping, read_gbuffer
 from ..io.inspection import METRICS, DiffError, diff_images, format_report, inspect_file
 from ..model.options import (
     DEFAULT_ENV_ERROR,
+    ENV_PROBES,
     KERNELS,
     LANES,
     NONFINITE_POLICIES,
@@ -284,6 +285,11 @@ ENV_ERROR_HELP = ("environment lights: each map becomes the fewest directional l
 def _add_speed_options(p):
     p.add_argument("--env-error", type=_env_error, default=DEFAULT_ENV_ERROR, metavar="REL",
                    help=ENV_ERROR_HELP)
+    p.add_argument("--env-probes", choices=tuple(ENV_PROBES), default="frame",
+                   help="where --env-error is estimated: 'frame' (default) on the frame's own "
+                        "normals and views, so a frame gets the lights it needs (each frame "
+                        "converts once, cached on disk); 'all' on every normal and view, one "
+                        "conversion for every frame (docs/lighting.md, 'Environment light')")
     p.add_argument("--max-error", type=float, metavar="EPS",
                    help="tiled light culling: per 16x16 tile, drop point lights only while the sum "
                         "of their upper bounds stays within EPS x reference white of output radiance "
@@ -326,6 +332,7 @@ def _renderer_options(args) -> RendererOptions:
         path=None if args.path == "accurate" else args.path,
         max_error=args.max_error, reference_white=args.reference_white,
         env_error=args.env_error, light_tree=args.light_tree,
+        env_probes=getattr(args, "env_probes", "frame"),
         relative=getattr(args, "relative", False),
         nonfinite=getattr(args, "nonfinite", "background"),
         aovs=tuple(a.strip() for a in (getattr(args, "aov", None) or "").split(",") if a.strip()))
@@ -438,12 +445,17 @@ def cmd_plan(args) -> int:
     opts = _renderer_options(args)
     original = load_scene(args.scene)
     env_error = opts.env_error
-    resolved = resolve_environment(original, max_error=env_error, nonfinite=opts.nonfinite,
-                                   shade=DeviceProbeShader(args.device))
-    scene = resolved.scene
-    maps = ()
+    gbuffer = None
     if args.gbuffer or args.position or args.normal or args.albedo:
-        maps = tuple(_read_gbuffer(args).maps)
+        gbuffer = _read_gbuffer(args)
+    # the frame's own probes where the frame is given and its camera is the scene's
+    pairs = (frame_pairs(original.camera, gbuffer, material=original.material)
+             if gbuffer is not None and opts.env_probes == "frame"
+             and original.camera.type != "metadata" else None)
+    resolved = resolve_environment(original, max_error=env_error, nonfinite=opts.nonfinite,
+                                   shade=DeviceProbeShader(args.device), pairs=pairs)
+    scene = resolved.scene
+    maps = tuple(gbuffer.maps) if gbuffer is not None else ()
     # The renderer 'render' builds, so the plan printed is the one it compiles
     # (device, lane width, --path, --max-error).
     renderer = Renderer(scene, device=args.device, kernel=args.kernel, lanes=args.lanes,
@@ -455,7 +467,10 @@ def cmd_plan(args) -> int:
         print(f"environment: light[{i}] {original.lights[i].file}: "
               f"{env.count:,} directional lights of its {env.texels:,} texels (the light tree's "
               f"split; no irradiance table yet: every environment takes this path), estimated "
-              f"error {env.estimated_error:.2g} "
+              + ("on this frame's pixels" if pairs is not None else
+                 "on every normal and view" + (" (give the G-buffer for its own pixels)"
+                                               if opts.env_probes == "frame" else ""))
+              + f": error {env.estimated_error:.2g} "
               + ("within" if env.met else "NOT within") + f" --env-error {env_error:g}"
               + ("" if env.seconds else "; from the disk cache"))
     return 0
@@ -517,10 +532,15 @@ def cmd_relight(args) -> int:
         raise _Usage("give at least one output template: -o OUT.####.exr, --sdr OUT.####.png, "
                      "--hdr OUT.####.png or --contact-sheet OUT.####.png")
     rigs = [_rig(r) for r in args.rig]
-    # environment maps resolved once here, not in every worker
-    rigs = [type(r)(r.name, resolve_environment(r.scene, max_error=args.env_error,
-                                                nonfinite=args.nonfinite).scene)
-            for r in rigs]
+    if renderer_options.env_probes == "all":
+        # environment maps resolved once here, not in every worker
+        rigs = [type(r)(r.name, resolve_environment(r.scene, max_error=args.env_error,
+                                                    nonfinite=args.nonfinite).scene)
+                for r in rigs]
+    else:
+        # each frame resolves them on its own pixels (cached on disk); a bad map fails here, once
+        for r in rigs:
+            check_environment_maps(r.scene, nonfinite=args.nonfinite)
     frames = FrameRange.parse(args.frames) if args.frames else None    # never listed: 1-1000000000
     plan = plan_batch(args.sequence, rigs, args.output, sdr=args.sdr, hdr=args.hdr,
                       contact_sheet=args.contact_sheet, frames=frames,

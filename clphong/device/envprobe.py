@@ -30,8 +30,8 @@ __all__ = ["DeviceProbeShader"]
 
 
 class DeviceProbeShader:
-    """``shade(n, v, l, radiance, material)`` → (P, 3) float64 on an OpenCL device, with
-    the meaning of :func:`clphong.model.environment.probe_pixels` (``device`` as
+    """``shade(n, v, l, radiance, material, albedo=None)`` → (P, 3) float64 on an OpenCL
+    device, with the meaning of :func:`clphong.model.environment.probe_pixels` (``device`` as
     :class:`~clphong.device.renderer.Renderer` takes it; None: the default device).
 
     ``key`` names it in the conversion caches. It does not name the device: every
@@ -45,9 +45,11 @@ class DeviceProbeShader:
         self.device = device
         self._frame = None            # ((probes, lanes), Frame): the search reuses it
 
-    def __call__(self, n, v, l, radiance, material) -> np.ndarray:
+    def __call__(self, n, v, l, radiance, material, albedo=None) -> np.ndarray:
         n = np.asarray(n, np.float64)
         v = np.asarray(v, np.float64)
+        a = (np.ones((len(n), 3), np.float32) if albedo is None
+             else np.asarray(albedo, np.float32).reshape(-1, 3))
         # columns, not a Light object a light (scene.directional_scene: the same scene)
         scene = directional_scene(Camera(type="perspective", position=(0.0, 0.0, 0.0)),
                                   material, l, radiance, source="environment probes")
@@ -57,11 +59,11 @@ class DeviceProbeShader:
         # the same lights and estimates)
         r = Renderer(scene, device=self.device, path="accurate", light_tree=False,
                      dir_lists=False)
-        key = (n.tobytes(), v.tobytes(), r.lanes)
+        key = (n.tobytes(), v.tobytes(), a.tobytes(), r.lanes)
         if self._frame is None or self._frame[0] != key:
             P = len(n)
             gb = GBuffer(position=(-v).astype(np.float32).reshape(1, P, 3),
                          normal=n.astype(np.float32).reshape(1, P, 3),
-                         albedo=np.ones((1, P, 3), np.float32))
+                         albedo=a.reshape(1, P, 3))
             self._frame = (key, prepare_frame(gb, lanes=r.lanes))
         return np.asarray(r.shade(self._frame[1]).image, np.float64).reshape(-1, 3)

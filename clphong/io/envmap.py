@@ -45,7 +45,8 @@ from ..model.scene import Light, Scene, SceneWarning
 from .exrfile import oiio_message
 
 __all__ = ["read_envmap", "resolve_environment", "ResolvedScene", "ENV_BYTES_PER_TEXEL",
-           "ENV_FIXED_BYTES", "environment_key", "directional_lights"]
+           "ENV_FIXED_BYTES", "environment_key", "directional_lights", "frame_pairs",
+           "check_environment_maps"]
 
 #: Peak bytes per texel of reading a map and resolving it (the float32 read, its
 #: float64 energy, the directions, the tree's summed-area table and its node
@@ -276,11 +277,72 @@ class _Progress:
             self.last = now
 
 
+def frame_pairs(camera, gbuffer, count: int = _environment.PROBES, material=None):
+    """The probes of a frame (:func:`clphong.model.environment.frame_probes`): the unit
+    normals, views and albedos of ``gbuffer``'s shaded pixels (a non-zero, finite normal
+    and position, coverage above 0) under ``camera`` (perspective or orthographic: a
+    metadata camera resolved for this frame first), as the kernels see them: v =
+    (eye − P)/|eye − P|, or n where P is the eye. None where no pixel is shaded.
+
+    A relative error does not change when a pixel's value is scaled, so per-pixel k_d,
+    k_s and specular-colour maps fold into the probe's albedo against ``material``'s
+    uniform values: C_d·(k_d map/k_d)·(k_s·C_s)/(k_s map·C_s map), per channel (a pixel
+    without specular, k_s map 0, as a bright albedo). A shininess map does not fold:
+    the probes keep the material's h. The albedo is as stored (before an
+    ``albedo_space`` conversion)."""
+    N = np.asarray(gbuffer.normal, np.float64).reshape(-1, 3)
+    P = np.asarray(gbuffer.position, np.float64).reshape(-1, 3)
+    with np.errstate(invalid="ignore", over="ignore"):
+        nn = np.sqrt(np.einsum("ij,ij->i", N, N))
+        ok = (nn > 0) & np.isfinite(nn) & np.isfinite(P).all(axis=1)
+    cov = getattr(gbuffer, "coverage", None)
+    if cov is not None:
+        ok &= np.asarray(cov).reshape(-1) > 0
+    if not ok.any():
+        return None
+    n = N[ok] / nn[ok, None]
+    albedo = np.maximum(np.asarray(gbuffer.albedo, np.float64).reshape(-1, 3)[ok], 0.0)
+    maps = getattr(gbuffer, "maps", None) or {}
+    if material is not None and maps:
+        scale = np.ones_like(albedo)
+        if "k_d" in maps and material.k_d > 0:
+            scale *= (np.asarray(maps["k_d"], np.float64).reshape(-1)[ok] / material.k_d)[:, None]
+        spec = np.ones_like(albedo)
+        if "k_s" in maps and material.k_s > 0:
+            spec *= (np.asarray(maps["k_s"], np.float64).reshape(-1)[ok] / material.k_s)[:, None]
+        if "specular_color" in maps:
+            cs = np.asarray(material.specular_color, np.float64)
+            spec *= np.asarray(maps["specular_color"], np.float64).reshape(-1, 3)[ok] / \
+                np.where(cs > 0, cs, 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            albedo = np.where(spec > 0, albedo * scale / np.where(spec > 0, spec, 1.0),
+                              BRIGHT_ALBEDO)
+        albedo = np.minimum(np.nan_to_num(albedo, nan=0.0, posinf=BRIGHT_ALBEDO), BRIGHT_ALBEDO)
+    view = view_vector(camera)
+    if view is not None:
+        v = np.broadcast_to(view / np.linalg.norm(view), n.shape)
+    else:
+        d = np.asarray(camera.position, np.float64) - P[ok]
+        dd = np.sqrt(np.einsum("ij,ij->i", d, d))
+        v = np.where(dd[:, None] > 0, d / np.where(dd > 0, dd, 1.0)[:, None], n)
+    return _environment.frame_probes(n, v, count, albedo=albedo)
+
+
+#: A frame probe's albedo where its pixel has no specular term (a k_s map of 0): its
+#: diffuse alone, as far as float32 and the relative error care.
+BRIGHT_ALBEDO = 1e6
+
+
 def _convert(light: Light, where: str, material, view, max_error: float,
-             nonfinite: str = "error", shade=None) -> EnvironmentLights:
+             nonfinite: str = "error", shade=None, pairs=None) -> EnvironmentLights:
     name = light.file
     policy = "background" if nonfinite == "background" else "error"   # what reading does
     shader = "numpy" if shade is None else shade.key
+    if pairs is not None:       # a frame's probes: the key names them, not the view
+        h = hashlib.sha256()
+        for a in pairs:
+            h.update(np.ascontiguousarray(a, np.float64).tobytes())
+        view, shader = None, f"{shader}; frame probes {h.hexdigest()[:32]}"
     try:
         st = os.stat(name)
         key = (os.path.realpath(name), st.st_ino, st.st_size, st.st_mtime_ns, light.rotation,
@@ -303,7 +365,8 @@ def _convert(light: Light, where: str, material, view, max_error: float,
             notes = tuple(str(w.message) for w in said if issubclass(w.category, SceneWarning))
             result = environment_lights(L, material, rotation=light.rotation,
                                         intensity=light.intensity, view=view, max_error=max_error,
-                                        progress=_Progress(f"{where}: {name}"), shade=shade)
+                                        progress=_Progress(f"{where}: {name}"), shade=shade,
+                                        pairs=pairs)
             hit = (result, notes)
             if disk is not None:
                 _save(disk, result, notes)
@@ -324,8 +387,19 @@ def directional_lights(env: EnvironmentLights, group: str | None = None) -> tupl
     return _scene.directional_lights(env.l, env.radiance, group)
 
 
+def check_environment_maps(scene: Scene, *, nonfinite: str = "error") -> None:
+    """Read each environment map of ``scene`` as :func:`resolve_environment` would, and
+    raise its one-line error (a SceneError naming the key) for the first that cannot be
+    used, without converting: a batch whose frames resolve their own fails once, first."""
+    for i, lt in enumerate(scene.lights):
+        if lt.type == "environment":
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SceneWarning)   # the frames say them
+                read_envmap(lt.file, environment_key(scene, i), nonfinite)
+
+
 def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
-                        nonfinite: str = "error", shade=None) -> ResolvedScene:
+                        nonfinite: str = "error", shade=None, pairs=None) -> ResolvedScene:
     """Replace every environment light of ``scene`` by directional lights.
 
     Parameters
@@ -340,6 +414,10 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
         The conversion's probe shader (``environment_lights(shade=...)``), e.g.
         :class:`clphong.device.envprobe.DeviceProbeShader`; None: float64 numpy. Its
         ``key`` is part of the cache keys.
+    pairs : (n, v) arrays, optional
+        The probes of one frame (:func:`frame_pairs`): each environment's estimate
+        then speaks of that frame's pixels; part of the cache keys. None: every
+        normal and view (:func:`clphong.model.environment.probe_pairs`).
 
     Returns
     -------
@@ -366,7 +444,7 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
             lights.append(lt)
             continue
         r = _convert(lt, environment_key(scene, i), scene.material, view, max_error, nonfinite,
-                     shade)
+                     shade, pairs)
         done.append((i, r))
         if not r.met:
             warnings.warn(SceneWarning(

@@ -77,7 +77,7 @@ from .options import DEFAULT_ENV_ERROR, check_env_error
 
 __all__ = ["texel_directions", "texel_solid_angles", "rotation_about_up", "texel_lights",
            "LightTree", "LeafSums", "probe_pixels", "EnvironmentLights", "environment_lights",
-           "probe_pairs", "probe_sums", "lobe_weights",
+           "probe_pairs", "frame_probes", "probe_sums", "lobe_weights",
            "probe_error", "check_env_error", "DEFAULT_ENV_ERROR", "PROBES", "FLOOR", "REFINE",
            "RATE", "EXTRAPOLATION", "MAX_ENV_LIGHTS", "MIN_LIGHTS"]
 
@@ -415,6 +415,59 @@ def probe_pairs(count: int = PROBES, view=None):
     return n, v
 
 
+#: Frame probes: normal cells of the octahedral map (FRAME_CELLS² of them) × n·v bins
+#: (equal steps of √(n·v), so that grazing views get bins of their own).
+FRAME_CELLS = 24
+FRAME_NV_BINS = 4
+
+
+def frame_probes(n, v, count: int = PROBES, seed: int = 0, albedo=None):
+    """(n, v[, albedo]), at most (count, 3) each: probes drawn from a frame's own pixels
+    (unit normals ``n``, views ``v`` and albedos, (P, 3)), so that the estimate speaks
+    of that frame.
+
+    Stratified: one pixel from each occupied cell of (normal direction, n·v), the
+    normal's octahedral map cut into :data:`FRAME_CELLS` ² cells and √(n·v) into
+    :data:`FRAME_NV_BINS` bins (the rim of a sphere, a few pixels, gets its own
+    probes: the horizon's error is largest at grazing views), the cell's darkest
+    albedo channel first (a dark channel is mostly specular, whose relative error
+    is the larger); then pixels drawn at random up to ``count``. Seeded: the same
+    frame gives the same probes. Every pixel when there are at most ``count``."""
+    n = np.asarray(n, np.float64).reshape(-1, 3)
+    v = np.asarray(v, np.float64).reshape(-1, 3)
+    a_d = None if albedo is None else np.asarray(albedo, np.float64).reshape(-1, 3)
+
+    def out(idx):
+        return (n[idx], v[idx]) if a_d is None else (n[idx], v[idx], a_d[idx])
+
+    if len(n) <= count:
+        return out(np.arange(len(n)))
+    a = n / np.maximum(np.abs(n).sum(axis=1, keepdims=True), 1e-300)
+    x, z = a[:, 0], a[:, 2]
+    low = a[:, 1] < 0                                   # the lower half folded out
+    x, z = (np.where(low, (1.0 - np.abs(z)) * np.copysign(1.0, x), x),
+            np.where(low, (1.0 - np.abs(x)) * np.copysign(1.0, z), z))
+    cells = FRAME_CELLS
+    cx = np.clip(((x + 1.0) * 0.5 * cells).astype(np.int64), 0, cells - 1)
+    cz = np.clip(((z + 1.0) * 0.5 * cells).astype(np.int64), 0, cells - 1)
+    nv = np.clip(np.einsum("ij,ij->i", n, v), 0.0, 1.0)
+    b = np.minimum((np.sqrt(nv) * FRAME_NV_BINS).astype(np.int64), FRAME_NV_BINS - 1)
+    key = (cx * cells + cz) * FRAME_NV_BINS + b
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(len(n))
+    if a_d is not None:                 # within a cell, the darkest channel first
+        order = order[np.argsort(a_d[order].min(axis=1), kind="stable")]
+    pick = order[np.unique(key[order], return_index=True)[1]]     # one pixel a cell
+    if len(pick) > count:
+        pick = rng.choice(pick, count, replace=False)
+    elif len(pick) < count:
+        rest = np.ones(len(n), bool)
+        rest[pick] = False
+        pick = np.concatenate([pick, rng.choice(np.flatnonzero(rest), count - len(pick),
+                                                replace=False)])
+    return out(np.sort(pick))
+
+
 def _power(x: np.ndarray, k: float) -> np.ndarray:
     """x^k for x in [0, 1], in place where it can: binary powering for a whole k (as
     SPEC_INT_POW), else exp·log; 0⁰ := 1."""
@@ -524,12 +577,13 @@ def lobe_weights(n, v, l, material) -> np.ndarray:
     return _lobe(n @ l.T, NoV, v @ l.T, material.model == "blinn-phong", material.exponent)
 
 
-def probe_pixels(n, v, l, radiance, material) -> np.ndarray:
-    """(P, 3): the probes' pixel values at white albedo, without ambient (k_d·diffuse +
+def probe_pixels(n, v, l, radiance, material, albedo=None) -> np.ndarray:
+    """(P, 3): the probes' pixel values, without ambient (k_d·C_d·diffuse +
     k_s·C_s·specular, Fresnel's W in the specular), from the float64 sums of
-    :func:`probe_sums`. The conversion's default probe shader; a device layer may pass
-    another with the same meaning (``environment_lights(shade=...)``)."""
-    return _pixels(*probe_sums(n, v, l, radiance, material), material)
+    :func:`probe_sums`; C_d is ``albedo`` (P, 3), or white. The conversion's default probe
+    shader; a device layer may pass another with the same meaning
+    (``environment_lights(shade=...)``)."""
+    return _pixels(*probe_sums(n, v, l, radiance, material), material, albedo)
 
 
 class LeafSums:
@@ -547,8 +601,9 @@ class LeafSums:
     fresh sum.
     """
 
-    def __init__(self, tree: LightTree, n, v, material, shade=probe_pixels):
+    def __init__(self, tree: LightTree, n, v, material, shade=probe_pixels, albedo=None):
         self.tree, self.n, self.v, self.material, self.shade = tree, n, v, material, shade
+        self.albedo = albedo                   # the probes' C_d (P, 3); None: white
         self.done: dict[int, tuple] = {}       # k -> (leaf ids, pixels)
 
     def _sum(self, ids: np.ndarray) -> np.ndarray:
@@ -556,8 +611,9 @@ class LeafSums:
         lit = rad.max(axis=1, initial=0.0) > 0
         if not lit.any():
             return np.zeros((len(self.n), 3))
+        more = {} if self.albedo is None else {"albedo": self.albedo}
         return np.asarray(self.shade(self.n, self.v, self.tree._l[ids][lit], rad[lit],
-                                     self.material), np.float64)
+                                     self.material, **more), np.float64)
 
     def __call__(self, k: int) -> np.ndarray:
         """(P, 3): the probes' pixels lit by the first ``k`` leaves."""
@@ -579,11 +635,13 @@ class LeafSums:
         return p
 
 
-def _pixels(diffuse, specular, material) -> np.ndarray:
-    """Probe pixel values at white albedo: k_d·diffuse + k_s·C_s·specular (Fresnel's W in specular)."""
+def _pixels(diffuse, specular, material, albedo=None) -> np.ndarray:
+    """Probe pixel values: k_d·C_d·diffuse + k_s·C_s·specular (Fresnel's W in specular),
+    C_d ``albedo`` or white."""
     cs = np.ones(3) if material.fresnel == "schlick" else \
         np.asarray(material.specular_color, np.float64)
-    return material.k_d * diffuse + material.k_s * cs * specular
+    d = diffuse if albedo is None else np.asarray(albedo, np.float64) * diffuse
+    return material.k_d * d + material.k_s * cs * specular
 
 
 def probe_error(value, truth, floor: float = FLOOR) -> float:
@@ -641,7 +699,7 @@ class EnvironmentLights:
 def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: float = 1.0,
                        view=None, max_error: float = DEFAULT_ENV_ERROR,
                        max_lights: int = MAX_ENV_LIGHTS, probes: int = PROBES,
-                       progress=None, shade=None) -> EnvironmentLights:
+                       progress=None, shade=None, pairs=None) -> EnvironmentLights:
     """The fewest directional lights whose estimated error is within ``max_error``.
 
     Parameters
@@ -668,6 +726,11 @@ def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: 
         device, at the probes' float32 roundings: that moves an estimate by about 1e-4
         of itself, so the search ends on the same count or, where an estimate lies
         that close to the target, a neighbouring one.
+    pairs : ((P, 3), (P, 3)[, (P, 3)]) arrays, optional
+        The probes' unit normals, views and, optionally, albedos (:func:`frame_probes`:
+        a frame's own pixels), instead of :func:`probe_pairs` of ``probes`` and
+        ``view`` at white albedo: the estimate then speaks of those pixels, not of
+        every normal and view. ``shade`` then takes ``albedo=`` too.
 
     Returns
     -------
@@ -680,8 +743,17 @@ def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: 
     d = (texel_directions(W, H).reshape(-1, 3) @ rotation_about_up(rotation).T).reshape(H, W, 3)
     E = L.astype(np.float64) * (texel_solid_angles(W, H) * float(intensity))[..., None]
     tree = LightTree(E, d)
-    n, v = probe_pairs(probes, view)
-    pixels = LeafSums(tree, n, v, material, shade or probe_pixels)   # each count's, kept
+    albedo = None
+    if pairs is None:
+        n, v = probe_pairs(probes, view)
+    else:
+        n, v, *rest = (np.asarray(a, np.float64).reshape(-1, 3) for a in pairs)
+        albedo = rest[0] if rest else None
+        if len(n) != len(v) or not len(n) or (albedo is not None and len(albedo) != len(n)):
+            raise ValueError(f"probe pairs: {len(n)} normals, {len(v)} views"
+                             + ("" if albedo is None else f", {len(albedo)} albedos")
+                             + "; give as many of each, at least one")
+    pixels = LeafSums(tree, n, v, material, shade or probe_pixels, albedo)   # each count's, kept
 
     def estimate(k: int, fine: int | None = None) -> float:
         """The error estimate of k leaves against ``fine`` ≥ REFINE·k leaves (default

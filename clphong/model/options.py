@@ -21,7 +21,7 @@ __all__ = ["validate_method", "PATHS", "path_options", "NONFINITE_POLICIES", "ch
            "check_fp64_directions", "check_float_power",
            "MAX_EXPOSURE", "check_exposure", "ENCODINGS", "CullingError", "check_budget",
            "NUMBERS", "check_number", "RendererOptions", "finished", "DEFAULT_ENV_ERROR",
-           "check_env_error"]
+           "check_env_error", "ENV_PROBES"]
 
 
 def validate_method(value, methods, what: str, error: type[Exception] = ValueError):
@@ -56,6 +56,11 @@ def path_options(path: str) -> dict:
 #: The default relative error of an environment light (``--env-error``;
 #: clphong.model.environment says how it is measured).
 DEFAULT_ENV_ERROR = 1e-3
+
+
+#: Where an environment's error is estimated (``--env-probes``; RendererOptions.env_probes).
+ENV_PROBES = {"frame": "on each frame's own pixels (its normals and views)",
+              "all": "on every normal and view (one conversion serves any frame)"}
 
 
 def check_env_error(value) -> float:
@@ -255,6 +260,11 @@ class RendererOptions:
         Component layers (checked against the scene by the renderer).
     env_error : float
         The environment lights' error target (> 0).
+    env_probes : str
+        :data:`ENV_PROBES`: where that error is estimated. ``"frame"`` (default): on
+        each frame's own pixels, so each frame gets the lights it needs (its own
+        conversion, cached by its probes); ``"all"``: on every normal and view, one
+        conversion for any frame.
     light_tree : bool or "always"
 
     Raises
@@ -264,8 +274,8 @@ class RendererOptions:
         finite number > 0.
     ValueError
         An unknown ``nonfinite`` policy or ``path``, ``fp64_directions`` not None/bool,
-        both ``path`` and ``fp64_directions``, or an ``env_error`` that is not a finite
-        number > 0.
+        both ``path`` and ``fp64_directions``, an ``env_error`` that is not a finite
+        number > 0, or an unknown ``env_probes``.
     """
 
     fp64_directions: bool | None = None
@@ -277,6 +287,7 @@ class RendererOptions:
     env_error: float = DEFAULT_ENV_ERROR
     light_tree: bool | str = True
     relative: bool = False
+    env_probes: str = "frame"
 
     def __post_init__(self):
         check_fp64_directions(self.fp64_directions)
@@ -288,6 +299,7 @@ class RendererOptions:
         check_relative(self.relative, self.max_error)
         check_nonfinite(self.nonfinite)
         object.__setattr__(self, "env_error", check_env_error(self.env_error))
+        validate_method(self.env_probes, ENV_PROBES, "env_probes")
         aovs = self.aovs
         if isinstance(aovs, str):         # "diffuse,specular", as --aov and the scene key
             aovs = tuple(a.strip() for a in aovs.split(",") if a.strip())

@@ -64,7 +64,9 @@ What is measured
 * Environment light (issue 16; :func:`run_environment`): the sample sky
   (:func:`clphong.tools.samples.sky_envmap`) at 1024×512 on the bench
   G-buffer, bench material, no other light, for each ``env_errors`` target
-  (``--env-error``): the conversion's light count, estimate and time; ms per
+  (``--env-error``) and each ``env_probes`` (``frame``: estimated on the bench
+  G-buffer's own pixels, as the commands do by default; ``all``: on every normal
+  and view): the conversion's light count, estimate and time; ms per
   frame (timed as above, on a crop, in turns with a 256-point-light brute
   force frame of the wide scene: ``time_ratio_256_point``; the wide scene's own
   256-light run, if the run has one, is reported beside it); and the max relative error of the
@@ -245,6 +247,7 @@ class BenchConfig:
     env_errors: tuple = ()                          # environment rows' targets (the CLI: ENV_ERRORS)
     env_sizes: tuple = ((256, 128), (1024, 512), (4096, 2048))   # the sky maps' width x height
     env_pixels: int = 2000                          # pixels of the exact texel sum
+    env_probes: tuple = ("frame", "all")            # where each row's conversion estimates (--env-probes)
     tree_cases: tuple = ()                          # light-tree rows: (scene, N, ε) (the CLI: TREE_CASES)
     lanes: tuple = (None,)                          # widths of the wide scene's brute-force rows (None: the device's)
 
@@ -383,6 +386,7 @@ def _report_header(cfg: BenchConfig, rt, peak: float, shapes: dict, numba_fma, u
                      "small_lights": list(cfg.small_lights), "seed": SEED,
                      "reference_white": 1.0, "env_errors": list(cfg.env_errors),
                      "env_sizes": [list(e) for e in cfg.env_sizes], "env_pixels": cfg.env_pixels,
+                     "env_probes": list(cfg.env_probes),
                      "tree_cases": [list(c) for c in cfg.tree_cases]},
         "numpy": [],
         "numba": [],

@@ -11,7 +11,7 @@ import numpy as np
 from ..device.culling import TILE, super_tiles
 from ..device.envprobe import DeviceProbeShader
 from ..device.renderer import Renderer, prepare_frame
-from ..io.envmap import directional_lights
+from ..io.envmap import directional_lights, frame_pairs
 from ..model.environment import (
     DEFAULT_ENV_ERROR,
     FLOOR,
@@ -104,14 +104,18 @@ def run_environment(cfg, full, runs, log, env_size) -> list[dict]:
                  and r["path"] == "accurate" and r["max_error"] is None), None)
     slots = []
     shade = DeviceProbeShader(cfg.device)          # the probes on the device, as the commands
-    for target in cfg.env_errors:
-        conv = environment_lights(L, material, max_error=target, shade=shade)
+    # the frame's own probes (the commands' default, env_probes="frame"): the bench G-buffer's
+    pairs = frame_pairs(base.camera, full, material=material)
+    for target, probes in ((t, p) for t in cfg.env_errors for p in cfg.env_probes):
+        conv = environment_lights(L, material, max_error=target, shade=shade,
+                                  pairs=pairs if probes == "frame" else None)
         scene = environment_scene(directional_lights(conv))
         n = len(scene.lights)
         rows = _crop_rows(W, H, max(n, 1), cfg.crop_pairs)
         gb = full if rows == H else bench_gbuffer(W, H, rows)
         r = Renderer(scene, device=cfg.device)
-        slots.append({"target": target, "conv": conv, "scene": scene, "rows": rows, "gb": gb,
+        slots.append({"target": target, "probes": probes, "conv": conv, "scene": scene,
+                      "rows": rows, "gb": gb,
                       "r": r, "frame": prepare_frame(gb, lanes=max(r.lanes, 1)), "times": []})
     sc = bench_scene("wide", 256)
     rows = _crop_rows(W, H, 256, cfg.crop_pairs)
@@ -144,7 +148,8 @@ def run_environment(cfg, full, runs, log, env_size) -> list[dict]:
         ms = per_frame(slot)
         entry = {
             "scene": "environment", "size": [W, H], "map": [mw, mh], "texels": conv.texels,
-            "env_error": target, "lights": conv.count, "estimated_error": conv.estimated_error,
+            "env_error": target, "env_probes": slot["probes"], "lights": conv.count,
+            "estimated_error": conv.estimated_error,
             "estimate_met": conv.met, "probes": conv.probes, "conversion_s": conv.seconds,
             "crop_rows": slot["rows"], "extrapolated": slot["rows"] != H,
             "ms_per_frame": ms, "times_ms": [t * 1e3 for t in slot["times"]],
@@ -163,7 +168,7 @@ def run_environment(cfg, full, runs, log, env_size) -> list[dict]:
         }
         out.append(entry)
         e = entry["error"]
-        log(f"environment {mw}x{mh} eps={target:<6g} {conv.count:6d} lights (est {conv.estimated_error:.2e}, "
+        log(f"environment {mw}x{mh} eps={target:<6g} probes={slot['probes']:5s} {conv.count:6d} lights (est {conv.estimated_error:.2e}, "
             f"{conv.seconds:.1f} s) {ms:10.1f} ms/frame x{entry['time_ratio_256_point']:.2f} of 256 "
             f"point lights  max rel {e['max_rel']:.2e} (diffuse {e['diffuse_max_rel']:.2e}, "
             f"specular {e['specular_max_rel']:.2e}); {entry['lights_for_target_on_sample']} lights "
@@ -314,17 +319,19 @@ def environment_summary_lines(summary: dict) -> list[str]:
 def environment_table(rows: list[dict]) -> list[str]:
     if not rows:
         return []
-    lines = [f"{'environment':12s} {'eps':>7s} {'lights':>7s} {'est':>9s} {'conv s':>7s} "
+    lines = [f"{'environment':12s} {'eps':>7s} {'probes':>6s} {'lights':>7s} {'est':>9s} {'conv s':>7s} "
              f"{'ms/frame':>10s} {'x256pt':>7s} {'max rel':>9s} {'diffuse':>9s} {'specular':>9s} "
              f"{'pixels':>6s} {'enough':>7s}"]
     for r in rows:
         e = r["error"]
-        lines.append(f"{'x'.join(map(str, r['map'])):12s} {r['env_error']:7.0e} {r['lights']:7d} "
+        lines.append(f"{'x'.join(map(str, r['map'])):12s} {r['env_error']:7.0e} "
+                     f"{r.get('env_probes', 'all'):>6s} {r['lights']:7d} "
                      f"{r['estimated_error']:9.2e} {r['conversion_s']:7.1f} {r['ms_per_frame']:10.1f}"
                      f"{'*' if r['extrapolated'] else ' '}{r['time_ratio_256_point']:7.2f} "
                      f"{e['max_rel']:9.2e} {e['diffuse_max_rel']:9.2e} {e['specular_max_rel']:9.2e} "
                      f"{e['sampled_pixels']:6d} {r['lights_for_target_on_sample'] or 0:7d}")
     lines.append("environment: max rel against the exact float64 texel sum on the sampled pixels "
                  ">= 1e-3 of their maximum; diffuse/specular: each term's approximation alone; "
-                 "enough: the fewest lights of the same tree within eps on those pixels")
+                 "enough: the fewest lights of the same tree within eps on those pixels; "
+                 "probes: the estimate's, the frame's own pixels or every normal and view")
     return lines

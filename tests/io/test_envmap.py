@@ -233,9 +233,16 @@ def test_render_relight_and_the_api_resolve_the_environment(tmp_path, capsys):
     got = envmap.read_envmap(str(tmp_path / "o.exr"))       # any RGB EXR reads back this way
     api = clphong.render(load_scene(scene_path), gb, env_error=0.02)
     assert np.array_equal(got, api)
-    r = clphong.Relighter(scene_path, env_error=0.02)
+    # a Relighter on this frame's probes (the default): resolved per frame, the same lights
+    f = clphong.Relighter(scene_path, env_error=0.02)
+    assert f.environments == () and not f.scene.lights_of("environment")
+    assert np.array_equal(f.relight(gb), api) and f.environments[0][1].max_error == 0.02
+    # on every normal and view: resolved at construction, for any frame
+    r = clphong.Relighter(scene_path, env_error=0.02, env_probes="all")
     assert not r.scene.lights_of("environment") and r.environments[0][1].max_error == 0.02
     assert r.spec.env_error == 0.02 and r.spec.build().scene.lights == r.scene.lights
+    every = clphong.render(load_scene(scene_path), gb, env_error=0.02, env_probes="all")
+    assert np.array_equal(r.relight(gb), every)
 
 
 @pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "x"])
@@ -467,3 +474,59 @@ def test_plan_names_each_environments_path(tmp_path, capsys):
     env = [ln for ln in out if ln.startswith("environment: light[0] ")]
     assert len(env) == 1 and "directional lights of its 512 texels" in env[0]
     assert "no irradiance table yet" in env[0] and "within --env-error 0.01" in env[0]
+
+
+# ------------------------------------------------------------------- a frame's own probes
+
+def test_frame_pairs_are_the_pixels_as_the_kernel_sees_them():
+    """frame_pairs: the shaded pixels only (no zero normal, no NaN, no 0 coverage), unit
+    normals, v towards the eye (n at the eye) or the orthographic view, and per-pixel
+    k_d, k_s and specular-colour maps folded into the albedo (a relative error does not
+    change when a pixel is scaled); None without a shaded pixel."""
+    from clphong.io.gbuffer import GBuffer
+    from clphong.model.scene import Camera, Material
+
+    P = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [0, 0, 5]]], np.float32)
+    N = np.array([[[0, 0, 2], [0, 0, 0], [0, 1, 1], [np.nan, 0, 1], [0, 0, 1]]], np.float32)
+    A = np.full((1, 5, 3), 0.5, np.float32)
+    cov = np.array([[1.0, 1.0, 0.0, 1.0, 1.0]], np.float32)
+    mat = Material(model="phong", k_a=0.0, k_d=0.5, k_s=0.25, h=8.0)
+    maps = {"k_d": np.full((1, 5), 1.0, np.float32), "k_s": np.array([[0.5, 0, 0, 0, 0]], np.float32)}
+    gb = GBuffer(position=P, normal=N, albedo=A, coverage=cov, maps=maps)
+    cam = Camera(type="perspective", position=(0.0, 0.0, 5.0))
+    n, v, a = envmap.frame_pairs(cam, gb, material=mat)
+    assert np.array_equal(n, [[0, 0, 1], [0, 0, 1]])     # pixels 0 and 4
+    assert np.allclose(v, [[0, 0, 1], [0, 0, 1]])        # pixel 4 is at the eye: v = n
+    # pixel 0: 0.5 · (1/0.5) · (0.25/0.5) = 0.5; pixel 4 has no specular: the bright albedo
+    assert np.allclose(a[0], 0.5) and np.all(a[1] == envmap.BRIGHT_ALBEDO)
+    ortho = Camera(type="orthographic", direction=(0.0, -0.6, -0.8))
+    _, v, a = envmap.frame_pairs(ortho, gb)
+    assert np.allclose(v, [[0, 0.6, 0.8]] * 2) and np.all(a == 0.5)
+    dark = GBuffer(position=P, normal=np.zeros_like(N), albedo=A)
+    assert envmap.frame_pairs(cam, dark) is None
+
+
+def test_a_frames_probes_are_part_of_the_cache_key(disk, monkeypatch):
+    """A conversion on a frame's probes is its own cache entry: other probes convert
+    again, the same probes (another process) convert nothing."""
+    store, scene = disk
+    n, v, albedo = (np.array([[0.0, 1.0, 0.0], [0.6, 0.8, 0.0]]),
+                    np.array([[0.0, 0.6, 0.8], [0.0, 0.0, 1.0]]), np.full((2, 3), 0.5))
+    a = envmap.resolve_environment(scene, max_error=1e-2, pairs=(n, v, albedo))
+    envmap.resolve_environment(scene, max_error=1e-2)
+    envmap.resolve_environment(scene, max_error=1e-2, pairs=(n, v, albedo * 0.5))
+    assert len(list(store.folder.glob("*.npz"))) == 3
+    monkeypatch.setattr(envmap, "_CACHE", {})
+    monkeypatch.setattr(envmap, "environment_lights", _no_conversion)
+    b = envmap.resolve_environment(scene, max_error=1e-2, pairs=(n, v, albedo))
+    assert np.array_equal(a.environments[0][1].l, b.environments[0][1].l)
+
+
+def test_a_batch_with_a_bad_map_stops_once_before_any_frame(tmp_path):
+    """check_environment_maps: the map's one-line error, without a conversion."""
+    scene_path = _sky_scene(tmp_path)
+    L = samples.sky_envmap(32, 16)
+    L[1, :3] = -2.0
+    _write(tmp_path / "sky.exr", L)
+    with pytest.raises(SceneError, match="3 negative texel"):
+        envmap.check_environment_maps(load_scene(scene_path))

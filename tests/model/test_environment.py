@@ -346,3 +346,68 @@ def test_lobe_weights_are_the_specular_sums_one_light_at_a_time(material):
     assert np.allclose(w[:, j], env.probe_sums(n, v, l[j:j + 1], np.ones((1, 3)), material)[1][:, 0],
                        rtol=0, atol=tol)
     assert (w[(n @ l.T) <= 0] == 0).all() and (w >= 0).all()
+
+
+# ------------------------------------------------------------------------ a frame's own probes
+
+def _sphere_frame(size=48):
+    """A sphere seen from z = 5 in perspective: every normal facing the camera, a rim of
+    grazing views, and albedos with a dark channel; (n, v, albedo) of its pixels."""
+    from clphong.tools.samples import spheres_gbuffer
+
+    gb = spheres_gbuffer(2 * size, size)
+    P = gb.position.reshape(-1, 3).astype(np.float64)
+    N = gb.normal.reshape(-1, 3).astype(np.float64)
+    on = np.linalg.norm(N, axis=1) > 0
+    n = N[on] / np.linalg.norm(N[on], axis=1, keepdims=True)
+    d = np.array([0.0, 2.0, 6.0]) - P[on]        # the samples' camera (SPHERES_CAMERA)
+    v = d / np.linalg.norm(d, axis=1, keepdims=True)
+    return n, v, gb.albedo.reshape(-1, 3)[on].astype(np.float64)
+
+
+def test_frame_probes_take_every_cell_the_darkest_first_and_are_seeded():
+    """frame_probes: at most ``count``; one pixel of each occupied (normal cell, n·v bin),
+    the darkest albedo channel of the cell; the same probes for the same frame; every
+    pixel when there are few; a rim of a few grazing pixels among many facing ones is
+    in."""
+    rng = np.random.default_rng(2)
+    facing = np.tile([0.0, 0.0, 1.0], (20000, 1)) + rng.normal(scale=0.01, size=(20000, 3))
+    rim = np.tile([1.0, 0.0, 0.05], (5, 1))
+    n = np.concatenate([facing, rim])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    v = np.tile([0.0, 0.0, 1.0], (len(n), 1))
+    albedo = rng.uniform(0.2, 1.0, (len(n), 3))
+    albedo[123] = 0.01                                 # the darkest facing pixel
+    pn, pv, pa = env.frame_probes(n, v, 64, albedo=albedo)
+    assert len(pn) == 64 and np.allclose(pv, [0.0, 0.0, 1.0])
+    assert (pn[:, 0] > 0.9).any()                      # the rim has its own cell
+    assert np.isclose(pa.min(axis=1), 0.01).any()      # the facing cell took its darkest
+    again = env.frame_probes(n, v, 64, albedo=albedo)
+    assert all(np.array_equal(a, b) for a, b in zip((pn, pv, pa), again))
+    few = env.frame_probes(n[:10], v[:10], 64)
+    assert len(few) == 2 and np.array_equal(few[0], n[:10])
+
+
+def test_a_frames_probes_meet_the_target_on_every_pixel_of_it():
+    """The conversion on a frame's own probes (a sphere: every normal facing the camera,
+    grazing rims, dark channels) stays within its target on every pixel of that frame
+    against the exact texel sum, at its own albedos; it needs fewer lights than every
+    normal and view do; and the albedo is part of what it estimates."""
+    L = _sky(128, 64)
+    l_t, E_t = env.texel_lights(L)
+    n, v, albedo = _sphere_frame()
+    exact = env.probe_pixels(n, v, l_t, E_t, PHONG, albedo=albedo)
+    target = 1e-2
+    pairs = env.frame_probes(n, v, 512, albedo=albedo)
+    r = env.environment_lights(L, PHONG, max_error=target, pairs=pairs)
+    got = env.probe_pixels(n, v, r.l, r.radiance, PHONG, albedo=albedo)
+    assert r.met and env.probe_error(got, exact) <= target
+    everywhere = env.environment_lights(L, PHONG, max_error=target, probes=512)
+    assert r.count < everywhere.count
+    white = env.environment_lights(L, PHONG, max_error=target, pairs=pairs[:2])
+    assert white.estimated_error != r.estimated_error
+
+
+def test_probe_pairs_of_unequal_lengths_are_refused():
+    with pytest.raises(ValueError, match="3 normals, 2 views"):
+        env.environment_lights(_sky(16, 8), PHONG, pairs=(np.ones((3, 3)), np.ones((2, 3))))

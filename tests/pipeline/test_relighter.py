@@ -13,6 +13,7 @@ from conftest import (
     random_gbuffer,
     random_lights,
     read_rgb,
+    record_calls,
 )
 
 import clphong
@@ -422,3 +423,48 @@ def test_nonfinite_error_policy_raises_naming_the_buffer():
     with pytest.warns(clphong.core.errors.InputWarning):
         rgb = Relighter(scene).relight(frame)
     assert np.all(np.isfinite(rgb)) and np.all(rgb[2, 3] == 0)
+
+
+def test_an_environment_resolves_on_each_frames_own_pixels_once(tmp_path, monkeypatch):
+    """env_probes="frame" (the default): each frame's environment lights come from its own
+    probes, once per frame (kept), and a frame seen from elsewhere converts again; a
+    frame with no shaded pixel converts nothing; "all" converts once, at construction."""
+    import OpenImageIO as oiio
+
+    import clphong.pipeline.relighter as relighter
+    from clphong.io import envmap
+    from clphong.tools import samples
+
+    monkeypatch.setattr(envmap, "_CACHE", {})
+    from clphong.core.cache import Store
+    monkeypatch.setattr(envmap, "_DISK", Store(str(tmp_path / "cache"), ".npz", 8))
+    sky = samples.sky_envmap(32, 16)
+    out = oiio.ImageOutput.create(str(tmp_path / "sky.exr"))
+    out.open(str(tmp_path / "sky.exr"), oiio.ImageSpec(32, 16, 3, oiio.FLOAT))
+    out.write_image(sky)
+    out.close()
+    (tmp_path / "s.toml").write_text(
+        '[camera]\ntype = "perspective"\nposition = [0.0, 2.0, 6.0]\n'
+        '[material]\nmodel = "phong"\nk_a = 0.0\nk_d = 0.7\nk_s = 0.2\nh = 16.0\n'
+        '[[light]]\ntype = "environment"\nfile = "sky.exr"\n')
+    calls = record_calls(monkeypatch, relighter, "resolve_environment")
+    r = Relighter(tmp_path / "s.toml", env_error=0.02)
+    assert calls == [] and r.environments == ()
+    gb = samples.spheres_gbuffer(48, 24)
+    first = r.relight(gb)
+    assert len(calls) == 1 and r.environments[0][1].count > 0 and np.isfinite(first).all()
+    assert np.array_equal(r.relight(gb), first) and len(calls) == 1       # kept
+    moved = samples.spheres_gbuffer(48, 24)
+    moved.position[...] += np.float32(0.5)                                # other views
+    r.relight(moved)
+    assert len(calls) == 2
+    dark = samples.spheres_gbuffer(48, 24)
+    dark.normal[...] = 0.0
+    r.relight(dark)
+    assert len(calls) == 2
+    every = Relighter(tmp_path / "s.toml", env_error=0.02, env_probes="all")
+    assert len(calls) == 3 and every.environments[0][1].count > 0
+    every.relight(gb)
+    assert len(calls) == 3
+    with pytest.raises(ValueError, match="env_probes must be one of frame, all"):
+        Relighter(tmp_path / "s.toml", env_probes="some")

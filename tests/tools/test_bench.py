@@ -281,10 +281,12 @@ def test_environment_rows_against_the_exact_texel_sum():
     cfg = bench.BenchConfig(sizes=((64, 40),), lights=(256,), paths=("accurate",), budgets=(),
                             small_lights=(), repeats=2, warmup=1, numba=False, env_errors=(1e-2, 3e-2),
                             env_sizes=((64, 32), (32, 16)), env_pixels=200)
+    assert cfg.env_probes == ("frame", "all")
     report = bench.run_bench(cfg)
     rows = report["environment"]
-    assert [r["env_error"] for r in rows] == [1e-2, 3e-2] * 2
-    assert [tuple(r["map"]) for r in rows] == [(64, 32)] * 2 + [(32, 16)] * 2   # each map size
+    assert [r["env_error"] for r in rows] == [1e-2, 1e-2, 3e-2, 3e-2] * 2
+    assert [r["env_probes"] for r in rows] == ["frame", "all"] * 4
+    assert [tuple(r["map"]) for r in rows] == [(64, 32)] * 4 + [(32, 16)] * 4   # each map size
     p256 = next(r for r in report["runs"] if r["lights"] == 256)
     for r in rows:
         assert r["texels"] == r["map"][0] * r["map"][1] and 0 < r["lights"] <= r["texels"]
@@ -298,9 +300,13 @@ def test_environment_rows_against_the_exact_texel_sum():
         # the float64 model sums of the same lights: the kernel adds < 1e-5
         assert abs(e["max_rel"] - e["model_max_rel"]) < 1e-5
         assert r["lights_for_target_on_sample"] <= r["lights"] * 1.07
-    assert rows[0]["lights"] >= rows[1]["lights"] and rows[2]["lights"] >= rows[3]["lights"]
+    for k in (0, 1, 4, 5):                 # a tighter target, as many lights or more
+        assert rows[k]["lights"] >= rows[k + 2]["lights"]
+    # the frame's own probes: the lights this frame needs, not every normal's and view's
+    assert all(rows[k]["lights"] <= rows[k + 1]["lights"] for k in range(0, 8, 2))
     lines = bench.environment_table(rows)
-    assert len(lines) == 6 and "environment" in lines[0] and lines[3].startswith("32x16")
+    assert len(lines) == 10 and "environment" in lines[0] and lines[5].startswith("32x16")
+    assert lines[1].split()[2] == "frame" and lines[2].split()[2] == "all"
     assert "environment" in bench.table(report)
 
 
