@@ -326,7 +326,10 @@ class Relighter:
         self.output = (output or OutputOptions()).for_scene(scene)
         self.renderer = Renderer(scene, device=device, kernel=kernel, lanes=lanes,
                                  straight_alpha=self.output.alpha, options=options)
-        self.spec = RelighterSpec.of(options, scene=scene, device=device, kernel=kernel,
+        # a worker rebuilds this relighter from the spec: with frame probes it resolves
+        # each of its frames itself, so it gets the environment lights, not the stand-ins
+        self.spec = RelighterSpec.of(options, scene=self._unresolved if self._frame_env else scene,
+                                     device=device, kernel=kernel,
                                      lanes=lanes, channels=_hashable_channels(channels),
                                      output=self.output)
 

@@ -237,6 +237,8 @@ def test_render_relight_and_the_api_resolve_the_environment(tmp_path, capsys):
     f = clphong.Relighter(scene_path, env_error=0.02)
     assert f.environments == () and not f.scene.lights_of("environment")
     assert np.array_equal(f.relight(gb), api) and f.environments[0][1].max_error == 0.02
+    # a worker's relighter from the spec resolves its frames too: the same pixels
+    assert np.array_equal(f.spec.build().relight(gb), api)
     # on every normal and view: resolved at construction, for any frame
     r = clphong.Relighter(scene_path, env_error=0.02, env_probes="all")
     assert not r.scene.lights_of("environment") and r.environments[0][1].max_error == 0.02
