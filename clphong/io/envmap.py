@@ -290,42 +290,69 @@ def frame_pairs(camera, gbuffer, count: int = _environment.PROBES, material=None
     without specular, k_s map 0, as a bright albedo). A shininess map does not fold:
     the probes keep the material's h. The albedo is as stored (before an
     ``albedo_space`` conversion)."""
-    N = np.asarray(gbuffer.normal, np.float64).reshape(-1, 3)
-    P = np.asarray(gbuffer.position, np.float64).reshape(-1, 3)
+    # the cells are chosen on float32 copies of every shaded pixel; the probes chosen
+    # are then formed in float64 from the stored float32 values
+    N = np.asarray(gbuffer.normal, np.float32).reshape(-1, 3)
+    P = np.asarray(gbuffer.position, np.float32).reshape(-1, 3)
     with np.errstate(invalid="ignore", over="ignore"):
-        nn = np.sqrt(np.einsum("ij,ij->i", N, N))
-        ok = (nn > 0) & np.isfinite(nn) & np.isfinite(P).all(axis=1)
+        ok = np.isfinite(N).all(axis=1) & np.isfinite(P).all(axis=1) & (N != 0).any(axis=1)
     cov = getattr(gbuffer, "coverage", None)
     if cov is not None:
         ok &= np.asarray(cov).reshape(-1) > 0
     if not ok.any():
         return None
-    n = N[ok] / nn[ok, None]
-    albedo = np.maximum(np.asarray(gbuffer.albedo, np.float64).reshape(-1, 3)[ok], 0.0)
-    maps = getattr(gbuffer, "maps", None) or {}
-    if material is not None and maps:
-        scale = np.ones_like(albedo)
-        if "k_d" in maps and material.k_d > 0:
-            scale *= (np.asarray(maps["k_d"], np.float64).reshape(-1)[ok] / material.k_d)[:, None]
-        spec = np.ones_like(albedo)
-        if "k_s" in maps and material.k_s > 0:
-            spec *= (np.asarray(maps["k_s"], np.float64).reshape(-1)[ok] / material.k_s)[:, None]
-        if "specular_color" in maps:
-            cs = np.asarray(material.specular_color, np.float64)
-            spec *= np.asarray(maps["specular_color"], np.float64).reshape(-1, 3)[ok] / \
-                np.where(cs > 0, cs, 1.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            albedo = np.where(spec > 0, albedo * scale / np.where(spec > 0, spec, 1.0),
-                              BRIGHT_ALBEDO)
-        albedo = np.minimum(np.nan_to_num(albedo, nan=0.0, posinf=BRIGHT_ALBEDO), BRIGHT_ALBEDO)
+    shaded = np.flatnonzero(ok)
     view = view_vector(camera)
-    if view is not None:
-        v = np.broadcast_to(view / np.linalg.norm(view), n.shape)
-    else:
-        d = np.asarray(camera.position, np.float64) - P[ok]
-        dd = np.sqrt(np.einsum("ij,ij->i", d, d))
-        v = np.where(dd[:, None] > 0, d / np.where(dd > 0, dd, 1.0)[:, None], n)
-    return _environment.frame_probes(n, v, count, albedo=albedo)
+    eye = None if view is not None else np.asarray(camera.position, np.float64)
+
+    def pixels(idx, dtype):
+        """(n, v, albedo) of the shaded pixels ``idx``, in ``dtype``."""
+        n = N[idx].astype(dtype)
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            n /= np.abs(n).max(axis=1)[:, None]     # no overflow or underflow in n·n
+            n /= np.sqrt(np.einsum("ij,ij->i", n, n))[:, None]
+            if view is not None:
+                v = np.broadcast_to((view / np.linalg.norm(view)).astype(dtype), n.shape)
+            else:
+                d = eye.astype(dtype) - P[idx].astype(dtype)
+                dd = np.sqrt(np.einsum("ij,ij->i", d, d))
+                v = np.where(dd[:, None] > 0, d / np.where(dd > 0, dd, 1)[:, None], n)
+        return n, v, _probe_albedo(gbuffer, idx, material, dtype)
+
+    n32, v32, a32 = pixels(shaded, np.float32)
+    ok = np.isfinite(v32).all(axis=1)        # an eye far beyond float32 (the kernel's NaN too)
+    shaded, n32, v32, a32 = shaded[ok], n32[ok], v32[ok], a32[ok]
+    if not len(shaded):
+        return None
+    pick = shaded[_environment.frame_probe_indices(n32, v32, count, albedo=a32)]
+    return pixels(pick, np.float64)
+
+
+def _probe_albedo(gbuffer, idx, material, dtype) -> np.ndarray:
+    """The probes' albedo of the pixels ``idx``: the stored albedo with k_d, k_s and
+    specular-colour maps folded in against ``material`` (:func:`frame_pairs`)."""
+    albedo = np.maximum(np.asarray(gbuffer.albedo).reshape(-1, 3)[idx].astype(dtype), 0)
+    maps = getattr(gbuffer, "maps", None) or {}
+    if material is None or not maps:
+        return albedo
+
+    def plane(name):
+        return np.asarray(maps[name]).reshape(-1)[idx].astype(dtype)
+
+    scale = np.ones_like(albedo)
+    if "k_d" in maps and material.k_d > 0:
+        scale *= (plane("k_d") / dtype(material.k_d))[:, None]
+    spec = np.ones_like(albedo)
+    if "k_s" in maps and material.k_s > 0:
+        spec *= (plane("k_s") / dtype(material.k_s))[:, None]
+    if "specular_color" in maps:
+        cs = np.asarray(material.specular_color, np.float64)
+        spec *= (np.asarray(maps["specular_color"]).reshape(-1, 3)[idx].astype(dtype)
+                 / np.where(cs > 0, cs, 1.0).astype(dtype))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        albedo = np.where(spec > 0, albedo * scale / np.where(spec > 0, spec, 1), BRIGHT_ALBEDO)
+    return np.minimum(np.nan_to_num(albedo, nan=0.0, posinf=BRIGHT_ALBEDO),
+                      BRIGHT_ALBEDO).astype(dtype)
 
 
 #: A frame probe's albedo where its pixel has no specular term (a k_s map of 0): its
