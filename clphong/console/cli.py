@@ -43,6 +43,7 @@ from ..device.renderer import Renderer
 from ..device.selection import describe_devices
 from ..io import envmap as _envmap
 from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
+from ..io.camera import resolve_camera
 from ..io.envmap import check_environment_maps, frame_pairs, resolve_environment
 from ..io.gbuffer import parse_channel_mapping, read_gbuffer
 from ..io.inspection import METRICS, DiffError, diff_images, format_report, inspect_file
@@ -448,10 +449,14 @@ def cmd_plan(args) -> int:
     gbuffer = None
     if args.gbuffer or args.position or args.normal or args.albedo:
         gbuffer = _read_gbuffer(args)
-    # the frame's own probes where the frame is given and its camera is the scene's
-    pairs = (frame_pairs(original.camera, gbuffer, material=original.material)
-             if gbuffer is not None and opts.env_probes == "frame"
-             and original.camera.type != "metadata" else None)
+    # the frame's own probes where the frame is given (a metadata camera: the frame's)
+    pairs = None
+    if gbuffer is not None and opts.env_probes == "frame" and original.lights_of("environment"):
+        camera = original.camera
+        if camera.type == "metadata":
+            camera = resolve_camera(original, gbuffer.attributes,
+                                    source=args.gbuffer or args.position).camera
+        pairs = frame_pairs(camera, gbuffer, material=original.material)
     resolved = resolve_environment(original, max_error=env_error, nonfinite=opts.nonfinite,
                                    shade=DeviceProbeShader(args.device), pairs=pairs)
     scene = resolved.scene

@@ -284,12 +284,15 @@ def frame_pairs(camera, gbuffer, count: int = _environment.PROBES, material=None
     metadata camera resolved for this frame first), as the kernels see them: v =
     (eye − P)/|eye − P|, or n where P is the eye. None where no pixel is shaded.
 
-    A relative error does not change when a pixel's value is scaled, so per-pixel k_d,
-    k_s and specular-colour maps fold into the probe's albedo against ``material``'s
-    uniform values: C_d·(k_d map/k_d)·(k_s·C_s)/(k_s map·C_s map), per channel (a pixel
-    without specular, k_s map 0, as a bright albedo). A shininess map does not fold:
-    the probes keep the material's h. The albedo is as stored (before an
-    ``albedo_space`` conversion)."""
+    Returns a :class:`clphong.model.environment.FrameProbes`: the probes, and the
+    frame's albedo range, whose two ends the estimate holds (the probes' own albedos
+    set only its floor). A relative error does not change when a pixel's value is
+    scaled, so per-pixel k_d, k_s and specular-colour maps fold into the albedo
+    against ``material``'s uniform values: C_d·(k_d map/k_d)·(k_s·C_s)/(k_s map·C_s
+    map), per channel, at most ``ALBEDO_CAP`` (a pixel without specular, a k_s map
+    of 0, is pure diffuse). Pixels with a NaN or Inf albedo or map are left out. A
+    shininess map does not fold: the probes keep the material's h. The albedo is as
+    stored (before an ``albedo_space`` conversion)."""
     # the cells are chosen on float32 copies of every shaded pixel; the probes chosen
     # are then formed in float64 from the stored float32 values
     N = np.asarray(gbuffer.normal, np.float32).reshape(-1, 3)
@@ -320,12 +323,17 @@ def frame_pairs(camera, gbuffer, count: int = _environment.PROBES, material=None
         return n, v, _probe_albedo(gbuffer, idx, material, dtype)
 
     n32, v32, a32 = pixels(shaded, np.float32)
-    ok = np.isfinite(v32).all(axis=1)        # an eye far beyond float32 (the kernel's NaN too)
+    # a NaN or Inf albedo or map is the non-finite policy's (a background pixel, a refused
+    # frame, or NaN passed through): not a probe, and not in the range; nor an eye far
+    # beyond float32 (the kernel's NaN too)
+    ok = np.isfinite(v32).all(axis=1) & np.isfinite(a32).all(axis=1)
     shaded, n32, v32, a32 = shaded[ok], n32[ok], v32[ok], a32[ok]
     if not len(shaded):
         return None
     pick = shaded[_environment.frame_probe_indices(n32, v32, count, albedo=a32)]
-    return pixels(pick, np.float64)
+    n, v, a = pixels(pick, np.float64)
+    return _environment.FrameProbes(n=n, v=v, albedo=a, low=a32.min(axis=0).astype(np.float64),
+                                    high=a32.max(axis=0).astype(np.float64))
 
 
 def _probe_albedo(gbuffer, idx, material, dtype) -> np.ndarray:
@@ -349,15 +357,12 @@ def _probe_albedo(gbuffer, idx, material, dtype) -> np.ndarray:
         cs = np.asarray(material.specular_color, np.float64)
         spec *= (np.asarray(maps["specular_color"]).reshape(-1, 3)[idx].astype(dtype)
                  / np.where(cs > 0, cs, 1.0).astype(dtype))
+    cap = _environment.ALBEDO_CAP
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        albedo = np.where(spec > 0, albedo * scale / np.where(spec > 0, spec, 1), BRIGHT_ALBEDO)
-    return np.minimum(np.nan_to_num(albedo, nan=0.0, posinf=BRIGHT_ALBEDO),
-                      BRIGHT_ALBEDO).astype(dtype)
-
-
-#: A frame probe's albedo where its pixel has no specular term (a k_s map of 0): its
-#: diffuse alone, as far as float32 and the relative error care.
-BRIGHT_ALBEDO = 1e6
+        # k_s map 0: a pure diffuse pixel, the cap; NaN stays NaN (the pixel is dropped)
+        albedo = np.where(spec > 0, albedo * scale / np.where(spec > 0, spec, 1),
+                          np.where(np.isfinite(albedo * scale), cap, np.nan))
+    return np.minimum(albedo, cap).astype(dtype)
 
 
 def _convert(light: Light, where: str, material, view, max_error: float,
@@ -366,10 +371,7 @@ def _convert(light: Light, where: str, material, view, max_error: float,
     policy = "background" if nonfinite == "background" else "error"   # what reading does
     shader = "numpy" if shade is None else shade.key
     if pairs is not None:       # a frame's probes: the key names them, not the view
-        h = hashlib.sha256()
-        for a in pairs:
-            h.update(np.ascontiguousarray(a, np.float64).tobytes())
-        view, shader = None, f"{shader}; frame probes {h.hexdigest()[:32]}"
+        view, shader = None, f"{shader}; frame probes {pairs.digest()[:32]}"
     try:
         st = os.stat(name)
         key = (os.path.realpath(name), st.st_ino, st.st_size, st.st_mtime_ns, light.rotation,

@@ -65,6 +65,8 @@ about 2e-2 relative at 1024 lights on the bench map).
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import math
 import os
 import time
@@ -77,7 +79,8 @@ from .options import DEFAULT_ENV_ERROR, check_env_error
 
 __all__ = ["texel_directions", "texel_solid_angles", "rotation_about_up", "texel_lights",
            "LightTree", "LeafSums", "probe_pixels", "EnvironmentLights", "environment_lights",
-           "probe_pairs", "frame_probes", "frame_probe_indices", "probe_sums", "lobe_weights",
+           "probe_pairs", "frame_probes", "frame_probe_indices", "FrameProbes", "frame_error",
+           "ALBEDO_CAP", "probe_sums", "lobe_weights",
            "probe_error", "check_env_error", "DEFAULT_ENV_ERROR", "PROBES", "FLOOR", "REFINE",
            "RATE", "EXTRAPOLATION", "MAX_ENV_LIGHTS", "MIN_LIGHTS"]
 
@@ -490,6 +493,69 @@ def frame_probe_indices(n, v, count: int = PROBES, seed: int = 0, albedo=None) -
     return np.sort(pick)
 
 
+#: The largest albedo a frame probe's range takes: a pixel without specular (a k_s map of
+#: 0) is a pure diffuse one, which this albedo stands for within 1e-3 of its specular share
+#: at most (k_s·S ≤ k_d·D·1e3 wherever such a pixel is above the floor).
+ALBEDO_CAP = 1e3
+
+
+@dataclass(frozen=True)
+class FrameProbes:
+    """A frame's probes (:func:`clphong.io.envmap.frame_pairs`): ``n``, ``v`` (P, 3) unit
+    normals and views, ``albedo`` (P, 3) each probe's own pixel's, and the frame's albedo
+    range per channel, ``low`` and ``high`` (3,), every shaded pixel's (per-pixel k_d, k_s
+    and specular-colour maps folded in; at most :data:`ALBEDO_CAP`).
+
+    The estimate on them (:func:`frame_error`) is the larger of the errors at the two
+    ends of that range: a pixel's relative error, |a·ΔD + ΔS|/(a·D + S) in one channel
+    (D = k_d·diffuse, S = k_s·C_s·specular, a its albedo), is a monotone function of a,
+    so the two ends bound it for every albedo between them. The probes' own albedos
+    set the floor: pixels below FLOOR of the largest probe pixel are not held to it."""
+
+    n: np.ndarray
+    v: np.ndarray
+    albedo: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+
+    def __post_init__(self):
+        n, v, a = (np.asarray(x, np.float64).reshape(-1, 3) for x in (self.n, self.v, self.albedo))
+        lo, hi = (np.asarray(x, np.float64).reshape(3) for x in (self.low, self.high))
+        if not (len(n) == len(v) == len(a)) or not len(n):
+            raise ValueError(f"frame probes: {len(n)} normals, {len(v)} views, {len(a)} albedos; "
+                             "give as many of each, at least one")
+        if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (0 <= lo).all()
+                and (lo <= hi).all()):
+            raise ValueError(f"frame probes: an albedo range of finite 0 <= low <= high, not "
+                             f"{lo.tolist()} .. {hi.tolist()}")
+        for name, x in (("n", n), ("v", v), ("albedo", a), ("low", lo), ("high", hi)):
+            object.__setattr__(self, name, x)
+
+    def digest(self) -> str:
+        """SHA-256 of every array: the conversion caches' name for these probes."""
+        h = hashlib.sha256()
+        for x in (self.n, self.v, self.albedo, self.low, self.high):
+            h.update(np.ascontiguousarray(x, np.float64).tobytes())
+        return h.hexdigest()
+
+
+def frame_error(coarse: np.ndarray, fine: np.ndarray, probes: FrameProbes,
+                floor: float = FLOOR) -> float:
+    """The relative error of ``coarse`` against ``fine`` (each (P, 6): the probes' D and
+    S terms, :class:`LeafSums` with ``terms=True``) at both ends of the frame's albedo
+    range, on the pixels ≥ ``floor`` of the largest pixel at the probes' own albedos."""
+    Dc, Sc, Df, Sf = coarse[:, :3], coarse[:, 3:], fine[:, :3], fine[:, 3:]
+    top = float(np.max(probes.albedo * Df + Sf, initial=0.0))
+    if not top > 0:
+        return 0.0
+    err = 0.0
+    for a in (probes.low, probes.high):
+        truth = a * Df + Sf
+        big = truth >= floor * top
+        err = max(err, float(np.max(np.abs(a * Dc + Sc - truth)[big] / truth[big], initial=0.0)))
+    return err
+
+
 def _power(x: np.ndarray, k: float) -> np.ndarray:
     """x^k for x in [0, 1], in place where it can: binary powering for a whole k (as
     SPEC_INT_POW), else exp·log; 0⁰ := 1."""
@@ -623,19 +689,28 @@ class LeafSums:
     fresh sum.
     """
 
-    def __init__(self, tree: LightTree, n, v, material, shade=probe_pixels, albedo=None):
+    def __init__(self, tree: LightTree, n, v, material, shade=probe_pixels, terms: bool = False):
         self.tree, self.n, self.v, self.material, self.shade = tree, n, v, material, shade
-        self.albedo = albedo                   # the probes' C_d (P, 3); None: white
+        #: the two terms apart, (P, 6): k_d·diffuse at white albedo (a material without
+        #: specular) and k_s·C_s·specular (at albedo 0); else the white-albedo pixel (P, 3)
+        self.terms = bool(terms)
         self.done: dict[int, tuple] = {}       # k -> (leaf ids, pixels)
 
     def _sum(self, ids: np.ndarray) -> np.ndarray:
         rad = self.tree._rad[ids]
         lit = rad.max(axis=1, initial=0.0) > 0
         if not lit.any():
-            return np.zeros((len(self.n), 3))
-        more = {} if self.albedo is None else {"albedo": self.albedo}
-        return np.asarray(self.shade(self.n, self.v, self.tree._l[ids][lit], rad[lit],
-                                     self.material, **more), np.float64)
+            return np.zeros((len(self.n), 6 if self.terms else 3))
+        l, rad = self.tree._l[ids][lit], rad[lit]
+        if not self.terms:
+            return np.asarray(self.shade(self.n, self.v, l, rad, self.material), np.float64)
+        P = len(self.n)
+        matte = dataclasses.replace(self.material, k_s=0.0)
+        D = np.asarray(self.shade(self.n, self.v, l, rad, matte, albedo=np.ones((P, 3))), np.float64)
+        S = (np.zeros((P, 3)) if not self.material.k_s > 0 else
+             np.asarray(self.shade(self.n, self.v, l, rad, self.material,
+                                   albedo=np.zeros((P, 3))), np.float64))
+        return np.concatenate([D, S], axis=1)
 
     def __call__(self, k: int) -> np.ndarray:
         """(P, 3): the probes' pixels lit by the first ``k`` leaves."""
@@ -748,11 +823,12 @@ def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: 
         device, at the probes' float32 roundings: that moves an estimate by about 1e-4
         of itself, so the search ends on the same count or, where an estimate lies
         that close to the target, a neighbouring one.
-    pairs : ((P, 3), (P, 3)[, (P, 3)]) arrays, optional
-        The probes' unit normals, views and, optionally, albedos (:func:`frame_probes`:
-        a frame's own pixels), instead of :func:`probe_pairs` of ``probes`` and
-        ``view`` at white albedo: the estimate then speaks of those pixels, not of
-        every normal and view. ``shade`` then takes ``albedo=`` too.
+    pairs : FrameProbes or ((P, 3), (P, 3)) arrays, optional
+        The probes instead of :func:`probe_pairs` of ``probes`` and ``view``: a frame's
+        own (:class:`FrameProbes`; :func:`clphong.io.envmap.frame_pairs`), so that the
+        estimate speaks of that frame's normals, views and albedos
+        (:func:`frame_error`; ``shade`` then takes ``albedo=``), or unit normals and
+        views at white albedo.
 
     Returns
     -------
@@ -765,17 +841,19 @@ def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: 
     d = (texel_directions(W, H).reshape(-1, 3) @ rotation_about_up(rotation).T).reshape(H, W, 3)
     E = L.astype(np.float64) * (texel_solid_angles(W, H) * float(intensity))[..., None]
     tree = LightTree(E, d)
-    albedo = None
-    if pairs is None:
+    frame = pairs if isinstance(pairs, FrameProbes) else None
+    if frame is not None:
+        n, v = frame.n, frame.v
+    elif pairs is None:
         n, v = probe_pairs(probes, view)
     else:
-        n, v, *rest = (np.asarray(a, np.float64).reshape(-1, 3) for a in pairs)
-        albedo = rest[0] if rest else None
-        if len(n) != len(v) or not len(n) or (albedo is not None and len(albedo) != len(n)):
-            raise ValueError(f"probe pairs: {len(n)} normals, {len(v)} views"
-                             + ("" if albedo is None else f", {len(albedo)} albedos")
-                             + "; give as many of each, at least one")
-    pixels = LeafSums(tree, n, v, material, shade or probe_pixels, albedo)   # each count's, kept
+        n, v = (np.asarray(a, np.float64).reshape(-1, 3) for a in pairs)
+        if len(n) != len(v) or not len(n):
+            raise ValueError(f"probe pairs: {len(n)} normals, {len(v)} views; give as many "
+                             "of each, at least one")
+    pixels = LeafSums(tree, n, v, material, shade or probe_pixels,        # each count's, kept
+                      terms=frame is not None)
+    error = probe_error if frame is None else (lambda a, b: frame_error(a, b, frame))
 
     def estimate(k: int, fine: int | None = None) -> float:
         """The error estimate of k leaves against ``fine`` ≥ REFINE·k leaves (default
@@ -787,7 +865,7 @@ def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: 
             # fewer than REFINE·k leaves: the tree ran out of texels to split, so the
             # finer set is exact where it is short of them. More than REFINE·k: at most
             # REFINE^-RATE of k's error, so the same factor holds.
-            e = EXTRAPOLATION * probe_error(pixels(k), pixels(fine))
+            e = EXTRAPOLATION * error(pixels(k), pixels(fine))
         if progress is not None:
             progress(k, e)
         return e

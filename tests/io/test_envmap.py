@@ -496,31 +496,41 @@ def test_frame_pairs_are_the_pixels_as_the_kernel_sees_them():
     maps = {"k_d": np.full((1, 5), 1.0, np.float32), "k_s": np.array([[0.5, 0, 0, 0, 0]], np.float32)}
     gb = GBuffer(position=P, normal=N, albedo=A, coverage=cov, maps=maps)
     cam = Camera(type="perspective", position=(0.0, 0.0, 5.0))
-    n, v, a = envmap.frame_pairs(cam, gb, material=mat)
-    assert np.array_equal(n, [[0, 0, 1], [0, 0, 1]])     # pixels 0 and 4
-    assert np.allclose(v, [[0, 0, 1], [0, 0, 1]])        # pixel 4 is at the eye: v = n
-    # pixel 0: 0.5 · (1/0.5) · (0.25/0.5) = 0.5; pixel 4 has no specular: the bright albedo
-    assert np.allclose(a[0], 0.5) and np.all(a[1] == envmap.BRIGHT_ALBEDO)
+    fp = envmap.frame_pairs(cam, gb, material=mat)
+    assert np.array_equal(fp.n, [[0, 0, 1], [0, 0, 1]])  # pixels 0 and 4
+    assert np.allclose(fp.v, [[0, 0, 1], [0, 0, 1]])     # pixel 4 is at the eye: v = n
+    # pixel 0: 0.5 · (1/0.5) · (0.25/0.5) = 0.5; pixel 4 has no specular: pure diffuse, the cap
+    assert np.allclose(fp.albedo[0], 0.5) and np.all(fp.albedo[1] == env.ALBEDO_CAP)
+    assert np.allclose(fp.low, 0.5) and np.all(fp.high == env.ALBEDO_CAP)
     ortho = Camera(type="orthographic", direction=(0.0, -0.6, -0.8))
-    _, v, a = envmap.frame_pairs(ortho, gb)
-    assert np.allclose(v, [[0, 0.6, 0.8]] * 2) and np.all(a == 0.5)
+    fp = envmap.frame_pairs(ortho, gb)
+    assert np.allclose(fp.v, [[0, 0.6, 0.8]] * 2) and np.all(fp.albedo == 0.5)
     dark = GBuffer(position=P, normal=np.zeros_like(N), albedo=A)
     assert envmap.frame_pairs(cam, dark) is None
+    # a NaN albedo (the non-finite policy's pixel) is neither a probe nor in the range
+    A2 = A.copy()
+    A2[0, 0] = np.nan
+    A2[0, 4] = 0.25
+    fp = envmap.frame_pairs(cam, GBuffer(position=P, normal=N, albedo=A2, coverage=cov))
+    assert len(fp.n) == 1 and np.allclose(fp.low, 0.25) and np.allclose(fp.high, 0.25)
 
 
 def test_a_frames_probes_are_part_of_the_cache_key(disk, monkeypatch):
     """A conversion on a frame's probes is its own cache entry: other probes convert
     again, the same probes (another process) convert nothing."""
     store, scene = disk
-    n, v, albedo = (np.array([[0.0, 1.0, 0.0], [0.6, 0.8, 0.0]]),
-                    np.array([[0.0, 0.6, 0.8], [0.0, 0.0, 1.0]]), np.full((2, 3), 0.5))
-    a = envmap.resolve_environment(scene, max_error=1e-2, pairs=(n, v, albedo))
+
+    def probes(low):
+        return env.FrameProbes(n=[[0.0, 1.0, 0.0], [0.6, 0.8, 0.0]], v=[[0.0, 0.6, 0.8], [0.0, 0.0, 1.0]],
+                               albedo=np.full((2, 3), 0.5), low=[low] * 3, high=[0.5] * 3)
+
+    a = envmap.resolve_environment(scene, max_error=1e-2, pairs=probes(0.5))
     envmap.resolve_environment(scene, max_error=1e-2)
-    envmap.resolve_environment(scene, max_error=1e-2, pairs=(n, v, albedo * 0.5))
+    envmap.resolve_environment(scene, max_error=1e-2, pairs=probes(0.25))
     assert len(list(store.folder.glob("*.npz"))) == 3
     monkeypatch.setattr(envmap, "_CACHE", {})
     monkeypatch.setattr(envmap, "environment_lights", _no_conversion)
-    b = envmap.resolve_environment(scene, max_error=1e-2, pairs=(n, v, albedo))
+    b = envmap.resolve_environment(scene, max_error=1e-2, pairs=probes(0.5))
     assert np.array_equal(a.environments[0][1].l, b.environments[0][1].l)
 
 
