@@ -52,7 +52,7 @@ from ..device.renderer import Renderer
 from ..device.renderer import render as render_resolved
 from ..io.atomic import same_file
 from ..io.camera import resolve_camera
-from ..io.envmap import frame_pairs, resolve_environment
+from ..io.envmap import FrameSource, resolve_environment
 from ..io.gbuffer import MAP_KEYS, GBuffer, read_gbuffer
 from ..model.options import (
     DEFAULT_ENV_ERROR,
@@ -366,11 +366,13 @@ class Relighter:
 
     def _frame_lights(self, camera, gbuffer) -> tuple:
         """The scene's lights with each environment resolved on this frame's probes
-        (:func:`clphong.io.envmap.frame_pairs`), the last few frames' kept."""
-        pairs = frame_pairs(camera, gbuffer, material=self.scene.material)
-        if pairs is None:              # no shaded pixel: no light reaches one
+        (:class:`clphong.io.envmap.FrameSource`: named by the frame's bytes, its probes
+        chosen only if a conversion runs), the last few frames' kept."""
+        N = np.asarray(gbuffer.normal)
+        if not ((N != 0) & np.isfinite(N)).any():    # no shaded pixel: no light reaches one
             self.environments = ()
             return self.scene.lights
+        pairs = FrameSource(camera, gbuffer, self.scene.material)
         key = pairs.digest()
         with self._frames_lock:
             hit = self._frames.get(key)
@@ -572,7 +574,7 @@ def render(scene, gbuffer, *, env_error: float = DEFAULT_ENV_ERROR, env_probes: 
     pairs = None
     if (env_probes == "frame" and scene.lights_of("environment")
             and scene.camera.type != "metadata" and isinstance(gbuffer, GBuffer)):
-        pairs = frame_pairs(scene.camera, gbuffer, material=scene.material)
+        pairs = FrameSource(scene.camera, gbuffer, scene.material)
     resolved = resolve_environment(scene, max_error=env_error,
                                    nonfinite=kwargs.get("nonfinite", "background"),
                                    shade=DeviceProbeShader(kwargs.get("device")), pairs=pairs)
