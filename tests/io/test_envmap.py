@@ -542,3 +542,29 @@ def test_a_batch_with_a_bad_map_stops_once_before_any_frame(tmp_path):
     _write(tmp_path / "sky.exr", L)
     with pytest.raises(SceneError, match="3 negative texel"):
         envmap.check_environment_maps(load_scene(scene_path))
+
+
+def test_a_frame_source_is_named_by_its_bytes_and_chooses_probes_only_to_convert(disk, monkeypatch):
+    """FrameSource: the same frame, camera and material give the same name, another albedo
+    or camera another; a conversion found on disk (another process) chooses no probes."""
+    from clphong.model.scene import Camera
+
+    store, scene = disk
+    gb = samples.spheres_gbuffer(32, 16)
+    src = envmap.FrameSource(scene.camera, gb, scene.material)
+    assert src.digest() == envmap.FrameSource(scene.camera, gb, scene.material).digest()
+    other = samples.spheres_gbuffer(32, 16)
+    other.albedo[3, 20] *= 0.5
+    assert envmap.FrameSource(scene.camera, other, scene.material).digest() != src.digest()
+    moved = Camera(type="perspective", position=(0.0, 2.0, 6.5))
+    assert envmap.FrameSource(moved, gb, scene.material).digest() != src.digest()
+    first = envmap.resolve_environment(scene, max_error=1e-2, pairs=src).environments[0][1]
+    monkeypatch.setattr(envmap, "_CACHE", {})
+
+    def no_probes(*a, **k):
+        raise AssertionError("chose probes for a conversion found on disk")
+
+    monkeypatch.setattr(envmap, "frame_pairs", no_probes)
+    again = envmap.resolve_environment(scene, max_error=1e-2,
+                                       pairs=envmap.FrameSource(scene.camera, gb, scene.material))
+    assert np.array_equal(again.environments[0][1].l, first.l)
