@@ -284,15 +284,13 @@ def frame_pairs(camera, gbuffer, count: int = _environment.PROBES, material=None
     metadata camera resolved for this frame first), as the kernels see them: v =
     (eye − P)/|eye − P|, or n where P is the eye. None where no pixel is shaded.
 
-    Returns a :class:`clphong.model.environment.FrameProbes`: the probes, and the
-    frame's albedo range, whose two ends the estimate holds (the probes' own albedos
-    set only its floor). A relative error does not change when a pixel's value is
-    scaled, so per-pixel k_d, k_s and specular-colour maps fold into the albedo
-    against ``material``'s uniform values: C_d·(k_d map/k_d)·(k_s·C_s)/(k_s map·C_s
-    map), per channel, at most ``ALBEDO_CAP`` (a pixel without specular, a k_s map
-    of 0, is pure diffuse). Pixels with a NaN or Inf albedo or map are left out. A
-    shininess map does not fold: the probes keep the material's h. The albedo is as
-    stored (before an ``albedo_space`` conversion)."""
+    Returns a :class:`clphong.model.environment.FrameProbes`: the probes with their
+    pixels' weights of the two terms, and the frame's ranges of those weights, which
+    the estimate holds (:func:`clphong.model.environment.frame_error`). Per-pixel k_d,
+    k_s and specular-colour maps enter the weights against ``material``'s uniform
+    values. Pixels with a NaN or Inf albedo or map are left out. A shininess map does
+    not: the probes keep the material's h. The albedo is as stored (before an
+    ``albedo_space`` conversion)."""
     # the cells are chosen on float32 copies of every shaded pixel; the probes chosen
     # are then formed in float64 from the stored float32 values
     N = np.asarray(gbuffer.normal, np.float32).reshape(-1, 3)
@@ -309,7 +307,7 @@ def frame_pairs(camera, gbuffer, count: int = _environment.PROBES, material=None
     eye = None if view is not None else np.asarray(camera.position, np.float64)
 
     def pixels(idx, dtype):
-        """(n, v, albedo) of the shaded pixels ``idx``, in ``dtype``."""
+        """(n, v, diffuse weight, specular weight) of the shaded pixels ``idx``."""
         n = N[idx].astype(dtype)
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
             n /= np.abs(n).max(axis=1)[:, None]     # no overflow or underflow in n·n
@@ -320,49 +318,50 @@ def frame_pairs(camera, gbuffer, count: int = _environment.PROBES, material=None
                 d = eye.astype(dtype) - P[idx].astype(dtype)
                 dd = np.sqrt(np.einsum("ij,ij->i", d, d))
                 v = np.where(dd[:, None] > 0, d / np.where(dd > 0, dd, 1)[:, None], n)
-        return n, v, _probe_albedo(gbuffer, idx, material, dtype)
+        return (n, v, *_probe_weights(gbuffer, idx, material, dtype))
 
-    n32, v32, a32 = pixels(shaded, np.float32)
+    n32, v32, d32, s32 = pixels(shaded, np.float32)
     # a NaN or Inf albedo or map is the non-finite policy's (a background pixel, a refused
-    # frame, or NaN passed through): not a probe, and not in the range; nor an eye far
+    # frame, or NaN passed through): not a probe, and not in the ranges; nor an eye far
     # beyond float32 (the kernel's NaN too)
-    ok = np.isfinite(v32).all(axis=1) & np.isfinite(a32).all(axis=1)
-    shaded, n32, v32, a32 = shaded[ok], n32[ok], v32[ok], a32[ok]
+    ok = (np.isfinite(v32).all(axis=1) & np.isfinite(d32).all(axis=1)
+          & np.isfinite(s32).all(axis=1))
+    shaded, n32, v32, d32, s32 = shaded[ok], n32[ok], v32[ok], d32[ok], s32[ok]
     if not len(shaded):
         return None
+    a32 = _environment.folded_albedo(d32, s32)
     pick = shaded[_environment.frame_probe_indices(n32, v32, count, albedo=a32)]
-    n, v, a = pixels(pick, np.float64)
-    return _environment.FrameProbes(n=n, v=v, albedo=a, low=a32.min(axis=0).astype(np.float64),
-                                    high=a32.max(axis=0).astype(np.float64))
+    n, v, dw, sw = pixels(pick, np.float64)
+    return _environment.FrameProbes(
+        n=n, v=v, diffuse=dw, specular=sw,
+        low=a32.min(axis=0).astype(np.float64), high=a32.max(axis=0).astype(np.float64),
+        diffuse_max=d32.max(axis=0).astype(np.float64),
+        specular_max=s32.max(axis=0).astype(np.float64))
 
 
-def _probe_albedo(gbuffer, idx, material, dtype) -> np.ndarray:
-    """The probes' albedo of the pixels ``idx``: the stored albedo with k_d, k_s and
-    specular-colour maps folded in against ``material`` (:func:`frame_pairs`)."""
+def _probe_weights(gbuffer, idx, material, dtype) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels ``idx``'s weights of the material's two terms, (P, 3) each: a pixel is
+    diffuse·(k_d·diffuse) + specular·(k_s·C_s·specular), diffuse the stored albedo × k_d
+    map / k_d, specular k_s map / k_s × specular-colour map / C_s (1 without maps)."""
     albedo = np.maximum(np.asarray(gbuffer.albedo).reshape(-1, 3)[idx].astype(dtype), 0)
+    spec = np.ones_like(albedo)
     maps = getattr(gbuffer, "maps", None) or {}
     if material is None or not maps:
-        return albedo
+        return albedo, spec
 
     def plane(name):
         return np.asarray(maps[name]).reshape(-1)[idx].astype(dtype)
 
-    scale = np.ones_like(albedo)
-    if "k_d" in maps and material.k_d > 0:
-        scale *= (plane("k_d") / dtype(material.k_d))[:, None]
-    spec = np.ones_like(albedo)
-    if "k_s" in maps and material.k_s > 0:
-        spec *= (plane("k_s") / dtype(material.k_s))[:, None]
-    if "specular_color" in maps:
-        cs = np.asarray(material.specular_color, np.float64)
-        spec *= (np.asarray(maps["specular_color"]).reshape(-1, 3)[idx].astype(dtype)
-                 / np.where(cs > 0, cs, 1.0).astype(dtype))
-    cap = _environment.ALBEDO_CAP
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        # k_s map 0: a pure diffuse pixel, the cap; NaN stays NaN (the pixel is dropped)
-        albedo = np.where(spec > 0, albedo * scale / np.where(spec > 0, spec, 1),
-                          np.where(np.isfinite(albedo * scale), cap, np.nan))
-    return np.minimum(albedo, cap).astype(dtype)
+        if "k_d" in maps and material.k_d > 0:
+            albedo = albedo * np.maximum(plane("k_d") / dtype(material.k_d), 0)[:, None]
+        if "k_s" in maps and material.k_s > 0:
+            spec = spec * np.maximum(plane("k_s") / dtype(material.k_s), 0)[:, None]
+        if "specular_color" in maps:
+            cs = np.asarray(material.specular_color, np.float64)
+            spec = spec * np.maximum(np.asarray(maps["specular_color"]).reshape(-1, 3)[idx]
+                                     .astype(dtype) / np.where(cs > 0, cs, 1.0).astype(dtype), 0)
+    return albedo, spec
 
 
 class FrameSource:

@@ -80,7 +80,7 @@ from .options import DEFAULT_ENV_ERROR, check_env_error
 __all__ = ["texel_directions", "texel_solid_angles", "rotation_about_up", "texel_lights",
            "LightTree", "LeafSums", "probe_pixels", "EnvironmentLights", "environment_lights",
            "probe_pairs", "frame_probes", "frame_probe_indices", "FrameProbes", "frame_error",
-           "ALBEDO_CAP", "probe_sums", "lobe_weights",
+           "ALBEDO_CAP", "folded_albedo", "probe_sums", "lobe_weights",
            "probe_error", "check_env_error", "DEFAULT_ENV_ERROR", "PROBES", "FLOOR", "REFINE",
            "RATE", "EXTRAPOLATION", "MAX_ENV_LIGHTS", "MIN_LIGHTS"]
 
@@ -493,66 +493,105 @@ def frame_probe_indices(n, v, count: int = PROBES, seed: int = 0, albedo=None) -
     return np.sort(pick)
 
 
-#: The largest albedo a frame probe's range takes: a pixel without specular (a k_s map of
-#: 0) is a pure diffuse one, which this albedo stands for within 1e-3 of its specular share
-#: at most (k_s·S ≤ k_d·D·1e3 wherever such a pixel is above the floor).
+#: The largest folded albedo (diffuse weight / specular weight) a frame's range takes: a
+#: pixel without specular (a k_s map of 0) is pure diffuse, which this stands for.
 ALBEDO_CAP = 1e3
+
+
+def folded_albedo(diffuse, specular) -> np.ndarray:
+    """a = diffuse weight / specular weight per channel (a pixel's relative error depends on
+    this ratio alone), at most :data:`ALBEDO_CAP` (a pixel without specular)."""
+    d = np.asarray(diffuse)
+    sp = np.asarray(specular)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.where(sp > 0, d / np.where(sp > 0, sp, 1), ALBEDO_CAP)
+    return np.minimum(a, ALBEDO_CAP).astype(d.dtype)
 
 
 @dataclass(frozen=True)
 class FrameProbes:
     """A frame's probes (:func:`clphong.io.envmap.frame_pairs`): ``n``, ``v`` (P, 3) unit
-    normals and views, ``albedo`` (P, 3) each probe's own pixel's, and the frame's albedo
-    range per channel, ``low`` and ``high`` (3,), every shaded pixel's (per-pixel k_d, k_s
-    and specular-colour maps folded in; at most :data:`ALBEDO_CAP`).
-
-    The estimate on them (:func:`frame_error`) is the larger of the errors at the two
-    ends of that range: a pixel's relative error, |a·ΔD + ΔS|/(a·D + S) in one channel
-    (D = k_d·diffuse, S = k_s·C_s·specular, a its albedo), is a monotone function of a,
-    so the two ends bound it for every albedo between them. The probes' own albedos
-    set the floor: pixels below FLOOR of the largest probe pixel are not held to it."""
+    normals and views; ``diffuse`` and ``specular`` (P, 3) their pixels' weights of the
+    material's two terms (a pixel is diffuse·D + specular·S, D = k_d·diffuse sum, S =
+    k_s·C_s·specular sum: the albedo, and the k_d, k_s and specular-colour maps against
+    the material's values); and over every shaded pixel of the frame, per channel: the
+    range ``low``..``high`` of the folded albedo diffuse/specular (:func:`folded_albedo`)
+    and the largest weights ``diffuse_max``, ``specular_max``. :func:`frame_error` says
+    how the estimate holds them."""
 
     n: np.ndarray
     v: np.ndarray
-    albedo: np.ndarray
+    diffuse: np.ndarray
+    specular: np.ndarray
     low: np.ndarray
     high: np.ndarray
+    diffuse_max: np.ndarray
+    specular_max: np.ndarray
 
     def __post_init__(self):
-        n, v, a = (np.asarray(x, np.float64).reshape(-1, 3) for x in (self.n, self.v, self.albedo))
-        lo, hi = (np.asarray(x, np.float64).reshape(3) for x in (self.low, self.high))
-        if not (len(n) == len(v) == len(a)) or not len(n):
-            raise ValueError(f"frame probes: {len(n)} normals, {len(v)} views, {len(a)} albedos; "
-                             "give as many of each, at least one")
-        if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (0 <= lo).all()
-                and (lo <= hi).all()):
+        n, v, d, sp = (np.asarray(x, np.float64).reshape(-1, 3)
+                       for x in (self.n, self.v, self.diffuse, self.specular))
+        lo, hi, dm, sm = (np.asarray(x, np.float64).reshape(3)
+                          for x in (self.low, self.high, self.diffuse_max, self.specular_max))
+        if not (len(n) == len(v) == len(d) == len(sp)) or not len(n):
+            raise ValueError(f"frame probes: {len(n)} normals, {len(v)} views, {len(d)} and "
+                             f"{len(sp)} weights; give as many of each, at least one")
+        if not (np.isfinite([*lo, *hi, *dm, *sm]).all() and (0 <= lo).all() and (lo <= hi).all()
+                and (dm >= 0).all() and (sm >= 0).all()):
             raise ValueError(f"frame probes: an albedo range of finite 0 <= low <= high, not "
-                             f"{lo.tolist()} .. {hi.tolist()}")
-        for name, x in (("n", n), ("v", v), ("albedo", a), ("low", lo), ("high", hi)):
+                             f"{lo.tolist()} .. {hi.tolist()}, and weights >= 0")
+        for name, x in (("n", n), ("v", v), ("diffuse", d), ("specular", sp), ("low", lo),
+                        ("high", hi), ("diffuse_max", dm), ("specular_max", sm)):
             object.__setattr__(self, name, x)
+
+    @property
+    def albedo(self) -> np.ndarray:
+        """The probes' folded albedos (:func:`folded_albedo`)."""
+        return folded_albedo(self.diffuse, self.specular)
 
     def digest(self) -> str:
         """SHA-256 of every array: the conversion caches' name for these probes."""
         h = hashlib.sha256()
-        for x in (self.n, self.v, self.albedo, self.low, self.high):
-            h.update(np.ascontiguousarray(x, np.float64).tobytes())
+        for f in dataclasses.fields(self):
+            h.update(np.ascontiguousarray(getattr(self, f.name), np.float64).tobytes())
         return h.hexdigest()
 
 
 def frame_error(coarse: np.ndarray, fine: np.ndarray, probes: FrameProbes,
                 floor: float = FLOOR) -> float:
     """The relative error of ``coarse`` against ``fine`` (each (P, 6): the probes' D and
-    S terms, :class:`LeafSums` with ``terms=True``) at both ends of the frame's albedo
-    range, on the pixels ≥ ``floor`` of the largest pixel at the probes' own albedos."""
+    S terms, :class:`LeafSums` with ``terms=True``) over every pixel the frame may hold
+    at each probe's normal and view that is above the floor.
+
+    A pixel of weights (α, β) is α·D + β·S; its relative error in a channel depends on
+    its folded albedo a = α/β alone and is a monotone function of it (|a·ΔD + ΔS| /
+    (a·D + S)), so over an interval of a it is largest at an end. The frame's pixels
+    have a in [low, high], α ≤ diffuse_max and β ≤ specular_max; the floor is ``floor``
+    of the largest probe pixel (the probes' own weights). The brightest such pixel of
+    a given a is min(specular_max, diffuse_max/a)·(a·D + S), rising then falling in a,
+    so the a whose pixels can reach the floor are an interval [a₁, a₂]: the error is
+    taken at both ends of [low, high] ∩ [a₁, a₂], per probe and channel."""
     Dc, Sc, Df, Sf = coarse[:, :3], coarse[:, 3:], fine[:, :3], fine[:, 3:]
-    top = float(np.max(probes.albedo * Df + Sf, initial=0.0))
+    top = float(np.max(probes.diffuse * Df + probes.specular * Sf, initial=0.0))
     if not top > 0:
         return 0.0
-    err = 0.0
-    for a in (probes.low, probes.high):
-        truth = a * Df + Sf
-        big = truth >= floor * top
-        err = max(err, float(np.max(np.abs(a * Dc + Sc - truth)[big] / truth[big], initial=0.0)))
+    lim = floor * top
+    am = probes.diffuse_max
+    bm = np.maximum(probes.specular_max, am / ALBEDO_CAP)   # a ≤ the cap: β ≥ α/cap
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        # a₁: bm·(a·D + S) = lim; a₂: am·(D + S/a) = lim (none where am·D reaches it)
+        a1 = np.where(Df > 0, (lim / bm - Sf) / np.where(Df > 0, Df, 1),
+                      np.where(bm * Sf >= lim, -np.inf, np.inf))
+        a2 = np.where(am * Df >= lim, np.inf, Sf / (lim / am - Df))
+        lo = np.maximum(probes.low, a1)
+        hi = np.minimum(probes.high, np.nan_to_num(a2, nan=np.inf))
+        held = lo <= hi
+        err = 0.0
+        for a in (lo, hi):
+            truth = a * Df + Sf
+            ok = held & (truth > 0)
+            e = np.abs(a * Dc + Sc - truth)[ok] / truth[ok]
+            err = max(err, float(np.max(e, initial=0.0)))
     return err
 
 

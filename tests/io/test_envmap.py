@@ -499,9 +499,12 @@ def test_frame_pairs_are_the_pixels_as_the_kernel_sees_them():
     fp = envmap.frame_pairs(cam, gb, material=mat)
     assert np.array_equal(fp.n, [[0, 0, 1], [0, 0, 1]])  # pixels 0 and 4
     assert np.allclose(fp.v, [[0, 0, 1], [0, 0, 1]])     # pixel 4 is at the eye: v = n
-    # pixel 0: 0.5 · (1/0.5) · (0.25/0.5) = 0.5; pixel 4 has no specular: pure diffuse, the cap
+    # pixel 0: diffuse 0.5 · (1/0.5) = 1, specular 0.5/0.25 = 2: folded 0.5; pixel 4 has no
+    # specular (k_s map 0): pure diffuse, the cap
+    assert np.allclose(fp.diffuse, 1.0) and np.allclose(fp.specular, [[2.0] * 3, [0.0] * 3])
     assert np.allclose(fp.albedo[0], 0.5) and np.all(fp.albedo[1] == env.ALBEDO_CAP)
     assert np.allclose(fp.low, 0.5) and np.all(fp.high == env.ALBEDO_CAP)
+    assert np.allclose(fp.diffuse_max, 1.0) and np.allclose(fp.specular_max, 2.0)
     ortho = Camera(type="orthographic", direction=(0.0, -0.6, -0.8))
     fp = envmap.frame_pairs(ortho, gb)
     assert np.allclose(fp.v, [[0, 0.6, 0.8]] * 2) and np.all(fp.albedo == 0.5)
@@ -522,7 +525,8 @@ def test_a_frames_probes_are_part_of_the_cache_key(disk, monkeypatch):
 
     def probes(low):
         return env.FrameProbes(n=[[0.0, 1.0, 0.0], [0.6, 0.8, 0.0]], v=[[0.0, 0.6, 0.8], [0.0, 0.0, 1.0]],
-                               albedo=np.full((2, 3), 0.5), low=[low] * 3, high=[0.5] * 3)
+                               diffuse=np.full((2, 3), 0.5), specular=np.ones((2, 3)), low=[low] * 3,
+                               high=[0.5] * 3, diffuse_max=[0.5] * 3, specular_max=[1.0] * 3)
 
     a = envmap.resolve_environment(scene, max_error=1e-2, pairs=probes(0.5))
     envmap.resolve_environment(scene, max_error=1e-2)
