@@ -52,7 +52,7 @@ from ..device.renderer import Renderer
 from ..device.renderer import render as render_resolved
 from ..io.atomic import same_file
 from ..io.camera import resolve_camera
-from ..io.envmap import FrameSource, resolve_environment
+from ..io.envmap import FrameSource, check_environment_maps, resolve_environment
 from ..io.gbuffer import MAP_KEYS, GBuffer, read_gbuffer
 from ..model.options import (
     DEFAULT_ENV_ERROR,
@@ -310,6 +310,8 @@ class Relighter:
         self._frames: dict = {}            # the frames' probe digests -> their lights
         self._frames_lock = threading.Lock()
         if self._frame_env:
+            # a map that cannot be used fails here, as it would resolved at construction
+            check_environment_maps(scene, nonfinite=options.nonfinite)
             scene = dataclasses.replace(scene, lights=tuple(
                 Light(type="directional", color=(0.0, 0.0, 0.0), direction=(0.0, -1.0, 0.0),
                       group=lt.group) if lt.type == "environment" else lt

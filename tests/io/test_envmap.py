@@ -546,6 +546,11 @@ def test_a_batch_with_a_bad_map_stops_once_before_any_frame(tmp_path):
     _write(tmp_path / "sky.exr", L)
     with pytest.raises(SceneError, match="3 negative texel"):
         envmap.check_environment_maps(load_scene(scene_path))
+    # a Relighter on frame probes reads its maps at construction too: the same line, early
+    import clphong
+
+    with pytest.raises(SceneError, match="3 negative texel"):
+        clphong.Relighter(scene_path)
 
 
 def test_a_frame_source_is_named_by_its_bytes_and_chooses_probes_only_to_convert(disk, monkeypatch):
