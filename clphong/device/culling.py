@@ -774,6 +774,19 @@ def read_tile_lists(runtime, lists: TileLists) -> list[np.ndarray]:
     return [flat[o:o + c].copy() for o, c in ranges]
 
 
+def active_tiles(frame, lanes: int, tiles_x: int) -> int:
+    """The tiles with a shaded pixel: those of the work-items (``lanes`` pixels each, a
+    tile each, that of their first pixel, as :func:`tile_of_pixels`) holding one; a
+    work-item at a time, not a pixel (1080p: 8 ms, where the pixels took 0.16 s)."""
+    h, w = frame.shape
+    bg = np.asarray(frame.background).reshape(-1)
+    items = -(-bg.size // lanes)
+    pad = np.ones(items * lanes, bool)
+    pad[:bg.size] = bg
+    first = np.flatnonzero(~pad.reshape(items, lanes).all(axis=1)) * lanes
+    return int(np.unique((first // w // TILE) * tiles_x + (first % w) // TILE).size)
+
+
 def tile_of_pixels(shape, lanes: int, tiles_x: int | None = None) -> np.ndarray:
     """The tile shading each pixel: that of its work-item's first pixel (cull.cl).
 
@@ -852,8 +865,7 @@ def build_dir_lists(runtime, plan, frame, directional, n_dir: int, *, k_d, S,
         e2.wait()
         ranges = np.stack([offsets[:n_tiles], counts[:n_tiles]], axis=1).astype(np.uint32)
         rb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(ranges))
-        shaded = tile_of_pixels(frame.shape, lanes, tiles_x).reshape(-1)[~frame.background]
-        active = int(np.unique(shaded).size)
+        active = active_tiles(frame, lanes, tiles_x)
         seconds = sum((e.profile.end - e.profile.start) * 1e-9 for e in (e0, e1, e2))
         return DirLists(ranges=rb, lights=lists, width=w, tiles_x=tiles_x, n_tiles=n_tiles,
                         kept=total, n_dir=n_dir, active_tiles=active, seconds=seconds)

@@ -557,3 +557,20 @@ def test_the_probe_samples_super_tiles_with_shaded_tiles_evenly():
     assert active == sum(sup * sup if k < 30 else 1 for k in kept)
     one = np.arange(sup)                                         # one super-tile's tiles
     assert _probe(ranges, one, tiles_x=tiles_x, sup=sup, super_x=super_x) is None
+
+
+@pytest.mark.parametrize("shape", [(1080, 1920), (37, 53), (5, 7)])
+@pytest.mark.parametrize("lanes", [1, 4, 16])
+def test_active_tiles_counts_the_tiles_of_shaded_pixels(shape, lanes):
+    """culling.active_tiles (a work-item at a time) counts the tiles that tile_of_pixels
+    gives the shaded pixels (a pixel at a time), with rows that split work-items."""
+    from types import SimpleNamespace
+
+    from clphong.device.culling import TILE, active_tiles, tile_of_pixels
+
+    rng = np.random.default_rng(lanes)
+    tiles_x = -(-shape[1] // TILE)
+    for share in (0.0, 0.5, 0.999, 1.0):
+        bg = rng.random(shape) < share
+        want = np.unique(tile_of_pixels(shape, lanes, tiles_x).reshape(-1)[~bg.reshape(-1)]).size
+        assert active_tiles(SimpleNamespace(shape=shape, background=bg), lanes, tiles_x) == want
