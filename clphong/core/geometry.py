@@ -10,8 +10,15 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["unit_normal_planes", "position_bounds", "origin_of_bounds", "frame_origin",
+__all__ = ["across", "unit_normal_planes", "position_bounds", "origin_of_bounds", "frame_origin",
            "split_hi_lo", "view_vector", "half_vector"]
+
+
+def across(ufunc, a: np.ndarray) -> np.ndarray:
+    """``ufunc`` over the three columns of an (N, 3) array, a column at a time: the same
+    values as ``ufunc.reduce(a, axis=1)`` (and, or, max, min), about ten times faster at
+    a few million rows (numpy's reduce of a three-long axis loops per row)."""
+    return ufunc(ufunc(a[:, 0], a[:, 1]), a[:, 2])
 
 
 def unit_normal_planes(normal: np.ndarray) -> list[np.ndarray]:

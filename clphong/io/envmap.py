@@ -36,7 +36,7 @@ import OpenImageIO as oiio
 from ..core.cache import Store
 from ..core.errors import SceneError, clean_line
 from ..core.files import not_regular
-from ..core.geometry import view_vector
+from ..core.geometry import across, view_vector
 from ..core.memory import require_memory
 from ..model import environment as _environment
 from ..model import scene as _scene
@@ -296,26 +296,28 @@ def frame_pairs(camera, gbuffer, count: int = _environment.PROBES, material=None
     N = np.asarray(gbuffer.normal, np.float32).reshape(-1, 3)
     P = np.asarray(gbuffer.position, np.float32).reshape(-1, 3)
     with np.errstate(invalid="ignore", over="ignore"):
-        ok = np.isfinite(N).all(axis=1) & np.isfinite(P).all(axis=1) & (N != 0).any(axis=1)
+        ok = (across(np.logical_and, np.isfinite(N)) & across(np.logical_and, np.isfinite(P))
+              & across(np.logical_or, N != 0))
     cov = getattr(gbuffer, "coverage", None)
     if cov is not None:
         ok &= np.asarray(cov).reshape(-1) > 0
     if not ok.any():
         return None
-    shaded = np.flatnonzero(ok)
+    # every pixel shaded (a full frame): slices, not gathers
+    shaded = slice(None) if ok.all() else np.flatnonzero(ok)
     view = view_vector(camera)
     eye = None if view is not None else np.asarray(camera.position, np.float64)
 
     def pixels(idx, dtype):
         """(n, v, diffuse weight, specular weight) of the shaded pixels ``idx``."""
-        n = N[idx].astype(dtype)
+        n = N[idx].astype(dtype, copy=isinstance(idx, slice))      # changed in place below
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-            n /= np.abs(n).max(axis=1)[:, None]     # no overflow or underflow in n·n
+            n /= across(np.maximum, np.abs(n))[:, None]     # no overflow or underflow in n·n
             n /= np.sqrt(np.einsum("ij,ij->i", n, n))[:, None]
             if view is not None:
                 v = np.broadcast_to((view / np.linalg.norm(view)).astype(dtype), n.shape)
             else:
-                d = eye.astype(dtype) - P[idx].astype(dtype)
+                d = eye.astype(dtype) - P[idx].astype(dtype, copy=False)
                 dd = np.sqrt(np.einsum("ij,ij->i", d, d))
                 v = np.where(dd[:, None] > 0, d / np.where(dd > 0, dd, 1)[:, None], n)
         return (n, v, *_probe_weights(gbuffer, idx, material, dtype))
@@ -324,26 +326,32 @@ def frame_pairs(camera, gbuffer, count: int = _environment.PROBES, material=None
     # a NaN or Inf albedo or map is the non-finite policy's (a background pixel, a refused
     # frame, or NaN passed through): not a probe, and not in the ranges; nor an eye far
     # beyond float32 (the kernel's NaN too)
-    ok = (np.isfinite(v32).all(axis=1) & np.isfinite(d32).all(axis=1)
-          & np.isfinite(s32).all(axis=1))
-    shaded, n32, v32, d32, s32 = shaded[ok], n32[ok], v32[ok], d32[ok], s32[ok]
-    if not len(shaded):
-        return None
+    ok = (across(np.logical_and, np.isfinite(v32)) & across(np.logical_and, np.isfinite(d32))
+          & across(np.logical_and, np.isfinite(s32)))
+    if not ok.all():
+        shaded = (np.arange(len(N)) if isinstance(shaded, slice) else shaded)[ok]
+        n32, v32, d32, s32 = n32[ok], v32[ok], d32[ok], s32[ok]
+        if not len(shaded):
+            return None
     a32 = _environment.folded_albedo(d32, s32)
-    pick = shaded[_environment.frame_probe_indices(n32, v32, count, albedo=a32)]
+    pick = _environment.frame_probe_indices(n32, v32, count, albedo=a32)
+    if not isinstance(shaded, slice):
+        pick = shaded[pick]
     n, v, dw, sw = pixels(pick, np.float64)
+    def per_channel(reduce, a):          # a column at a time (a reduce over axis 0 is slow)
+        return np.array([reduce(a[:, c]) for c in range(3)], np.float64)
+
     return _environment.FrameProbes(
-        n=n, v=v, diffuse=dw, specular=sw,
-        low=a32.min(axis=0).astype(np.float64), high=a32.max(axis=0).astype(np.float64),
-        diffuse_max=d32.max(axis=0).astype(np.float64),
-        specular_max=s32.max(axis=0).astype(np.float64))
+        n=n, v=v, diffuse=dw, specular=sw, low=per_channel(np.min, a32),
+        high=per_channel(np.max, a32), diffuse_max=per_channel(np.max, d32),
+        specular_max=per_channel(np.max, s32))
 
 
 def _probe_weights(gbuffer, idx, material, dtype) -> tuple[np.ndarray, np.ndarray]:
     """The pixels ``idx``'s weights of the material's two terms, (P, 3) each: a pixel is
     diffuse·(k_d·diffuse) + specular·(k_s·C_s·specular), diffuse the stored albedo × k_d
     map / k_d, specular k_s map / k_s × specular-colour map / C_s (1 without maps)."""
-    albedo = np.maximum(np.asarray(gbuffer.albedo).reshape(-1, 3)[idx].astype(dtype), 0)
+    albedo = np.maximum(np.asarray(gbuffer.albedo).reshape(-1, 3)[idx].astype(dtype, copy=False), 0)
     spec = np.ones_like(albedo)
     maps = getattr(gbuffer, "maps", None) or {}
     if material is None or not maps:

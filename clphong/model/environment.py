@@ -75,6 +75,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.geometry import across
 from .options import DEFAULT_ENV_ERROR, check_env_error
 
 __all__ = ["texel_directions", "texel_solid_angles", "rotation_about_up", "texel_lights",
@@ -454,7 +455,7 @@ def frame_probe_indices(n, v, count: int = PROBES, seed: int = 0, albedo=None) -
         return np.arange(P)
     v = np.asarray(v).reshape(-1, 3)
     one = n.dtype.type(1)
-    a = n / np.maximum(np.abs(n).sum(axis=1, keepdims=True), np.finfo(n.dtype).tiny)
+    a = n / np.maximum(across(np.add, np.abs(n)), np.finfo(n.dtype).tiny)[:, None]
     x, z = a[:, 0], a[:, 2]
     low = a[:, 1] < 0                                   # the lower half folded out
     x, z = (np.where(low, (one - np.abs(z)) * np.copysign(one, x), x),
@@ -468,7 +469,8 @@ def frame_probe_indices(n, v, count: int = PROBES, seed: int = 0, albedo=None) -
     # per pixel its darkest channel (16 bits) above its index: the least of a cell is its
     # darkest pixel, the first of equals; the cells grouped by a radix sort of the keys
     dark = (np.zeros(P, np.int64) if albedo is None else
-            (np.clip(np.asarray(albedo).reshape(-1, 3).min(axis=1), 0, 1) * 65535).astype(np.int64))
+            (np.clip(across(np.minimum, np.asarray(albedo).reshape(-1, 3)), 0, 1) * 65535)
+            .astype(np.int64))
     rank = (dark << 32) | np.arange(P, dtype=np.int64)
     by = np.argsort(key, kind="stable")
     k = key[by]

@@ -478,3 +478,19 @@ def test_frame_error_holds_every_pixel_the_frame_may_have_above_its_floor(seed):
 def test_probe_pairs_of_unequal_lengths_are_refused():
     with pytest.raises(ValueError, match="3 normals, 2 views"):
         env.environment_lights(_sky(16, 8), PHONG, pairs=(np.ones((3, 3)), np.ones((2, 3))))
+
+
+def test_across_is_the_reduce_over_three_columns():
+    """core.geometry.across (a frame's probes: a column at a time) gives numpy's reduce
+    over axis 1 for and, or, max, min and add, NaN and Inf included."""
+    from clphong.core.geometry import across
+
+    rng = np.random.default_rng(9)
+    a = rng.normal(size=(1000, 3)).astype(np.float32)
+    a[rng.choice(1000, 40), rng.integers(0, 3, 40)] = np.nan
+    a[rng.choice(1000, 40), rng.integers(0, 3, 40)] = np.inf
+    fin = np.isfinite(a)
+    assert np.array_equal(across(np.logical_and, fin), fin.all(axis=1))
+    assert np.array_equal(across(np.logical_or, a > 1), (a > 1).any(axis=1))
+    for f in (np.maximum, np.minimum, np.add):
+        assert np.array_equal(across(f, a), f.reduce(a, axis=1), equal_nan=True)
