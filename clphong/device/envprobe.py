@@ -50,9 +50,19 @@ class DeviceProbeShader:
 
     def __call__(self, n, v, l, radiance, material, albedo=None) -> np.ndarray:
         with self._lock:
-            return self._shade(n, v, l, radiance, material, albedo)
+            return np.asarray(self._shade(n, v, l, radiance, material, albedo).image,
+                              np.float64).reshape(-1, 3)
 
-    def _shade(self, n, v, l, radiance, material, albedo) -> np.ndarray:
+    def terms(self, n, v, l, radiance, material) -> np.ndarray:
+        """(P, 6): the probes' diffuse and specular terms apart at white albedo, as
+        :func:`clphong.model.environment.probe_terms`: the kernel's diffuse and specular
+        layers of one launch."""
+        with self._lock:
+            r = self._shade(n, v, l, radiance, material, None, aovs=("diffuse", "specular"))
+        return np.concatenate([np.asarray(r.layers[k], np.float64).reshape(-1, 3)
+                               for k in ("diffuse", "specular")], axis=1)
+
+    def _shade(self, n, v, l, radiance, material, albedo, aovs=()):
         n = np.asarray(n, np.float64)
         v = np.asarray(v, np.float64)
         a = (np.ones((len(n), 3), np.float32) if albedo is None
@@ -65,7 +75,7 @@ class DeviceProbeShader:
         # with spheres_sky's material: 3.56-3.86 s without them, 4.18-4.24 s with them;
         # the same lights and estimates)
         r = Renderer(scene, device=self.device, path="accurate", light_tree=False,
-                     dir_lists=False)
+                     dir_lists=False, aovs=aovs)
         key = (n.tobytes(), v.tobytes(), a.tobytes(), r.lanes)
         if self._frame is None or self._frame[0] != key:
             P = len(n)
@@ -73,4 +83,4 @@ class DeviceProbeShader:
                          normal=n.astype(np.float32).reshape(1, P, 3),
                          albedo=a.reshape(1, P, 3))
             self._frame = (key, prepare_frame(gb, lanes=r.lanes))
-        return np.asarray(r.shade(self._frame[1]).image, np.float64).reshape(-1, 3)
+        return r.shade(self._frame[1])

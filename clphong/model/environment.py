@@ -81,7 +81,7 @@ from .options import DEFAULT_ENV_ERROR, check_env_error
 __all__ = ["texel_directions", "texel_solid_angles", "rotation_about_up", "texel_lights",
            "LightTree", "LeafSums", "probe_pixels", "EnvironmentLights", "environment_lights",
            "probe_pairs", "frame_probes", "frame_probe_indices", "FrameProbes", "frame_error",
-           "ALBEDO_CAP", "folded_albedo", "probe_sums", "lobe_weights",
+           "ALBEDO_CAP", "folded_albedo", "probe_terms", "probe_sums", "lobe_weights",
            "probe_error", "check_env_error", "DEFAULT_ENV_ERROR", "PROBES", "FLOOR", "REFINE",
            "RATE", "EXTRAPOLATION", "MAX_ENV_LIGHTS", "MIN_LIGHTS"]
 
@@ -745,7 +745,10 @@ class LeafSums:
         l, rad = self.tree._l[ids][lit], rad[lit]
         if not self.terms:
             return np.asarray(self.shade(self.n, self.v, l, rad, self.material), np.float64)
-        P = len(self.n)
+        terms = probe_terms if self.shade is probe_pixels else getattr(self.shade, "terms", None)
+        if terms is not None:
+            return np.asarray(terms(self.n, self.v, l, rad, self.material), np.float64)
+        P = len(self.n)       # a shader of pixels alone: a matte pass and a specular one
         matte = dataclasses.replace(self.material, k_s=0.0)
         D = np.asarray(self.shade(self.n, self.v, l, rad, matte, albedo=np.ones((P, 3))), np.float64)
         S = (np.zeros((P, 3)) if not self.material.k_s > 0 else
@@ -771,6 +774,15 @@ class LeafSums:
             p = p + self._sum(new) - self._sum(gone)
         self.done[k] = (leaves, p)
         return p
+
+
+def probe_terms(n, v, l, radiance, material) -> np.ndarray:
+    """(P, 6): the probes' two terms apart, k_d·diffuse and k_s·C_s·specular (Fresnel's W in
+    the specular), from the float64 sums of :func:`probe_sums`: a pixel of albedo a is
+    a·(first three) + (last three). A probe shader may offer the same as its ``terms``
+    method (:class:`clphong.device.envprobe.DeviceProbeShader`: one launch)."""
+    d, sp = probe_sums(n, v, l, radiance, material)
+    return np.concatenate([_pixels(d, 0.0 * sp, material), _pixels(0.0 * d, sp, material)], axis=1)
 
 
 def _pixels(diffuse, specular, material, albedo=None) -> np.ndarray:

@@ -110,3 +110,24 @@ def test_the_probes_scene_of_columns_shades_the_bits_of_light_objects(device, mo
     want = Renderer(objects, device=device, path="accurate", light_tree=False,
                     dir_lists=False).shade(shader._frame[1])
     assert np.array_equal(np.asarray(want.image, np.float64).reshape(-1, 3), got)
+
+
+@pytest.mark.parametrize("name", sorted(MATERIALS))
+def test_probe_terms_on_the_device_are_the_float64_ones(device, name):
+    """DeviceProbeShader.terms (a frame's probes: the diffuse and specular terms apart, the
+    kernel's two layers of one launch) against numpy's probe_terms, within the accurate
+    path's target; their sum is the white-albedo pixel."""
+    material = MATERIALS[name]
+    rng = np.random.default_rng(7)
+    l = rng.normal(size=(200, 3))
+    l /= np.linalg.norm(l, axis=1, keepdims=True)
+    rad = rng.random((200, 3)) * np.array([1.0, 0.5, 1e-3])
+    n, v = env.probe_pairs(129, None)
+    shader = DeviceProbeShader(device)
+    got = shader.terms(n, v, l, rad, material)
+    want = env.probe_terms(*_as_the_kernel_sees(n, v), l, rad, material)
+    assert got.shape == want.shape == (129, 6)
+    big = want >= 1e-3 * want.max()
+    assert (np.abs(got - want)[big] / want[big]).max() <= ACCURATE
+    pixel = shader(n, v, l, rad, material)
+    assert np.allclose(got[:, :3] + got[:, 3:], pixel, rtol=2 * ACCURATE, atol=0)
