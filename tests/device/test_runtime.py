@@ -110,11 +110,14 @@ def test_default_device_is_pocl_cpu_even_when_listed_last(fake_platforms, monkey
     assert chosen() is pocl_cpu                           # cached, still the default
 
 
-@pytest.mark.parametrize("gpu_rate, winner", [(9e10, "gpu"), (4e8, "cpu")])
+@pytest.mark.parametrize("gpu_rate, winner", [(9e10, "gpu"), (4e8, "cpu"),
+                                               (1.2e9 * 1.2, "cpu"), (1.2e9 * 1.3, "gpu")])
 def test_default_device_is_the_fastest_that_passes(gpu_rate, winner, fake_platforms, monkeypatch):
     """Issue 29: with a GPU and a CPU platform both present, the default is the device
     whose self-test passes and whose calibration frame ran faster (the verdict's
-    pair_rate); the choice says so, with each rate. --device still wins."""
+    pair_rate); the choice says so, with each rate. --device still wins. A later
+    candidate (the GPU after the CPU) must be RATE_MARGIN (1.25) times faster: 1.2x
+    keeps the CPU, 1.3x takes the GPU."""
     from clphong.device import selection
 
     nvidia, = fake_platforms[0].get_devices()
@@ -133,7 +136,8 @@ def test_default_device_is_the_fastest_that_passes(gpu_rate, winner, fake_platfo
     monkeypatch.setattr(selection, "verify", lambda rt, width: {
         "ok": rt.device is not nvidia, "worst": 0.0, "detail": "x",
         "pair_rate": rates[rt.device.name]})
-    assert selection.get_runtime().device is (pocl_gpu if winner == "gpu" else pocl_cpu)
+    second = rates[pocl_gpu.name] > selection.RATE_MARGIN * rates[pocl_cpu.name]
+    assert selection.get_runtime().device is (pocl_gpu if second else pocl_cpu)
 
 
 def test_default_device_without_a_cpu_is_the_first(fake_platforms, monkeypatch):
