@@ -265,7 +265,9 @@ def _default_runtime() -> Runtime:
         if len(passed) > 1:
             rates = ", ".join(f"{rt.name} {_rate(rt)}" for rt in passed)
             best.choice = (f"the fastest of {len(passed)} devices that passed their self-tests "
-                           f"on the calibration frame ({rates}); {best.choice}")
+                           f"on the calibration frame ({rates}; a later one in the order of "
+                           f"preference only at {RATE_MARGIN:g}x the rate before it); "
+                           f"{best.choice}")
         return best
     if not reasons:
         raise DeviceError(f"no OpenCL device found; {_INSTALL_HINT}")
