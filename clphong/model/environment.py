@@ -80,7 +80,7 @@ from .options import DEFAULT_ENV_ERROR, check_env_error
 
 __all__ = ["texel_directions", "texel_solid_angles", "rotation_about_up", "texel_lights",
            "LightTree", "LeafSums", "probe_pixels", "EnvironmentLights", "environment_lights",
-           "probe_pairs", "frame_probes", "frame_probe_indices", "FrameProbes", "frame_error",
+           "probe_pairs", "frame_probe_indices", "FrameProbes", "frame_error",
            "ALBEDO_CAP", "folded_albedo", "probe_terms", "probe_sums", "lobe_weights",
            "probe_error", "check_env_error", "DEFAULT_ENV_ERROR", "PROBES", "FLOOR", "REFINE",
            "RATE", "EXTRAPOLATION", "MAX_ENV_LIGHTS", "MIN_LIGHTS"]
@@ -425,17 +425,6 @@ FRAME_CELLS = 24
 FRAME_NV_BINS = 4
 
 
-def frame_probes(n, v, count: int = PROBES, seed: int = 0, albedo=None):
-    """(n, v[, albedo]), at most (count, 3) each: probes drawn from a frame's own pixels
-    (unit normals ``n``, views ``v`` and albedos, (P, 3)), so that the estimate speaks
-    of that frame: those of :func:`frame_probe_indices`, as float64."""
-    n = np.asarray(n, np.float64).reshape(-1, 3)
-    v = np.asarray(v, np.float64).reshape(-1, 3)
-    a_d = None if albedo is None else np.asarray(albedo, np.float64).reshape(-1, 3)
-    idx = frame_probe_indices(n, v, count, seed, a_d)
-    return (n[idx], v[idx]) if a_d is None else (n[idx], v[idx], a_d[idx])
-
-
 def frame_probe_indices(n, v, count: int = PROBES, seed: int = 0, albedo=None) -> np.ndarray:
     """The indices, ascending, of at most ``count`` probes among a frame's pixels (unit
     normals ``n``, views ``v``, albedos; (P, 3) each, float32 will do: only the cells
@@ -732,9 +721,12 @@ class LeafSums:
 
     def __init__(self, tree: LightTree, n, v, material, shade=probe_pixels, terms: bool = False):
         self.tree, self.n, self.v, self.material, self.shade = tree, n, v, material, shade
-        #: the two terms apart, (P, 6): k_d·diffuse at white albedo (a material without
-        #: specular) and k_s·C_s·specular (at albedo 0); else the white-albedo pixel (P, 3)
+        #: the two terms apart, (P, 6), k_d·diffuse and k_s·C_s·specular (probe_terms, or
+        #: the shader's ``terms``); else the white-albedo pixel (P, 3)
         self.terms = bool(terms)
+        if self.terms and shade is not probe_pixels and not callable(getattr(shade, "terms", None)):
+            raise TypeError(f"a frame's probes need the diffuse and specular terms apart: "
+                            f"{type(shade).__name__} has no terms(n, v, l, radiance, material)")
         self.done: dict[int, tuple] = {}       # k -> (leaf ids, pixels)
 
     def _sum(self, ids: np.ndarray) -> np.ndarray:
@@ -745,16 +737,8 @@ class LeafSums:
         l, rad = self.tree._l[ids][lit], rad[lit]
         if not self.terms:
             return np.asarray(self.shade(self.n, self.v, l, rad, self.material), np.float64)
-        terms = probe_terms if self.shade is probe_pixels else getattr(self.shade, "terms", None)
-        if terms is not None:
-            return np.asarray(terms(self.n, self.v, l, rad, self.material), np.float64)
-        P = len(self.n)       # a shader of pixels alone: a matte pass and a specular one
-        matte = dataclasses.replace(self.material, k_s=0.0)
-        D = np.asarray(self.shade(self.n, self.v, l, rad, matte, albedo=np.ones((P, 3))), np.float64)
-        S = (np.zeros((P, 3)) if not self.material.k_s > 0 else
-             np.asarray(self.shade(self.n, self.v, l, rad, self.material,
-                                   albedo=np.zeros((P, 3))), np.float64))
-        return np.concatenate([D, S], axis=1)
+        terms = probe_terms if self.shade is probe_pixels else self.shade.terms
+        return np.asarray(terms(self.n, self.v, l, rad, self.material), np.float64)
 
     def __call__(self, k: int) -> np.ndarray:
         """(P, 3): the probes' pixels lit by the first ``k`` leaves."""
@@ -782,16 +766,24 @@ def probe_terms(n, v, l, radiance, material) -> np.ndarray:
     a·(first three) + (last three). A probe shader may offer the same as its ``terms``
     method (:class:`clphong.device.envprobe.DeviceProbeShader`: one launch)."""
     d, sp = probe_sums(n, v, l, radiance, material)
-    return np.concatenate([_pixels(d, 0.0 * sp, material), _pixels(0.0 * d, sp, material)], axis=1)
+    kd, ks = _term_weights(material)
+    return np.concatenate([kd * d, ks * sp], axis=1)
+
+
+def _term_weights(material):
+    """(k_d, k_s·C_s): the material's weights of the diffuse and specular sums (with
+    Schlick's Fresnel, its W is in the specular sum and C_s is white)."""
+    cs = np.ones(3) if material.fresnel == "schlick" else \
+        np.asarray(material.specular_color, np.float64)
+    return material.k_d, material.k_s * cs
 
 
 def _pixels(diffuse, specular, material, albedo=None) -> np.ndarray:
     """Probe pixel values: k_d·C_d·diffuse + k_s·C_s·specular (Fresnel's W in specular),
     C_d ``albedo`` or white."""
-    cs = np.ones(3) if material.fresnel == "schlick" else \
-        np.asarray(material.specular_color, np.float64)
+    kd, ks = _term_weights(material)
     d = diffuse if albedo is None else np.asarray(albedo, np.float64) * diffuse
-    return material.k_d * d + material.k_s * cs * specular
+    return kd * d + ks * specular
 
 
 def probe_error(value, truth, floor: float = FLOOR) -> float:
@@ -880,7 +872,8 @@ def environment_lights(radiance, material, *, rotation: float = 0.0, intensity: 
         The probes instead of :func:`probe_pairs` of ``probes`` and ``view``: a frame's
         own (:class:`FrameProbes`; :func:`clphong.io.envmap.frame_pairs`), so that the
         estimate speaks of that frame's normals, views and albedos
-        (:func:`frame_error`; ``shade`` then takes ``albedo=``), or unit normals and
+        (:func:`frame_error`; ``shade`` then needs ``terms``, as
+        :class:`~clphong.device.envprobe.DeviceProbeShader` has), or unit normals and
         views at white albedo.
 
     Returns

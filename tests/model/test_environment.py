@@ -366,7 +366,7 @@ def _sphere_frame(size=48):
 
 
 def test_frame_probes_take_every_cell_the_darkest_first_and_are_seeded():
-    """frame_probes: at most ``count``; one pixel of each occupied (normal cell, n·v bin),
+    """frame_probe_indices: at most ``count``; one pixel of each occupied (normal cell, n·v bin),
     the darkest albedo channel of the cell; the same probes for the same frame; every
     pixel when there are few; a rim of a few grazing pixels among many facing ones is
     in."""
@@ -378,18 +378,24 @@ def test_frame_probes_take_every_cell_the_darkest_first_and_are_seeded():
     v = np.tile([0.0, 0.0, 1.0], (len(n), 1))
     albedo = rng.uniform(0.2, 1.0, (len(n), 3))
     albedo[123] = 0.01                                 # the darkest facing pixel
-    pn, pv, pa = env.frame_probes(n, v, 64, albedo=albedo)
+    pn, pv, pa = _probe_arrays(n, v, 64, albedo)
     assert len(pn) == 64 and np.allclose(pv, [0.0, 0.0, 1.0])
     assert (pn[:, 0] > 0.9).any()                      # the rim has its own cell
     assert np.isclose(pa.min(axis=1), 0.01).any()      # the facing cell took its darkest
-    again = env.frame_probes(n, v, 64, albedo=albedo)
+    again = _probe_arrays(n, v, 64, albedo)
     assert all(np.array_equal(a, b) for a, b in zip((pn, pv, pa), again))
-    few = env.frame_probes(n[:10], v[:10], 64)
+    few = _probe_arrays(n[:10], v[:10], 64)
     assert len(few) == 2 and np.array_equal(few[0], n[:10])
 
 
+def _probe_arrays(n, v, count, albedo=None):
+    """The probes frame_probe_indices picks, as arrays."""
+    idx = env.frame_probe_indices(n, v, count, albedo=albedo)
+    return (n[idx], v[idx]) if albedo is None else (n[idx], v[idx], albedo[idx])
+
+
 def _frame_probes(n, v, albedo, count=512):
-    pn, pv, pa = env.frame_probes(n, v, count, albedo=albedo)
+    pn, pv, pa = _probe_arrays(n, v, count, albedo)
     return env.FrameProbes(n=pn, v=pv, diffuse=pa, specular=np.ones_like(pa), low=albedo.min(axis=0),
                            high=albedo.max(axis=0), diffuse_max=albedo.max(axis=0),
                            specular_max=np.ones(3))
@@ -494,3 +500,15 @@ def test_across_is_the_reduce_over_three_columns():
     assert np.array_equal(across(np.logical_or, a > 1), (a > 1).any(axis=1))
     for f in (np.maximum, np.minimum, np.add):
         assert np.array_equal(across(f, a), f.reduce(a, axis=1), equal_nan=True)
+
+
+def test_a_frames_probes_need_a_shader_of_terms():
+    """With a frame's probes the estimate needs the two terms apart: a probe shader of
+    pixels alone is refused in one line, before any work."""
+    def pixels_only(n, v, l, radiance, material):
+        return env.probe_pixels(n, v, l, radiance, material)
+
+    n, v, albedo = _sphere_frame(16)
+    with pytest.raises(TypeError, match="no terms"):
+        env.environment_lights(_sky(16, 8), PHONG, pairs=_frame_probes(n, v, albedo, 64),
+                               shade=pixels_only)
