@@ -32,6 +32,7 @@
 #include "brdf.h"
 #include "lights.h"
 #include "shade_args.h"
+#include "envtable.h"
 
 /* LIGHT_TILE (set by the plan, clphong/device/plan.py): 0, each work-item reads the
  * light records from global memory (CPUs: the records of one light are the same
@@ -346,6 +347,42 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
         ADD_GROUP(Lr, Lg, Lb, w); ADD_DIFFUSE(Lr, Lg, Lb, w); ADD_SPECULAR(Lr, Lg, Lb, w); \
     } while (0)
 
+#if ENV_TABLE
+    /* The environment's tables (envtable.h): E(n) into the diffuse term, T(R) into the
+       specular, once a pixel, as one light with a weight per channel; its sun is among
+       the directional lights. */
+    floatL env_Er = (floatL)(0.0f), env_Eg = (floatL)(0.0f), env_Eb = (floatL)(0.0f);
+    floatL env_Tr = (floatL)(0.0f), env_Tg = (floatL)(0.0f), env_Tb = (floatL)(0.0f);
+    if (lit) {
+        floatL y, x;
+        env_table_coords(TO_FLOAT(p.nx), TO_FLOAT(p.ny), TO_FLOAT(p.nz), env_rotation,
+                         (float)ENV_D_ROWS, (float)ENV_D_COLS, &y, &x);
+        env_table_lookup(env_table, ENV_D_ROWS, ENV_D_COLS, y, x, &env_Er, &env_Eg, &env_Eb);
+#if HAS_SPECULAR
+        const dirL NoV2 = 2.0f * MUL_ADD(p.nx, p.vx, MUL_ADD(p.ny, p.vy, p.nz * p.vz));
+        env_table_coords(TO_FLOAT(MUL_ADD(NoV2, p.nx, -p.vx)), TO_FLOAT(MUL_ADD(NoV2, p.ny, -p.vy)),
+                         TO_FLOAT(MUL_ADD(NoV2, p.nz, -p.vz)), env_rotation,
+                         (float)ENV_S_ROWS, (float)ENV_S_COLS, &y, &x);
+        env_table_lookup(env_table + ENV_S_OFFSET, ENV_S_ROWS, ENV_S_COLS, y, x,
+                         &env_Tr, &env_Tg, &env_Tb);
+#endif
+    }
+/* the tables' term of one channel into a sum: D·E + S·T */
+#define ENV_TERM(D, S, E, T) MUL_ADD(D, FLOAT_TO_W(E), (S) * FLOAT_TO_W(T))
+    ACCUMULATE(sr, cr, ENV_TERM(Dr_w, Sr_w, env_Er, env_Tr));
+    ACCUMULATE(sg, cg, ENV_TERM(Dg_w, Sg_w, env_Eg, env_Tg));
+    ACCUMULATE(sb, cb, ENV_TERM(Db_w, Sb_w, env_Eb, env_Tb));
+#if AOV_DIFFUSE
+    ACCUMULATE(dr, dcr, Dr_w * FLOAT_TO_W(env_Er));
+    ACCUMULATE(dg, dcg, Dg_w * FLOAT_TO_W(env_Eg));
+    ACCUMULATE(db, dcb, Db_w * FLOAT_TO_W(env_Eb));
+#endif
+#if AOV_SPECULAR
+    ACCUMULATE(qr, qcr, Sr_w * FLOAT_TO_W(env_Tr));
+    ACCUMULATE(qg, qcg, Sg_w * FLOAT_TO_W(env_Tg));
+    ACCUMULATE(qb, qcb, Sb_w * FLOAT_TO_W(env_Tb));
+#endif
+#endif
 #if HAS_POINT && CULLING
     /* The tile of this work-item's first pixel (as cull.cl bounds it); padding
        work-items past the last tile shade background only. */
@@ -376,6 +413,13 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
         sumL gg = TO_SUM(FLOAT_TO_W(Cg) * W_HI_LO(A_g.y, A_lo.y));
         sumL gb = TO_SUM(FLOAT_TO_W(Cb) * W_HI_LO(A_g.z, A_lo.z));
         floatL gcr = (floatL)(0.0f), gcg = (floatL)(0.0f), gcb = (floatL)(0.0f);
+#if ENV_TABLE
+        if ((int)g == ENV_GROUP) {      /* the environment's tables, in its group */
+            ACCUMULATE(gr, gcr, ENV_TERM(Dr_w, Sr_w, env_Er, env_Tr));
+            ACCUMULATE(gg, gcg, ENV_TERM(Dg_w, Sg_w, env_Eg, env_Tg));
+            ACCUMULATE(gb, gcb, ENV_TERM(Db_w, Sb_w, env_Eb, env_Tb));
+        }
+#endif
 #endif
 #if HAS_DIRECTIONAL
 /* one directional light's record (6 float4s) into the sums */

@@ -282,10 +282,12 @@ def _environment_cache_of_the_session(tmp_path_factory):
     from clphong.core.cache import Store
     from clphong.io import envmap
 
-    saved = envmap._DISK
+    saved = envmap._DISK, envmap._TABLE_DISK
     envmap._DISK = Store(str(tmp_path_factory.mktemp("environment-cache")), ".npz", envmap.DISK_KEEP)
+    envmap._TABLE_DISK = Store(str(tmp_path_factory.mktemp("environment-tables")), ".npz",
+                               envmap.DISK_KEEP)
     yield
-    envmap._DISK = saved
+    envmap._DISK, envmap._TABLE_DISK = saved
 
 
 @pytest.fixture

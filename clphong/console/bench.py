@@ -55,9 +55,11 @@ def _add_bench_parser(sub):
                         "--env-sizes): their error targets (default "
                         f"{DEFAULT_ENV_ERROR:g},0.01, none with --sizes; '' for none)")
     b.add_argument("--env-probes", metavar="WHERE[,WHERE]",
-                   help="the environment rows' probes: 'frame' (the bench G-buffer's own pixels, "
-                        "the commands' default) and/or 'all' (every normal and view) "
-                        "(default frame,all)")
+                   help="the environment rows' paths: 'tables' (the kernels' tables where their "
+                        "bound holds on the bench frame: a Phong material, Blinn-Phong has none), "
+                        "'frame' (lights estimated on the bench G-buffer's own pixels, the "
+                        "commands' default) and/or 'all' (lights estimated on every normal and "
+                        "view) (default tables,frame,all)")
     b.add_argument("--env-sizes", metavar="WxH[,WxH]",
                    help="the environment rows' sky sizes (default 256x128,1024x512,4096x2048)")
     b.add_argument("--tree", metavar="SCENE:N:EPS[:rel][,...]",
@@ -147,9 +149,9 @@ def cmd_bench(args) -> int:
             raise _Usage(f"--env-error: {exc}") from None
     if args.env_probes is not None:
         kw["env_probes"] = _csv(args.env_probes, str, "--env-probes")
-        bad = [x for x in kw["env_probes"] if x not in ENV_PROBES]
+        bad = [x for x in kw["env_probes"] if x not in ("tables", *ENV_PROBES)]
         if bad or not kw["env_probes"]:
-            raise _Usage(f"--env-probes: expected {' and/or '.join(ENV_PROBES)}, not "
+            raise _Usage(f"--env-probes: expected {' and/or '.join(('tables', *ENV_PROBES))}, not "
                          f"{args.env_probes!r}")
     if args.env_sizes:
         kw["env_sizes"] = tuple(_env_size(x) for x in args.env_sizes.split(",") if x.strip())

@@ -44,11 +44,12 @@ from ..device.selection import describe_devices
 from ..io import envmap as _envmap
 from ..io.atomic import PIXEL_TYPES, check_output_path, same_file
 from ..io.camera import resolve_camera
-from ..io.envmap import check_environment_maps, frame_pairs, resolve_environment
+from ..io.envmap import FrameSource, check_environment_maps, resolve_environment
 from ..io.gbuffer import parse_channel_mapping, read_gbuffer
 from ..io.inspection import METRICS, DiffError, diff_images, format_report, inspect_file
 from ..model.options import (
     DEFAULT_ENV_ERROR,
+    ENV_PATHS,
     ENV_PROBES,
     KERNELS,
     LANES,
@@ -291,6 +292,11 @@ def _add_speed_options(p):
                         "normals and views, so a frame gets the lights it needs (each frame "
                         "converts once, cached on disk); 'all' on every normal and view, one "
                         "conversion for every frame (docs/lighting.md, 'Environment light')")
+    p.add_argument("--env-path", choices=tuple(ENV_PATHS), default="auto",
+                   help="'auto' (default): an environment is shaded from tables (irradiance and "
+                        "the Phong lobe, exact at their nodes, the sun as lights) where their "
+                        "error bound holds on every pixel of the frame, else as directional "
+                        "lights; 'lights': always as directional lights (docs/lighting.md)")
     p.add_argument("--max-error", type=float, metavar="EPS",
                    help="tiled light culling: per 16x16 tile, drop point lights only while the sum "
                         "of their upper bounds stays within EPS x reference white of output radiance "
@@ -334,6 +340,7 @@ def _renderer_options(args) -> RendererOptions:
         max_error=args.max_error, reference_white=args.reference_white,
         env_error=args.env_error, light_tree=args.light_tree,
         env_probes=getattr(args, "env_probes", "frame"),
+        env_path=getattr(args, "env_path", "auto"),
         relative=getattr(args, "relative", False),
         nonfinite=getattr(args, "nonfinite", "background"),
         aovs=tuple(a.strip() for a in (getattr(args, "aov", None) or "").split(",") if a.strip()))
@@ -409,6 +416,8 @@ def cmd_render(args) -> int:
             print(f"environment: light[{i}]: {env.texels} texels as {env.count} directional lights, "
                   f"estimated max relative error {env.estimated_error:.2g} (--env-error "
                   f"{env.max_error:g}), {env.seconds:.2f} s", file=sys.stderr)
+        for i, path, why in relighter.env_paths:
+            print(f"environment: light[{i}]: {path}: {why}", file=sys.stderr)
         kinds = ", ".join(f"{k} {v:.3f} s" for k, v in times.items())
         print(f"{w}x{h}: read {t_read - t0:.3f} s, setup {t_end - t_read - t_shade - t_write:.3f} s, "
               f"shade {t_shade:.3f} s (kernel {st.kernel_seconds:.4f} s), write {t_write:.3f} s"
@@ -456,9 +465,10 @@ def cmd_plan(args) -> int:
         if camera.type == "metadata":
             camera = resolve_camera(original, gbuffer.attributes,
                                     source=args.gbuffer or args.position).camera
-        pairs = frame_pairs(camera, gbuffer, material=original.material)
+        pairs = FrameSource(camera, gbuffer, original.material)
     resolved = resolve_environment(original, max_error=env_error, nonfinite=opts.nonfinite,
-                                   shade=DeviceProbeShader(args.device), pairs=pairs)
+                                   shade=DeviceProbeShader(args.device), pairs=pairs,
+                                   tables=opts.env_path == "auto" and args.kernel == "lanes")
     scene = resolved.scene
     maps = tuple(gbuffer.maps) if gbuffer is not None else ()
     # The renderer 'render' builds, so the plan printed is the one it compiles
@@ -468,10 +478,12 @@ def cmd_plan(args) -> int:
     print(renderer.plan_for(maps))
     print(f"device: {renderer.runtime.name}, {renderer.lanes} lane(s); "
           f"{renderer.runtime.double_line()}")
+    for i, path, why in resolved.paths:
+        print(f"environment: light[{i}] {original.lights[i].file}: {path}: {why}")
     for i, env in resolved.environments:
         print(f"environment: light[{i}] {original.lights[i].file}: "
               f"{env.count:,} directional lights of its {env.texels:,} texels (the light tree's "
-              f"split; no irradiance table yet: every environment takes this path), estimated "
+              f"split), estimated "
               + ("on this frame's pixels" if pairs is not None else
                  "on every normal and view" + (" (give the G-buffer for its own pixels)"
                                                if opts.env_probes == "frame" else ""))

@@ -158,6 +158,29 @@ def _layer_defines(put, coverage, groups, aovs) -> None:
         else "no specular layer")
 
 
+def _env_defines(put, scene, *, kernel, groups, specular) -> None:
+    """An environment as tables (kernels/include/envtable.h): their sizes and group."""
+    tabled = scene.env_tables
+    if not tabled:
+        put("ENV_TABLE", 0, "no environment shaded from tables")
+        return
+    if kernel != "lanes" or len(tabled) > 1:
+        raise SceneError(f"{scene.source}: the kernels read one environment's tables, in the lane "
+                         "kernel; resolve the others into lights (clphong.io.envmap)")
+    tables, group = tabled[0]
+    put("ENV_TABLE", 1, f"environment: {tables.describe()}")
+    d = tables.diffuse
+    put("ENV_D_ROWS", d.rows, f"the diffuse table E(n): {d.rows} latitudes pole to pole")
+    put("ENV_D_COLS", d.cols, "and longitudes, cubic both ways")
+    if specular:
+        t = tables.specular
+        put("ENV_S_ROWS", t.rows, f"the lobe table T(R), h = {t.power:g}: {t.rows} latitudes")
+        put("ENV_S_COLS", t.cols, "and longitudes")
+        put("ENV_S_OFFSET", (d.rows + 2) * d.cols, "the lobe table's first float4")
+    put("ENV_GROUP", groups.index(group) if group is not None and group in groups else -1,
+        f"in light group {group!r}" if group is not None and group in groups else "no light group")
+
+
 def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated) -> None:
     """How the lights are summed, and whether the falloff depends on distance."""
     if kernel == "lanes":
@@ -396,6 +419,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         raise SceneError(f"{scene.source}: the obvious kernel shades the beauty only; light groups "
                          "and AOV layers need the lane kernel")
     _layer_defines(put, coverage, groups, aovs)
+    _env_defines(put, scene, kernel=kernel, groups=groups, specular=specular)
     notes = []
     if not n_point and not n_dir:
         notes.append("no direct lights: only the ambient term is shaded")

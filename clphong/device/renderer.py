@@ -14,6 +14,7 @@ timings, culling lists, non-finite counts and the number of row bands.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 import warnings
 from collections.abc import Sequence
@@ -596,6 +597,8 @@ class Renderer:
             out = np.empty((3 * (1 + len(plan.layers)), frame.stride), np.float32)
             gt = cl.Buffer(ctx, ro, hostbuf=lights.group_table)
             ga = cl.Buffer(ctx, ro, hostbuf=lights.group_ambient)
+            env, env_rotation = env_table_records(self.scene)
+            eb = cl.Buffer(ctx, ro, hostbuf=env)
             ob = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             bg = self.scene.background
             plan, prog, cull, cull_args, records = self._cull_or_brute(
@@ -625,7 +628,7 @@ class Renderer:
                 float4(*origin), float4(*eye), float4(*lights.ambient),
                 np.float32(k_d), float4(*S), np.float32(k), float4(*bg),
                 float4(*eye_lo), float4(*amb_lo, kd_lo), float4(*S_lo, k_lo), gt, ga,
-                *cull_args, *dir_args)
+                eb, np.float32(env_rotation), *cull_args, *dir_args)
             items = frame.stride // self.lanes
             lights_per_item = max(plan.n_point + plan.n_directional, 1) * self.lanes
             events = []
@@ -663,6 +666,23 @@ class Renderer:
                             total_seconds=time.perf_counter() - t0)
         return RenderResult(image=image, display=shown, plan=plan, stats=stats, cull=cull,
                             layers=layers, display_transform=display, dir_lists=dirs)
+
+
+def env_table_records(scene) -> tuple[np.ndarray, float]:
+    """The ``env_table`` buffer (float4s: the diffuse table, then the lobe table; one
+    zero float4 without tables) and the ``env_rotation`` argument (radians) of shade.cl."""
+    if not scene.env_tables:
+        return np.zeros((1, 4), np.float32), 0.0
+    tables = scene.env_tables[0][0]
+    parts = [tables.diffuse.values] + ([tables.specular.values]
+                                       if tables.specular is not None else [])
+    out = np.zeros((sum(p.shape[0] * p.shape[1] for p in parts), 4), np.float32)
+    at = 0
+    for p in parts:
+        n = p.shape[0] * p.shape[1]
+        out[at:at + n, :3] = p.reshape(-1, 3)
+        at += n
+    return out, math.radians(tables.rotation % 360.0)
 
 
 #: A launch is split into pieces of about this long (at a pessimistic rate), so

@@ -38,6 +38,7 @@ from ..core.errors import SceneError, clean_line
 from ..core.files import not_regular
 from ..core.geometry import across, view_vector
 from ..core.memory import require_memory
+from ..model import env_table as _env_table
 from ..model import environment as _environment
 from ..model import scene as _scene
 from ..model.environment import DEFAULT_ENV_ERROR, EnvironmentLights, environment_lights
@@ -173,12 +174,19 @@ class ResolvedScene:
         The scene the kernels can shade: each environment light replaced, in
         place, by its directional lights (same group).
     environments : tuple of (int, EnvironmentLights)
-        Per environment light: its index in the original ``lights`` and the
-        conversion (light count, estimated error, time).
+        Per environment light shaded as lights: its index in the original ``lights`` and
+        the conversion (light count, estimated error, time).
+    tables : tuple of (int, EnvTables)
+        Per environment light shaded from tables (``scene.env_tables``): its index and
+        its tables.
+    paths : tuple of (int, str, str)
+        Per environment light: its index, its path (``"tables"`` or ``"lights"``) and why.
     """
 
     scene: Scene
     environments: tuple = ()
+    tables: tuple = ()
+    paths: tuple = ()
 
 
 _LOCK = threading.Lock()
@@ -256,6 +264,132 @@ def _save(name: str, r: EnvironmentLights, notes=()) -> None:
     _DISK.put(name, lambda f: np.savez(f, l=r.l, radiance=r.radiance, meta=np.array(meta)))
 
 
+_TABLES: dict = {}
+#: Tables kept on disk (``envtables/``): a 1024 x 512 map's at 1e-3 are about 0.5 MB.
+_TABLE_DISK = Store("envtables", ".npz", DISK_KEEP)
+_TABLE_CODE: list = []
+
+
+def _table_material(material):
+    """What a map's tables depend on in the material: the lobe's exponent, if any."""
+    return float(material.exponent) if material.k_s > 0 else None
+
+
+def _tables(light: Light, where: str, material, max_error: float, nonfinite: str = "error"):
+    """``light``'s map as tables (:func:`clphong.model.env_table.environment_tables`), or the
+    one-line reason it cannot be tabled; cached per process and on disk (``envtables/``:
+    the map's content, rotation, intensity, the lobe's exponent, the target and the
+    table code)."""
+    name = light.file
+    policy = "background" if nonfinite == "background" else "error"
+    spec = _table_material(material)
+    try:
+        st = os.stat(name)
+        key = (os.path.realpath(name), st.st_ino, st.st_size, st.st_mtime_ns, light.rotation,
+               light.intensity, spec, max_error, policy)
+    except OSError:
+        key = None
+    with _LOCK:
+        hit = _TABLES.get(key) if key is not None else None
+    if hit is None:
+        digest = _file_digest(name) if key is not None else None
+        disk = None
+        if digest is not None:
+            if not _TABLE_CODE:
+                _TABLE_CODE.append(hashlib.sha256(Path(_env_table.__file__).read_bytes()).hexdigest())
+            h = hashlib.sha256()
+            for part in (digest, repr(float(light.rotation)), repr(float(light.intensity)),
+                         repr(spec), repr(float(max_error)), policy, _TABLE_CODE[0]):
+                h.update(str(part).encode() + b"\0")
+            disk = h.hexdigest()[:40]
+        found = None if disk is None else _TABLE_DISK.get(disk)
+        hit = None if found is None else _load_tables(found)
+        if hit is None:
+            with warnings.catch_warnings(record=True) as said:
+                warnings.simplefilter("always", SceneWarning)
+                L = read_envmap(name, where, nonfinite)
+            notes = tuple(str(w.message) for w in said if issubclass(w.category, SceneWarning))
+            try:
+                made = _env_table.environment_tables(L, material, rotation=light.rotation,
+                                                     intensity=light.intensity,
+                                                     max_error=max_error)
+            except _env_table.TablesUnfit as e:
+                made = str(e)
+            hit = (made, notes)
+            if disk is not None:
+                _save_tables(disk, made, notes)
+        if key is not None:
+            with _LOCK:
+                if len(_TABLES) >= _CACHE_SIZE:
+                    _TABLES.pop(next(iter(_TABLES)))
+                _TABLES[key] = hit
+    made, notes = hit
+    for note in notes:
+        warnings.warn(SceneWarning(note))
+    return made
+
+
+_TABLE_ARRAYS = ("sun_l", "sun_radiance", "power", "radiance_max", "lune", "diffuse_floor")
+
+
+def _save_tables(name: str, t, notes=()) -> None:
+    if isinstance(t, str):
+        meta = {"unfit": t, "notes": list(notes)}
+        _TABLE_DISK.put(name, lambda f: np.savez(f, meta=np.array(json.dumps(meta))))
+        return
+    sp = t.specular
+    meta = {"unfit": None, "notes": list(notes), "rotation": t.rotation, "estimate": t.estimate,
+            "texel_angle": t.texel_angle,
+            "max_error": t.max_error, "seconds": t.seconds,
+            "diffuse": [t.diffuse.power, t.diffuse.estimate, t.diffuse.seconds],
+            "specular": None if sp is None else [sp.power, sp.estimate, sp.seconds]}
+    arrays = {k: getattr(t, k) for k in _TABLE_ARRAYS}
+    arrays["diffuse"] = t.diffuse.values
+    if sp is not None:
+        arrays["specular"] = sp.values
+    _TABLE_DISK.put(name, lambda f: np.savez(f, meta=np.array(json.dumps(meta)), **arrays))
+
+
+def _load_tables(path: Path):
+    """(tables or the reason there are none, the map's warnings) from the disk cache, or
+    None (missing, damaged, another layout)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            notes = tuple(str(n) for n in meta.get("notes", ()))
+            if meta["unfit"] is not None:
+                return str(meta["unfit"]), notes
+
+            def table(key, values):
+                power, estimate, _ = meta[key]
+                return _env_table.CubicTable(np.array(values, np.float64), float(power),
+                                             float(estimate), 0.0)
+
+            sp = None if meta["specular"] is None else table("specular", z["specular"])
+            arrays = {k: np.array(z[k], np.float64) for k in _TABLE_ARRAYS}
+            return (_env_table.EnvTables(diffuse=table("diffuse", z["diffuse"]), specular=sp,
+                                         rotation=float(meta["rotation"]),
+                                         texel_angle=float(meta["texel_angle"]),
+                                         estimate=float(meta["estimate"]),
+                                         max_error=float(meta["max_error"]), seconds=0.0,
+                                         **arrays), notes)
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile):
+        return None
+
+
+def _table_refusal(material, pairs) -> str | None:
+    """Why an environment of this frame takes lights rather than tables, or None."""
+    if not isinstance(pairs, FrameSource):
+        return ("its estimate covers every normal and view (--env-probes all, or no frame): the "
+                "tables' horizon bound is held on a frame's own pixels")
+    why = _env_table.table_refusal(material)
+    if why:
+        return why
+    if "h" in (getattr(pairs.gbuffer, "maps", None) or {}) and material.k_s > 0:
+        return "a shininess map: the lobe table holds one exponent"
+    return None
+
+
 class _Progress:
     """The conversion's notices (:data:`conversion_notice`): after NOTICE_AFTER_S, one
     line saying what runs, then the search's progress at most once a second."""
@@ -277,20 +411,12 @@ class _Progress:
             self.last = now
 
 
-def frame_pairs(camera, gbuffer, count: int = _environment.PROBES, material=None):
-    """The probes of a frame (:func:`clphong.model.environment.frame_probe_indices`): the unit
-    normals, views and albedos of ``gbuffer``'s shaded pixels (a non-zero, finite normal
-    and position, coverage above 0) under ``camera`` (perspective or orthographic: a
-    metadata camera resolved for this frame first), as the kernels see them: v =
-    (eye − P)/|eye − P|, or n where P is the eye. None where no pixel is shaded.
-
-    Returns a :class:`clphong.model.environment.FrameProbes`: the probes with their
-    pixels' weights of the two terms, and the frame's ranges of those weights, which
-    the estimate holds (:func:`clphong.model.environment.frame_error`). Per-pixel k_d,
-    k_s and specular-colour maps enter the weights against ``material``'s uniform
-    values. Pixels with a NaN or Inf albedo or map are left out. A shininess map does
-    not: the probes keep the material's h. The albedo is as stored (before an
-    ``albedo_space`` conversion)."""
+def frame_pixels(camera, gbuffer, material=None):
+    """Every shaded pixel of a frame as the kernels see it, float32: (idx, pixels, n, v,
+    diffuse, specular) with ``idx`` the pixels' flat indices (a slice where every pixel
+    is shaded), ``pixels(idx, dtype)`` forming (n, v, diffuse weight, specular weight)
+    of any of them, and those four for all of them (:func:`frame_pairs`). None where no
+    pixel is shaded."""
     # the cells are chosen on float32 copies of every shaded pixel; the probes chosen
     # are then formed in float64 from the stored float32 values
     N = np.asarray(gbuffer.normal, np.float32).reshape(-1, 3)
@@ -333,6 +459,27 @@ def frame_pairs(camera, gbuffer, count: int = _environment.PROBES, material=None
         n32, v32, d32, s32 = n32[ok], v32[ok], d32[ok], s32[ok]
         if not len(shaded):
             return None
+    return shaded, pixels, n32, v32, d32, s32
+
+
+def frame_pairs(camera, gbuffer, count: int = _environment.PROBES, material=None, pixels=None):
+    """The probes of a frame (:func:`clphong.model.environment.frame_probe_indices`): the unit
+    normals, views and albedos of ``gbuffer``'s shaded pixels (a non-zero, finite normal
+    and position, coverage above 0) under ``camera`` (perspective or orthographic: a
+    metadata camera resolved for this frame first), as the kernels see them: v =
+    (eye − P)/|eye − P|, or n where P is the eye. None where no pixel is shaded.
+
+    Returns a :class:`clphong.model.environment.FrameProbes`: the probes with their
+    pixels' weights of the two terms, and the frame's ranges of those weights, which
+    the estimate holds (:func:`clphong.model.environment.frame_error`). Per-pixel k_d,
+    k_s and specular-colour maps enter the weights against ``material``'s uniform
+    values. Pixels with a NaN or Inf albedo or map are left out. A shininess map does
+    not: the probes keep the material's h. The albedo is as stored (before an
+    ``albedo_space`` conversion). ``pixels``: :func:`frame_pixels`'s result, if made."""
+    got = frame_pixels(camera, gbuffer, material) if pixels is None else pixels
+    if got is None:
+        return None
+    shaded, pixels, n32, v32, d32, s32 = got
     a32 = _environment.folded_albedo(d32, s32)
     pick = _environment.frame_probe_indices(n32, v32, count, albedo=a32)
     if not isinstance(shaded, slice):
@@ -383,6 +530,7 @@ class FrameSource:
         self.camera, self.gbuffer, self.material, self.count = camera, gbuffer, material, count
         self._digest = None
         self._probes: list = []
+        self._pixels: list = []
 
     def digest(self) -> str:
         if self._digest is None:
@@ -403,10 +551,61 @@ class FrameSource:
             self._digest = h.hexdigest()
         return self._digest
 
+    def pixels(self):
+        """:func:`frame_pixels` of the frame, made once."""
+        if not self._pixels:
+            self._pixels.append(frame_pixels(self.camera, self.gbuffer, self.material))
+        return self._pixels[0]
+
     def probes(self):
         if not self._probes:
-            self._probes.append(frame_pairs(self.camera, self.gbuffer, self.count, self.material))
+            self._probes.append(frame_pairs(self.camera, self.gbuffer, self.count, self.material,
+                                            pixels=self.pixels()))
         return self._probes[0]
+
+    def horizon_misses(self, tables) -> int:
+        """How many of the frame's shaded pixels ``tables`` cannot shade within their budget
+        (:func:`clphong.model.env_table.horizon_misses`), from n·v formed in float32 as
+        N·(eye − P)/(|N|·|eye − P|) (the kernels' v; v = n where P is the eye) and the
+        pixels' term weights, HORIZON_CHUNK pixels at a time (small temporaries, reused).
+        Pixels with a NaN or Inf input are the non-finite policy's."""
+        g = self.gbuffer
+        N = np.asarray(g.normal, np.float32).reshape(-1, 3)
+        P = np.asarray(g.position, np.float32).reshape(-1, 3)
+        cov = getattr(g, "coverage", None)
+        cov = None if cov is None else np.asarray(cov).reshape(-1)
+        view = view_vector(self.camera)
+        eye = np.asarray(self.camera.position if view is None else view / np.linalg.norm(view),
+                         np.float32)
+        misses = 0
+        for a in range(0, len(N), HORIZON_CHUNK):
+            part = slice(a, min(a + HORIZON_CHUNK, len(N)))
+            n = N[part]
+            with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+                nn = np.einsum("ij,ij->i", n, n)
+                if view is not None:
+                    c = n @ eye
+                    c /= np.sqrt(nn)
+                else:
+                    D = eye - P[part]
+                    dd = np.einsum("ij,ij->i", D, D)
+                    c = np.einsum("ij,ij->i", n, D)
+                    c /= np.sqrt(nn * dd)
+                    c[dd == 0] = 1.0
+                ok = (nn > 0) & np.isfinite(nn) & np.isfinite(c)
+                if cov is not None:
+                    ok &= cov[part] > 0
+                d, sp = _probe_weights(g, part, self.material, np.float32)
+                ok &= across(np.logical_and, np.isfinite(d)) & across(np.logical_and,
+                                                                     np.isfinite(sp))
+            if not ok.all():
+                c, n, d, sp = c[ok], n[ok], d[ok], sp[ok]
+            misses += int(_env_table.horizon_misses(tables, self.material, c, d, sp, n).sum())
+        return misses
+
+
+#: Pixels of one step of :meth:`FrameSource.horizon_misses`.
+HORIZON_CHUNK = 1 << 16
 
 
 #: Part of FrameSource's digest: a change to how probes are chosen converts again.
@@ -479,7 +678,8 @@ def check_environment_maps(scene: Scene, *, nonfinite: str = "error") -> None:
 
 
 def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
-                        nonfinite: str = "error", shade=None, pairs=None) -> ResolvedScene:
+                        nonfinite: str = "error", shade=None, pairs=None,
+                        tables: bool = False) -> ResolvedScene:
     """Replace every environment light of ``scene`` by directional lights.
 
     Parameters
@@ -499,6 +699,12 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
         each environment's estimate then speaks of that frame's pixels; their digest
         is part of the cache keys. None: every normal and view
         (:func:`clphong.model.environment.probe_pairs`).
+    tables : bool
+        Shade an environment from the kernels' tables where it can
+        (:mod:`clphong.model.env_table`: Phong or no specular, no shininess map, a frame's
+        pixels in ``pairs`` (a :class:`FrameSource`) whose lobes below their horizons the
+        budget holds): its sun becomes directional lights and the tables go to
+        ``scene.env_tables``. One environment at most; the lane kernel only.
 
     Returns
     -------
@@ -519,19 +725,48 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
         return ResolvedScene(scene=scene)
     view = view_vector(scene.camera)
     lights: list[Light] = []
-    done = []
+    done, tabled, paths = [], [], []
     for i, lt in enumerate(scene.lights):
         if lt.type != "environment":
             lights.append(lt)
             continue
-        r = _convert(lt, environment_key(scene, i), scene.material, view, max_error, nonfinite,
-                     shade, pairs)
-        done.append((i, r))
+        key = environment_key(scene, i)
+        why = "tables not asked for (the obvious kernel, or the API's default)"
+        if tables and tabled:
+            why = "the kernels read one environment's tables: another has them"
+        elif tables:
+            why = _table_refusal(scene.material, pairs)
+            if why is None:
+                made = _tables(lt, key, scene.material, max_error, nonfinite)
+                if isinstance(made, str):
+                    why = made
+                else:
+                    miss = pairs.horizon_misses(made)
+                    if miss:
+                        why = (f"{miss:,} pixel(s) reflect so near their horizon that the lobe "
+                               "the table counts below it may exceed the budget")
+                    else:
+                        suns = _scene.directional_lights(made.sun_l, made.sun_radiance, lt.group)
+                        if not suns:           # its group keeps its layer
+                            suns = (Light(type="directional", color=(0.0, 0.0, 0.0),
+                                          direction=(0.0, -1.0, 0.0), group=lt.group),)
+                        lights.extend(suns)
+                        tabled.append((made, lt.group_name))
+                        done.append(("tables", (i, made)))
+                        paths.append((i, "tables", made.describe() + ": every pixel's lobe below "
+                                      "its horizon is within the budget"))
+                        continue
+        r = _convert(lt, key, scene.material, view, max_error, nonfinite, shade, pairs)
+        done.append(("lights", (i, r)))
+        paths.append((i, "lights", why))
         if not r.met:
             warnings.warn(SceneWarning(
-                f"{environment_key(scene, i)}: {lt.file}: {r.count} lights (the most allowed) "
+                f"{key}: {lt.file}: {r.count} lights (the most allowed) "
                 f"reach an estimated {r.estimated_error:.2g} relative error, not the "
                 f"{max_error:g} asked for (--env-error)"))
         lights.extend(directional_lights(r, lt.group))
-    return ResolvedScene(scene=dataclasses.replace(scene, lights=tuple(lights)),
-                         environments=tuple(done))
+    return ResolvedScene(scene=dataclasses.replace(scene, lights=tuple(lights),
+                                                   env_tables=tuple(tabled)),
+                         environments=tuple(x for k, x in done if k == "lights"),
+                         tables=tuple(x for k, x in done if k == "tables"),
+                         paths=tuple(paths))

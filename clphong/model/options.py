@@ -21,7 +21,7 @@ __all__ = ["validate_method", "PATHS", "path_options", "NONFINITE_POLICIES", "ch
            "check_fp64_directions", "check_float_power",
            "MAX_EXPOSURE", "check_exposure", "ENCODINGS", "CullingError", "check_budget",
            "NUMBERS", "check_number", "RendererOptions", "finished", "DEFAULT_ENV_ERROR",
-           "check_env_error", "ENV_PROBES"]
+           "check_env_error", "ENV_PROBES", "ENV_PATHS"]
 
 
 def validate_method(value, methods, what: str, error: type[Exception] = ValueError):
@@ -61,6 +61,12 @@ DEFAULT_ENV_ERROR = 1e-3
 #: Where an environment's error is estimated (``--env-probes``; RendererOptions.env_probes).
 ENV_PROBES = {"frame": "on each frame's own pixels (its normals and views)",
               "all": "on every normal and view (one conversion serves any frame)"}
+
+
+#: How an environment is shaded (``--env-path``; RendererOptions.env_path).
+ENV_PATHS = {"auto": "from tables (irradiance and the Phong lobe, the sun as lights) where their "
+                     "bound holds on the frame's pixels, else as directional lights",
+             "lights": "as directional lights always"}
 
 
 def check_env_error(value) -> float:
@@ -265,6 +271,10 @@ class RendererOptions:
         each frame's own pixels, so each frame gets the lights it needs (its own
         conversion, cached by its probes); ``"all"``: on every normal and view, one
         conversion for any frame.
+    env_path : str
+        :data:`ENV_PATHS`: ``"auto"`` (default) shades an environment from tables where
+        they hold ``env_error`` on the frame (``env_probes="frame"``, the lane kernel),
+        ``"lights"`` always from directional lights.
     light_tree : bool or "always"
 
     Raises
@@ -275,7 +285,7 @@ class RendererOptions:
     ValueError
         An unknown ``nonfinite`` policy or ``path``, ``fp64_directions`` not None/bool,
         both ``path`` and ``fp64_directions``, an ``env_error`` that is not a finite
-        number > 0, or an unknown ``env_probes``.
+        number > 0, or an unknown ``env_probes`` or ``env_path``.
     """
 
     fp64_directions: bool | None = None
@@ -288,6 +298,7 @@ class RendererOptions:
     light_tree: bool | str = True
     relative: bool = False
     env_probes: str = "frame"
+    env_path: str = "auto"
 
     def __post_init__(self):
         check_fp64_directions(self.fp64_directions)
@@ -300,6 +311,7 @@ class RendererOptions:
         check_nonfinite(self.nonfinite)
         object.__setattr__(self, "env_error", check_env_error(self.env_error))
         validate_method(self.env_probes, ENV_PROBES, "env_probes")
+        validate_method(self.env_path, ENV_PATHS, "env_path")
         aovs = self.aovs
         if isinstance(aovs, str):         # "diffuse,specular", as --aov and the scene key
             aovs = tuple(a.strip() for a in aovs.split(",") if a.strip())

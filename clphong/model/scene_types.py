@@ -467,6 +467,11 @@ class Scene:
     relative : bool
         ``render.relative``: ``max_error`` is a fraction of each pixel's own value,
         as ``--relative``.
+    env_tables : tuple of (EnvTables, str or None)
+        Environment lights resolved into the kernels' tables
+        (:class:`clphong.model.env_table.EnvTables`) and their light group; their suns are
+        directional lights in :attr:`lights`. Set by
+        :func:`clphong.io.envmap.resolve_environment`, never by a scene file.
     """
 
     camera: Camera
@@ -479,6 +484,7 @@ class Scene:
     aovs: tuple[str, ...] = ()
     max_error: float | None = None
     relative: bool = False
+    env_tables: tuple = ()
 
     def __post_init__(self):
         if self.color is None:

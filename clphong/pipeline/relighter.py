@@ -56,6 +56,7 @@ from ..io.envmap import FrameSource, check_environment_maps, resolve_environment
 from ..io.gbuffer import MAP_KEYS, GBuffer, read_gbuffer
 from ..model.options import (
     DEFAULT_ENV_ERROR,
+    ENV_PATHS,
     ENV_PROBES,
     RendererOptions,
     check_env_error,
@@ -190,13 +191,14 @@ class RelighterSpec(RendererOptions):
 def check_renderer_options(*, fp64_directions=None, max_error=None, reference_white=1.0,
                            nonfinite="background", path=None, aovs=(),
                            env_error=DEFAULT_ENV_ERROR, light_tree=True,
-                           relative=False, env_probes="frame") -> RendererOptions:
+                           relative=False, env_probes="frame",
+                           env_path="auto") -> RendererOptions:
     """The renderer options of a :class:`Relighter`, checked without compiling anything
     (:class:`~clphong.model.options.RendererOptions`, which raises as it says)."""
     return RendererOptions(fp64_directions=fp64_directions, max_error=max_error,
                            reference_white=reference_white, nonfinite=nonfinite, path=path,
                            aovs=aovs, env_error=env_error, light_tree=light_tree,
-                           relative=relative, env_probes=env_probes)
+                           relative=relative, env_probes=env_probes, env_path=env_path)
 
 
 _CACHE: dict = {}
@@ -263,6 +265,11 @@ class Relighter:
         frame's conversion is cached by its probes, and ``environments`` is then the
         last frame's. ``"all"``: at construction, on every normal and view at white
         albedo, one conversion for every frame.
+    env_path : {"auto", "lights"}
+        ``"auto"`` (default): with ``env_probes="frame"`` and the lane kernel, a frame
+        whose every pixel the tables' bound holds shades its environment from them
+        (:mod:`clphong.model.env_table`; ``env_tables`` and ``env_paths`` say which);
+        ``"lights"``: always directional lights.
 
     Notes
     -----
@@ -283,14 +290,14 @@ class Relighter:
                  max_error: float | None = None, reference_white: float = 1.0,
                  nonfinite: str = "background", path: str | None = None, aovs=(),
                  env_error: float = DEFAULT_ENV_ERROR, light_tree: bool = True,
-                 relative: bool = False, env_probes: str = "frame",
+                 relative: bool = False, env_probes: str = "frame", env_path: str = "auto",
                  options: RendererOptions | None = None):
         # Renderer options first: a bad value fails before the scene is read or compiled.
         # Given as ``options`` they were checked where they came in, and are not again.
         given = dict(fp64_directions=fp64_directions, max_error=max_error,
                      reference_white=reference_white, nonfinite=nonfinite, path=path,
                      aovs=aovs, env_error=env_error, light_tree=light_tree,
-                     relative=relative, env_probes=env_probes)
+                     relative=relative, env_probes=env_probes, env_path=env_path)
         if options is None:
             options = check_renderer_options(**given)
         else:
@@ -306,6 +313,11 @@ class Relighter:
         # or with env_probes="frame" for each frame (renderer_for), from its own pixels.
         self._probe_shader = DeviceProbeShader(device)
         self._frame_env = options.env_probes == "frame" and bool(scene.lights_of("environment"))
+        self._tables = options.env_path == "auto" and kernel == "lanes"
+        #: the last frame's environments shaded from tables, (index, EnvTables), and every
+        #: environment's path, (index, "tables" or "lights", why)
+        self.env_tables: tuple = ()
+        self.env_paths: tuple = ()
         self._unresolved = scene
         self._frames: dict = {}            # the frames' probe digests -> their lights
         self._frames_lock = threading.Lock()
@@ -322,6 +334,7 @@ class Relighter:
                                            nonfinite=options.nonfinite, shade=self._probe_shader)
             scene = resolved.scene
             self.environments = resolved.environments
+            self.env_paths = resolved.paths
         self.scene = scene
         self.channels = dict(channels) if channels else None
         self.output = (output or OutputOptions()).for_scene(scene)
@@ -361,19 +374,21 @@ class Relighter:
             scene = resolve_camera(self.scene, gbuffer.attributes,
                                    world_to_camera_matrix=world_to_camera, source=where)
         if self._frame_env:
-            scene = dataclasses.replace(scene, lights=self._frame_lights(scene.camera, gbuffer))
+            lights, tables = self._frame_lights(scene.camera, gbuffer)
+            scene = dataclasses.replace(scene, lights=lights, env_tables=tables)
         view = copy.copy(self.renderer)
         view.scene = scene
         return view
 
     def _frame_lights(self, camera, gbuffer) -> tuple:
-        """The scene's lights with each environment resolved on this frame's probes
-        (:class:`clphong.io.envmap.FrameSource`: named by the frame's bytes, its probes
-        chosen only if a conversion runs), the last few frames' kept."""
+        """(the scene's lights, its environment tables) with each environment resolved on
+        this frame (:class:`clphong.io.envmap.FrameSource`: named by the frame's bytes, its
+        probes chosen only if a conversion runs, its tables' bound checked on its
+        pixels), the last few frames' kept."""
         N = np.asarray(gbuffer.normal)
         if not ((N != 0) & np.isfinite(N)).any():    # no shaded pixel: no light reaches one
-            self.environments = ()
-            return self.scene.lights
+            self.environments, self.env_tables, self.env_paths = (), (), ()
+            return self.scene.lights, ()
         pairs = FrameSource(camera, gbuffer, self.scene.material)
         key = pairs.digest()
         with self._frames_lock:
@@ -382,14 +397,15 @@ class Relighter:
             opts = self.options
             resolved = resolve_environment(self._unresolved, max_error=opts.env_error,
                                            nonfinite=opts.nonfinite, shade=self._probe_shader,
-                                           pairs=pairs)
-            hit = (resolved.scene.lights, resolved.environments)
+                                           pairs=pairs, tables=self._tables)
+            hit = (resolved.scene.lights, resolved.scene.env_tables, resolved.environments,
+                   resolved.tables, resolved.paths)
             with self._frames_lock:
                 while len(self._frames) >= FRAMES_KEPT:
                     self._frames.pop(next(iter(self._frames)))
                 self._frames[key] = hit
-        self.environments = hit[1]
-        return hit[0]
+        self.environments, self.env_tables, self.env_paths = hit[2:]
+        return hit[0], hit[1]
 
     def relight(self, frame, out: str | os.PathLike | None = None, *, sdr=None, hdr=None,
                 contact_sheet=None, world_to_camera=None) -> np.ndarray:
@@ -559,18 +575,20 @@ def deliver_staged(relighter, gbuffer: GBuffer, paths: OutputPaths, *, source: s
 
 
 def render(scene, gbuffer, *, env_error: float = DEFAULT_ENV_ERROR, env_probes: str = "frame",
-           **kwargs) -> np.ndarray:
+           env_path: str = "auto", **kwargs) -> np.ndarray:
     """Shade ``gbuffer`` with ``scene``: (H, W, 3) float32, scene-linear (``clphong.render``).
 
     :func:`clphong.device.renderer.render` after the scene's environment lights are
     resolved into directional lights within ``env_error``
     (:func:`clphong.io.envmap.resolve_environment`), estimated on this G-buffer's
     pixels (``env_probes="frame"``, the default, where the scene has its own camera)
-    or on every normal and view (``"all"``); other keyword arguments go to
+    or on every normal and view (``"all"``), from tables where their bound holds on the
+    frame (``env_path="auto"``, :class:`Relighter`); other keyword arguments go to
     :class:`~clphong.device.renderer.Renderer`.
     """
     check_env_error(env_error)
     validate_method(env_probes, ENV_PROBES, "env_probes")
+    validate_method(env_path, ENV_PATHS, "env_path")
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     pairs = None
@@ -579,5 +597,7 @@ def render(scene, gbuffer, *, env_error: float = DEFAULT_ENV_ERROR, env_probes: 
         pairs = FrameSource(scene.camera, gbuffer, scene.material)
     resolved = resolve_environment(scene, max_error=env_error,
                                    nonfinite=kwargs.get("nonfinite", "background"),
-                                   shade=DeviceProbeShader(kwargs.get("device")), pairs=pairs)
+                                   shade=DeviceProbeShader(kwargs.get("device")), pairs=pairs,
+                                   tables=env_path == "auto"
+                                   and kwargs.get("kernel", "lanes") == "lanes")
     return render_resolved(resolved.scene, gbuffer, **kwargs)

@@ -28,11 +28,13 @@ import dataclasses
 import numpy as np
 
 from ..io.envmap import environment_key, read_envmap
+from ..model.env_table import env_table_coords, env_table_lookup
 from ..model.environment import probe_sums, texel_lights
 from ..model.scene import Light
 from . import shading
 
-__all__ = ["texel_sum", "environment_texel_sum", "texel_terms", "without_environment", "METHODS"]
+__all__ = ["texel_sum", "environment_texel_sum", "texel_terms", "without_environment", "METHODS",
+           "table_terms"]
 
 #: The ways of :func:`texel_sum`.
 METHODS = ("auto", "fast", "reference")
@@ -137,3 +139,33 @@ def texel_sum(scene, gbuffer, *, method: str = "auto") -> np.ndarray:
         out += add if a is None else add * a[:, None]
     H, W = gbuffer.shape
     return out.reshape(H, W, 3)
+
+
+def table_terms(scene, gbuffer, tables):
+    """(C·k_d·diffuse, k_s·C_s·specular), (M, 3) each on the shaded pixels: shade.cl's
+    ENV_TABLE block in float64 (kernels/include/envtable.h), ``tables`` an
+    :class:`clphong.model.env_table.EnvTables`: E(n) and T(R), R = 2(n·v)n − v, by the
+    kernel's own coordinates and cubic look-ups (:func:`env_table_coords`,
+    :func:`env_table_lookup`) on the same tables, plus its sun as directional lights
+    (:func:`texel_terms`). No shininess map (the table holds one h); Phong's Fresnel W
+    in k_s·C_s as the kernel has it."""
+    if "h" in gbuffer.maps:
+        raise ValueError("the tables hold one exponent: no shininess map")
+    px, C, D, S, fg = shading._inputs(scene, gbuffer)
+    rot = np.radians(tables.rotation % 360.0)
+    d_t = tables.diffuse
+    E = env_table_lookup(d_t.values, *env_table_coords(px.n, rot, d_t.rows, d_t.cols))
+    diffuse = D * E
+    specular = np.zeros_like(diffuse)
+    if px.specular and tables.specular is not None:
+        s_t = tables.specular
+        R = 2.0 * np.einsum("ij,ij->i", px.n, px.v)[:, None] * px.n - px.v
+        specular = S * env_table_lookup(s_t.values, *env_table_coords(R, rot, s_t.rows, s_t.cols))
+    if len(tables.sun_l):
+        # S holds Phong's Fresnel W (one a pixel): the sums without it
+        plain = dataclasses.replace(scene.material, fresnel="none", f0=None)
+        sd, ss = probe_sums(px.n, px.v, tables.sun_l, tables.sun_radiance, plain,
+                            specular=px.specular)
+        diffuse = diffuse + D * sd
+        specular = specular + S * ss
+    return diffuse, specular

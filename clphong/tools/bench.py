@@ -247,7 +247,7 @@ class BenchConfig:
     env_errors: tuple = ()                          # environment rows' targets (the CLI: ENV_ERRORS)
     env_sizes: tuple = ((256, 128), (1024, 512), (4096, 2048))   # the sky maps' width x height
     env_pixels: int = 2000                          # pixels of the exact texel sum
-    env_probes: tuple = ("frame", "all")            # where each row's conversion estimates (--env-probes)
+    env_probes: tuple = ("tables", "frame", "all")  # each row's path (--env-probes): tables, or lights estimated where
     tree_cases: tuple = ()                          # light-tree rows: (scene, N, ε) (the CLI: TREE_CASES)
     lanes: tuple = (None,)                          # widths of the wide scene's brute-force rows (None: the device's)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 import time
@@ -11,7 +12,7 @@ import numpy as np
 from ..device.culling import TILE, super_tiles
 from ..device.envprobe import DeviceProbeShader
 from ..device.renderer import Renderer, prepare_frame
-from ..io.envmap import directional_lights, frame_pairs
+from ..io.envmap import FrameSource, directional_lights, frame_pairs
 from ..model.environment import (
     DEFAULT_ENV_ERROR,
     FLOOR,
@@ -20,7 +21,9 @@ from ..model.environment import (
     texel_lights,
 )
 from ..model.light_tree import build_light_tree
+from ..model.env_table import TablesUnfit, environment_tables
 from ..model.scene import Scene
+from ..model.scene import directional_lights as sun_lights
 from ..reference import environment as env_reference
 from . import samples
 from .bench_scenes import (
@@ -44,6 +47,25 @@ def environment_scene(lights=()) -> Scene:
     base = bench_scene("wide", 1)
     return Scene(camera=base.camera, material=base.material, lights=tuple(lights),
                  source="bench:environment")
+
+
+@dataclasses.dataclass(frozen=True)
+class TableRow:
+    """An environment's tables as a bench row's conversion (the fields the rows read)."""
+
+    tables: object
+    count: int
+    texels: int
+    estimated_error: float
+    met: bool
+    probes: int
+    seconds: float
+
+    @classmethod
+    def of(cls, tables) -> "TableRow":
+        return cls(tables=tables, count=tables.sun_count, texels=0,
+                   estimated_error=tables.estimate, met=tables.estimate <= tables.max_error,
+                   probes=0, seconds=tables.seconds)
 
 
 def _first_n_for(target, exact, D_part, S_part, tree, base_lights):
@@ -89,8 +111,7 @@ def run_environment(cfg, full, runs, log, env_size) -> list[dict]:
     t0 = time.perf_counter()
     l_all, E_all = texel_lights(L)
     keep = E_all.max(axis=1) > 0
-    ex_d, ex_s = env_reference.texel_terms(base, sub, l_all[keep], E_all[keep])
-    exact = ex_d + ex_s
+    exact_terms = env_reference.texel_terms(base, sub, l_all[keep], E_all[keep])
     t_exact = time.perf_counter() - t0
     log(f"environment: exact texel sum of {mw}x{mh} texels on {len(idx)} pixels in {t_exact:.1f} s")
     tree = LightTree(*(a.reshape(mh, mw, 3) for a in (E_all, l_all)))
@@ -106,10 +127,32 @@ def run_environment(cfg, full, runs, log, env_size) -> list[dict]:
     shade = DeviceProbeShader(cfg.device)          # the probes on the device, as the commands
     # the frame's own probes (the commands' default, env_probes="frame"): the bench G-buffer's
     pairs = frame_pairs(base.camera, full, material=material)
+    # the tables' rows shade a Phong material (Blinn-Phong's lobe has no table), the bench's
+    # otherwise, against the exact Phong texel sum on the same pixels
+    phong = Scene(camera=base.camera, material=dataclasses.replace(material, model="phong"),
+                  source="bench:environment")
+    exact_phong = None
+    if "tables" in cfg.env_probes:
+        exact_phong = env_reference.texel_terms(phong, sub, l_all[keep], E_all[keep])
     for target, probes in ((t, p) for t in cfg.env_errors for p in cfg.env_probes):
-        conv = environment_lights(L, material, max_error=target, shade=shade,
-                                  pairs=pairs if probes == "frame" else None)
-        scene = environment_scene(directional_lights(conv))
+        if probes == "tables":
+            try:
+                conv = TableRow.of(environment_tables(L, phong.material, max_error=target))
+            except TablesUnfit as exc:
+                log(f"environment {mw}x{mh} eps={target:g}: no tables ({exc})")
+                continue
+            miss = FrameSource(phong.camera, full, phong.material).horizon_misses(conv.tables)
+            if miss:
+                log(f"environment {mw}x{mh} eps={target:g}: the tables' bound misses {miss} "
+                    "pixels of the bench frame: no tables row")
+                continue
+            scene = dataclasses.replace(phong, lights=sun_lights(conv.tables.sun_l,
+                                                                 conv.tables.sun_radiance),
+                                        env_tables=((conv.tables, None),))
+        else:
+            conv = environment_lights(L, material, max_error=target, shade=shade,
+                                      pairs=pairs if probes == "frame" else None)
+            scene = environment_scene(directional_lights(conv))
         n = len(scene.lights)
         rows = _crop_rows(W, H, max(n, 1), cfg.crop_pairs)
         gb = full if rows == H else bench_gbuffer(W, H, rows)
@@ -141,7 +184,13 @@ def run_environment(cfg, full, runs, log, env_size) -> list[dict]:
             continue
         conv, target = slot["conv"], slot["target"]
         got = slot["r"].render(sub).image.reshape(-1, 3).astype(np.float64)
-        d, sp = env_reference.texel_terms(base, sub, conv.l, conv.radiance)
+        tabled = slot["probes"] == "tables"
+        ex_d, ex_s = exact_phong if tabled else exact_terms
+        exact = ex_d + ex_s
+        if tabled:
+            d, sp = env_reference.table_terms(phong, sub, conv.tables)
+        else:
+            d, sp = env_reference.texel_terms(base, sub, conv.l, conv.radiance)
         top = float(exact.max(initial=0.0))
         big = exact >= FLOOR * top
         rel = np.abs(got - exact)[big] / exact[big]
@@ -164,7 +213,9 @@ def run_environment(cfg, full, runs, log, env_size) -> list[dict]:
                 "specular_max_rel": _env_rel(ex_d + sp, exact),
                 "model_max_rel": _env_rel(d + sp, exact),
             },
-            "lights_for_target_on_sample": _first_n_for(target, exact, ex_d, ex_s, tree, terms_of),
+            "material": slot["scene"].material.model,
+            "lights_for_target_on_sample": (None if tabled else
+                                            _first_n_for(target, exact, ex_d, ex_s, tree, terms_of)),
         }
         out.append(entry)
         e = entry["error"]
@@ -297,6 +348,7 @@ def summarise_environment(rows: list[dict]) -> dict:
     if row is None:
         return {}
     return {"env_lights": row["lights"], "env_max_rel": row["error"]["max_rel"],
+            "env_probes": row.get("env_probes", "all"), "env_material": row.get("material"),
             "env_time_ratio_256_point": row["time_ratio_256_point"],
             "env_lights_for_target_on_sample": row["lights_for_target_on_sample"],
             "target_env_error_met": row["error"]["max_rel"] <= DEFAULT_ENV_ERROR,
@@ -309,11 +361,13 @@ def environment_summary_lines(summary: dict) -> list[str]:
     def met(ok):
         return "met" if ok else "not met"
     need = summary["env_lights_for_target_on_sample"]
+    how = (f"from tables and {summary['env_lights']} sun lights ({summary.get('env_material')})"
+           if summary.get("env_probes") == "tables" else
+           f"{summary['env_lights']} lights; {need} would meet it on the sampled pixels")
     return [f"issue-16 targets: environment at {DEFAULT_ENV_ERROR:g}: error "
             f"{met(summary['target_env_error_met'])} (max rel {summary['env_max_rel']:.2e}); time "
             f"within 256 point lights brute force {met(summary['target_env_time_met'])} "
-            f"({summary['env_time_ratio_256_point']:.3g}x, {summary['env_lights']} lights; "
-            f"{need} would meet it on the sampled pixels)"]
+            f"({summary['env_time_ratio_256_point']:.3g}x, {how})"]
 
 
 def environment_table(rows: list[dict]) -> list[str]:
@@ -333,5 +387,6 @@ def environment_table(rows: list[dict]) -> list[str]:
     lines.append("environment: max rel against the exact float64 texel sum on the sampled pixels "
                  ">= 1e-3 of their maximum; diffuse/specular: each term's approximation alone; "
                  "enough: the fewest lights of the same tree within eps on those pixels; "
-                 "probes: the estimate's, the frame's own pixels or every normal and view")
+                 "probes: the estimate's, the frame's own pixels or every normal and view; "
+                 "tables: the kernels' tables (Phong: Blinn-Phong has none), lights = sun texels")
     return lines

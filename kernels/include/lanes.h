@@ -39,24 +39,28 @@ typedef float16 floatL;
 typedef int16 intL;
 #define AS_FLOAT_L(x) as_float16(x)
 #define AS_INT_L(x) as_int16(x)
+#define CONVERT_INT_L(x) convert_int16(x)
 LANE_ACCESS(float16, int16)
 #elif LANES == 8
 typedef float8 floatL;
 typedef int8 intL;
 #define AS_FLOAT_L(x) as_float8(x)
 #define AS_INT_L(x) as_int8(x)
+#define CONVERT_INT_L(x) convert_int8(x)
 LANE_ACCESS(float8, int8)
 #elif LANES == 4
 typedef float4 floatL;
 typedef int4 intL;
 #define AS_FLOAT_L(x) as_float4(x)
 #define AS_INT_L(x) as_int4(x)
+#define CONVERT_INT_L(x) convert_int4(x)
 LANE_ACCESS(float4, int4)
 #elif LANES == 1
 typedef float floatL;
 typedef int intL;
 #define AS_FLOAT_L(x) as_float(x)
 #define AS_INT_L(x) as_int(x)
+#define CONVERT_INT_L(x) ((int)(x))
 #define vloadL(i, p) ((p)[(i)])
 #define vstoreL(v, i, p) ((p)[(i)] = (v))
 #else

@@ -56,7 +56,9 @@
     const float4 material_lo,  /* ambient − float(ambient) (xyz), k_d − float(k_d) (w) */ \
     const float4 S_lo,         /* S_uniform − float(S_uniform) (xyz), k − float(k) (w); both with WEIGHTS_FP64 */ \
     __global const uint *restrict group_table,     /* with N_GROUPS: dir_end[G], point_end[G] */ \
-    __global const float4 *restrict group_ambient  /* with N_GROUPS: k_a·A_g as hi, lo per group */ \
+    __global const float4 *restrict group_ambient, /* with N_GROUPS: k_a·A_g as hi, lo per group */ \
+    __global const float4 *restrict env_table,     /* with ENV_TABLE: the tables (envtable.h) */ \
+    const float env_rotation  /* with ENV_TABLE: the environment's rotation about +y, radians */ \
     SHADE_CULL_ARGS SHADE_DIR_ARGS
 
 #endif /* CLPHONG_SHADE_ARGS_H */

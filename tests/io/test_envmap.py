@@ -474,8 +474,30 @@ def test_plan_names_each_environments_path(tmp_path, capsys):
     assert main(["plan", str(scene_path), "--env-error", "1e-2"]) == 0
     out = capsys.readouterr().out.splitlines()
     env = [ln for ln in out if ln.startswith("environment: light[0] ")]
-    assert len(env) == 1 and "directional lights of its 512 texels" in env[0]
-    assert "no irradiance table yet" in env[0] and "within --env-error 0.01" in env[0]
+    assert len(env) == 2
+    # no frame: no horizon check, so the lights' path, and why
+    assert ": lights: its estimate covers every normal and view" in env[0]
+    assert "directional lights of its 512 texels" in env[1]
+    assert "within --env-error 0.01" in env[1]
+
+
+def test_plan_with_a_frame_names_the_tables(tmp_path, capsys):
+    """Given a frame whose every pixel the tables' bound holds (a heightfield seen from
+    above, Phong), plan names the tables, their sizes and the sun's lights, and compiles
+    ENV_TABLE."""
+    from clphong.console.cli import main
+    from clphong.io.gbuffer import write_gbuffer
+    from conftest import heightfield
+
+    scene_path = _sky_scene(tmp_path)
+    _write(tmp_path / "sky.exr", samples.sky_envmap(64, 32))
+    g = heightfield(np.random.default_rng(0), 16, 20)
+    write_gbuffer(tmp_path / "g.exr", g.position, g.normal, g.albedo, coverage=g.coverage)
+    assert main(["plan", str(scene_path), str(tmp_path / "g.exr"), "--env-error", "1e-2"]) == 0
+    out = capsys.readouterr().out
+    assert "-DENV_TABLE=1" in out and "-DENV_D_ROWS=" in out
+    line = next(ln for ln in out.splitlines() if ln.startswith("environment: light[0] "))
+    assert ": tables: diffuse " in line and "sun texel(s) as lights" in line
 
 
 # ------------------------------------------------------------------- a frame's own probes

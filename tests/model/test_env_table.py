@@ -63,3 +63,198 @@ def test_between_nodes_the_error_falls_as_the_square_of_the_spacing():
 def test_a_step_that_does_not_divide_the_turn_is_refused():
     with pytest.raises(ValueError, match="step dividing 32"):
         zonal_table(np.ones((9, 33, 3)), 1.0, 5, 3)
+
+
+# ------------------------------------------------------------------ the kernels' tables
+
+from clphong.model.env_table import (  # noqa: E402
+    CHECK_MARGIN,
+    LUNE_MARGIN,
+    MAX_SUN_TEXELS,
+    TablesUnfit,
+    cubic_table,
+    diffuse_lower_bound,
+    env_table_coords,
+    env_table_lookup,
+    environment_tables,
+    horizon_budget,
+    horizon_misses,
+    lune_bound,
+    lune_weights,
+)
+from clphong.model.environment import _fibonacci  # noqa: E402
+from clphong.model.scene import Material  # noqa: E402
+
+
+def _sky(H=64, W=129, seed=0):
+    """A smooth sky over a darker ground with a few soft clouds (no sun), (H, W, 3)."""
+    rng = np.random.default_rng(seed)
+    lat = np.linspace(np.pi / 2, -np.pi / 2, H)[:, None]
+    lon = np.linspace(np.pi, -np.pi, W)[None, :]
+    sky = np.where(lat > 0, 1.0 + 0.8 * np.sin(lat), 0.25 + 0.1 * np.cos(3 * lon))
+    for _ in range(4):
+        a, b = rng.uniform(0.1, 1.2), rng.uniform(-np.pi, np.pi)
+        sky = sky + 0.6 * np.exp(-((lat - a) ** 2 + (lon - b) ** 2) / 0.05)
+    return np.stack([sky, 0.9 * sky, 0.7 * sky + 0.1], -1)
+
+
+def _direction(lat, lon):
+    c = np.cos(lat)
+    return np.stack(np.broadcast_arrays(np.sin(lon) * c, np.sin(lat), np.cos(lon) * c), -1)
+
+
+def _phong(h=16.0, k_s=0.2, model="phong", **kw):
+    return Material(model=model, k_a=0.0, k_d=0.7, k_s=k_s, h=h, **kw)
+
+
+@pytest.mark.parametrize("power", [1.0, 16.0])
+def test_cubic_table_nodes_are_the_texel_sum_over_the_poles_too(power):
+    """Every node, the rows over the poles included ((π − lat, lon + π) is the direction a
+    latitude beyond ±π/2 names), is the texel sum to float64 round-off."""
+    radiance = _sky(17, 33)
+    t = cubic_table(weighted_map(radiance), power, 9)
+    rows, cols = t.rows, t.cols
+    lat = np.pi / 2 - np.pi / (rows - 1) * (np.arange(rows + 2) - 1.0)
+    lon = np.pi - 2 * np.pi * np.arange(cols) / cols
+    want = _direct(_direction(lat[:, None], lon[None, :]), radiance, power).reshape(t.values.shape)
+    assert np.max(np.abs(t.values - want)) <= ROUNDOFF * want.max()
+
+
+@pytest.mark.parametrize("power", [1.0, 16.0])
+def test_the_estimate_holds_at_held_out_directions(power):
+    """The estimate (the check grid's worst, times CHECK_MARGIN) is at least the error at
+    2000 directions that are neither nodes nor check points, and within 20x of it: a
+    0 or a made-up estimate fails."""
+    radiance = _sky()
+    t = cubic_table(weighted_map(radiance), power, 17)
+    dirs = _fibonacci(2000, offset=0.3)
+    got = env_table_lookup(t.values, *env_table_coords(dirs, 0.0, t.rows, t.cols))
+    truth = _direct(dirs, radiance, power)
+    err = np.max(np.abs(got - truth) / truth)
+    assert 0 < err <= t.estimate <= 20 * err, (err, t.estimate)
+    assert CHECK_MARGIN >= 1
+
+
+def test_cubic_look_ups_converge_as_the_fourth_power():
+    """Lagrange cubics: halving the spacing divides the error by about 16 (fourth order),
+    for a smooth map, until the texel sum's own kinks (a small one wherever a normal's
+    horizon crosses a texel, about 3e-5 relative on this 257-row map; less on finer maps)
+    floor it. A map with a step, as _sky's horizon, floors it higher: the estimates above
+    hold that."""
+    H, W = 257, 513
+    lat = np.linspace(np.pi / 2, -np.pi / 2, H)[:, None]
+    lon = np.linspace(np.pi, -np.pi, W)[None, :]
+    radiance = np.stack([1.5 + np.sin(lat) + 0.3 * np.cos(lon) * np.cos(lat)] * 3, -1)
+    dirs = _fibonacci(1000, offset=0.3)
+    truth = _direct(dirs, radiance, 1.0)
+    errs = []
+    for rows in (5, 9, 17):
+        t = cubic_table(weighted_map(radiance), 1.0, rows)
+        got = env_table_lookup(t.values, *env_table_coords(dirs, 0.0, t.rows, t.cols))
+        errs.append(np.max(np.abs(got - truth) / truth))
+    assert errs[1] < errs[0] / 10 and errs[2] < errs[1] / 10, errs
+
+
+def test_a_rotated_map_is_looked_up_where_its_texels_went():
+    radiance = _sky(33, 65)
+    t = environment_tables(radiance, _phong(), rotation=40.0, intensity=0.5, max_error=1e-2)
+    dirs = _fibonacci(500, offset=0.3)
+    l, E = texel_lights(radiance, rotation=40.0, intensity=0.5)
+    truth = np.maximum(dirs @ l.T, 0.0) @ E
+    d = t.diffuse
+    got = env_table_lookup(d.values, *env_table_coords(dirs, np.radians(40.0), d.rows, d.cols))
+    assert np.max(np.abs(got - truth) / truth) <= t.estimate
+
+
+def test_the_sun_is_split_out_as_exact_lights():
+    radiance = _sky(33, 65)
+    radiance[10, 20] = radiance[10, 21] = 500.0
+    t = environment_tables(radiance, _phong(), max_error=1e-2)
+    assert t.sun_count == 2
+    l, E = texel_lights(radiance)
+    assert np.allclose(np.sort(t.sun_radiance[:, 0]), np.sort(E[[10 * 65 + 20, 10 * 65 + 21], 0]))
+    assert t.radiance_max.max() < 10.0          # the sun is not in the tables
+
+
+def test_what_cannot_be_tabled_says_why():
+    with pytest.raises(TablesUnfit, match="Blinn-Phong"):
+        environment_tables(_sky(17, 33), _phong(model="blinn-phong"))
+    stars = np.zeros((64, 129, 3))
+    stars.reshape(-1, 3)[::3] = 1.0                 # a third of the texels over 50x the median 0
+    assert (stars.sum(-1) > 0).sum() > MAX_SUN_TEXELS
+    with pytest.raises(TablesUnfit, match="texels are over"):
+        environment_tables(stars, _phong())
+    # Blinn-Phong without a specular term is a diffuse table
+    t = environment_tables(_sky(17, 33), _phong(model="blinn-phong", k_s=0.0), max_error=1e-2)
+    assert t.specular is None
+
+
+def test_an_all_black_map_is_exact_zero_tables():
+    t = environment_tables(np.zeros((17, 33, 3)), _phong(), max_error=1e-3)
+    assert t.estimate == 0 and not t.diffuse.values.any() and t.sun_count == 0
+
+
+@pytest.mark.parametrize("h", [8.0, 32.0, 200.0])
+@pytest.mark.parametrize("H", [64, 256])
+def test_the_lune_bound_holds_the_texels_below_the_plane(h, H):
+    """lune_bound (G at e less a texel) is at least the texels' sum below the plane (a
+    uniform map: the worst case of the bound's L_max), at any e, on a coarse and a finer
+    map; and at the finer map's nodes, for the sums that matter, within 3x of it."""
+    G = lune_weights(h)
+    texel = max(np.pi / (H - 1), 2 * np.pi / (2 * H))
+    l, E = texel_lights(np.ones((H, 2 * H + 1, 3)))
+    n = np.array([0.3, 0.1, 1.0])
+    n /= np.linalg.norm(n)
+    u = np.cross(n, [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    below = l @ n <= 0
+    for k in (8, 40, 100, 180):
+        for extra in (0.0, 0.4):
+            e = (k + extra) * (np.pi / 2) / (len(G) - 1)
+            R = np.cos(e) * u + np.sin(e) * n              # rises e above the plane
+            s = float(np.where(below, np.maximum(l @ R, 0.0) ** h, 0.0) @ E[:, 0])
+            bound = float(lune_bound(G, np.array([np.sin(e)]), texel)[0])
+            assert s <= LUNE_MARGIN * bound, (k, extra, s, bound)
+            if H == 256 and extra == 0 and s > 1e-6:
+                assert bound <= 3 * s, (k, s, bound)
+
+
+def test_the_diffuse_lower_bound_is_below_the_texel_sum_and_near_it():
+    radiance = _sky()
+    t = environment_tables(radiance, _phong(), max_error=1e-3)
+    dirs = _fibonacci(3000, offset=0.1)
+    truth = _direct(dirs, radiance, 1.0)
+    lb = diffuse_lower_bound(t, dirs)
+    assert np.all(lb <= truth * (1 + 1e-12))
+    assert np.median(lb / truth) > 0.5
+    assert np.all(t.diffuse_floor <= truth.min(axis=0))
+
+
+def test_pixels_the_tables_keep_are_within_their_horizon_budget():
+    """For random pixels (normals, views on both sides of grazing, albedos), every pixel
+    the check keeps has its exact lobe below the tangent plane, S·C, within ε_h of D·E;
+    and grazing pixels are missed (the check can fail)."""
+    radiance = _sky()
+    m = _phong(h=16.0)
+    t = environment_tables(radiance, m, max_error=1e-3)
+    rng = np.random.default_rng(5)
+    n = rng.normal(size=(1500, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    c = rng.uniform(0.02, 1.0, 1500) ** 0.5                 # n·v
+    t_ = rng.normal(size=(1500, 3))
+    t_ -= np.einsum("ij,ij->i", t_, n)[:, None] * n
+    t_ /= np.linalg.norm(t_, axis=1, keepdims=True)
+    v = c[:, None] * n + np.sqrt(1 - c * c)[:, None] * t_
+    d = rng.uniform(0.05, 1.0, (1500, 3))
+    sp = np.ones((1500, 3))
+    miss = horizon_misses(t, m, np.einsum("ij,ij->i", n, v), d, sp, n)
+    assert miss.any() and not miss.all()
+    l, E = texel_lights(radiance)
+    R = 2 * np.einsum("ij,ij->i", n, v)[:, None] * n - v
+    below = (n @ l.T) <= 0
+    C = np.where(below, np.maximum(R @ l.T, 0.0) ** m.h, 0.0) @ E
+    De = np.maximum(n @ l.T, 0.0) @ E
+    kept = ~miss
+    assert np.all(m.k_s * C[kept] <= horizon_budget(t) * m.k_d * d[kept] * De[kept])
+    # and the pixels missed lie at the grazing end
+    assert np.median(c[miss]) < np.median(c[kept])

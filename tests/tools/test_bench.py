@@ -280,8 +280,8 @@ def test_environment_rows_against_the_exact_texel_sum():
     kernel's own error, < 1e-5 relative, is far below the 1e-2 target)."""
     cfg = bench.BenchConfig(sizes=((64, 40),), lights=(256,), paths=("accurate",), budgets=(),
                             small_lights=(), repeats=2, warmup=1, numba=False, env_errors=(1e-2, 3e-2),
-                            env_sizes=((64, 32), (32, 16)), env_pixels=200)
-    assert cfg.env_probes == ("frame", "all")
+                            env_sizes=((64, 32), (32, 16)), env_pixels=200,
+                            env_probes=("frame", "all"))
     report = bench.run_bench(cfg)
     rows = report["environment"]
     assert [r["env_error"] for r in rows] == [1e-2, 1e-2, 3e-2, 3e-2] * 2
@@ -308,6 +308,24 @@ def test_environment_rows_against_the_exact_texel_sum():
     assert len(lines) == 10 and "environment" in lines[0] and lines[5].startswith("32x16")
     assert lines[1].split()[2] == "frame" and lines[2].split()[2] == "all"
     assert "environment" in bench.table(report)
+
+
+def test_the_tables_row_against_the_exact_phong_texel_sum():
+    """The tables' row (the default's first path): a Phong material against the exact Phong
+    texel sum, within its target; its 'lights' are the sun's texels; the kernel adds
+    little to the float64 twin's error."""
+    assert bench.BenchConfig().env_probes == ("tables", "frame", "all")
+    cfg = bench.BenchConfig(sizes=((64, 40),), lights=(256,), paths=("accurate",), budgets=(),
+                            small_lights=(), repeats=2, warmup=1, numba=False, env_errors=(1e-2,),
+                            env_sizes=((128, 64),), env_pixels=200, env_probes=("tables",))
+    report = bench.run_bench(cfg)
+    (r,) = report["environment"]
+    assert r["env_probes"] == "tables" and r["material"] == "phong"
+    assert r["lights_for_target_on_sample"] is None and r["estimate_met"]
+    e = r["error"]
+    assert 0 < e["max_rel"] <= r["env_error"]
+    assert abs(e["max_rel"] - e["model_max_rel"]) < 1e-5
+    assert bench.environment_table([r])[1].split()[2] == "tables"
 
 
 def test_tree_rows_time_three_ways_and_keep_the_budget():
