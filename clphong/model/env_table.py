@@ -112,9 +112,15 @@ def _zonal_rows(weighted: np.ndarray, power: float, lats) -> np.ndarray:
     cos_dlon = np.concatenate([half, half[1:(N + 1) // 2][::-1]])          # even to the bit
     lats = np.asarray(lats, np.float64)
     out = np.empty((len(lats), N, C))
+    # A latitude and its mirror -lat see the map rows mirrored (lat_t(H-1-j) = -lat_t(j)):
+    # one kernel spectrum serves both, read against the mirrored rows.
+    pairs: dict = {}
+    for i, lat in enumerate(lats.tolist()):
+        pairs.setdefault(round(abs(lat), 12), []).append(i)
 
-    def row(i):
-        s, c = math.sin(lats[i]), math.cos(lats[i])
+    def row(members):
+        lat = abs(float(lats[members[0]]))
+        s, c = math.sin(lat), math.cos(lat)
         # map rows whose kernel is 0 at every longitude difference are skipped, exactly
         near = np.flatnonzero(s * sin_t + np.abs(c * cos_t) > 0.0)
         k = np.maximum(s * sin_t[near][:, None] + (c * cos_t[near])[:, None] * cos_dlon[None, :],
@@ -122,11 +128,13 @@ def _zonal_rows(weighted: np.ndarray, power: float, lats) -> np.ndarray:
         if power != 1:
             k **= power
         K = np.ascontiguousarray(np.fft.rfft(k, axis=1).real.T)[:, None, :]   # (m, 1, h)
-        G = (K @ Fm[:, near, :])[:, 0, :].view(np.complex128)                 # (m, C)
-        out[i] = np.fft.irfft(G, n=N, axis=0)
+        for i in members:
+            rows_ = near if lats[i] >= 0 else H - 1 - near
+            G = (K @ Fm[:, rows_, :])[:, 0, :].view(np.complex128)            # (m, C)
+            out[i] = np.fft.irfft(G, n=N, axis=0)
 
     with ThreadPoolExecutor(max(1, min(os.cpu_count() or 1, 8))) as pool:
-        list(pool.map(row, range(len(lats))))  # numpy's FFTs and products release the GIL
+        list(pool.map(row, pairs.values()))  # numpy's FFTs and products release the GIL
     return out
 
 
@@ -175,6 +183,8 @@ MAX_SUN_TEXELS = 2048
 TABLE_SHARE = 0.5
 #: The measured error between check points is taken as this much more than at them.
 CHECK_MARGIN = 1.25
+#: Check rows within a cell of each pole (every half texel row, or the cell in this many).
+POLE_CHECKS = 16
 
 
 @dataclass(frozen=True)
@@ -224,10 +234,10 @@ def cubic_table(weighted: np.ndarray, power: float, rows: int) -> CubicTable:
     mid = 0.5 * np.pi - delta * (np.arange(rows - 1) + 0.5)
     # Within a cell of either pole the texel rows lie parallel to a normal's horizon, which
     # crosses a whole row at once: the sum has kinks there that no cubic holds, so that
-    # band is checked at every half texel row too.
+    # band is checked at every half texel row too (at most POLE_CHECKS rows a pole).
     H = weighted.shape[0]
-    band = 0.5 * np.pi - np.arange(0.5, max(1.0, 2.0 * delta * (H - 1) / np.pi)) * (
-        0.5 * np.pi / (H - 1))
+    step_ = max(0.5 * np.pi / (H - 1), delta / POLE_CHECKS)
+    band = 0.5 * np.pi - np.arange(0.5, POLE_CHECKS + 0.5) * step_
     band = band[band > 0.5 * np.pi - delta]
     pole = np.concatenate([band, -band])
     exact = _zonal_rows(weighted, power, np.concatenate([node, mid, pole]))
