@@ -292,16 +292,7 @@ def _tables(light: Light, where: str, material, max_error: float, nonfinite: str
     with _LOCK:
         hit = _TABLES.get(key) if key is not None else None
     if hit is None:
-        digest = _file_digest(name) if key is not None else None
-        disk = None
-        if digest is not None:
-            if not _TABLE_CODE:
-                _TABLE_CODE.append(hashlib.sha256(Path(_env_table.__file__).read_bytes()).hexdigest())
-            h = hashlib.sha256()
-            for part in (digest, repr(float(light.rotation)), repr(float(light.intensity)),
-                         repr(spec), repr(float(max_error)), policy, _TABLE_CODE[0]):
-                h.update(str(part).encode() + b"\0")
-            disk = h.hexdigest()[:40]
+        disk = _table_disk_key(light, spec, max_error, policy) if key is not None else None
         found = None if disk is None else _TABLE_DISK.get(disk)
         hit = None if found is None else _load_tables(found)
         if hit is None:
@@ -327,6 +318,32 @@ def _tables(light: Light, where: str, material, max_error: float, nonfinite: str
     for note in notes:
         warnings.warn(SceneWarning(note))
     return made
+
+
+def _table_disk_key(light: Light, spec, max_error: float, policy: str) -> str | None:
+    """The disk cache's name of a map's tables: its content's SHA-256, the light's rotation
+    and intensity, the lobe's exponent, the target, the policy and the table code; None
+    where the file cannot be read."""
+    digest = _file_digest(light.file)
+    if digest is None:
+        return None
+    if not _TABLE_CODE:
+        _TABLE_CODE.append(hashlib.sha256(Path(_env_table.__file__).read_bytes()).hexdigest())
+    h = hashlib.sha256()
+    for part in (digest, repr(float(light.rotation)), repr(float(light.intensity)),
+                 repr(spec), repr(float(max_error)), policy, _TABLE_CODE[0]):
+        h.update(str(part).encode() + b"\0")
+    return h.hexdigest()[:40]
+
+
+def _tabled_before(light: Light, material, max_error: float, nonfinite: str) -> bool:
+    """Whether this very map (its content) became tables under these settings in an earlier
+    run, so that it reads without error (the disk cache holds them, not a refusal)."""
+    policy = "background" if nonfinite == "background" else "error"
+    key = _table_disk_key(light, _table_material(material), max_error, policy)
+    found = None if key is None else _TABLE_DISK.get(key)
+    got = None if found is None else _load_tables(found)
+    return got is not None and not isinstance(got[0], str)
 
 
 _TABLE_ARRAYS = ("sun_l", "sun_radiance", "power", "radiance_max", "lune", "diffuse_floor")
@@ -666,12 +683,17 @@ def directional_lights(env: EnvironmentLights, group: str | None = None) -> tupl
     return _scene.directional_lights(env.l, env.radiance, group)
 
 
-def check_environment_maps(scene: Scene, *, nonfinite: str = "error") -> None:
+def check_environment_maps(scene: Scene, *, nonfinite: str = "error",
+                           max_error: float | None = None) -> None:
     """Read each environment map of ``scene`` as :func:`resolve_environment` would, and
     raise its one-line error (a SceneError naming the key) for the first that cannot be
-    used, without converting: a batch whose frames resolve their own fails once, first."""
+    used, without converting: a batch whose frames resolve their own fails once, first.
+    With ``max_error``, a map whose very content became tables under these settings before
+    (the disk cache holds them) is not read again."""
     for i, lt in enumerate(scene.lights):
         if lt.type == "environment":
+            if max_error is not None and _tabled_before(lt, scene.material, max_error, nonfinite):
+                continue
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)   # the frames say them
                 read_envmap(lt.file, environment_key(scene, i), nonfinite)

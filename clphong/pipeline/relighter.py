@@ -323,7 +323,8 @@ class Relighter:
         self._frames_lock = threading.Lock()
         if self._frame_env:
             # a map that cannot be used fails here, as it would resolved at construction
-            check_environment_maps(scene, nonfinite=options.nonfinite)
+            check_environment_maps(scene, nonfinite=options.nonfinite,
+                                   max_error=options.env_error if self._tables else None)
             scene = dataclasses.replace(scene, lights=tuple(
                 Light(type="directional", color=(0.0, 0.0, 0.0), direction=(0.0, -1.0, 0.0),
                       group=lt.group) if lt.type == "environment" else lt
@@ -390,9 +391,11 @@ class Relighter:
             self.environments, self.env_tables, self.env_paths = (), (), ()
             return self.scene.lights, ()
         pairs = FrameSource(camera, gbuffer, self.scene.material)
-        key = pairs.digest()
+        # with tables, resolving costs the horizon check (0.1 s at 1080p), not the frame's
+        # hash; a frame that takes lights finds its conversion in envmap's caches
+        key = None if self._tables else pairs.digest()
         with self._frames_lock:
-            hit = self._frames.get(key)
+            hit = self._frames.get(key) if key is not None else None
         if hit is None:
             opts = self.options
             resolved = resolve_environment(self._unresolved, max_error=opts.env_error,
@@ -401,9 +404,10 @@ class Relighter:
             hit = (resolved.scene.lights, resolved.scene.env_tables, resolved.environments,
                    resolved.tables, resolved.paths)
             with self._frames_lock:
-                while len(self._frames) >= FRAMES_KEPT:
+                while key is not None and len(self._frames) >= FRAMES_KEPT:
                     self._frames.pop(next(iter(self._frames)))
-                self._frames[key] = hit
+                if key is not None:
+                    self._frames[key] = hit
         self.environments, self.env_tables, self.env_paths = hit[2:]
         return hit[0], hit[1]
 

@@ -19,6 +19,16 @@ times the commands around them, each run as a subprocess on files:
     whole command, with ``--jobs N`` and with ``--scheduler`` on a local Dask
     cluster of ``--dask`` single-threaded workers (``pip install ".[dask]"``).
 
+``python -m clphong.tools.commands environment [--runs 5] [--model phong,blinn-phong]``
+    Issue 25's yardsticks: ``clphong render`` at 1920×1080 of the bench G-buffer lit by
+    the 1024 × 512 sample sky with its 1° sun (:func:`clphong.tools.samples.sky_envmap`,
+    default ``--env-error``) per material model, warm (its conversion on disk) and cold
+    (the environment caches emptied first), against the same command with 256 point
+    lights brute force (the ``wide`` scene) and with one directional light instead (the
+    scene without the environment); medians of wall times, the warm cases in turns and
+    the cold ones after them, and the ratios the issue sets (≤ 1.0× the 256 lights, warm
+    ≤ 1.2× without it).
+
 ``python -m clphong.tools.commands whole [--runs 5] [--json R.json]`` (``clphong bench --commands``)
     Issue 14's yardsticks, at 1 point light: the wall time of ``clphong render
     G.exr -o OUT.exr`` against ``oiiotool G.exr --ch R=albedo.R,… --compression
@@ -488,6 +498,79 @@ def in_folder(folder_arg, keep: bool, fn):
             shutil.rmtree(folder, ignore_errors=True)
 
 
+def bench_environment(folder: Path, runs: int, models=("phong", "blinn-phong"),
+                      size=SIZE, log=None) -> list[dict]:
+    """Issue 25's whole commands (module docstring): one row per case, medians of wall
+    seconds taken in turns, ratios to the 256 point lights and to the scene without the
+    environment of the same model."""
+    from ..io.atomic import write_exr
+    from .samples import sky_envmap
+
+    gbuf, _ = write_inputs(folder, [], size=size)
+    write_exr(folder / "sky.exr", sky_envmap(1024, 512))
+    wide = bench_scene("wide", 256)
+    cases = {}
+    for model in models:
+        material = dataclasses.replace(wide.material, model=model)
+        base = dataclasses.replace(wide, material=material, lights=())
+        sky = scene_toml(base).replace("light = []\n", "") + (
+            '[[light]]\ntype = "environment"\nfile = "sky.exr"\n')
+        (folder / f"sky_{model}.toml").write_text(sky)
+        one = scene_toml(dataclasses.replace(base, lights=(
+            dataclasses.replace(wide.lights[0], type="directional", direction=(0.0, -1.0, -1.0),
+                                intensity=1.0),)))
+        (folder / f"one_{model}.toml").write_text(one)
+        (folder / f"wide256_{model}.toml").write_text(scene_toml(
+            dataclasses.replace(wide, material=material)))
+        cases[f"sky {model} warm"] = f"sky_{model}.toml"
+        cases[f"sky {model} cold"] = f"sky_{model}.toml"
+        cases[f"256 point lights {model}"] = f"wide256_{model}.toml"
+        cases[f"one directional light {model}"] = f"one_{model}.toml"
+    env = python_env(folder)
+    env["CLPHONG_CACHE_DIR"] = str(folder / "cache")
+    base_cmd = clphong_command() + ["render"]
+
+    def run(name):
+        if name.endswith(" cold"):
+            for sub in ("environment", "envtables"):
+                shutil.rmtree(folder / "cache" / sub, ignore_errors=True)
+        return _run(base_cmd + [str(folder / cases[name]), str(gbuf), "-o",
+                                str(folder / "o.exr"), "--stats"], env)
+
+    for name in cases:                    # untimed: compiles, converts, fills the caches
+        run(name)
+    times = {name: [] for name in cases}
+    # the warm cases in turns; the cold ones after them (emptying the caches and converting
+    # again disturbs the machine's memory for the next command), each once per round
+    warm = [n for n in cases if not n.endswith(" cold")]
+    for k in range(runs):
+        for name in warm:
+            times[name].append(run(name)[0])
+        if log is not None:
+            log(f"round {k + 1}/{runs}")
+    for k in range(runs):
+        for name in cases:
+            if name.endswith(" cold"):
+                times[name].append(run(name)[0])
+                run(name.replace(" cold", " warm"))       # untimed: the next starts as warm
+    rows = []
+    for name in cases:
+        model = next(m for m in models if name.endswith(m) or f" {m} " in name)
+        med = statistics.median(times[name])
+        p256 = statistics.median(times[f"256 point lights {model}"])
+        one = statistics.median(times[f"one directional light {model}"])
+        rows.append({"case": name, "model": model, "wall_s": med, "times_s": times[name],
+                     "ratio_256_point": med / p256, "ratio_without": med / one})
+    return rows
+
+
+def environment_table(rows: list[dict]) -> str:
+    return markdown_table(["command", "wall s (median)", "/ 256 point lights",
+                           "/ without the environment"],
+                          [[r["case"], f"{r['wall_s']:.2f}", f"{r['ratio_256_point']:.2f}",
+                            f"{r['ratio_without']:.2f}"] for r in rows])
+
+
 def _ints(text: str) -> list[int]:
     try:
         values = [int(x) for x in text.split(",") if x.strip()]
@@ -529,7 +612,12 @@ def main(argv=None) -> int:
     w.add_argument("--runs", type=int, default=5, help="timed rounds (median; default 5)")
     w.add_argument("--json", default=None, metavar="REPORT.json", help="also write the report as JSON")
     w.add_argument("--no-displays", action="store_true", help="only the EXR-to-EXR command")
-    for q in (r, b, w):
+    e = sub.add_parser("environment", help="issue 25: a sky against 256 point lights and "
+                                           "against no environment, whole commands")
+    e.add_argument("--runs", type=int, default=5, help="timed rounds (median; default 5)")
+    e.add_argument("--models", default="phong,blinn-phong",
+                   help="material models, comma-separated (default phong,blinn-phong)")
+    for q in (r, b, w, e):
         q.add_argument("--size", type=_size, default=SIZE, help="WxH (default 1920x1080)")
         q.add_argument("--folder", default=None, help="existing folder for the files (kept)")
         q.add_argument("--keep", action="store_true", help="keep the temporary folder")
@@ -548,6 +636,17 @@ def main(argv=None) -> int:
             print(f"clphong render at {args.size[0]}x{args.size[1]}, median of {args.runs} runs; "
                   f"× = ratio to {kernels[0]}")
             print(render_table(rows))
+        elif args.what == "environment":
+            models = [m for m in args.models.split(",") if m]
+            if args.runs < 1 or not models or set(models) - {"phong", "blinn-phong"}:
+                p.error("--runs must be >= 1 and --models a list of phong, blinn-phong")
+            rows = in_folder(args.folder, args.keep,
+                             lambda f: bench_environment(
+                                 f, args.runs, models, args.size,
+                                 log=lambda msg: print(msg, file=sys.stderr, flush=True)))
+            print(f"clphong render at {args.size[0]}x{args.size[1]}, the 1024x512 sample sky, "
+                  f"median of {args.runs} rounds in turns")
+            print(environment_table(rows))
         elif args.what == "whole":
             if args.runs < 1:
                 p.error("--runs must be >= 1")

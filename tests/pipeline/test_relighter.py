@@ -428,7 +428,9 @@ def test_nonfinite_error_policy_raises_naming_the_buffer():
 def test_an_environment_resolves_on_each_frames_own_pixels_once(tmp_path, monkeypatch):
     """env_probes="frame" (the default): each frame's environment lights come from its own
     probes, once per frame (kept), and a frame seen from elsewhere converts again; a
-    frame with no shaded pixel converts nothing; "all" converts once, at construction."""
+    frame with no shaded pixel converts nothing; "all" converts once, at construction.
+    (env_path="lights": with tables a frame is resolved each time, its horizon check
+    costing less than the frame's hash; tests/device/test_env_table_kernel.py.)"""
     import OpenImageIO as oiio
 
     import clphong.pipeline.relighter as relighter
@@ -448,7 +450,7 @@ def test_an_environment_resolves_on_each_frames_own_pixels_once(tmp_path, monkey
         '[material]\nmodel = "phong"\nk_a = 0.0\nk_d = 0.7\nk_s = 0.2\nh = 16.0\n'
         '[[light]]\ntype = "environment"\nfile = "sky.exr"\n')
     calls = record_calls(monkeypatch, relighter, "resolve_environment")
-    r = Relighter(tmp_path / "s.toml", env_error=0.02)
+    r = Relighter(tmp_path / "s.toml", env_error=0.02, env_path="lights")
     assert calls == [] and r.environments == ()
     gb = samples.spheres_gbuffer(48, 24)
     first = r.relight(gb)

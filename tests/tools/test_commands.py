@@ -64,3 +64,23 @@ def test_whole_command_usage_and_folder_errors(tmp_path, capsys):
     assert commands.main(["whole", "--folder", str(tmp_path / "none")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "does not exist" in err[0]
+
+
+def test_environment_commands_time_the_sky_against_its_yardsticks(tmp_path, capsys):
+    """Issue 25's whole commands on a tiny frame: every case timed, the cold run converting
+    (it empties the environment caches first) and the warm one not, and the ratios the
+    issue sets computed from the same medians."""
+    from clphong.tools import commands
+
+    assert commands.main(["environment", "--runs", "1", "--size", "64x36", "--models", "phong",
+                          "--folder", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "| sky phong warm |" in out and "| sky phong cold |" in out
+    rows = commands.bench_environment(tmp_path, 1, ("phong",), (64, 36))
+    by = {r["case"]: r for r in rows}
+    assert set(by) == {"sky phong warm", "sky phong cold", "256 point lights phong",
+                       "one directional light phong"}
+    p256 = by["256 point lights phong"]["wall_s"]
+    for r in rows:
+        assert r["wall_s"] > 0 and abs(r["ratio_256_point"] - r["wall_s"] / p256) < 1e-12
+    assert (tmp_path / "cache" / "envtables").is_dir()
