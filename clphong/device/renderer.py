@@ -13,6 +13,7 @@ timings, culling lists, non-finite counts and the number of row bands.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import time
@@ -247,6 +248,7 @@ class Renderer:
         self._cull_rest = 0          # frames left that skip culling after it lost (CULL_RETRY)
         self.groups, self.aovs = check_layers(scene, aovs or scene.aovs)
         self.straight_alpha = bool(straight_alpha)
+        self._fallback = None         # (renderer view, pixels): with_fallback
         if path is not None:
             if compensated is not None or fp64_directions is not None or int_pow is not None:
                 raise ValueError("give either path or fp64_directions/compensated/int_pow")
@@ -392,8 +394,53 @@ class Renderer:
 
     # ------------------------------------------------------------------ a whole frame
 
+    def with_fallback(self, scene, pixels) -> "Renderer":
+        """A view of this renderer (a shallow copy: the same programs and launch lock) that
+        shades ``pixels`` (flat indices of the frames it renders) with ``scene`` instead, in a
+        second launch on those pixels alone (:meth:`render`): an environment's tables for
+        the frame, its directional lights where the tables' bound does not hold
+        (clphong.io.envmap)."""
+        view = copy.copy(self)
+        other = copy.copy(self)
+        other.scene, other._fallback = scene, None
+        view._fallback = (other, np.asarray(pixels, np.intp))
+        return view
+
     def render(self, gbuffer, *, display: DisplayTransform | None = None,
                rows: int | None = None) -> RenderResult:
+        """Shade ``gbuffer`` (:meth:`_render`); with a fallback (:meth:`with_fallback`) its
+        pixels are shaded again with the fallback's scene and put in place, in every layer,
+        before the display transform."""
+        fallback = getattr(self, "_fallback", None)
+        if fallback is None or not len(fallback[1]):
+            return self._render(gbuffer, display=display, rows=rows)
+        other, idx = fallback
+        t0 = time.perf_counter()
+        result = self._render(gbuffer, display=None, rows=rows)
+        part = other._render(gbuffer.pixels(idx))
+        h, w = gbuffer.shape
+        image = np.array(result.image)
+        image.reshape(h * w, 3)[idx] = part.image.reshape(-1, 3)
+        layers = {}
+        for name, layer in result.layers.items():
+            layers[name] = np.array(layer)
+            if name in part.layers:
+                layers[name].reshape(h * w, 3)[idx] = part.layers[name].reshape(-1, 3)
+        shown = None
+        if display is not None:
+            straight = self.straight_alpha and gbuffer.coverage is not None
+            shown = apply_display_transform(image, display, runtime=self.runtime,
+                                            lanes=self.lanes if self.kernel_kind == "lanes" else None,
+                                            coverage=gbuffer.coverage if straight else None,
+                                            background=self.scene.background)
+        stats = RenderStats(kernel_seconds=result.stats.kernel_seconds + part.stats.kernel_seconds,
+                            upload_seconds=result.stats.upload_seconds + part.stats.upload_seconds,
+                            total_seconds=time.perf_counter() - t0)
+        return dataclasses.replace(result, image=image, layers=layers, display=shown,
+                                   display_transform=display, stats=stats)
+
+    def _render(self, gbuffer, *, display: DisplayTransform | None = None,
+                rows: int | None = None) -> RenderResult:
         """Shade ``gbuffer``: the non-finite policy, then one launch or row bands.
 
         Parameters

@@ -181,12 +181,23 @@ class ResolvedScene:
         its tables.
     paths : tuple of (int, str, str)
         Per environment light: its index, its path (``"tables"`` or ``"lights"``) and why.
+    fallback : (Scene, ndarray) or None
+        Where the tables' bound fails on some of the frame's pixels (at most MIXED_SHARE of
+        them): the scene with the tabled environment as directional lights (estimated on
+        those pixels), and their flat indices, for
+        :meth:`clphong.device.renderer.Renderer.with_fallback`.
     """
 
     scene: Scene
     environments: tuple = ()
     tables: tuple = ()
     paths: tuple = ()
+    fallback: tuple | None = None
+
+
+#: A frame whose tables' bound fails on more than this share of its shaded pixels takes the
+#: lights everywhere; below it, those pixels alone take them (a second launch on them).
+MIXED_SHARE = 0.5
 
 
 _LOCK = threading.Lock()
@@ -548,6 +559,7 @@ class FrameSource:
         self._digest = None
         self._probes: list = []
         self._pixels: list = []
+        self._shaded = None
 
     def digest(self) -> str:
         if self._digest is None:
@@ -580,8 +592,26 @@ class FrameSource:
                                             pixels=self.pixels()))
         return self._probes[0]
 
+    def shaded_count(self) -> int:
+        """The frame's shaded pixels (a non-zero, finite normal; coverage above 0)."""
+        if self._shaded is None:
+            N = np.asarray(self.gbuffer.normal)
+            with np.errstate(invalid="ignore"):
+                ok = across(np.logical_or, N.reshape(-1, 3) != 0) & across(
+                    np.logical_and, np.isfinite(N.reshape(-1, 3)))
+            cov = getattr(self.gbuffer, "coverage", None)
+            if cov is not None:
+                ok &= np.asarray(cov).reshape(-1) > 0
+            self._shaded = int(ok.sum())
+        return self._shaded
+
     def horizon_misses(self, tables) -> int:
         """How many of the frame's shaded pixels ``tables`` cannot shade within their budget
+        (:meth:`horizon_miss_pixels`)."""
+        return len(self.horizon_miss_pixels(tables))
+
+    def horizon_miss_pixels(self, tables) -> np.ndarray:
+        """The flat indices of the frame's shaded pixels ``tables`` cannot shade within their budget
         (:func:`clphong.model.env_table.horizon_misses`), from n·v formed in float32 as
         N·(eye − P)/(|N|·|eye − P|) (the kernels' v; v = n where P is the eye) and the
         pixels' term weights, HORIZON_CHUNK pixels at a time (small temporaries, reused).
@@ -594,7 +624,7 @@ class FrameSource:
         view = view_vector(self.camera)
         eye = np.asarray(self.camera.position if view is None else view / np.linalg.norm(view),
                          np.float32)
-        misses = 0
+        misses = []
         for a in range(0, len(N), HORIZON_CHUNK):
             part = slice(a, min(a + HORIZON_CHUNK, len(N)))
             n = N[part]
@@ -615,10 +645,11 @@ class FrameSource:
                 d, sp = _probe_weights(g, part, self.material, np.float32)
                 ok &= across(np.logical_and, np.isfinite(d)) & across(np.logical_and,
                                                                      np.isfinite(sp))
+            where = np.arange(a, a + len(n))
             if not ok.all():
-                c, n, d, sp = c[ok], n[ok], d[ok], sp[ok]
-            misses += int(_env_table.horizon_misses(tables, self.material, c, d, sp, n).sum())
-        return misses
+                c, n, d, sp, where = c[ok], n[ok], d[ok], sp[ok], where[ok]
+            misses.append(where[_env_table.horizon_misses(tables, self.material, c, d, sp, n)])
+        return np.concatenate(misses) if misses else np.zeros(0, np.intp)
 
 
 #: Pixels of one step of :meth:`FrameSource.horizon_misses`.
@@ -747,7 +778,7 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
         return ResolvedScene(scene=scene)
     view = view_vector(scene.camera)
     lights: list[Light] = []
-    done, tabled, paths = [], [], []
+    done, tabled, paths, fallback = [], [], [], []
     for i, lt in enumerate(scene.lights):
         if lt.type != "environment":
             lights.append(lt)
@@ -763,10 +794,12 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
                 if isinstance(made, str):
                     why = made
                 else:
-                    miss = pairs.horizon_misses(made)
-                    if miss:
-                        why = (f"{miss:,} pixel(s) reflect so near their horizon that the lobe "
-                               "the table counts below it may exceed the budget")
+                    miss = pairs.horizon_miss_pixels(made)
+                    shaded = pairs.shaded_count()
+                    if len(miss) > MIXED_SHARE * shaded:
+                        why = (f"{len(miss):,} of {shaded:,} pixel(s) reflect so near their "
+                               "horizon that the lobe the table counts below it may exceed the "
+                               f"budget (more than {MIXED_SHARE:.0%})")
                     else:
                         suns = _scene.directional_lights(made.sun_l, made.sun_radiance, lt.group)
                         if not suns:           # its group keeps its layer
@@ -775,8 +808,20 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
                         lights.extend(suns)
                         tabled.append((made, lt.group_name))
                         done.append(("tables", (i, made)))
-                        paths.append((i, "tables", made.describe() + ": every pixel's lobe below "
-                                      "its horizon is within the budget"))
+                        if not len(miss):
+                            paths.append((i, "tables", made.describe() + ": every pixel's lobe "
+                                          "below its horizon is within the budget"))
+                            continue
+                        # the pixels the bound does not hold: this environment as lights,
+                        # estimated on those pixels alone, in a second launch on them
+                        sub = FrameSource(pairs.camera, pairs.gbuffer.pixels(miss), pairs.material)
+                        r = _convert(lt, key, scene.material, view, max_error, nonfinite, shade, sub)
+                        fallback.append((len(lights) - len(suns), len(suns), r, lt.group, miss))
+                        done.append(("lights", (i, r)))
+                        paths.append((i, "tables", made.describe() + f"; {len(miss):,} of "
+                                      f"{shaded:,} pixel(s) reflect so near their horizon that "
+                                      f"the lobe below it may exceed the budget: {r.count:,} "
+                                      "directional lights there"))
                         continue
         r = _convert(lt, key, scene.material, view, max_error, nonfinite, shade, pairs)
         done.append(("lights", (i, r)))
@@ -787,8 +832,13 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
                 f"reach an estimated {r.estimated_error:.2g} relative error, not the "
                 f"{max_error:g} asked for (--env-error)"))
         lights.extend(directional_lights(r, lt.group))
-    return ResolvedScene(scene=dataclasses.replace(scene, lights=tuple(lights),
-                                                   env_tables=tuple(tabled)),
+    resolved = dataclasses.replace(scene, lights=tuple(lights), env_tables=tuple(tabled))
+    other = None
+    if fallback:                         # the tabled environment's suns become its lights
+        at, n, r, group, miss = fallback[0]
+        other = (dataclasses.replace(resolved, env_tables=(), lights=tuple(
+            lights[:at]) + tuple(directional_lights(r, group)) + tuple(lights[at + n:])), miss)
+    return ResolvedScene(scene=resolved,
                          environments=tuple(x for k, x in done if k == "lights"),
                          tables=tuple(x for k, x in done if k == "tables"),
-                         paths=tuple(paths))
+                         paths=tuple(paths), fallback=other)

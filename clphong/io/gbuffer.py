@@ -174,6 +174,21 @@ class GBuffer:
         """(H, W): the image size in pixels."""
         return (int(self.position.shape[0]), int(self.position.shape[1]))
 
+    def pixels(self, idx) -> "GBuffer":
+        """The pixels ``idx`` (flat indices, row-major) as a 1 × len(idx) G-buffer: the same
+        buffers, maps, convention, sources and attributes, only those pixels."""
+        h, w = self.shape
+        idx = np.asarray(idx)
+
+        def take(a):
+            a = np.asarray(a)
+            return a.reshape((h * w,) + a.shape[2:])[idx].reshape((1, len(idx)) + a.shape[2:])
+
+        return dataclasses.replace(
+            self, position=take(self.position), normal=take(self.normal),
+            albedo=take(self.albedo), coverage=None if self.coverage is None else take(self.coverage),
+            maps={k: take(v) for k, v in self.maps.items()})
+
     def partly_covered(self) -> bool:
         """Whether some pixel has ``0 < coverage < 1``: then every output is
         premultiplied by coverage (the kernels' COVERAGE, and its reference twin)."""

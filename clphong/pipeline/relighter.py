@@ -374,22 +374,26 @@ class Relighter:
             where = source or gbuffer.sources.get("position", "<frame>").split(":")[0]
             scene = resolve_camera(self.scene, gbuffer.attributes,
                                    world_to_camera_matrix=world_to_camera, source=where)
+        fallback = None
         if self._frame_env:
-            lights, tables = self._frame_lights(scene.camera, gbuffer)
+            lights, tables, fallback = self._frame_lights(scene.camera, gbuffer)
             scene = dataclasses.replace(scene, lights=lights, env_tables=tables)
         view = copy.copy(self.renderer)
         view.scene = scene
+        if fallback is not None:       # the pixels the tables' bound does not hold: lights
+            view = view.with_fallback(dataclasses.replace(scene, lights=fallback[0].lights,
+                                                          env_tables=()), fallback[1])
         return view
 
     def _frame_lights(self, camera, gbuffer) -> tuple:
-        """(the scene's lights, its environment tables) with each environment resolved on
-        this frame (:class:`clphong.io.envmap.FrameSource`: named by the frame's bytes, its
+        """(the scene's lights, its environment tables, the fallback: (scene, pixels) or None)
+        with each environment resolved on this frame (:class:`clphong.io.envmap.FrameSource`: named by the frame's bytes, its
         probes chosen only if a conversion runs, its tables' bound checked on its
         pixels), the last few frames' kept."""
         N = np.asarray(gbuffer.normal)
         if not ((N != 0) & np.isfinite(N)).any():    # no shaded pixel: no light reaches one
             self.environments, self.env_tables, self.env_paths = (), (), ()
-            return self.scene.lights, ()
+            return self.scene.lights, (), None
         pairs = FrameSource(camera, gbuffer, self.scene.material)
         # with tables, resolving costs the horizon check (0.1 s at 1080p), not the frame's
         # hash; a frame that takes lights finds its conversion in envmap's caches
@@ -401,15 +405,15 @@ class Relighter:
             resolved = resolve_environment(self._unresolved, max_error=opts.env_error,
                                            nonfinite=opts.nonfinite, shade=self._probe_shader,
                                            pairs=pairs, tables=self._tables)
-            hit = (resolved.scene.lights, resolved.scene.env_tables, resolved.environments,
-                   resolved.tables, resolved.paths)
+            hit = (resolved.scene.lights, resolved.scene.env_tables, resolved.fallback,
+                   resolved.environments, resolved.tables, resolved.paths)
             with self._frames_lock:
                 while key is not None and len(self._frames) >= FRAMES_KEPT:
                     self._frames.pop(next(iter(self._frames)))
                 if key is not None:
                     self._frames[key] = hit
-        self.environments, self.env_tables, self.env_paths = hit[2:]
-        return hit[0], hit[1]
+        self.environments, self.env_tables, self.env_paths = hit[3:]
+        return hit[0], hit[1], hit[2]
 
     def relight(self, frame, out: str | os.PathLike | None = None, *, sdr=None, hdr=None,
                 contact_sheet=None, world_to_camera=None) -> np.ndarray:
@@ -604,4 +608,7 @@ def render(scene, gbuffer, *, env_error: float = DEFAULT_ENV_ERROR, env_probes: 
                                    shade=DeviceProbeShader(kwargs.get("device")), pairs=pairs,
                                    tables=env_path == "auto"
                                    and kwargs.get("kernel", "lanes") == "lanes")
-    return render_resolved(resolved.scene, gbuffer, **kwargs)
+    if resolved.fallback is None:
+        return render_resolved(resolved.scene, gbuffer, **kwargs)
+    renderer = Renderer(resolved.scene, **kwargs).with_fallback(*resolved.fallback)
+    return renderer.render(gbuffer).image

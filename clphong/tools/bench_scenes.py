@@ -192,17 +192,8 @@ def sample_pixels(gbuffer, n: int, seed: int = SEED) -> np.ndarray:
 
 
 def sub_gbuffer(gbuffer, idx):
-    """The pixels ``idx`` (flat indices) as a 1 × len(idx) G-buffer."""
-    def take(a):
-        a = np.asarray(a)
-        h, w = gbuffer.shape
-        flat = a.reshape(h * w, -1)[idx]
-        return flat.reshape((1, len(idx)) + a.shape[2:])
-
-    return GBuffer(position=take(gbuffer.position), normal=take(gbuffer.normal),
-                   albedo=take(gbuffer.albedo),
-                   coverage=None if gbuffer.coverage is None else take(gbuffer.coverage),
-                   maps={k: take(v) for k, v in gbuffer.maps.items()})
+    """The pixels ``idx`` (flat indices) as a 1 × len(idx) G-buffer (:meth:`GBuffer.pixels`)."""
+    return gbuffer.pixels(idx)
 
 
 @dataclass

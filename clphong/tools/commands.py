@@ -63,12 +63,13 @@ from pathlib import Path
 from ..color import ocio as color
 from ..core.errors import ClphongError, OutputError
 from ..deliver.writers import jpegxl_available
-from ..io.atomic import atomic_path, check_output_path
+from ..io.atomic import atomic_path, check_output_path, write_exr
 from ..io.gbuffer import write_gbuffer
 from ..model.light_table import write_light_table
 from ..model.options import KERNELS
 from .bench import bench_gbuffer, bench_scene
 from .report import markdown_table
+from .samples import sky_envmap
 
 SIZE = (1920, 1080)
 
@@ -503,9 +504,6 @@ def bench_environment(folder: Path, runs: int, models=("phong", "blinn-phong"),
     """Issue 25's whole commands (module docstring): one row per case, medians of wall
     seconds taken in turns, ratios to the 256 point lights and to the scene without the
     environment of the same model."""
-    from ..io.atomic import write_exr
-    from .samples import sky_envmap
-
     gbuf, _ = write_inputs(folder, [], size=size)
     write_exr(folder / "sky.exr", sky_envmap(1024, 512))
     wide = bench_scene("wide", 256)

@@ -102,7 +102,7 @@ def test_render_stats_say_what_the_lists_keep(tmp_path, capsys):
     from clphong.console.cli import main
 
     args = ["render", str(GBUFFERS / "spheres_sky.toml"), str(GBUFFERS / "spheres.exr"),
-            "-o", str(tmp_path / "o.exr"), "--env-error", "1e-2", "--stats"]
+            "-o", str(tmp_path / "o.exr"), "--env-error", "1e-2", "--stats", "--env-path", "lights"]
     assert main(args) == 0
     err = capsys.readouterr().err
     assert "-DDIR_CULLING=1" in err and "directional lists:" in err and "face away" in err

@@ -213,3 +213,37 @@ def test_tables_are_kept_on_disk_and_a_second_process_builds_none(tmp_path, monk
     monkeypatch.setattr(envmap, "_TABLES", {})
     with pytest.raises(AssertionError, match="built again"):
         envmap._tables(lt, "light[0]", scene.material, 1e-3)
+
+
+def test_pixels_the_bound_misses_take_lights_in_a_second_launch(tmp_path, monkeypatch):
+    """Spheres under the sky, every share of misses allowed: the rims take the environment's
+    directional lights (estimated on them), the rest the tables; the frame, in every
+    layer, is within --env-error of the exact texel sum on the pixels of both kinds."""
+    from clphong.reference.environment import texel_sum
+    from clphong.tools import samples
+
+    monkeypatch.setattr(envmap, "MIXED_SHARE", 1.0)
+    scene = _sky_scene(tmp_path)
+    g = samples.spheres_gbuffer(96, 64)
+    r = Relighter(scene, device=None, aovs=("diffuse", "specular"))
+    view = r.renderer_for(g)
+    (_, path, why), = r.env_paths
+    assert path == "tables" and "directional lights there" in why
+    other, miss = view._fallback
+    fg = np.flatnonzero(~g.background_mask().reshape(-1))
+    assert 0 < len(miss) < len(fg) and not other.scene.env_tables
+    res = view.render(g)
+    beauty = res.image.reshape(-1, 3).astype(np.float64)
+    L = res.layers
+    assert np.allclose((L["diffuse"] + L["specular"]).reshape(-1, 3), beauty, rtol=1e-5, atol=1e-7)
+    rng = np.random.default_rng(0)
+    kept = np.setdiff1d(fg, miss)
+    idx = np.concatenate([rng.choice(miss, 150, replace=False), rng.choice(kept, 150, replace=False)])
+    exact = texel_sum(scene, g.pixels(idx)).reshape(-1, 3)
+    big = exact >= 1e-3 * exact.max()
+    rel = np.abs(beauty[idx] - exact)[big] / exact[big]
+    assert rel.max() <= 1e-3, rel.max()
+    # without the second launch the rims are the tables' alone: they differ there only
+    plain = Renderer(view.scene, device=None).render(g).image.reshape(-1, 3)
+    assert np.array_equal(plain[kept], beauty[kept].astype(np.float32))
+    assert not np.array_equal(plain[miss], beauty[miss].astype(np.float32))
