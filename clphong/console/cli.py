@@ -295,8 +295,9 @@ def _add_speed_options(p):
     p.add_argument("--env-path", choices=tuple(ENV_PATHS), default="auto",
                    help="'auto' (default): an environment is shaded from tables (irradiance and "
                         "the Phong lobe, exact at their nodes, the sun as lights) where their "
-                        "error bound holds on every pixel of the frame, else as directional "
-                        "lights; 'lights': always as directional lights (docs/lighting.md)")
+                        "horizon bound holds, and as directional lights on the pixels where it "
+                        "does not (all of them if more than half); 'lights': always as "
+                        "directional lights (docs/lighting.md, 'Tables')")
     p.add_argument("--max-error", type=float, metavar="EPS",
                    help="tiled light culling: per 16x16 tile, drop point lights only while the sum "
                         "of their upper bounds stays within EPS x reference white of output radiance "

@@ -436,6 +436,15 @@ def convert_albedo(gbuffer, cfg: color.ColorConfig, space: str, ws: color.Workin
         cfg.convert(gbuffer.albedo, src, dst), np.float32))
 
 
+def shading_albedo(gbuffer, options: OutputOptions):
+    """``gbuffer`` as the kernels shade it: its albedo converted from ``options.albedo_space``
+    to the working space (as :func:`render_outputs` does), or itself."""
+    if not options.albedo_space:
+        return gbuffer
+    ws = color.working_space(options.working_space or "lin_rec709")
+    return convert_albedo(gbuffer, _load_config(options.ocio_config), options.albedo_space, ws)
+
+
 def coverage_of(gbuffer) -> np.ndarray:
     """The frame's coverage as written in ``A``: the G-buffer's, 0 on background
     pixels (not shaded), 1 on every other pixel of a G-buffer without one."""

@@ -158,7 +158,7 @@ def _layer_defines(put, coverage, groups, aovs) -> None:
         else "no specular layer")
 
 
-def _env_defines(put, scene, *, kernel, groups, specular) -> None:
+def _env_defines(put, scene, maps, *, kernel, groups, specular) -> None:
     """An environment as tables (kernels/include/envtable.h): their sizes and group."""
     tabled = scene.env_tables
     if not tabled:
@@ -168,6 +168,11 @@ def _env_defines(put, scene, *, kernel, groups, specular) -> None:
         raise SceneError(f"{scene.source}: the kernels read one environment's tables, in the lane "
                          "kernel; resolve the others into lights (clphong.io.envmap)")
     tables, group = tabled[0]
+    if specular and (tables.specular is None or scene.material.model == "blinn-phong"
+                     or "h" in maps):
+        raise SceneError(f"{scene.source}: an environment's tables hold the Phong lobe of one "
+                         "exponent, built with the specular term: not for Blinn-Phong, a "
+                         "shininess map or tables built without it (clphong.io.envmap)")
     put("ENV_TABLE", 1, f"environment: {tables.describe()}")
     d = tables.diffuse
     put("ENV_D_ROWS", d.rows, f"the diffuse table E(n): {d.rows} latitudes pole to pole")
@@ -419,7 +424,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         raise SceneError(f"{scene.source}: the obvious kernel shades the beauty only; light groups "
                          "and AOV layers need the lane kernel")
     _layer_defines(put, coverage, groups, aovs)
-    _env_defines(put, scene, kernel=kernel, groups=groups, specular=specular)
+    _env_defines(put, scene, maps, kernel=kernel, groups=groups, specular=specular)
     notes = []
     if not n_point and not n_dir:
         notes.append("no direct lights: only the ambient term is shaded")

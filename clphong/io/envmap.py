@@ -311,10 +311,14 @@ def _tables(light: Light, where: str, material, max_error: float, nonfinite: str
                 warnings.simplefilter("always", SceneWarning)
                 L = read_envmap(name, where, nonfinite)
             notes = tuple(str(w.message) for w in said if issubclass(w.category, SceneWarning))
+            progress = _Progress(f"{where}: {name}", "into tables")
             try:
-                made = _env_table.environment_tables(L, material, rotation=light.rotation,
-                                                     intensity=light.intensity,
-                                                     max_error=max_error)
+                made = _env_table.environment_tables(
+                    L, material, rotation=light.rotation, intensity=light.intensity,
+                    max_error=max_error,
+                    on_size=lambda t: progress.say(
+                        ("the diffuse" if t.power == 1 else f"the lobe (h = {t.power:g})")
+                        + f" table, {t.rows} x {t.cols}, estimated error {t.estimate:.2g}"))
             except _env_table.TablesUnfit as e:
                 made = str(e)
             hit = (made, notes)
@@ -342,7 +346,7 @@ def _table_disk_key(light: Light, spec, max_error: float, policy: str) -> str | 
         _TABLE_CODE.append(hashlib.sha256(Path(_env_table.__file__).read_bytes()).hexdigest())
     h = hashlib.sha256()
     for part in (digest, repr(float(light.rotation)), repr(float(light.intensity)),
-                 repr(spec), repr(float(max_error)), policy, _TABLE_CODE[0]):
+                 repr(spec), repr(float(max_error)), policy, _TABLE_CODE[0], _code_digest()):
         h.update(str(part).encode() + b"\0")
     return h.hexdigest()[:40]
 
@@ -410,32 +414,29 @@ def _table_refusal(material, pairs) -> str | None:
     if not isinstance(pairs, FrameSource):
         return ("its estimate covers every normal and view (--env-probes all, or no frame): the "
                 "tables' horizon bound is held on a frame's own pixels")
-    why = _env_table.table_refusal(material)
-    if why:
-        return why
-    if "h" in (getattr(pairs.gbuffer, "maps", None) or {}) and material.k_s > 0:
-        return "a shininess map: the lobe table holds one exponent"
-    return None
+    return _env_table.table_refusal(material, tuple(getattr(pairs.gbuffer, "maps", None) or {}))
 
 
 class _Progress:
     """The conversion's notices (:data:`conversion_notice`): after NOTICE_AFTER_S, one
     line saying what runs, then the search's progress at most once a second."""
 
-    def __init__(self, what: str):
-        self.what, self.t0, self.last = what, time.perf_counter(), None
+    def __init__(self, what: str, into: str = "into directional lights"):
+        self.what, self.into, self.t0, self.last = what, into, time.perf_counter(), None
 
     def __call__(self, k: int, e: float) -> None:
+        self.say(f"{k:,} lights, estimated error {e:.2g}")
+
+    def say(self, progress: str) -> None:
         hook = conversion_notice
         now = time.perf_counter()
         if hook is None or now - self.t0 < NOTICE_AFTER_S:
             return
         if self.last is None:
-            hook(f"clphong: converting {self.what} into directional lights (first use; "
+            hook(f"clphong: converting {self.what} {self.into} (first use; "
                  "cached afterwards)\u2026")
         if self.last is None or now - self.last >= 1.0:
-            hook(f"clphong: {self.what}: {k:,} lights, estimated error {e:.2g} "
-                 f"({now - self.t0:.0f} s)")
+            hook(f"clphong: {self.what}: {progress} ({now - self.t0:.0f} s)")
             self.last = now
 
 
@@ -836,8 +837,10 @@ def resolve_environment(scene: Scene, *, max_error: float = DEFAULT_ENV_ERROR,
     other = None
     if fallback:                         # the tabled environment's suns become its lights
         at, n, r, group, miss = fallback[0]
+        mine = tuple(directional_lights(r, group)) or (Light(
+            type="directional", color=(0.0, 0.0, 0.0), direction=(0.0, -1.0, 0.0), group=group),)
         other = (dataclasses.replace(resolved, env_tables=(), lights=tuple(
-            lights[:at]) + tuple(directional_lights(r, group)) + tuple(lights[at + n:])), miss)
+            lights[:at]) + mine + tuple(lights[at + n:])), miss)
     return ResolvedScene(scene=resolved,
                          environments=tuple(x for k, x in done if k == "lights"),
                          tables=tuple(x for k, x in done if k == "tables"),

@@ -35,8 +35,8 @@ The kernels' tables (ENV_TABLE, kernels/include/envtable.h) are built here too
 * **The estimate.** Each table's interpolation error is measured against the exact sums
   on a check grid (its node rows and the rows midway between them at every map
   column, and every half texel row within a cell of each pole, where those kinks line up
-  with the rows), times CHECK_MARGIN; the fewest TABLE_ROWS rows within TABLE_SHARE of
-  ``--env-error`` are used.
+  with the rows; where every map column is a node, at the half columns too), times
+  CHECK_MARGIN; the fewest TABLE_ROWS rows within TABLE_SHARE of ``--env-error`` are used.
 * **The horizon.** The model counts a texel's specular only where n·l > 0; T(R) counts
   every texel. What it over-counts is bounded per pixel (:func:`horizon_misses`: the
   texels' largest radiance times the lobe's integral over the lune below the plane,
@@ -100,16 +100,22 @@ def _spectra(weighted: np.ndarray):
     return np.ascontiguousarray(F.transpose(1, 0, 2)).view(np.float64), N
 
 
-def _zonal_rows(weighted: np.ndarray, power: float, lats) -> np.ndarray:
+def _zonal_rows(weighted: np.ndarray, power: float, lats, shift: float = 0.0) -> np.ndarray:
     """(len(lats), N, C): ``Σ_t E_t max(d·l_t, 0)^power`` at each latitude of ``lats`` and
-    every map column's longitude (N = W - 1 of them, the repeated meridian once). A
+    every map column's longitude (N = W - 1 of them, the repeated meridian once), or with
+    ``shift`` at the longitudes ``shift`` columns further (between the columns). A
     latitude beyond a pole (|lat| > π/2) is the direction over it: (π - lat, lon + π)."""
     H, W, C = weighted.shape
     Fm, N = _spectra(weighted)
     lat_t = _latitudes(H, np.arange(H))
     sin_t, cos_t = np.sin(lat_t), np.cos(lat_t)
-    half = np.cos(2.0 * np.pi * np.arange(N // 2 + 1) / N)
-    cos_dlon = np.concatenate([half, half[1:(N + 1) // 2][::-1]])          # even to the bit
+    if shift:
+        # the kernel at column differences j + shift is not even: its spectrum is complex
+        cos_dlon = np.cos(2.0 * np.pi * (np.arange(N) + shift) / N)
+        F = Fm.view(np.complex128)                                          # (m, H, C)
+    else:
+        half = np.cos(2.0 * np.pi * np.arange(N // 2 + 1) / N)
+        cos_dlon = np.concatenate([half, half[1:(N + 1) // 2][::-1]])      # even to the bit
     lats = np.asarray(lats, np.float64)
     out = np.empty((len(lats), N, C))
     # A latitude and its mirror -lat see the map rows mirrored (lat_t(H-1-j) = -lat_t(j)):
@@ -127,10 +133,16 @@ def _zonal_rows(weighted: np.ndarray, power: float, lats) -> np.ndarray:
                        0.0)
         if power != 1:
             k **= power
-        K = np.ascontiguousarray(np.fft.rfft(k, axis=1).real.T)[:, None, :]   # (m, 1, h)
+        if shift:
+            K = np.ascontiguousarray(np.fft.rfft(k, axis=1).T)                # (m, h) complex
+        else:
+            K = np.ascontiguousarray(np.fft.rfft(k, axis=1).real.T)[:, None, :]   # (m, 1, h)
         for i in members:
             rows_ = near if lats[i] >= 0 else H - 1 - near
-            G = (K @ Fm[:, rows_, :])[:, 0, :].view(np.complex128)            # (m, C)
+            if shift:
+                G = np.einsum("mh,mhc->mc", K, F[:, rows_, :])
+            else:
+                G = (K @ Fm[:, rows_, :])[:, 0, :].view(np.complex128)        # (m, C)
             out[i] = np.fft.irfft(G, n=N, axis=0)
 
     with ThreadPoolExecutor(max(1, min(os.cpu_count() or 1, 8))) as pool:
@@ -249,12 +261,17 @@ def cubic_table(weighted: np.ndarray, power: float, rows: int) -> CubicTable:
     lon = np.pi - 2.0 * np.pi * np.arange(N) / N
     worst = 0.0
     top = float(exact.max(initial=0.0))
-    for lats, want in ((node[1:-1], exact[1:rows + 1]), (mid, exact[rows + 2:2 * rows + 1]),
-                       (pole, exact[2 * rows + 1:])):
+    checks = [(node[1:-1], exact[1:rows + 1], lon), (mid, exact[rows + 2:2 * rows + 1], lon),
+              (pole, exact[2 * rows + 1:], lon)]
+    if step == 1:
+        # every map column is a node: the longitudes midway between them are checked too
+        lats = np.concatenate([node[1:-1], mid])
+        checks.append((lats, _zonal_rows(weighted, power, lats, shift=0.5), lon - np.pi / N))
+    for lats, want, lons in checks:
         if not len(lats):
             continue
         y, x = _positions(np.broadcast_to(lats[:, None], want.shape[:2]),
-                                np.broadcast_to(lon[None, :], want.shape[:2]), rows, cols)
+                          np.broadcast_to(lons[None, :], want.shape[:2]), rows, cols)
         got = env_table_lookup(values, y, x)
         if top > 0:                  # an all-black map's table is exact: 0
             rel = np.abs(got - want) / np.maximum(want, 1e-12 * top)
@@ -379,11 +396,20 @@ class TablesUnfit(ValueError):
     """Why an environment cannot be tabled (the caller shades its lights instead)."""
 
 
-def table_refusal(material) -> str | None:
-    """Why ``material`` cannot use the tables, or None."""
-    if material.model == "blinn-phong" and material.k_s > 0:
+def table_refusal(material, maps=()) -> str | None:
+    """Why ``material`` (with the frame's material ``maps``) cannot use the tables, or None."""
+    if "k_s" in maps and material.k_s <= 0:
+        return "a k_s map over a material k_s of 0: the tables' weights are relative to k_s"
+    if material.k_s <= 0:
+        return None
+    if material.model == "blinn-phong":
         return ("Blinn-Phong's lobe (n·h)^(4h) depends on n and v, not on one direction: "
                 "no table holds it")
+    if "h" in maps:
+        return "a shininess map: the lobe table holds one exponent"
+    if material.exponent < 1:
+        return (f"an exponent of {material.exponent:g}: below 1 the lobe is too wide for the "
+                "horizon's bound")
     return None
 
 
@@ -464,7 +490,7 @@ def environment_tables(radiance, material, *, rotation: float = 0.0, intensity: 
                      power=power, radiance_max=np.where(sun[..., None], 0.0, L).reshape(-1, 3)
                      .max(axis=0) * float(intensity),
                      lune=(lune_weights(specular.power) if specular is not None
-                           else np.zeros(LUNE_STEPS + 1)),
+                           else np.zeros(2 * LUNE_STEPS + 1)),
                      diffuse_floor=diffuse.least,
                      texel_angle=max(math.pi / (H - 1), 2.0 * math.pi / (W - 1)), rotation=float(rotation),
                      estimate=estimate, max_error=float(max_error),
@@ -505,23 +531,30 @@ LUNE_MARGIN = 1.1
 
 
 def lune_weights(exponent: float, steps: int = LUNE_STEPS) -> np.ndarray:
-    """(steps + 1,): G(e_k) = ∫ max(l·R, 0)^h dω over the directions l below a plane that R
-    rises e_k = k·(π/2)/steps above (unit radiance): over the polar angle θ from R, the
-    arc below the plane is 2·acos(tan e/tan θ) for θ > e, so G(e) = ∫_e^{π/2} cos^h θ
-    sin θ · 2 acos(tan e/tan θ) dθ (Gauss-Legendre, 256 nodes). G falls as e grows: a
-    pixel takes the value of the node at or below its e."""
+    """(2·steps + 1,): G(e_k) = ∫ max(l·R, 0)^h dω over the directions l below a plane that R
+    rises e_k = (k − steps)·(π/2)/steps above (below it where e < 0; unit radiance): over
+    the polar angle θ from R, the arc below the plane is 2·acos(tan e/tan θ) (clipped: 2π
+    where the whole circle is below, 0 where none is), so G(e) = ∫_{max(e,0)}^{π/2} cos^h θ
+    sin θ · 2 acos(tan e/tan θ) dθ (Gauss-Legendre, 256 nodes on each side of |e|). G
+    falls as e grows: a pixel takes the value of the node at or below its e."""
     x, wq = np.polynomial.legendre.leggauss(256)
-    out = np.empty(steps + 1)
-    for k in range(steps + 1):
-        e = 0.5 * np.pi * k / steps
-        if k == steps:
-            out[k] = 0.0
-            continue
-        th = e + (0.5 * np.pi - e) * 0.5 * (x + 1.0)
+
+    def part(a, b, e):
+        th = a + (b - a) * 0.5 * (x + 1.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.clip(np.tan(e) / np.tan(th), -1.0, 1.0)
         f = np.cos(th) ** exponent * np.sin(th) * 2.0 * np.arccos(t)
-        out[k] = 0.5 * (0.5 * np.pi - e) * float(wq @ f)
+        return 0.5 * (b - a) * float(wq @ f)
+
+    out = np.empty(2 * steps + 1)
+    for k in range(2 * steps + 1):
+        e = 0.5 * np.pi * (k - steps) / steps
+        if k == 2 * steps:
+            out[k] = 0.0
+        elif e >= 0:
+            out[k] = part(e, 0.5 * np.pi, e)
+        else:                 # the whole circle below up to |e|, then the arc
+            out[k] = part(0.0, -e, e) + part(-e, 0.5 * np.pi, e)
     return out
 
 
@@ -532,11 +565,12 @@ def lune_bound(G: np.ndarray, NoV, texel_angle: float) -> np.ndarray:
     below the plane raised by its own size, so the texels' sum is the integral below that
     plane, within LUNE_MARGIN for the lobe's variation over a texel). ∞ where n·v ≤ 0."""
     c = np.asarray(NoV)
-    steps = len(G) - 1
+    steps = (len(G) - 1) // 2
     k = np.arcsin(np.clip(c, 0.0, 1.0).astype(np.float32))
     k -= np.float32(texel_angle)
     k *= np.float32(2.0 * steps / np.pi)
-    g = np.asarray(G, np.float64)[np.clip(np.floor(k), 0, steps).astype(np.int32)]
+    k += np.float32(steps)
+    g = np.asarray(G, np.float64)[np.clip(np.floor(k), 0, 2 * steps).astype(np.int32)]
     g[~(c > 0)] = np.inf
     return g
 
@@ -559,8 +593,10 @@ def horizon_misses(tables: EnvTables, material, NoV, diffuse, specular, normals)
     c = np.asarray(NoV).reshape(-1)
     if tables.specular is None or material.k_s <= 0 or not len(c):
         return np.zeros(len(c), bool)
-    ks = material.k_s * (np.ones(3) if material.fresnel == "schlick"
-                         else np.asarray(material.specular_color, np.float64))
+    # k_s·C_s; a channel where C_s is 0 takes 1 (a specular-colour map's weights are the
+    # map itself there: clphong.io.envmap._probe_weights)
+    cs = np.asarray(material.specular_color, np.float64)
+    ks = material.k_s * (np.ones(3) if material.fresnel == "schlick" else np.where(cs > 0, cs, 1.0))
     g = lune_bound(tables.lune, c, tables.texel_angle)
     eps = horizon_budget(tables) * material.k_d
     d = np.asarray(diffuse).reshape(-1, 3)

@@ -45,6 +45,7 @@ from ..deliver.outputs import (
     OutputOptions,
     OutputPaths,
     render_outputs,
+    shading_albedo,
     write_output,
 )
 from ..device.envprobe import DeviceProbeShader
@@ -376,7 +377,9 @@ class Relighter:
                                    world_to_camera_matrix=world_to_camera, source=where)
         fallback = None
         if self._frame_env:
-            lights, tables, fallback = self._frame_lights(scene.camera, gbuffer)
+            # the frame as the kernels shade it: its albedo in the working space
+            lights, tables, fallback = self._frame_lights(scene.camera,
+                                                          shading_albedo(gbuffer, self.output))
             scene = dataclasses.replace(scene, lights=lights, env_tables=tables)
         view = copy.copy(self.renderer)
         view.scene = scene

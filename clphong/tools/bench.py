@@ -651,15 +651,25 @@ def _plot_tree(ax, rows, scene: str) -> None:
     ax.legend(fontsize=7)
 
 
+#: The environment panel's marker per path (bench rows' ``env_probes``).
+ENV_MARKERS = {"tables": "s", "frame": "o", "all": "^"}
+
+
 def _plot_environment(ax, rows) -> None:
-    """The environment rows: time against the exact texel sum's error, one line per map."""
-    for size in dict.fromkeys(tuple(r["map"]) for r in rows):
-        mine = sorted((r for r in rows if tuple(r["map"]) == size), key=lambda r: r["env_error"])
+    """The environment rows: time against the exact texel sum's error, one line per map and
+    path (squares: tables; circles: lights on the frame's probes; triangles: every normal)."""
+    series = dict.fromkeys((tuple(r["map"]), r.get("env_probes", "all")) for r in rows)
+    colours = {size: f"C{k}" for k, size in enumerate(dict.fromkeys(s for s, _ in series))}
+    for size, path in series:
+        mine = sorted((r for r in rows if tuple(r["map"]) == size
+                       and r.get("env_probes", "all") == path), key=lambda r: r["env_error"])
         xs = [max(r["error"]["max_rel"], 1e-9) for r in mine]
         ys = [r["time_ratio_256_point"] for r in mine]
-        ax.plot(xs, ys, marker="o", label=f"{size[0]}x{size[1]}")
+        ax.plot(xs, ys, marker=ENV_MARKERS.get(path, "o"), color=colours[size],
+                label=f"{size[0]}x{size[1]} {path}")
         for r, x, y in zip(mine, xs, ys):
-            ax.annotate(f"ε={r['env_error']:g}, {r['lights']} lights", (x, y), fontsize=7)
+            what = "sun lights" if path == "tables" else "lights"
+            ax.annotate(f"ε={r['env_error']:g}, {r['lights']} {what}", (x, y), fontsize=6)
     ax.axhline(1.0, color="grey", lw=0.5, ls=":")
     ax.set_xscale("log")
     ax.set_yscale("log")

@@ -247,3 +247,49 @@ def test_pixels_the_bound_misses_take_lights_in_a_second_launch(tmp_path, monkey
     plain = Renderer(view.scene, device=None).render(g).image.reshape(-1, 3)
     assert np.array_equal(plain[kept], beauty[kept].astype(np.float32))
     assert not np.array_equal(plain[miss], beauty[miss].astype(np.float32))
+
+
+def test_a_k_s_map_over_k_s_0_takes_lights_and_the_plan_refuses_what_tables_cannot_hold(tmp_path):
+    from clphong.core.errors import SceneError
+    from clphong.device.plan import make_plan
+
+    text = (GBUFFERS / "spheres_sky.toml").read_text().replace(
+        'file = "sky.exr"', f'file = "{GBUFFERS / "sky.exr"}"').replace("k_s = 0.2", "k_s = 0.0")
+    (tmp_path / "s.toml").write_text(text)
+    scene = load_scene(tmp_path / "s.toml")
+    plane = heightfield(np.random.default_rng(7), 16, 20, maps=("k_s",))
+    r = Relighter(scene, device=None)
+    view = r.renderer_for(plane)
+    (_, path, why), = r.env_paths
+    assert path == "lights" and "k_s map" in why and not view.scene.env_tables
+    assert np.isfinite(view.render(plane).image).all()
+    t = environment_tables(_sky(), make_scene(()).material, max_error=1e-2)
+    blinn = _scene(t, model="blinn-phong")
+    with pytest.raises(SceneError, match="tables hold the Phong lobe"):
+        make_plan(blinn, ())
+    with pytest.raises(SceneError, match="tables hold the Phong lobe"):
+        make_plan(_scene(t), ("h",))
+
+
+def test_the_horizon_check_sees_the_albedo_the_kernels_shade(tmp_path, monkeypatch):
+    """With an albedo_space, the frame is resolved on its albedo in the working space (as
+    render_outputs converts it before shading), not on the stored values."""
+    from clphong.deliver.outputs import OutputOptions
+
+    import clphong.pipeline.relighter as relighter
+
+    scene = _sky_scene(tmp_path)
+    plane = heightfield(np.random.default_rng(8), 16, 20)
+    real, seen_pairs = relighter.resolve_environment, []
+
+    def spy(*a, **kw):
+        seen_pairs.append(kw["pairs"])
+        return real(*a, **kw)
+
+    monkeypatch.setattr(relighter, "resolve_environment", spy)
+    r = Relighter(scene, device=None,
+                  output=OutputOptions(albedo_space="sRGB Encoded Rec.709 (sRGB)"))
+    r.renderer_for(plane)
+    seen = seen_pairs[-1].gbuffer.albedo
+    assert seen.shape == plane.albedo.shape and np.all(seen <= plane.albedo + 1e-7)
+    assert np.mean(seen) < 0.8 * np.mean(plane.albedo)        # sRGB-encoded: darker in linear

@@ -387,6 +387,24 @@ def test_a_conversion_says_it_runs_and_a_hit_says_nothing(disk, monkeypatch):
     assert lines == []
 
 
+def test_building_tables_says_it_runs_and_a_hit_says_nothing(disk, monkeypatch):
+    store, scene = disk
+    lines = []
+    monkeypatch.setattr(envmap, "conversion_notice", lines.append)
+    monkeypatch.setattr(envmap, "NOTICE_AFTER_S", 0.0)
+    monkeypatch.setattr(envmap, "_TABLES", {})
+    from clphong.core.cache import Store
+    monkeypatch.setattr(envmap, "_TABLE_DISK", Store(str(store.folder) + "-tables", ".npz", 3))
+    sky = next(lt for lt in scene.lights if lt.type == "environment")
+    envmap._tables(sky, "light[0]", scene.material, 1e-2)
+    assert lines[0].startswith("clphong: converting light[0]: ") and "into tables" in lines[0]
+    assert "the diffuse table, " in lines[1] and "estimated error" in lines[1]
+    lines.clear()
+    monkeypatch.setattr(envmap, "_TABLES", {})
+    envmap._tables(sky, "light[0]", scene.material, 1e-2)
+    assert lines == []
+
+
 # ------------------------------------------------- bad maps follow --nonfinite (issue 25)
 
 def _nan_map(tmp_path):

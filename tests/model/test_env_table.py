@@ -81,6 +81,7 @@ from clphong.model.env_table import (  # noqa: E402
     horizon_misses,
     lune_bound,
     lune_weights,
+    table_refusal,
 )
 from clphong.model.environment import _fibonacci  # noqa: E402
 from clphong.model.scene import Material  # noqa: E402
@@ -185,8 +186,29 @@ def test_what_cannot_be_tabled_says_why():
     with pytest.raises(TablesUnfit, match="texels are over"):
         environment_tables(stars, _phong())
     # Blinn-Phong without a specular term is a diffuse table
-    t = environment_tables(_sky(17, 33), _phong(model="blinn-phong", k_s=0.0), max_error=1e-2)
+    t = environment_tables(_sky(), _phong(model="blinn-phong", k_s=0.0), max_error=1e-2)
     assert t.specular is None
+    # a k_s map over k_s = 0, a shininess map, an exponent below 1: refused, with the reason
+    assert "k_s map" in table_refusal(_phong(k_s=0.0), ("k_s",))
+    assert "shininess map" in table_refusal(_phong(), ("h",))
+    assert "below 1" in table_refusal(_phong(h=0.5))
+    assert table_refusal(_phong(), ("k_d", "specular_color")) is None
+
+
+def test_a_map_whose_columns_are_all_nodes_is_checked_between_them():
+    """A 33-column map: its tables' columns can only be its own (every one a node), so the
+    estimate checks the longitudes midway between them (a shifted kernel): it holds at
+    held-out directions, and where no size meets the budget the map is refused."""
+    radiance = _sky(17, 33)
+    t = cubic_table(weighted_map(radiance), 8.0, 17)
+    assert t.cols == 32
+    dirs = _fibonacci(3000, offset=0.3)
+    got = env_table_lookup(t.values, *env_table_coords(dirs, 0.0, t.rows, t.cols))
+    truth = _direct(dirs, radiance, 8.0)
+    err = np.max(np.abs(got - truth) / truth)
+    assert err <= t.estimate <= 20 * err
+    with pytest.raises(TablesUnfit, match="largest table"):
+        environment_tables(radiance, _phong(), max_error=1e-3)
 
 
 def test_an_all_black_map_is_exact_zero_tables():
@@ -201,6 +223,7 @@ def test_the_lune_bound_holds_the_texels_below_the_plane(h, H):
     uniform map: the worst case of the bound's L_max), at any e, on a coarse and a finer
     map; and at the finer map's nodes, for the sums that matter, within 3x of it."""
     G = lune_weights(h)
+    steps = (len(G) - 1) // 2
     texel = max(np.pi / (H - 1), 2 * np.pi / (2 * H))
     l, E = texel_lights(np.ones((H, 2 * H + 1, 3)))
     n = np.array([0.3, 0.1, 1.0])
@@ -208,14 +231,14 @@ def test_the_lune_bound_holds_the_texels_below_the_plane(h, H):
     u = np.cross(n, [0.0, 1.0, 0.0])
     u /= np.linalg.norm(u)
     below = l @ n <= 0
-    for k in (8, 40, 100, 180):
+    for k in (0, 1, 8, 40, 100, 180):           # e below a texel too: G at e - texel < 0
         for extra in (0.0, 0.4):
-            e = (k + extra) * (np.pi / 2) / (len(G) - 1)
+            e = (k + extra) * (np.pi / 2) / steps
             R = np.cos(e) * u + np.sin(e) * n              # rises e above the plane
             s = float(np.where(below, np.maximum(l @ R, 0.0) ** h, 0.0) @ E[:, 0])
             bound = float(lune_bound(G, np.array([np.sin(e)]), texel)[0])
             assert s <= LUNE_MARGIN * bound, (k, extra, s, bound)
-            if H == 256 and extra == 0 and s > 1e-6:
+            if H == 256 and extra == 0 and s > 1e-6 and k >= 8:
                 assert bound <= 3 * s, (k, s, bound)
 
 
@@ -258,3 +281,21 @@ def test_pixels_the_tables_keep_are_within_their_horizon_budget():
     assert np.all(m.k_s * C[kept] <= horizon_budget(t) * m.k_d * d[kept] * De[kept])
     # and the pixels missed lie at the grazing end
     assert np.median(c[miss]) < np.median(c[kept])
+
+
+def test_a_specular_colour_channel_of_0_still_bounds_a_map_there():
+    """A material C_s with a 0 channel and a specular-colour map: the map's weights there are
+    the map itself (clphong.io.envmap._probe_weights), so the bound takes k_s·1 there,
+    not 0: the same pixels miss as with a white C_s and the same weights."""
+    radiance = _sky()
+    t = environment_tables(radiance, _phong(), max_error=1e-3)
+    rng = np.random.default_rng(9)
+    n = np.tile([0.0, 0.0, 1.0], (400, 1))
+    c = rng.uniform(0.05, 1.0, 400)
+    d = rng.uniform(0.05, 1.0, (400, 3))
+    sp = rng.uniform(0.0, 1.0, (400, 3))
+    red = _phong(specular_color=(1.0, 0.0, 0.0))
+    white = _phong()
+    a = horizon_misses(t, red, c, d, sp, n)
+    b = horizon_misses(t, white, c, d, sp, n)
+    assert np.array_equal(a, b) and a.any()
