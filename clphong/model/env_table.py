@@ -27,7 +27,8 @@ The kernels' tables (ENV_TABLE, kernels/include/envtable.h) are built here too
 
 * **What is split out.** Texels over SUN_RATIO × the median (a sun) are exact directional
   lights, one a texel: a table cannot hold the kink a small bright source makes in E(n)
-  at its terminator, or its needle in the lobe.
+  at its terminator, or its needle in the lobe. Where the tables of the rest still miss
+  their budget, lower ratios (SUN_RATIOS) split out more.
 * **What is tabled.** E(n) and the Phong lobe T(R) of the rest, on lat-long grids exact at
   their nodes (rows over the poles too), read with 4 × 4 Lagrange cubics
   (:func:`env_table_lookup`; their error falls as the fourth power of the spacing until
@@ -61,7 +62,8 @@ from .environment import _latitudes, rotation_about_up, texel_directions, texel_
 
 __all__ = ["ZonalTable", "weighted_map", "zonal_table", "lookup", "CubicTable", "cubic_table",
            "env_table_coords", "env_table_lookup", "EnvTables", "environment_tables",
-           "TABLE_ROWS", "SUN_RATIO", "MAX_SUN_TEXELS", "TABLE_SHARE", "horizon_weight"]
+           "TABLE_ROWS", "SUN_RATIO", "SUN_RATIOS", "MAX_SUN_TEXELS", "TABLE_SHARE",
+           "horizon_weight"]
 
 
 @dataclass(frozen=True)
@@ -189,6 +191,8 @@ TABLE_ROWS = (17, 33, 65, 129, 257)
 #: sun: shaded as exact directional lights, one a texel, and left out of the tables (a kink
 #: in E(n) at its terminator, a needle in the lobe: what a table cannot hold).
 SUN_RATIO = 50.0
+#: The ratios tried in turn, while the tables of what is left miss their budget.
+SUN_RATIOS = (SUN_RATIO, 12.0, 4.0)
 #: More bright texels than this: the map is not "a sky and a few suns"; its lights instead.
 MAX_SUN_TEXELS = 2048
 #: The tables' share of ``--env-error``; the rest is the horizon's (:func:`horizon_weight`).
@@ -470,19 +474,28 @@ def environment_tables(radiance, material, *, rotation: float = 0.0, intensity: 
         L = np.repeat(L, 3, axis=2)
     H, W = L.shape[:2]
     lum = L.sum(-1)
-    sun = lum > SUN_RATIO * float(np.median(lum))
-    if int(sun.sum()) > MAX_SUN_TEXELS:
-        raise TablesUnfit(f"{int(sun.sum())} texels are over {SUN_RATIO:g}x the median, more "
-                          f"than the {MAX_SUN_TEXELS} a table path shades one by one")
+    median = float(np.median(lum))
     weighted = weighted_map(L, intensity)
-    sun_E = weighted[sun]
-    sky = np.where(sun[..., None], 0.0, weighted)
-    d = texel_directions(W, H)[sun] @ rotation_about_up(rotation).T
     target = TABLE_SHARE * float(max_error)
-    diffuse = _sized(sky, 1.0, target, on_size)
-    specular = None
-    if material.k_s > 0:
-        specular = _sized(sky, float(material.exponent), target, on_size)
+    # the sun: the texels over SUN_RATIO x the median; where the tables then miss their
+    # budget (a bright region left in them), the next ratio splits out more
+    for k, ratio in enumerate(SUN_RATIOS):
+        sun = lum > ratio * median
+        if int(sun.sum()) > MAX_SUN_TEXELS:
+            raise TablesUnfit(f"{int(sun.sum())} texels are over {ratio:g}x the median, more "
+                              f"than the {MAX_SUN_TEXELS} a table path shades one by one")
+        sky = np.where(sun[..., None], 0.0, weighted)
+        try:
+            diffuse = _sized(sky, 1.0, target, on_size)
+            specular = None
+            if material.k_s > 0:
+                specular = _sized(sky, float(material.exponent), target, on_size)
+            break
+        except TablesUnfit:
+            if k == len(SUN_RATIOS) - 1:
+                raise
+    sun_E = weighted[sun]
+    d = texel_directions(W, H)[sun] @ rotation_about_up(rotation).T
     estimate = max(diffuse.estimate, 0.0 if specular is None else specular.estimate)
     lit = sun_E.max(axis=1, initial=0.0) > 0 if len(sun_E) else np.zeros(0, bool)
     power = sky.reshape(-1, 3).sum(axis=0)

@@ -299,3 +299,19 @@ def test_a_specular_colour_channel_of_0_still_bounds_a_map_there():
     a = horizon_misses(t, red, c, d, sp, n)
     b = horizon_misses(t, white, c, d, sp, n)
     assert np.array_equal(a, b) and a.any()
+
+
+def test_a_bright_region_the_tables_cannot_hold_is_split_out_at_a_lower_ratio():
+    """Two texels at 45x the median of a smooth sky (under SUN_RATIO): their kinks keep the
+    diffuse table over its share at every size, so the next ratio splits them out as
+    lights, and the tables of the rest meet the budget."""
+    H, W = 65, 129
+    lat = np.linspace(np.pi / 2, -np.pi / 2, H)[:, None]
+    lon = np.linspace(np.pi, -np.pi, W)[None, :]
+    radiance = np.stack([1.5 + np.sin(lat) + 0.3 * np.cos(lon) * np.cos(lat)] * 3, -1)
+    radiance[20, 40:42] = 45 * np.median(radiance.sum(-1)) / 3
+    tried = []
+    t = environment_tables(radiance, _phong(), max_error=1e-3,
+                           on_size=lambda tb: tried.append((tb.power, tb.rows, tb.estimate)))
+    assert (1.0, 257, tried[3][2]) == tried[3] and tried[3][2] > 5e-4   # at 50x: no size fits
+    assert t.sun_count == 2 and t.estimate <= 5e-4
