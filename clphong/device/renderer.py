@@ -426,18 +426,21 @@ class Renderer:
             layers[name] = np.array(layer)
             if name in part.layers:
                 layers[name].reshape(h * w, 3)[idx] = part.layers[name].reshape(-1, 3)
-        shown = None
-        if display is not None:
-            straight = self.straight_alpha and gbuffer.coverage is not None
-            shown = apply_display_transform(image, display, runtime=self.runtime,
-                                            lanes=self.lanes if self.kernel_kind == "lanes" else None,
-                                            coverage=gbuffer.coverage if straight else None,
-                                            background=self.scene.background)
+        shown = None if display is None else self._display_of(image, gbuffer, display)
         stats = RenderStats(kernel_seconds=result.stats.kernel_seconds + part.stats.kernel_seconds,
                             upload_seconds=result.stats.upload_seconds + part.stats.upload_seconds,
                             total_seconds=time.perf_counter() - t0)
         return dataclasses.replace(result, image=image, layers=layers, display=shown,
                                    display_transform=display, stats=stats)
+
+    def _display_of(self, image, gbuffer, display: DisplayTransform) -> np.ndarray:
+        """The display output of a whole shaded ``image`` (after bands or a fallback's pixels),
+        by the same device code the fused launch runs."""
+        straight = self.straight_alpha and gbuffer.coverage is not None
+        return apply_display_transform(image, display, runtime=self.runtime,
+                                       lanes=self.lanes if self.kernel_kind == "lanes" else None,
+                                       coverage=gbuffer.coverage if straight else None,
+                                       background=self.scene.background)
 
     def _render(self, gbuffer, *, display: DisplayTransform | None = None,
                 rows: int | None = None) -> RenderResult:
@@ -505,13 +508,7 @@ class Renderer:
             kernel_s += last.stats.kernel_seconds
             upload_s += last.stats.upload_seconds
             del frame
-        shown = None
-        if display is not None:
-            straight = self.straight_alpha and gbuffer.coverage is not None
-            shown = apply_display_transform(image, display, runtime=self.runtime,
-                                            lanes=self.lanes if self.kernel_kind == "lanes" else None,
-                                            coverage=gbuffer.coverage if straight else None,
-                                            background=self.scene.background)
+        shown = None if display is None else self._display_of(image, gbuffer, display)
         stats = RenderStats(kernel_seconds=kernel_s, upload_seconds=upload_s,
                             total_seconds=time.perf_counter() - t0)
         return RenderResult(image=image, display=shown, plan=last.plan, stats=stats, cull=last.cull,

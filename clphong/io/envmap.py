@@ -300,37 +300,59 @@ def _tables(light: Light, where: str, material, max_error: float, nonfinite: str
                light.intensity, spec, max_error, policy)
     except OSError:
         key = None
+    disk: list = []
+
+    def find():
+        disk.append(_table_disk_key(light, spec, max_error, policy) if key is not None else None)
+        found = None if disk[0] is None else _TABLE_DISK.get(disk[0])
+        return None if found is None else _load_tables(found)
+
+    def make():
+        L, notes = _read_noting(name, where, nonfinite)
+        progress = _Progress(f"{where}: {name}", "into tables")
+        try:
+            made = _env_table.environment_tables(
+                L, material, rotation=light.rotation, intensity=light.intensity,
+                max_error=max_error,
+                on_size=lambda t: progress.say(
+                    ("the diffuse" if t.power == 1 else f"the lobe (h = {t.power:g})")
+                    + f" table, {t.rows} x {t.cols}, estimated error {t.estimate:.2g}"))
+        except _env_table.TablesUnfit as e:
+            made = str(e)
+        if disk[0] is not None:
+            _save_tables(disk[0], made, notes)
+        return made, notes
+
+    return _cached(_TABLES, key, find, make)
+
+
+def _read_noting(name: str, where: str, nonfinite: str):
+    """(the map, the one-line warnings reading it gave): a cache keeps them with what it
+    made of the map, and says them again on every hit."""
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always", SceneWarning)
+        L = read_envmap(name, where, nonfinite)
+    return L, tuple(str(w.message) for w in said if issubclass(w.category, SceneWarning))
+
+
+def _cached(cache: dict, key, find, make):
+    """What a map becomes (its lights, or its tables), through the process's ``cache``
+    (``key``; None: the file cannot be read, read_envmap will say why), then ``find()``
+    (the disk's), then ``make()``; each gives (result, the map's warnings). The warnings
+    are said again on every hit."""
     with _LOCK:
-        hit = _TABLES.get(key) if key is not None else None
+        hit = cache.get(key) if key is not None else None
     if hit is None:
-        disk = _table_disk_key(light, spec, max_error, policy) if key is not None else None
-        found = None if disk is None else _TABLE_DISK.get(disk)
-        hit = None if found is None else _load_tables(found)
+        hit = find()
         if hit is None:
-            with warnings.catch_warnings(record=True) as said:
-                warnings.simplefilter("always", SceneWarning)
-                L = read_envmap(name, where, nonfinite)
-            notes = tuple(str(w.message) for w in said if issubclass(w.category, SceneWarning))
-            progress = _Progress(f"{where}: {name}", "into tables")
-            try:
-                made = _env_table.environment_tables(
-                    L, material, rotation=light.rotation, intensity=light.intensity,
-                    max_error=max_error,
-                    on_size=lambda t: progress.say(
-                        ("the diffuse" if t.power == 1 else f"the lobe (h = {t.power:g})")
-                        + f" table, {t.rows} x {t.cols}, estimated error {t.estimate:.2g}"))
-            except _env_table.TablesUnfit as e:
-                made = str(e)
-            hit = (made, notes)
-            if disk is not None:
-                _save_tables(disk, made, notes)
+            hit = make()
         if key is not None:
             with _LOCK:
-                if len(_TABLES) >= _CACHE_SIZE:
-                    _TABLES.pop(next(iter(_TABLES)))
-                _TABLES[key] = hit
+                if len(cache) >= _CACHE_SIZE:
+                    cache.pop(next(iter(cache)))
+                cache[key] = hit
     made, notes = hit
-    for note in notes:
+    for note in notes:                    # the map's warnings, from the cache too
         warnings.warn(SceneWarning(note))
     return made
 
@@ -675,38 +697,30 @@ def _convert(light: Light, where: str, material, view, max_error: float,
                shader)
     except OSError:
         key = None                        # read_envmap says what is wrong
-    with _LOCK:
-        hit = _CACHE.get(key) if key is not None else None
-    if hit is None:
+    disk: list = []
+
+    def find():
         digest = _file_digest(name) if key is not None else None
-        disk = None if digest is None else _disk_key(digest, light, material, view, max_error,
-                                                     policy, shader)
-        found = None if disk is None else _DISK.get(disk)
-        hit = None if found is None else _load(found)
-        if hit is None:
-            with warnings.catch_warnings(record=True) as said:
-                warnings.simplefilter("always", SceneWarning)
-                L = read_envmap(name, where, nonfinite)
-            notes = tuple(str(w.message) for w in said if issubclass(w.category, SceneWarning))
-            probes = pairs.probes() if isinstance(pairs, FrameSource) else pairs
-            if isinstance(pairs, FrameSource) and probes is None:
-                view = view_vector(pairs.camera)     # no pixel to probe: every normal and view
-            result = environment_lights(L, material, rotation=light.rotation,
-                                        intensity=light.intensity, view=view, max_error=max_error,
-                                        progress=_Progress(f"{where}: {name}"), shade=shade,
-                                        pairs=probes)
-            hit = (result, notes)
-            if disk is not None:
-                _save(disk, result, notes)
-        if key is not None:
-            with _LOCK:
-                if len(_CACHE) >= _CACHE_SIZE:
-                    _CACHE.pop(next(iter(_CACHE)))
-                _CACHE[key] = hit
-    result, notes = hit
-    for note in notes:                    # the map's warnings, from the cache too
-        warnings.warn(SceneWarning(note))
-    return result
+        disk.append(None if digest is None else _disk_key(digest, light, material, view,
+                                                          max_error, policy, shader))
+        found = None if disk[0] is None else _DISK.get(disk[0])
+        return None if found is None else _load(found)
+
+    def make():
+        nonlocal view
+        L, notes = _read_noting(name, where, nonfinite)
+        probes = pairs.probes() if isinstance(pairs, FrameSource) else pairs
+        if isinstance(pairs, FrameSource) and probes is None:
+            view = view_vector(pairs.camera)     # no pixel to probe: every normal and view
+        result = environment_lights(L, material, rotation=light.rotation,
+                                    intensity=light.intensity, view=view, max_error=max_error,
+                                    progress=_Progress(f"{where}: {name}"), shade=shade,
+                                    pairs=probes)
+        if disk[0] is not None:
+            _save(disk[0], result, notes)
+        return result, notes
+
+    return _cached(_CACHE, key, find, make)
 
 
 def directional_lights(env: EnvironmentLights, group: str | None = None) -> tuple[Light, ...]:
