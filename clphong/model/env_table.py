@@ -63,7 +63,8 @@ from .environment import _latitudes, rotation_about_up, texel_directions, texel_
 __all__ = ["ZonalTable", "weighted_map", "zonal_table", "lookup", "CubicTable", "cubic_table",
            "env_table_coords", "env_table_lookup", "EnvTables", "environment_tables",
            "TABLE_ROWS", "SUN_RATIO", "SUN_RATIOS", "MAX_SUN_TEXELS", "TABLE_SHARE",
-           "horizon_weight"]
+           "horizon_misses", "horizon_budget", "lune_weights", "lune_bound",
+           "diffuse_lower_bound", "TablesUnfit", "table_refusal"]
 
 
 @dataclass(frozen=True)
@@ -195,7 +196,7 @@ SUN_RATIO = 50.0
 SUN_RATIOS = (SUN_RATIO, 12.0, 4.0)
 #: More bright texels than this: the map is not "a sky and a few suns"; its lights instead.
 MAX_SUN_TEXELS = 2048
-#: The tables' share of ``--env-error``; the rest is the horizon's (:func:`horizon_weight`).
+#: The tables' share of ``--env-error``; the rest is the horizon's (:func:`horizon_budget`).
 TABLE_SHARE = 0.5
 #: The measured error between check points is taken as this much more than at them.
 CHECK_MARGIN = 1.25
@@ -328,16 +329,6 @@ def env_table_lookup(values: np.ndarray, y, x) -> np.ndarray:
         for b in range(4):
             out += (wy[..., a] * wx[..., b])[..., None] * flat[base + np.mod(x0 - 1 + b, cols)]
     return out
-
-
-def horizon_weight(NoV, exponent: float) -> np.ndarray:
-    """The largest Phong lobe weight ``max(l·R, 0)^h`` of any direction l below a pixel's
-    tangent plane (n·l ≤ 0), R the view reflected about n: (1 − (n·v)²)^(h/2) for n·v > 0,
-    1 otherwise. The lobe table counts those directions; the model does not."""
-    c = np.asarray(NoV, np.float64)
-    with np.errstate(invalid="ignore"):
-        w = np.maximum(1.0 - c * c, 0.0) ** (0.5 * float(exponent))
-    return np.where(c > 0, w, 1.0)
 
 
 @dataclass(frozen=True, eq=False)
