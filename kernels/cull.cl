@@ -295,9 +295,25 @@ inline floatL interval_product_max(floatL a, floatL b, floatL lo, floatL hi)
 }
 
 /* b_j: upper bound of light j's contribution to any pixel and channel of the tile
- * (see the header comment). 0 for empty tiles; +inf where no bound holds
- * (p⁻ ≤ 0, a light inside the box with c0 ≤ 0, non-finite data). */
-inline floatL light_bound(const tile_t *t, float4 A, float4 B, float4 C, float4 E, float4 F)
+ * (see the header comment), each channel c's in units of its budget: max_c b_c·inv_c
+ * (inv = 1: output radiance; the relative budget: 1/B_c, so that the dropped sums
+ * stay within every channel's own budget B_c). 0 for empty tiles and where every
+ * channel's bound is 0; +inf where no bound holds (p⁻ ≤ 0, a light inside the box
+ * with c0 ≤ 0, non-finite data, a channel without a budget: inv_c = ∞). */
+/* The relative budget's 1/B_c per channel of a work-item's tiles (kernels below:
+ * budget_inverse), or 1 in each (absolute). */
+typedef struct {
+    floatL r, g, b;
+} inv3_t;
+
+/* b·inv, with a zero bound staying 0 (not 0·∞) */
+inline floatL scaled_bound(floatL b, floatL inv)
+{
+    return SEL_(b * inv, (floatL)(0.0f), (intL)(b == 0.0f));
+}
+
+inline floatL light_bound(const tile_t *t, float4 A, float4 B, float4 C, float4 E, float4 F,
+                          const inv3_t *inv)
 {
     /* distance from the light to the box (0 inside it) */
     const floatL dx = MAX_(t->lox - A.x, 0.0f) + MAX_(A.x - t->hix, 0.0f);
@@ -350,42 +366,54 @@ inline floatL light_bound(const tile_t *t, float4 A, float4 B, float4 C, float4 
                         + 4.0f * U_F32 * MUL_ADD(ABS_(cos_hi), (floatL)(F.x), (floatL)(ABS1_(F.y)));
     const floatL t_hi = MIN_(MAX_(x_hi, (floatL)(0.0f)), (floatL)(1.0f));
     const floatL cone = F.x > 0.0f ? t_hi * t_hi * (1.0f + 4.0f * U_F32) : (floatL)(1.0f);
-    const floatL b = MAX_(MAX_(br, bg), bb) * cone / p_lo * (1.0f + 32.0f * U_F32);
 #else
-    const floatL b = MAX_(MAX_(br, bg), bb) / p_lo * (1.0f + 32.0f * U_F32);
+    const floatL cone = (floatL)(1.0f);
 #endif
+    /* each channel in its budget's units (inv = 1: the same bits as unscaled); a zero
+       channel stays 0, and a bound that is 0 in every channel, or a zero cone, is 0
+       even where a channel's inv is ∞ */
+    const floatL scaled = MAX_(MAX_(scaled_bound(br, inv->r), scaled_bound(bg, inv->g)),
+                               scaled_bound(bb, inv->b));
+    const intL zero = (intL)(MAX_(MAX_(br, bg), bb) == 0.0f) | (intL)(cone == 0.0f);
+    const floatL b = SEL_(scaled * cone / p_lo * (1.0f + 32.0f * U_F32), (floatL)(0.0f), zero);
     /* no bound where p⁻ ≤ 0 or anything is NaN: keep the light */
     const floatL safe = SEL_((floatL)(INFINITY), b, (intL)((p_lo > 0.0f) & (b >= 0.0f)));
     return SEL_(safe, (floatL)(0.0f), t->empty);
 }
 
-/* The relative budget: 1/B of work-item i's tiles (B = 0: +inf, nothing but zero
- * bounds dropped), or 1 (absolute: bounds as they are). */
-inline floatL budget_inverse(__global const float *tile_budget, uint relative, size_t i)
+/* 1/B (B = 0: +inf, nothing but zero bounds dropped) */
+inline floatL inverse_budget(floatL B)
 {
-    if (!relative)
-        return (floatL)(1.0f);
-    const floatL B = vloadL(i, tile_budget);
     return SEL_((floatL)(INFINITY), 1.0f / B, (intL)(B > 0.0f));
 }
 
-/* b·inv, with a zero bound staying 0 (not 0·∞) */
-inline floatL scaled_bound(floatL b, floatL inv)
+/* The relative budget: 1/B_c of work-item i's tiles per channel (tile_floor's three
+ * planes from tile_budget on), or 1 (absolute: bounds as they are). */
+inline inv3_t budget_inverse(__global const float *tile_budget, uint relative, size_t i,
+                             uint n_tiles_pad)
 {
-    return SEL_(b * inv, (floatL)(0.0f), (intL)(b == 0.0f));
+    inv3_t v;
+    if (!relative) {
+        v.r = v.g = v.b = (floatL)(1.0f);
+        return v;
+    }
+    v.r = inverse_budget(vloadL(i, tile_budget));
+    v.g = inverse_budget(vloadL(i, tile_budget + n_tiles_pad));
+    v.b = inverse_budget(vloadL(i, tile_budget + 2 * (size_t)n_tiles_pad));
+    return v;
 }
 
 /* Light groups under the relative budget: the lights are in group order, so a walk
  * in light order moves to group g's budget plane once j reaches the previous group's end
  * (n_groups = 0: one group, nothing to do). */
-inline void next_group(uint j, uint *g, uint *g_end, floatL *inv, uint n_groups,
+inline void next_group(uint j, uint *g, uint *g_end, inv3_t *inv, uint n_groups,
                        __global const uint *point_end, __global const float *tile_budget,
                        uint n_tiles_pad, size_t i)
 {
     while (j >= *g_end) {
         *g += 1;
         *g_end = *g < n_groups ? point_end[*g] : 0xffffffffu;
-        *inv = budget_inverse(tile_budget + (size_t)(*g) * n_tiles_pad, 1u, i);
+        *inv = budget_inverse(tile_budget + 3 * (size_t)(*g) * n_tiles_pad, 1u, i, n_tiles_pad);
     }
 }
 
@@ -418,7 +446,8 @@ inline floatL interval_product_min(floatL a, floatL b, floatL lo, floatL hi)
 
 /* The relative budget's floor (clphong/device/culling.py, relative=True): per tile,
  * a proven lower bound T⁻_c of every shaded pixel's total in each channel c, and
- * the tile's budget scale·min_c T⁻_c, written to budget_out (output radiance). The
+ * the tile's budgets scale·T⁻_c, one plane per channel (three per light group), written
+ * to budget_out (output radiance). The
  * total's terms are all ≥ 0 where the host calls this (no negative radiance): the
  * specular terms are bounded below by 0, and every other term by
  *   ambient      A_c·min C_d,c;
@@ -427,10 +456,12 @@ inline floatL interval_product_min(floatL a, floatL b, floatL lo, floatL hi)
  *                the boxes)/d⁺ − the kernel's margin for n·l (light_bound's), and
  *                p⁺ = p(d⁺) for c0, c1, c2 ≥ 0 (p increasing); 0 for a spot (its cone
  *                is not bounded below) or any other falloff;
- * each rounded down (1 − 32u), and the float32 sum of n terms by (1 − 2nu). Only
- * lights count, not the light tree's representatives (F.z = 1, as pack_cull_lights marks
- * them): they stand for lights within an error, not below them, and the lights they
- * stand for add ≥ 0. A tile
+ *   cluster      a light tree's representative (F.w = r > 0: a ball of radius r about
+ *                its record holds every light it stands for, pack_cull_lights): as a
+ *                point light whose d⁻ is less r and d⁺ more r, and n·(L − P) less |n|·r.
+ *                Each of its lights y adds R_y·(n·u)⁺/p(d) ≥ R_y·NoL⁻/p⁺, and R = Σ R_y;
+ *                representatives marked F.z = 1 add 0;
+ * each rounded down (1 − 32u), and the float32 sum of n terms by (1 − 2nu). A tile
  * with a negative minimum of D, C_d or S, or a NaN in any of its pixels' inputs
  * (tile_bounds writes min D_r = −∞ then), has no floor: budget 0 (nothing dropped
  * that could matter). Lights are the candidates (the super-tile's kept lights at the fine
@@ -496,23 +527,31 @@ __kernel void tile_floor(__global const float *restrict tiles, const uint n_tile
             const float4 A = Lr[0], B = Lr[1], C = Lr[2], E = Lr[3], F = Lr[4];
             if (F.x != 0.0f || F.z != 0.0f || A.w < 0.0f || B.x < 0.0f
                 || B.y < 0.0f)
-                continue;  /* a spot, a representative or a coefficient float32 cannot hold
-                              to a relative u (F.z), a falloff not increasing in d */
+                continue;  /* a spot, a coefficient float32 cannot hold to a relative u
+                              (F.z), a falloff not increasing in d */
+            const float rad = F.w;         /* a cluster's ball (0: a light) */
             const floatL dx = MAX_(t.lox - A.x, 0.0f) + MAX_(A.x - t.hix, 0.0f);
             const floatL dy = MAX_(t.loy - A.y, 0.0f) + MAX_(A.y - t.hiy, 0.0f);
             const floatL dz = MAX_(t.loz - A.z, 0.0f) + MAX_(A.z - t.hiz, 0.0f);
-            const floatL d_lo = MAX_(MUL_ADD(sqrt(MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz))),
+            const floatL d_lo0 = MAX_(MUL_ADD(sqrt(MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz))),
                                              (floatL)(1.0f - 16.0f * U_F32),
                                              -2.0f * U_F32 * (t.R + E.x)), 0.0f);
             const floatL fx = MAX_(ABS_(t.lox - A.x), ABS_(t.hix - A.x));
             const floatL fy = MAX_(ABS_(t.loy - A.y), ABS_(t.hiy - A.y));
             const floatL fz = MAX_(ABS_(t.loz - A.z), ABS_(t.hiz - A.z));
-            const floatL d_hi = MUL_ADD(sqrt(MUL_ADD(fx, fx, MUL_ADD(fy, fy, fz * fz))),
+            const floatL d_hi0 = MUL_ADD(sqrt(MUL_ADD(fx, fx, MUL_ADD(fy, fy, fz * fz))),
                                         (floatL)(1.0f + 16.0f * U_F32), 2.0f * U_F32 * (t.R + E.x));
             const floatL lx = interval_product_min(t.nlox, t.nhix, A.x - t.hix, A.x - t.lox);
             const floatL ly = interval_product_min(t.nloy, t.nhiy, A.y - t.hiy, A.y - t.loy);
             const floatL lz = interval_product_min(t.nloz, t.nhiz, A.z - t.hiz, A.z - t.loz);
-            const floatL lb = (lx + ly + lz) - 8.0f * U_F32 * (ABS_(lx) + ABS_(ly) + ABS_(lz));
+            const floatL lb0 = (lx + ly + lz) - 8.0f * U_F32 * (ABS_(lx) + ABS_(ly) + ABS_(lz));
+            /* a cluster: every light within r of the record (|n| ≤ 1 + 16u; the sums'
+               and products' roundings: (1 ∓ 4u), 4u of the terms) */
+            const floatL d_lo = rad > 0.0f ? MAX_(d_lo0 - rad * (1.0f + 4.0f * U_F32), 0.0f)
+                                             * (1.0f - 4.0f * U_F32) : d_lo0;
+            const floatL d_hi = rad > 0.0f ? (d_hi0 + rad) * (1.0f + 4.0f * U_F32) : d_hi0;
+            const floatL lb = rad > 0.0f ? lb0 - rad * (1.0f + 16.0f * U_F32)
+                                           - 4.0f * U_F32 * (ABS_(lb0) + rad) : lb0;
             const floatL margin = U_F32 * (12.0f + 2.0f * (t.R + E.x) / d_lo);
             /* d⁻ = 0 (the light may be in the box): margin = +inf, no floor */
             const floatL NoL_lo = MAX_(SEL_(lb / d_hi - margin, (floatL)(0.0f),
@@ -526,13 +565,17 @@ __kernel void tile_floor(__global const float *restrict tiles, const uint n_tile
             Tg = MUL_ADD(C.z * w, Dmg, Tg);
             Tb = MUL_ADD(C.w * w, Dmb, Tb);
         }
-        const floatL T = MIN_(MIN_(Tr, Tg), Tb) * sum_low;
-        /* T ≥ 0 is false for NaN; MIN_ would pass over a NaN channel, so each is tested */
-        const intL ok = (intL)(!negative) & (intL)(T >= 0.0f) & (intL)(T < INFINITY)
-                        & (intL)(Tr == Tr) & (intL)(Tg == Tg) & (intL)(Tb == Tb)
-                        & (intL)(!t.empty);
-        vstoreL(SEL_((floatL)(0.0f), T * scale * (1.0f - 2.0f * U_F32), ok), i,
-                budget_out + g * n_tiles_pad);
+        /* T_c ≥ 0 is false for NaN; a tile without a floor in one channel gets none in
+           any (all its budgets 0) */
+        const intL ok = (intL)(!negative) & (intL)(Tr >= 0.0f) & (intL)(Tr < INFINITY)
+                        & (intL)(Tg >= 0.0f) & (intL)(Tg < INFINITY)
+                        & (intL)(Tb >= 0.0f) & (intL)(Tb < INFINITY) & (intL)(!t.empty);
+        /* (1 − 2u): the roundings of · sum_low and · scale */
+        const float k = scale * (1.0f - 2.0f * U_F32);
+        __global float *out = budget_out + 3 * (size_t)g * n_tiles_pad;
+        vstoreL(SEL_((floatL)(0.0f), Tr * sum_low * k, ok), i, out);
+        vstoreL(SEL_((floatL)(0.0f), Tg * sum_low * k, ok), i, out + n_tiles_pad);
+        vstoreL(SEL_((floatL)(0.0f), Tb * sum_low * k, ok), i, out + 2 * (size_t)n_tiles_pad);
     }
 }
 
@@ -560,7 +603,7 @@ __kernel void cull_count(__global const float *restrict tiles, const uint n_tile
        off the budget of 1), so that the thresholds below stay one per level */
     const float eps = relative ? usable_budget(1.0f, n_point) * (1.0f - 4.0f * U_F32)
                                : usable_budget(budget, n_point);
-    floatL inv = budget_inverse(tile_budget, relative, i);
+    inv3_t inv = budget_inverse(tile_budget, relative, i, n_tiles_pad);
     uint g = 0, g_end = n_groups ? point_end[0] : 0xffffffffu;
     float tau[CULL_LEVELS];
     floatL sum[CULL_LEVELS];
@@ -577,7 +620,7 @@ __kernel void cull_count(__global const float *restrict tiles, const uint n_tile
         const uint j = use_cand ? cand_lights[c] : c;
         const __global float4 *L = lights + CULL_LIGHT_FLOAT4S * j;
         next_group(j, &g, &g_end, &inv, n_groups, point_end, tile_budget, n_tiles_pad, i);
-        const floatL b = scaled_bound(light_bound(&t, L[0], L[1], L[2], L[3], L[4]), inv);
+        const floatL b = light_bound(&t, L[0], L[1], L[2], L[3], L[4], &inv);
         for (int m = 0; m < CULL_LEVELS; ++m) {
             const intL is_below = (intL)(b < tau[m]);
             sum[m] += SEL_((floatL)(0.0f), b, is_below);
@@ -633,7 +676,7 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
     const tile_t t = load_tiles(tiles, i, n_tiles_pad);
     const floatL tau = vloadL(i, tau_in);
     floatL left = vloadL(i, left_io);
-    floatL inv = budget_inverse(tile_budget, relative, i);
+    inv3_t inv = budget_inverse(tile_budget, relative, i, n_tiles_pad);
     uint g = 0, g_end = n_groups ? point_end[0] : 0xffffffffu;
     uint off[LANES], cnt[LANES];
     for (int m = 0; m < LANES; ++m) {
@@ -645,7 +688,7 @@ __kernel void cull_write(__global const float *restrict tiles, const uint n_tile
         const uint j = use_cand ? cand_lights[c] : c;
         const __global float4 *L = lights + CULL_LIGHT_FLOAT4S * j;
         next_group(j, &g, &g_end, &inv, n_groups, point_end, tile_budget, n_tiles_pad, i);
-        const floatL b = scaled_bound(light_bound(&t, L[0], L[1], L[2], L[3], L[4]), inv);
+        const floatL b = light_bound(&t, L[0], L[1], L[2], L[3], L[4], &inv);
         const intL at_or_above = (intL)(b >= tau);   /* b is never NaN (light_bound) */
         const intL greedy = at_or_above & (intL)(b <= left);
         left = SEL_(left, left - b, greedy);

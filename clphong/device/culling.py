@@ -121,7 +121,8 @@ def super_tiles(lanes: int) -> int:
     return max(SUPER, int(lanes))
 
 
-def pack_cull_lights(point: np.ndarray, n_point: int, representative=None) -> np.ndarray:
+def pack_cull_lights(point: np.ndarray, n_point: int, representative=None,
+                     radius=None) -> np.ndarray:
     """Cull records, 5 float4 per light (CULL_RECORD), from the float path's point records.
 
     The positions, coefficients and radiance are the float32 values the float
@@ -142,9 +143,12 @@ def pack_cull_lights(point: np.ndarray, n_point: int, representative=None) -> np
     * a spot's axis and cone ``(s, o)`` as the point record holds them (a point
       light's ``s = 0``: no cone), for the cone's bound of the factor t²;
     * 1 where a falloff coefficient is nonzero and below FLT_MIN, or where the record
-      is one of the light tree's representatives (``representative``: (n,) bool): the
-      relative budget's floor (``tile_floor``) leaves such a light out (a
-      representative stands for its lights within an error, not below them).
+      is one of the light tree's representatives (``representative``: (n,) bool) and
+      no ``radius`` is given: the relative budget's floor (``tile_floor``) leaves such
+      a light out;
+    * a representative's ``radius`` ((n,) float64, read at the representatives): the
+      radius of a ball about its float32 record's position that holds every light it
+      stands for (rounded up), with which ``tile_floor`` bounds their sum below.
     """
     rec = np.zeros((max(n_point, 1), CULL_RECORD, 4), np.float32)
     if n_point == 0:
@@ -185,8 +189,26 @@ def pack_cull_lights(point: np.ndarray, n_point: int, representative=None) -> np
     coef = np.abs(np.stack([c0, c1, c2], axis=1))
     rec[:, 4, 2] = ((coef > 0) & (coef < np.finfo(np.float32).tiny)).any(axis=1)
     if representative is not None:
-        rec[np.asarray(representative, bool)[:n_point], 4, 2] = 1
+        rep = np.asarray(representative, bool)[:n_point]
+        if radius is None:
+            rec[rep, 4, 2] = 1
+        else:
+            r = np.asarray(radius, np.float64)[:n_point][rep]
+            rec[rep, 4, 3] = np.nextafter(r.astype(np.float32), np.float32(np.inf))
     return rec.reshape(-1, 4)
+
+
+def cluster_radius(tree: LightTree, layout: "ExtendedLayout", records: np.ndarray,
+                   origin) -> np.ndarray:
+    """(n + K,) float64: for each representative's record, the radius of a ball about its
+    float32 (rebased) position that holds its node's box of lights (float64, rebased
+    as the tile boxes are), rounded up; 0 for the lights' records."""
+    pos = records.reshape(-1, POINT_RECORD, 4)[layout.node, 0, :3].astype(np.float64)
+    o = np.asarray(origin, np.float64)
+    far = np.maximum(np.abs(tree.hi - o - pos), np.abs(pos - (tree.lo - o)))
+    radius = np.zeros(len(layout.source))
+    radius[layout.node] = np.sqrt((far * far).sum(axis=1)) * (1 + 1e-9)
+    return radius
 
 
 @dataclass
@@ -291,16 +313,19 @@ def _merge_bounds(runtime, prog, fine, *, fine_tiles_x, fine_tiles_y, sup, tiles
 def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, tiles_x, tiles_y,
                 lanes, candidates=None, super_tiles=0, floor=None):
     """One level, from its tile records: capacities, lists. Returns (ranges (n, 2) uint32
-    host array, lists buffer, total kept, device seconds, the tiles' floors or None, the
-    budget each tile left unused (n,) float64: a lower bound, in units of the tile's
-    budget (relative: of ``budget`` times its floor), with the kernel's roundings taken
+    host array, lists buffer, total kept, device seconds, the tiles' floors or None
+    ((3, n), or (G, 3, n) with light groups: per channel), the budget each tile left
+    unused (n,) float64: a lower bound, in units of the tile's budget (relative: of
+    ``budget`` times its floor, in every channel), with the kernel's roundings taken
     off), or None when too long.
 
     ``floor``: the relative budget, ``budget`` a fraction of each pixel's own value:
     (directional records buffer, their number, ambient float4, the groups: their
     number and the point and directional ends, their ambient) for
-    kernels/cull.cl ``tile_floor``, which gives each tile ``budget·T⁻`` (T⁻ a proven
-    lower bound of its pixels' totals, scaled by :data:`FLOOR_SCALE`)."""
+    kernels/cull.cl ``tile_floor``, which gives each tile and channel ``budget·T⁻_c``
+    (T⁻_c a proven lower bound of its pixels' totals in that channel, scaled by
+    :data:`FLOOR_SCALE`); a light's bound is then taken per channel in units of that
+    channel's budget."""
     import pyopencl as cl
 
     ctx, queue = runtime.context, runtime.queue
@@ -320,7 +345,8 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
     events = list(bounds_events)
     n_groups = floor[3] if floor is not None else 0
     planes = max(n_groups, 1)
-    tile_budget = cl.Buffer(ctx, mf.READ_WRITE, planes * n_pad * 4 if floor is not None else 16)
+    # per light group, one plane per channel
+    tile_budget = cl.Buffer(ctx, mf.READ_WRITE, planes * 3 * n_pad * 4 if floor is not None else 16)
     if floor is not None:
         dirs, n_dir, ambient, _, pend, dend, gamb = floor
         k0 = runtime.kernel(prog, "tile_floor")
@@ -367,11 +393,12 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
     unused = np.maximum(unused * (1 - 64 * U) - 64 * U, 0.0)
     seconds = sum((e.profile.end - e.profile.start) * 1e-9 for e in events)
     floors = None
-    if floor is not None:          # the tiles' floors T⁻ (what tile_floor gave, over ε)
-        floors = np.zeros((planes, n_pad), np.float32)
+    if floor is not None:          # the tiles' floors T⁻_c (what tile_floor gave, over ε)
+        floors = np.zeros((planes, 3, n_pad), np.float32)
         cl.enqueue_copy(queue, floors, tile_budget).wait()
         # over ε alone: the floor the budget rests on (FLOOR_SCALE included); per group
-        floors = floors[:, :n_tiles].astype(np.float64) / budget if budget > 0 else None
+        # and channel
+        floors = floors[..., :n_tiles].astype(np.float64) / budget if budget > 0 else None
         if floors is not None and not n_groups:
             floors = floors[0]
     return ranges, lists, int(counts[:n_tiles].sum(dtype=np.int64)), seconds, floors, unused
@@ -579,7 +606,8 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
             t_ranges, t_lists, records, records64, clusters, covered, layout, tree_s = cut
             n_ext = len(records) // POINT_RECORD
             lb_ext = cl.Buffer(ctx, ro, hostbuf=pack_cull_lights(
-                records, n_ext, representative=layout.representative))
+                records, n_ext, representative=layout.representative,
+                radius=cluster_radius(tree.tree(), layout, records, frame.origin)))
             floor_ext = (None if floor is None
                          else relative.floor_args(ctx, point_end=layout.point_end))
             with_tree = fine_level(t_ranges, t_lists, lb_ext, n_ext,
@@ -648,11 +676,11 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
     """The super-tiles' lists with the tree's clusters: per super-tile, the cut of
     :func:`~clphong.model.light_tree.choose_cut` (found by
     :func:`~clphong.model.light_tree.threshold_cut` in large trees: TOP_DOWN_NODES)
-    within ``budget`` (a number, or one per
-    super-tile: the relative budget's; 0 takes no cluster); its clusters
+    within ``budget`` (a number, one per super-tile, or the relative budget's (3,
+    super-tiles): one per channel and super-tile; 0 takes no cluster); its clusters
     replace the lights they stand for, and the culled lights stay out. None where
     no cluster fits. With light groups (``point_end``: each group's end), a group's
-    clusters are its own lights' and use its own floor (``budget`` (G, super-tiles)),
+    clusters are its own lights' and use its own floors (``budget`` (G, 3, super-tiles)),
     and its representatives follow its lights (:class:`ExtendedLayout`).
 
     Returns (ranges, lists buffer, float32 records, float64 records, clusters,
@@ -675,15 +703,22 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
         budget: row by row (``pairs``), or t (T, 1) × every node."""
         part = TileBoxes(*(getattr(boxes, f)[s0 + (t if pairs else t[:, 0])]
                            for f in ("lo", "hi", "nlo", "nhi", "D", "S")))
-        b = cluster_bounds(tree, part, tin.spec, origin, k, pairs=pairs)
-        if budget_.ndim:
-            # per super-tile (and light group: a node's own group's floor): the bounds
-            # in units of its budget (none: +inf, no cluster)
+        if not budget_.ndim:
+            return cluster_bounds(tree, part, tin.spec, origin, k, pairs=pairs)
+        # per super-tile and channel (and light group: a node's own group's floors):
+        # each channel's bound in units of its budget (none: +inf, no cluster there)
+        if budget_.ndim == 1:                        # (super-tiles,): the absolute budget
+            share = budget_[s0 + t][..., None]
+        elif budget_.ndim == 2:                      # (3, super-tiles)
+            share = np.moveaxis(budget_[:, s0 + t], 0, -1)
+        else:                                        # (G, 3, super-tiles)
             g = tree.group if k is None else tree.group[k]
-            share = budget_[s0 + t] if budget_.ndim == 1 else budget_[g, s0 + t]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                b = np.where(share > 0, b / np.where(share > 0, share, 1.0) * (1 + 1e-12), np.inf)
-        return b
+            share = budget_[g, :, s0 + t]
+        with np.errstate(divide="ignore"):
+            scale = np.where(share > 0, (1 + 1e-12) / np.where(share > 0, share, 1.0), np.inf)
+        if pairs:
+            scale = scale[:, None]
+        return cluster_bounds(tree, part, tin.spec, origin, k, pairs=pairs, channel_scale=scale)
 
     limit = 1.0 if budget_.ndim else float(budget)     # the bounds' units
     new_lists, clusters, covered_n = [], 0, 0

@@ -413,7 +413,7 @@ def specular_cosine(tiles: TileBoxes, blo, bhi, spec: SpecularModel):
 
 def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
                    origin, nodes: np.ndarray | None = None, *, pairs: bool = False,
-                   parts: dict | None = None) -> np.ndarray:
+                   parts: dict | None = None, channel_scale=None) -> np.ndarray:
     """(T, K) upper bounds of the error of using each internal node's representative
     for its lights, for any pixel and channel of each tile (see the module docstring);
     +inf where no bound holds, 0 for empty tiles. ``nodes``: a subset of the
@@ -424,7 +424,11 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
     diffuse term and its three bounds (range, first and second order; the term is
     their least; ``diffuse_second_F`` is the second order's Λ·F part), and, where the
     tiles have specular, the specular term (× S) and its range and smooth (first or
-    second order) bounds."""
+    second order) bounds. ``channel_scale``: each channel's bound is multiplied by it
+    before the largest is taken (broadcast against (T, K, 3), or (P, 1, 3) with
+    ``pairs``; +inf: no budget there), so that the bound is in units of each
+    channel's own budget (the relative budget's per-channel floors); a channel whose
+    bound is 0 stays 0."""
     k = np.arange(tree.n_nodes) if nodes is None else np.asarray(nodes)
     o = np.asarray(origin, np.float64)
     # a node's arrays face the tiles' (T, 1, …) as (1, K, …), or row by row as (P, 1, …)
@@ -503,6 +507,8 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
                                         spec, slopes, spot=(t2, spot_lip, spot_hess, smooth_t),
                                         parts=parts, S=S)
         e = e + U * Rk * A_lo[..., None] * (D + S)
+        if channel_scale is not None:
+            e = np.where(e == 0, 0.0, e * channel_scale)
         b = _max3(e) * (1 + 1e-6)
     b = np.where(np.isfinite(b) & (d_lo > 0), b, np.inf)
     b = np.where(dark, 0.0, b)

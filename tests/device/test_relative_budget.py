@@ -83,27 +83,34 @@ def check_relative_holds(scene, gbuffer, eps, *, group_totals=False, **kw):
     return r, share, result.cull
 
 
+def least_totals(T, of, n):
+    """(3, n): per tile (``of``: each shaded pixel's) and channel, the least total of its
+    pixels (+inf where it has none)."""
+    low = np.full((3, n), np.inf)
+    for c in range(3):
+        np.minimum.at(low[c], of, T[:, c])
+    return low
+
+
 def check_floors(renderer, gbuffer, cull, T):
-    """Each tile's and super-tile's floor is at most the least total of its pixels, over
-    the channels (and 0 where a total is negative): the proof's premise, term by term
-    (a wrong ambient, directional or point-light term shows here even where the
-    budget would still hold)."""
+    """Each tile's and super-tile's floor in each channel is at most the least total of
+    its pixels in that channel (and 0 where a total is negative): the proof's premise,
+    term by term (a wrong ambient, directional or point-light term shows here even
+    where the budget would still hold)."""
     from clphong.device.culling import super_tiles, tile_of_pixels
 
     tile = tile_of_pixels(gbuffer.shape, renderer.lanes).reshape(-1)
     tile = tile[~gbuffer.background_mask().reshape(-1)]
-    least = T.min(axis=1)
     sup = super_tiles(renderer.lanes)
     per_row = cull.tiles_x // sup
     supert = (tile // cull.tiles_x // sup) * per_row + (tile % cull.tiles_x) // sup
     for floors, of in ((cull.floors, tile), (cull.coarse_floors, supert)):
-        assert floors is not None
-        low = np.full(floors.shape[-1], np.inf)
-        np.minimum.at(low, of, least)
-        shaded = np.isfinite(low)
-        over = floors[..., shaded] > np.maximum(low[shaded], 0.0) * (1 + F64_SLACK)
-        assert not over.any(), f"a floor above its least total: {floors[..., shaded][over][:3]}" \
-                               f" > {np.broadcast_to(low[shaded], over.shape)[over][:3]}"
+        assert floors is not None and floors.shape[0] == 3
+        low = least_totals(T, of, floors.shape[-1])
+        shaded = np.isfinite(low[0])
+        over = floors[:, shaded] > np.maximum(low[:, shaded], 0.0) * (1 + F64_SLACK)
+        assert not over.any(), f"a floor above its least total: {floors[:, shaded][over][:3]}" \
+                               f" > {low[:, shaded][over][:3]}"
 
 
 def _uniform_lights(n_dim, eps):
@@ -116,13 +123,14 @@ def _uniform_lights(n_dim, eps):
                           attenuation=att) for _ in range(n_dim)]
 
 
-def _uniform_tile(n_dim, eps, *, size=16):
+def _uniform_tile(n_dim, eps, *, size=16, albedo=(0.5, 0.5, 0.5)):
     """Every pixel at one point with one normal (the tile's boxes are points: bound and
     floor are exact up to their roundings), lit by one light overhead and ``n_dim``
-    identical dim lights beside it, each ε/1000 of the pixel's total."""
+    identical dim lights beside it, each ε/1000 of the pixel's total (white lights: in
+    every channel, whatever the ``albedo``)."""
     P = np.zeros((size, size, 3))
     N = np.broadcast_to([0.0, 0.0, 1.0], P.shape)
-    gb = make_gbuffer(P, N, np.full(P.shape, 0.5))
+    gb = make_gbuffer(P, N, np.broadcast_to(np.asarray(albedo, np.float64), P.shape).copy())
     att = (1.0, 0.0, 1.0)
     main = dict(type="point", position=(0.0, 0.0, 1.0), intensity=2.0, attenuation=att)
     # main at d = 1: 2·0.5·0.8/2 = 0.4; a dim light at (0, 0, 1) too: I·0.4/2 each
@@ -140,6 +148,17 @@ def test_the_culler_comes_close_to_the_relative_budget_where_the_floor_is_tight(
     _, share, cull = check_relative_holds(scene, gb, eps)
     # ~ε/4 at the super-tiles and ~3ε/4 at the tiles, less the sums' rounding margins
     assert share.max() >= 0.95, share.max()
+    assert cull.kept_fraction < 0.6
+
+
+def test_each_channel_is_held_to_its_own_floor():
+    """A green channel 100x darker than red and blue: each channel's dropped sum comes
+    close to ε of its own value, not ε of the darkest channel's. With one floor for all
+    channels (the least, as before 2026-12-07) red and blue dropped about 1 % of their ε."""
+    eps = 1e-2
+    scene, gb = _uniform_tile(2000, eps, albedo=(0.5, 0.005, 0.5))
+    _, share, cull = check_relative_holds(scene, gb, eps)
+    assert share.max(axis=0).min() >= 0.95, share.max(axis=0)
     assert cull.kept_fraction < 0.6
 
 
@@ -177,21 +196,19 @@ def test_relative_budget_holds_on_a_wavy_surface(eps):
 
 
 def test_the_floor_is_near_the_tiles_least_total_on_the_bench_scene():
-    """On the bench's wide scene (a gently waved plane) the proven floor is within a
-    factor 2 of each tile's least total (measured 0.65-0.90), so there the relative
-    budget asks for what it says; it never exceeds that least total."""
+    """On the bench's wide scene (a gently waved plane) the proven floor of each channel
+    is within a factor 2 of each tile's least total in that channel, so there the
+    relative budget asks for what it says; it never exceeds that least total."""
     from clphong.device.culling import tile_of_pixels
     from clphong.tools.bench_scenes import bench_gbuffer, bench_scene
 
     gb = bench_gbuffer(480, 270, 64)
     scene = bench_scene("wide", 256)
     r, _, cull = check_relative_holds(scene, gb, 1e-2)
-    least = totals(scene, gb).min(axis=1)
     tile = tile_of_pixels(gb.shape, r.lanes).reshape(-1)[~gb.background_mask().reshape(-1)]
-    t_min = np.full(cull.n_tiles, np.inf)
-    np.minimum.at(t_min, tile, least)
-    shaded = np.isfinite(t_min)
-    ratio = cull.floors[shaded] / t_min[shaded]
+    t_min = least_totals(totals(scene, gb), tile, cull.n_tiles)
+    shaded = np.isfinite(t_min[0])
+    ratio = cull.floors[:, shaded] / t_min[:, shaded]
     assert ratio.max() <= 1.0 and ratio.min() >= 0.5, (ratio.min(), ratio.max())
 
 
@@ -261,6 +278,66 @@ def test_the_light_tree_keeps_the_relative_budget(seed, eps, monkeypatch):
     bound, _ = reference.error_bound(scene, gb, origin=frame.origin,
                                      plan=r.plan_for(frame.map_names, culling=False))
     assert np.all(np.abs(result.image - ref) <= eps * np.abs(ref) + bound)
+    # the tiles' floors count the clusters (their lights' sum bounded below over a ball)
+    check_floors(r, gb, cull, T)
+
+
+def test_clusters_count_in_the_tiles_floors(monkeypatch):
+    """A tile's candidates under the tree are mostly representatives. Counted through
+    the ball holding their lights, the tiles' floors are above their super-tile's
+    (which count every light over a box 16x wider): median 1.48x, measured. Left out
+    (as before 2026-12-07) they were the ambient term and a few lights': 0.58x. Both
+    stay under the least totals."""
+    from test_tree_cut import clustered_scene
+
+    from clphong.device.culling import super_tiles, tile_of_pixels
+
+    monkeypatch.setattr(culling, "TREE_ABOVE", 0.0)
+    rng = np.random.default_rng(3)
+    scene = clustered_scene(rng)
+    gb = heightfield(rng, 64, 96, bumps=0.1)
+    T = totals(scene, gb)
+
+    def ratios():
+        r = Renderer(scene, max_error=1e-2, relative=True, light_tree="always")
+        cull = r.shade(prepare_frame(gb, lanes=r.lanes)).cull
+        assert cull.clusters > 0
+        check_floors(r, gb, cull, T)
+        tile = np.unique(tile_of_pixels(gb.shape, r.lanes).reshape(-1)[
+            ~gb.background_mask().reshape(-1)])
+        sup = super_tiles(r.lanes)
+        st = (tile // cull.tiles_x // sup) * (cull.tiles_x // sup) + (tile % cull.tiles_x) // sup
+        return np.median(cull.floors[:, tile] / cull.coarse_floors[:, st])
+
+    with_clusters = ratios()
+    monkeypatch.setattr(culling, "cluster_radius", lambda *a: None)
+    without = ratios()
+    assert with_clusters >= 1.0 and without < 0.7, (with_clusters, without)
+
+
+def test_a_clusters_ball_holds_its_lights():
+    """cluster_radius: every light of a node lies within its radius of the node's float32
+    record (the premise of the clusters' floor terms)."""
+    from test_tree_cut import clustered_scene
+
+    from clphong.device.culling import ExtendedLayout, cluster_radius
+    from clphong.model.light_tree import build_light_tree, covered_leaves, representative_records
+
+    scene = clustered_scene(np.random.default_rng(4), spread=0.5)
+    tree = build_light_tree(scene.light_arrays)
+    origin = np.array([0.3, -0.2, 1.0])
+    rep32, _ = representative_records(tree, origin)
+    layout = ExtendedLayout.of(tree, tree.n_leaves)
+    lights = np.zeros((tree.n_leaves * 4, 4), np.float32)
+    records = layout.records(lights, rep32)
+    radius = cluster_radius(tree, layout, records, origin)
+    pos = np.asarray(scene.light_arrays["point_position"], np.float64) - origin
+    members = covered_leaves(tree, np.eye(tree.n_nodes, dtype=bool))    # (K, n)
+    rec_pos = records.reshape(-1, 4, 4)[layout.node, 0, :3].astype(np.float64)
+    for k in range(tree.n_nodes):
+        d = np.linalg.norm(pos[members[k]] - rec_pos[k], axis=1)
+        assert d.max() <= radius[layout.node[k]], k
+    assert (radius[layout.light] == 0).all()
 
 
 def test_negative_albedo_has_no_floor():
@@ -280,8 +357,8 @@ def test_negative_albedo_has_no_floor():
     r, _, cull = check_relative_holds(scene, gb, 1e-1)
     tiles = tile_of_pixels(gb.shape, r.lanes)
     bad = tiles[3, 4]
-    assert cull.floors[bad] == 0.0
-    assert cull.floors[tiles[35, 35]] > 0.0             # another tile: a floor of its own
+    assert (cull.floors[:, bad] == 0.0).all()
+    assert (cull.floors[:, tiles[35, 35]] > 0.0).all()  # another tile: floors of its own
     frame = prepare_frame(gb, lanes=r.lanes)
     brute = Renderer(scene).shade(frame).image
     mine = tiles == bad
@@ -311,7 +388,7 @@ def test_every_light_group_keeps_its_own_relative_budget(eps):
     scene = make_scene(lights, model="phong", h=10.0, k_a=0.5)
     assert scene.light_groups == ("key", "fill")
     r, _, cull = check_relative_holds(scene, gb, eps, group_totals=True)
-    assert cull.floors.shape[0] == 2
+    assert cull.floors.shape[:2] == (2, 3)
     ends = scene.light_arrays["point_group_end"]
     for g, name in enumerate(scene.light_groups):
         members = set(range(ends[g - 1] if g else 0, ends[g]))
@@ -429,8 +506,8 @@ def test_a_nan_in_a_tile_leaves_it_without_a_floor():
         result = r.render(gb)
     tiles = tile_of_pixels(gb.shape, r.lanes)
     bad = tiles[20, 7]
-    assert result.cull.floors[bad] == 0.0
-    assert result.cull.floors[tiles[2, 35]] > 0.0
+    assert (result.cull.floors[:, bad] == 0.0).all()
+    assert (result.cull.floors[:, tiles[2, 35]] > 0.0).all()
     with pytest.warns(UserWarning, match="non-finite"):
         brute = Renderer(scene, nonfinite="pass").render(gb).image
     mine = tiles == bad
