@@ -273,6 +273,52 @@ def test_spots_of_one_cone_take_clusters(seed, eps, inner, outer, tilt):
     assert np.all(tree.cone[:, 3] > 0)                        # every node is a spot's
 
 
+@pytest.mark.parametrize("case", ["grey", "colour", "blinn", "spots", "groups", "relative"])
+def test_the_blocks_cut_keeps_the_budget(case, monkeypatch):
+    """Where the super-tiles' cuts leave long lists, the cut is made again per block of
+    BLOCK_TILES² tiles with all the budget the super-tiles' culling left, and its lists
+    are the tiles' own (BLOCK_ENTRIES = 0: every frame here). The lists' float64 sums
+    stay within ε of the full sums (per group layer and relative to each pixel where
+    asked), and the pixels within ε + the error model of the reference."""
+    monkeypatch.setattr(culling, "BLOCK_ENTRIES", 0)
+    rng = np.random.default_rng(11)
+    gb = heightfield(rng, 64, 96, bumps=0.1)
+    if case == "spots":
+        scene = make_scene(spot_rig(rng, inner=10.0, outer=60.0, tilt=(0.4, -0.2, -1.0)),
+                           model="phong", k_s=0.05, h=16.0,
+                           camera=dict(type="perspective", position=(2.0, 1.5, 8.0)))
+    elif case in ("groups", "relative"):
+        scene = grouped(clustered_scene(rng, grey=True), fill=1e-3 if case == "relative" else 1.0)
+    else:
+        scene = clustered_scene(rng, grey=case == "grey", model="blinn-phong" if case == "blinn"
+                                else "phong", k_s=0.2 if case == "blinn" else 0.05)
+    eps = 3e-2
+    if case in ("groups", "relative"):
+        relative = case == "relative"
+        r = Renderer(scene, max_error=eps, relative=relative, light_tree="always")
+        result = r.shade(prepare_frame(gb, lanes=r.lanes))
+        assert result.cull.clusters > 0 and result.cull.tree_blocks
+        check_group_layers(scene, gb, r, result, eps, relative=relative)
+        return
+    _, cull, _ = check_tree_budget(scene, gb, eps)
+    assert cull.tree_blocks and cull.covered > cull.clusters
+
+
+def test_the_blocks_cut_shortens_long_lists(monkeypatch):
+    """Blocks of 4×4 tiles take fewer entries than the super-tiles' cut and the tiles'
+    culling after it, on a frame whose lists are long (a cut over a smaller box is
+    coarser); with BLOCK_ENTRIES above every list, the blocks' cut is not made."""
+    rng = np.random.default_rng(12)
+    scene = clustered_scene(rng, n_clusters=8, per=150, spread=0.4, height=6.0)
+    gb = heightfield(rng, 128, 160, bumps=0.1)
+    monkeypatch.setattr(culling, "BLOCK_ENTRIES", 10 ** 9)
+    supers = Renderer(scene, max_error=1e-3, light_tree="always").render(gb).cull
+    monkeypatch.setattr(culling, "BLOCK_ENTRIES", 0)
+    blocks = Renderer(scene, max_error=1e-3, light_tree="always").render(gb).cull
+    assert not supers.tree_blocks and blocks.tree_blocks
+    assert blocks.kept < supers.kept, (blocks.kept, supers.kept)
+
+
 def test_spots_with_other_cones_never_share_a_node():
     """Spots whose axes or angles differ, points and spots: never in one node."""
     rng = np.random.default_rng(2)
