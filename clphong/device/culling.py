@@ -39,6 +39,7 @@ from ..model.light_tree import (
     representative_records,
     threshold_cut,
 )
+from .nodebound import DeviceNodeTerms
 from .runtime import float4
 
 #: float4s per point-light record (POINT_LIGHT_FLOAT4S in kernels/include/clphong.h):
@@ -97,6 +98,9 @@ PROBE_EVERY = 8
 #: (tests/device/test_bands.py's frame, 400 lights: 47.8 % kept against 36.5 %), and
 #: there the pass without the tree wins; the choice changes only speed, never the bound.
 PROBE_MARGIN = 2.0
+#: The host's cut takes its node bounds' terms from kernels/node_bound.cl where the
+#: device computes in double and the tree has no spot's cone (False: numpy always).
+NODE_TERMS_ON_DEVICE = True
 #: Super-tiles per chunk of the host's cut (its tables are (chunk, nodes) bool; the
 #: bounds are formed PAIR_CHUNK pairs at a time, clphong.model.light_tree).
 TREE_CHUNK = 64
@@ -773,14 +777,28 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
     cl.enqueue_copy(runtime.queue, flat, c_lists).wait()
     layout = ExtendedLayout.of(tree, n_point, point_end)
     budget_ = np.asarray(budget, np.float64)
+    # the terms in double on the device where it can (kernels/node_bound.cl), else numpy
+    device = (DeviceNodeTerms(runtime, tree, tin.spec, origin, boxes)
+              if NODE_TERMS_ON_DEVICE and DeviceNodeTerms.usable(runtime, tree) else None)
+
+    def terms(t, k, s0, pairs):
+        if device is None:
+            return None
+        rows = s0 + (t if pairs else t[:, 0])
+        if pairs:
+            return device(rows, k)[:, None, :]
+        kk = np.arange(tree.n_nodes) if k is None else np.asarray(k)
+        return device(np.repeat(rows, len(kk)), np.tile(kk, len(rows))).reshape(
+            len(rows), len(kk), 3)
 
     def bound(t, k, s0, pairs=False):
         """The bounds of super-tiles s0 + t with nodes k (all: None), in units of the
         budget: row by row (``pairs``), or t (T, 1) × every node."""
         part = TileBoxes(*(getattr(boxes, f)[s0 + (t if pairs else t[:, 0])]
                            for f in ("lo", "hi", "nlo", "nhi", "D", "S")))
+        e = terms(t, k, s0, pairs)
         if not budget_.ndim:
-            return cluster_bounds(tree, part, tin.spec, origin, k, pairs=pairs)
+            return cluster_bounds(tree, part, tin.spec, origin, k, pairs=pairs, terms=e)
         # per super-tile and channel (and light group: a node's own group's floors):
         # each channel's bound in units of its budget (none: +inf, no cluster there)
         if budget_.ndim == 1:                        # (super-tiles,): the absolute budget
@@ -794,7 +812,8 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
             scale = np.where(share > 0, (1 + 1e-12) / np.where(share > 0, share, 1.0), np.inf)
         if pairs:
             scale = scale[:, None]
-        return cluster_bounds(tree, part, tin.spec, origin, k, pairs=pairs, channel_scale=scale)
+        return cluster_bounds(tree, part, tin.spec, origin, k, pairs=pairs, channel_scale=scale,
+                              terms=e)
 
     limit = 1.0 if budget_.ndim else float(budget)     # the bounds' units
     new_lists, clusters, covered_n = [], 0, 0

@@ -413,7 +413,7 @@ def specular_cosine(tiles: TileBoxes, blo, bhi, spec: SpecularModel):
 
 def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
                    origin, nodes: np.ndarray | None = None, *, pairs: bool = False,
-                   parts: dict | None = None, channel_scale=None) -> np.ndarray:
+                   parts: dict | None = None, channel_scale=None, terms=None) -> np.ndarray:
     """(T, K) upper bounds of the error of using each internal node's representative
     for its lights, for any pixel and channel of each tile (see the module docstring);
     +inf where no bound holds, 0 for empty tiles. ``nodes``: a subset of the
@@ -428,7 +428,30 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
     before the largest is taken (broadcast against (T, K, 3), or (P, 1, 3) with
     ``pairs``; +inf: no budget there), so that the bound is in units of each
     channel's own budget (the relative budget's per-channel floors); a channel whose
-    bound is 0 stays 0."""
+    bound is 0 stays 0. ``terms``: the per-channel bounds already formed, as
+    :func:`cluster_terms` gives them (kernels/node_bound.cl's, read back), for
+    ``tiles`` × ``nodes`` as given here."""
+    if terms is None:
+        terms = cluster_terms(tree, tiles, spec, origin, nodes, pairs=pairs, parts=parts)
+    e = np.asarray(terms, np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        if channel_scale is not None:
+            e = np.where(e == 0, 0.0, e * channel_scale)
+        b = _max3(e) * (1 + 1e-6)
+    b = np.where(np.isnan(b), np.inf, b)
+    empty = (tiles.lo > tiles.hi).any(axis=1)
+    b = np.where(empty[:, None], 0.0, b)
+    return b[:, 0] if pairs else b
+
+
+def cluster_terms(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
+                  origin, nodes: np.ndarray | None = None, *, pairs: bool = False,
+                  parts: dict | None = None) -> np.ndarray:
+    """(T, K, 3) (or (P, 1, 3) with ``pairs``) :func:`cluster_bounds`' bound of each
+    channel, before its largest is taken: 0 in every channel where the box pair is
+    surely dark, +inf where no bound holds (the boxes touch, d⁻ = 0), NaN where an
+    input is not finite. kernels/node_bound.cl ``node_terms`` computes the same in
+    double on the device."""
     k = np.arange(tree.n_nodes) if nodes is None else np.asarray(nodes)
     o = np.asarray(origin, np.float64)
     # a node's arrays face the tiles' (T, 1, …) as (1, K, …), or row by row as (P, 1, …)
@@ -441,7 +464,6 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
     with np.errstate(invalid="ignore"):
         tlo = (tiles.lo - pad)[:, None]              # (T, 1, 3)
         thi = (tiles.hi + pad)[:, None]
-    empty = (tiles.lo > tiles.hi).any(axis=1)
     gap = np.maximum(blo - thi, 0) + np.maximum(tlo - bhi, 0)
     d_lo = np.sqrt(_sum3(gap * gap))                 # (T, K)
     c0, c1, c2 = (side(tree.attenuation[k, i]) for i in range(3))
@@ -507,13 +529,8 @@ def cluster_bounds(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
                                         spec, slopes, spot=(t2, spot_lip, spot_hess, smooth_t),
                                         parts=parts, S=S)
         e = e + U * Rk * A_lo[..., None] * (D + S)
-        if channel_scale is not None:
-            e = np.where(e == 0, 0.0, e * channel_scale)
-        b = _max3(e) * (1 + 1e-6)
-    b = np.where(np.isfinite(b) & (d_lo > 0), b, np.inf)
-    b = np.where(dark, 0.0, b)
-    b = np.where(empty[:, None], 0.0, b)
-    return b[:, 0] if pairs else b
+    e = np.where((d_lo > 0)[..., None], e, np.inf)       # the boxes touch (or NaN): none
+    return np.where(dark[..., None], 0.0, e)
 
 
 def spot_factor_bounds(cone, tlo, thi, blo, bhi):

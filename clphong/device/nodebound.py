@@ -1,0 +1,95 @@
+"""The light tree's node bounds on the device (kernels/node_bound.cl ``node_terms``).
+
+The host's cut (clphong/device/culling.py ``_tree_cut``) bounds thousands of
+(tile, node) pairs per tile; :func:`~clphong.model.light_tree.cluster_terms`, in
+float64 numpy, costs about 1–2 µs a pair. The kernel computes the same terms in
+double, one work-item a pair, for the tree's point-light nodes; the host takes
+their largest channel as before (:func:`~clphong.model.light_tree.cluster_bounds`
+``terms=``). Nodes with a spot's cone, and devices without double, keep the numpy
+form.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.floats import U
+from ..model.light_tree import LightTree, SpecularModel, TileBoxes
+
+#: Doubles per tile record (TILE_DOUBLES) and per node record before its falloff's
+#: turning points (NODE_DOUBLES), kernels/node_bound.cl.
+TILE_DOUBLES = 18
+NODE_DOUBLES = 21
+#: Work-items per work-group.
+LOCAL = 64
+
+
+def node_records(tree: LightTree, origin) -> np.ndarray:
+    """(K, NODE_DOUBLES + turning points) float64: each node's box (rebased), falloff,
+    radiance and moments with its float32 record's roundings added, as
+    :func:`~clphong.model.light_tree.cluster_terms` forms them."""
+    o = np.asarray(origin, np.float64)
+    Rk = tree.radiance
+    rp = U * (np.abs(tree.position - o).max(axis=1) + np.abs(o).max())[..., None]
+    M = tree.moment + Rk * rp
+    F = tree.first + Rk * rp
+    Q = tree.quadratic + Rk * rp * (rp + 2 * tree.moment / np.maximum(Rk, 1e-300))
+    one, two = tree.peaks
+    return np.ascontiguousarray(np.concatenate(
+        [tree.lo - o, tree.hi - o, tree.attenuation, Rk, M, F, Q, one, two], axis=1), np.float64)
+
+
+def tile_records(tiles: TileBoxes) -> np.ndarray:
+    """(T, TILE_DOUBLES) float64: each tile's boxes of P and n, D and S."""
+    return np.ascontiguousarray(np.concatenate(
+        [tiles.lo, tiles.hi, tiles.nlo, tiles.nhi, tiles.D,
+         np.broadcast_to(tiles.S, tiles.D.shape)], axis=1), np.float64)
+
+
+class DeviceNodeTerms:
+    """``node_terms`` for a set of tiles and a tree: called with pair rows ``t`` (tile
+    indices) and ``k`` (node indices), it returns their (P, 3) terms."""
+
+    def __init__(self, runtime, tree: LightTree, spec: SpecularModel, origin, tiles: TileBoxes):
+        import pyopencl as cl
+
+        self.runtime = runtime
+        one, two = tree.peaks
+        lobe = spec.exponent is not None and spec.exponent >= 1
+        self.K = float(spec.exponent) if lobe else 0.0
+        self.eye = np.asarray(spec.eye, np.float64)
+        self.prog = runtime.program("node_bound.cl", {
+            "N_ONE": one.shape[1], "N_TWO": two.shape[1], "LOBE": int(lobe),
+            "BLINN": int(spec.blinn), "FRESNEL": int(spec.fresnel),
+            "PERSPECTIVE": int(spec.perspective)})
+        ro = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+        nodes = node_records(tree, origin)
+        self.node_doubles = nodes.shape[1]
+        self.nodes = cl.Buffer(runtime.context, ro, hostbuf=nodes)
+        self.tiles = cl.Buffer(runtime.context, ro, hostbuf=tile_records(tiles))
+
+    @staticmethod
+    def usable(runtime, tree: LightTree) -> bool:
+        """Whether the device can bound this tree's nodes: double, and no spot's cone."""
+        return bool(runtime.has_fp64) and not (tree.cone[:, 3] > 0).any()
+
+    def __call__(self, t, k) -> np.ndarray:
+        import pyopencl as cl
+
+        t = np.ascontiguousarray(t, np.uint32).reshape(-1)
+        k = np.ascontiguousarray(k, np.uint32).reshape(-1)
+        n = len(t)
+        out = np.empty((n, 3), np.float64)
+        if n == 0:
+            return out
+        ctx, queue = self.runtime.context, self.runtime.queue
+        ro = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+        tb, kb = cl.Buffer(ctx, ro, hostbuf=t), cl.Buffer(ctx, ro, hostbuf=k)
+        ob = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
+        kern = self.runtime.kernel(self.prog, "node_terms")
+        with self.runtime.lock:
+            kern.set_args(self.tiles, self.nodes, np.uint32(self.node_doubles), tb, kb,
+                          np.uint32(n), *(np.float64(x) for x in self.eye), np.float64(self.K), ob)
+            ev = cl.enqueue_nd_range_kernel(queue, kern, (-(-n // LOCAL) * LOCAL,), (LOCAL,))
+        cl.enqueue_copy(queue, out, ob, wait_for=[ev]).wait()
+        return out

@@ -1,0 +1,279 @@
+/* The light tree's node bounds on the device, in double: one work-item per
+ * (tile, node) pair, each channel's bound of the error of using the node's
+ * representative for its lights over the tile's boxes.
+ *
+ * This is clphong/model/light_tree.py cluster_terms, line for line, for point
+ * lights (the tree's nodes without a spot's cone; the host bounds those). Its
+ * float64 numpy form is the reference: tests/device/test_node_bound.py holds the
+ * two together on random pairs. The derivation is in light_tree.py's module
+ * docstring and docs/error-model.md; every constant there is the same here. The
+ * bound carries its own slack (1 + 10⁻⁶, and the margins in U for the float32
+ * shading), far above double's roundings, so libm's last-ulp differences from
+ * numpy's move it by ~10⁻¹⁵ relative and nothing else.
+ *
+ * Tile records (TILE_DOUBLES, rebased): lo[3] hi[3] nlo[3] nhi[3] D[3] S[3].
+ * Node records (NODE_DOUBLES + the falloff's turning points): lo[3] hi[3] (rebased)
+ * c0 c1 c2, R[3], M[3], F[3], Q[3] (the moments with the record's float32
+ * roundings already added, as cluster_terms adds them), then N_ONE turning points
+ * of A′ and N_TWO of A″ (NaN: none).
+ *
+ * Defines (clphong/device/nodebound.py): N_ONE, N_TWO; LOBE (1: the lobe's exponent
+ * K ≥ 1 is the argument K; 0: a shininess map or K < 1, the range alone), BLINN,
+ * FRESNEL, PERSPECTIVE.
+ */
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+
+#define TILE_DOUBLES 18
+#define NODE_DOUBLES 21
+#define U_D 5.9604644775390625e-8          /* 2^-24: clphong.core.floats.U */
+#define SLOPE_SLACK_D 1e-9                 /* clphong.model.falloff.SLOPE_SLACK */
+#define PI_D 3.141592653589793
+
+typedef struct {
+    double x, y, z;
+} v3;
+
+inline v3 mk(double x, double y, double z) { v3 r = {x, y, z}; return r; }
+inline double sum3(v3 a) { return a.x + a.y + a.z; }
+inline double max3(v3 a) { return fmax(fmax(a.x, a.y), a.z); }
+inline v3 sub(v3 a, v3 b) { return mk(a.x - b.x, a.y - b.y, a.z - b.z); }
+inline v3 add(v3 a, v3 b) { return mk(a.x + b.x, a.y + b.y, a.z + b.z); }
+inline v3 scl(v3 a, double s) { return mk(a.x * s, a.y * s, a.z * s); }
+inline double dot(v3 a, v3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+inline v3 load3(__global const double *p) { return mk(p[0], p[1], p[2]); }
+/* numpy's maximum/minimum propagate NaN; OpenCL's fmax/fmin do not: these do */
+inline double nmax(double a, double b) { return (a != a || b != b) ? NAN : (a > b ? a : b); }
+inline double nmin(double a, double b) { return (a != a || b != b) ? NAN : (a < b ? a : b); }
+inline v3 vmax(v3 a, v3 b) { return mk(nmax(a.x, b.x), nmax(a.y, b.y), nmax(a.z, b.z)); }
+inline v3 vmin(v3 a, v3 b) { return mk(nmin(a.x, b.x), nmin(a.y, b.y), nmin(a.z, b.z)); }
+inline v3 vabs(v3 a) { return mk(fabs(a.x), fabs(a.y), fabs(a.z)); }
+inline double nmax3(v3 a) { return nmax(nmax(a.x, a.y), a.z); }
+
+/* _interval_dot: bounds of a·b over the boxes (lo, hi) */
+inline double interval_lo1(double alo, double ahi, double blo, double bhi)
+{
+    return nmin(nmin(alo * blo, alo * bhi), nmin(ahi * blo, ahi * bhi));
+}
+inline double interval_hi1(double alo, double ahi, double blo, double bhi)
+{
+    return nmax(nmax(alo * blo, alo * bhi), nmax(ahi * blo, ahi * bhi));
+}
+inline double interval_dot_lo(v3 alo, v3 ahi, v3 blo, v3 bhi)
+{
+    return interval_lo1(alo.x, ahi.x, blo.x, bhi.x) + interval_lo1(alo.y, ahi.y, blo.y, bhi.y)
+           + interval_lo1(alo.z, ahi.z, blo.z, bhi.z);
+}
+inline double interval_dot_hi(v3 alo, v3 ahi, v3 blo, v3 bhi)
+{
+    return interval_hi1(alo.x, ahi.x, blo.x, bhi.x) + interval_hi1(alo.y, ahi.y, blo.y, bhi.y)
+           + interval_hi1(alo.z, ahi.z, blo.z, bhi.z);
+}
+
+/* _unit: x/|x| and |x| (0/0: NaN, as numpy) */
+inline v3 unit(v3 x, double *n)
+{
+    *n = sqrt(sum3(mk(x.x * x.x, x.y * x.y, x.z * x.z)));
+    return mk(x.x / *n, x.y / *n, x.z / *n);
+}
+
+/* _angle: from atan2 */
+inline double angle(v3 a, v3 b)
+{
+    const v3 c = mk(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
+    return atan2(sqrt(c.x * c.x + c.y * c.y + c.z * c.z), sum3(mk(a.x * b.x, a.y * b.y, a.z * b.z)));
+}
+
+/* _cone: half-angle of the directions to a ball of radius r at distance d */
+inline double cone(double radius, double dist)
+{
+    return dist > radius ? asin(clamp(radius / dist, 0.0, 1.0)) : PI_D;
+}
+
+/* _peak: max over x ∈ [0, c] of x^a·(1 − x²)^b */
+inline double peak(double c, double a, double b)
+{
+    const double xs = sqrt(a / (a + 2.0 * b));
+    const double x = nmin(c, xs);
+    return pow(x, a) * pow(1.0 - x * x, b);
+}
+
+inline double falloff_slope(double c0, double c1, double c2, double x)
+{
+    const double p = c0 + x * (c1 + x * c2);
+    return (c1 + 2.0 * c2 * x) / (p * p);
+}
+
+inline double falloff_curve(double c0, double c1, double c2, double x)
+{
+    const double p = c0 + x * (c1 + x * c2);
+    const double n = x * (3.0 * c2 * c2 * x + 3.0 * c1 * c2) + (c1 * c1 - c0 * c2);
+    return 2.0 * fabs(n) / (p * p * p);
+}
+
+/* specular_cosine: an upper bound c of the lobe's cosine over the boxes (1: none) */
+inline double specular_cosine(v3 lo, v3 hi, v3 nlo, v3 nhi, v3 blo, v3 bhi, v3 eye)
+{
+    double len;
+    const v3 n0 = unit(scl(add(nlo, nhi), 0.5), &len);
+    const double corner = sum3(vmin(mk(nlo.x * n0.x, nlo.y * n0.y, nlo.z * n0.z),
+                                    mk(nhi.x * n0.x, nhi.y * n0.y, nhi.z * n0.z)));
+    const double a_n = corner > 0.0 ? acos(clamp(corner, -1.0, 1.0)) : PI_D;
+    const v3 ct = scl(add(lo, hi), 0.5), cb = scl(add(blo, bhi), 0.5);
+    double rt, rb, dist;
+    unit(sub(hi, lo), &rt);
+    unit(sub(bhi, blo), &rb);
+    rt *= 0.5;
+    rb *= 0.5;
+    const v3 u0 = unit(sub(cb, ct), &dist);
+    const double a_u = cone(rt + rb, dist);
+#if PERSPECTIVE
+    double de;
+    const v3 v0 = unit(sub(eye, ct), &de);
+    const double a_v = cone(rt, de);
+#else
+    const v3 v0 = eye;
+    const double a_v = 0.0;
+#endif
+    double beta;
+#if BLINN
+    const double gamma = angle(u0, v0) + a_u + a_v;
+    double hl;
+    const v3 h0 = unit(add(u0, v0), &hl);
+    const double d_h = (a_u + a_v) / (2.0 * cos(nmin(gamma, PI_D) / 2.0));
+    beta = gamma < PI_D ? angle(n0, h0) - a_n - d_h : -1.0;
+#else
+    const v3 r0 = sub(scl(n0, 2.0 * sum3(mk(n0.x * u0.x, n0.y * u0.y, n0.z * u0.z))), u0);
+    beta = angle(r0, v0) - a_u - 2.0 * a_n - a_v;
+#endif
+    if (isnan(beta))
+        beta = -1.0;
+    const double c = fmin(cos(clamp(beta, 0.0, PI_D / 2.0)) + 1e-5, 1.0);
+    return beta > 0.0 ? c : 1.0;
+}
+
+/* _view_dot_lower: a lower bound of u·v over the boxes, in [−1, 0] */
+inline double view_dot_lower(v3 blo, v3 bhi, v3 thi, v3 tlo, double d_lo, v3 eye)
+{
+#if PERSPECTIVE
+    const v3 vlo = sub(eye, thi), vhi = sub(eye, tlo);
+    const double num_lo = interval_dot_lo(sub(blo, thi), sub(bhi, tlo), vlo, vhi);
+    const v3 far = add(vmax(vlo, mk(0.0, 0.0, 0.0)), vmax(scl(vhi, -1.0), mk(0.0, 0.0, 0.0)));
+    const double den = d_lo * sqrt(sum3(mk(far.x * far.x, far.y * far.y, far.z * far.z)));
+#else
+    const double num_lo = interval_dot_lo(sub(blo, thi), sub(bhi, tlo), eye, eye);
+    const double den = d_lo;
+#endif
+    double uv = num_lo >= 0.0 ? 0.0 : num_lo / den;
+    if (isnan(uv) || uv == -INFINITY)
+        uv = -1.0;
+    return clamp(uv, -1.0, 0.0);
+}
+
+__kernel void node_terms(__global const double *restrict tiles,
+                         __global const double *restrict nodes, const uint node_doubles,
+                         __global const uint *restrict pair_tile,
+                         __global const uint *restrict pair_node, const uint n_pairs,
+                         const double eye_x, const double eye_y, const double eye_z,
+                         const double K, __global double *restrict out)
+{
+    const uint i = get_global_id(0);
+    if (i >= n_pairs)
+        return;
+    const __global double *T = tiles + (size_t)pair_tile[i] * TILE_DOUBLES;
+    const __global double *N = nodes + (size_t)pair_node[i] * node_doubles;
+    const v3 lo = load3(T), hi = load3(T + 3), nlo = load3(T + 6), nhi = load3(T + 9);
+    const v3 D = load3(T + 12), S = load3(T + 15);
+    const v3 blo = load3(N), bhi = load3(N + 3);
+    const double c0 = N[6], c1 = N[7], c2 = N[8];
+    const v3 Rk = load3(N + 9), M = load3(N + 12), F = load3(N + 15), Q = load3(N + 18);
+    const v3 eye = mk(eye_x, eye_y, eye_z);
+    /* the tile boxes widened by the float32 rounding of the positions they hold */
+    const double pad = 4.0 * U_D * nmax3(add(vabs(lo), vabs(hi)));
+    const v3 tlo = sub(lo, mk(pad, pad, pad)), thi = add(hi, mk(pad, pad, pad));
+    const v3 zero = mk(0.0, 0.0, 0.0);
+    const v3 gap = add(vmax(sub(blo, thi), zero), vmax(sub(tlo, bhi), zero));
+    const double d_lo = sqrt(sum3(mk(gap.x * gap.x, gap.y * gap.y, gap.z * gap.z)));
+    const double A_lo = 1.0 / (c0 + d_lo * (c1 + d_lo * c2));
+    const double lip = A_lo / d_lo;
+    const double nl_lo = interval_dot_lo(nlo, nhi, sub(blo, thi), sub(bhi, tlo));
+    const double nl_hi = interval_dot_hi(nlo, nhi, sub(blo, thi), sub(bhi, tlo));
+    const v3 span = sub(vmax(bhi, thi), vmin(blo, tlo));
+    const double d_hi = sqrt(sum3(mk(span.x * span.x, span.y * span.y, span.z * span.z)));
+    const double reach = nmax3(vmax(vabs(tlo), vabs(thi))) + nmax3(vmax(vabs(blo), vabs(bhi)));
+    const double margin = U_D * (12.0 + 2.0 * reach / d_lo);
+    const int dark = nl_hi / d_hi + margin <= 0.0;
+    const int lit = nl_lo / d_hi - margin > 0.0;
+    const double nu_hi = nmin((nl_hi > 0.0 ? nl_hi / d_lo : 0.0) + margin, 1.0);
+    /* the falloff's slopes over d ≥ d⁻ (falloff_slopes) */
+    const double a1_lo = falloff_slope(c0, c1, c2, d_lo);
+    double s1 = a1_lo, s2 = falloff_curve(c0, c1, c2, d_lo);
+    for (int j = 0; j < N_ONE; ++j) {
+        const double r = N[NODE_DOUBLES + j];
+        s1 = fmax(s1, r > d_lo ? falloff_slope(c0, c1, c2, r) : 0.0);
+    }
+    for (int j = 0; j < N_TWO; ++j) {
+        const double r = N[NODE_DOUBLES + N_ONE + j];
+        s2 = fmax(s2, r > d_lo ? falloff_curve(c0, c1, c2, r) : 0.0);
+    }
+    const double a1 = s1 * (1.0 + SLOPE_SLACK_D), a2 = s2 * (1.0 + SLOPE_SLACK_D);
+    /* diffuse */
+    const double g_hi = A_lo * nu_hi;
+    const double grad = nmax(lip, a1);
+    const double m = (lip + a1_lo) / d_lo;
+    const double mm = nmax(m, a2);
+    const double hess = sqrt(m * m + mm * mm);
+    double e[3];
+    const double Rc[3] = {Rk.x, Rk.y, Rk.z}, Mc[3] = {M.x, M.y, M.z}, Fc[3] = {F.x, F.y, F.z},
+                 Qc[3] = {Q.x, Q.y, Q.z}, Dc[3] = {D.x, D.y, D.z}, Sc[3] = {S.x, S.y, S.z};
+    for (int c = 0; c < 3; ++c) {
+        const double e_rng = Rc[c] * g_hi;
+        const double e_lip = grad * Mc[c];
+        const double e_two = grad * Fc[c] + 0.5 * hess * Qc[c];
+        e[c] = Dc[c] * fmin(fmin(e_rng, e_lip), lit ? e_two : INFINITY);
+    }
+    /* specular (where the tile has any) */
+    if (Sc[0] != 0.0 || Sc[1] != 0.0 || Sc[2] != 0.0) {
+        double sp[3];
+#if LOBE
+        const double cs = specular_cosine(lo, hi, nlo, nhi, blo, bhi, eye);
+        const double cK = pow(cs, K);
+#if BLINN
+        const double uv = view_dot_lower(blo, bhi, thi, tlo, d_lo, eye);
+        const double huv = sqrt(fmax(2.0 + 2.0 * uv, 0.0));
+        const double g = 1.0 / (d_lo * huv);
+        const double t = 3.0 * g / d_lo;
+#else
+        const double g = 1.0 / d_lo;
+        const double t = 0.0;
+#endif
+        const int fres = BLINN && FRESNEL;
+        const double h1 = peak(cs, K - 1.0, 0.5);
+        const double A1 = a1, A2 = nmax(a2, a1_lo / d_lo);
+        const double sgrad = A_lo * (K * h1 * g + (fres ? 5.0 * g * cK : 0.0)) + cK * A1;
+        const int second = K >= 2.0 && !fres;
+        double shess = 0.0;
+        if (second) {
+            const double f1 = peak(cs, K - 2.0, 1.0);
+            shess = (A_lo * (K * (K - 1.0) * f1 * g * g + K * (2.0 * h1 + cK) * g * g + K * h1 * t)
+                     + 2.0 * K * h1 * g * A1 + cK * A2);
+        }
+        for (int c = 0; c < 3; ++c) {
+            const double rng = Rc[c] * (A_lo * cK);
+            double e_lip = sgrad * Mc[c];
+            if (second)
+                e_lip = fmin(e_lip, sgrad * Fc[c] + 0.5 * shess * Qc[c]);
+            sp[c] = lit ? fmin(e_lip, rng) : rng;
+        }
+#else
+        for (int c = 0; c < 3; ++c)
+            sp[c] = Rc[c] * A_lo;
+#endif
+        for (int c = 0; c < 3; ++c)
+            e[c] = e[c] + Sc[c] * sp[c];
+    }
+    for (int c = 0; c < 3; ++c) {
+        double v = e[c] + U_D * Rc[c] * A_lo * (Dc[c] + Sc[c]);
+        v = d_lo > 0.0 ? v : INFINITY;             /* the boxes touch (or NaN): none */
+        out[3 * (size_t)i + c] = dark ? 0.0 : v;
+    }
+}
