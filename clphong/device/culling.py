@@ -36,6 +36,7 @@ from ..model.light_tree import (
     choose_cut,
     cluster_bounds,
     group_of,
+    leaf_ranges,
     representative_records,
     threshold_cut,
 )
@@ -816,24 +817,23 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
                               terms=e)
 
     limit = 1.0 if budget_.ndim else float(budget)     # the bounds' units
+    kept_of = _KeptLights(tree, flat)
     new_lists, clusters, covered_n = [], 0, 0
     for s0 in range(0, n_super, TREE_CHUNK):
         s1 = min(s0 + TREE_CHUNK, n_super)
         if tree.n_nodes >= TOP_DOWN_NODES:
             # the same cut, bounding only the nodes it needs
-            used, covered = threshold_cut(
-                tree, lambda t, k, s0=s0: bound(t, k, s0, pairs=True), s1 - s0, limit)
+            used, _ = threshold_cut(tree, lambda t, k, s0=s0: bound(t, k, s0, pairs=True),
+                                    s1 - s0, limit, leaves=False)
         else:
             b = np.concatenate([bound(np.arange(a, min(a + DENSE_CHUNK, s1 - s0))[:, None], None, s0)
                                 for a in range(0, s1 - s0, DENSE_CHUNK)])
-            used, covered = choose_cut(tree, b, limit)
+            used, _ = choose_cut(tree, b, limit, leaves=False)
         for t in range(s1 - s0):
-            o, c = c_ranges[s0 + t]
-            kept = flat[o:o + c]
-            kept = kept[~covered[t, kept]]
             nodes = np.flatnonzero(used[t])
+            kept, covered = kept_of(c_ranges[s0 + t], nodes)
             clusters += nodes.size
-            covered_n += int(covered[t].sum())
+            covered_n += covered
             new_lists.append(np.sort(np.concatenate([layout.light[kept], layout.node[nodes]])))
     if clusters == 0:
         return None
@@ -848,6 +848,43 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
     records64 = layout.records(tin.point64, rep64)
     return (ranges, buf, records, records64, clusters, covered_n, layout,
             time.perf_counter() - t0)
+
+
+class _KeptLights:
+    """A tile's lights after its cut: those of its super-tile's list (``flat``, a list
+    per (offset, count) range) that no node of the cut stands for. The uncovered
+    leaves are the gaps between the cut's runs in :func:`leaf_ranges`' order, so the
+    work goes with what is kept, not with every light."""
+
+    def __init__(self, tree: LightTree, flat: np.ndarray):
+        self.start, self.end, place = leaf_ranges(tree)
+        self.n_in = int(self.end.max()) if len(self.end) else 0
+        inside = place >= 0
+        self.leaf_at = np.empty(self.n_in, np.int64)
+        self.leaf_at[place[inside]] = np.flatnonzero(inside)
+        self.outside = np.flatnonzero(~inside)         # under no node: never covered
+        self.n, self.flat, self.masks = tree.n_leaves, flat, {}
+
+    def __call__(self, rng, nodes) -> tuple[np.ndarray, int]:
+        """(the list's lights no node of ``nodes`` covers, how many lights they cover)."""
+        o, c = int(rng[0]), int(rng[1])
+        hit = self.masks.get((o, c))
+        if hit is None:
+            mask = np.zeros(self.n, bool)
+            mask[self.flat[o:o + c]] = True
+            hit = self.masks[(o, c)] = (mask, self.outside[mask[self.outside]])
+        mask, outside = hit
+        order = np.argsort(self.start[nodes], kind="stable")
+        s, e = self.start[nodes][order], self.end[nodes][order]
+        lo, hi = np.r_[0, e], np.r_[s, self.n_in]
+        size = np.maximum(hi - lo, 0)
+        gaps = size > 0
+        lo, size = lo[gaps], size[gaps]
+        first = np.r_[0, np.cumsum(size)[:-1]]
+        pos = np.arange(int(size.sum())) + np.repeat(lo - first, size)
+        leaves = self.leaf_at[pos]
+        kept = np.concatenate([leaves[mask[leaves]], outside])
+        return kept, int((e - s).sum())
 
 
 @dataclass(frozen=True)

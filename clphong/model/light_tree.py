@@ -668,7 +668,8 @@ def _view_dot_lower(tiles, blo, bhi, thi, tlo, d_lo, spec):
     return np.clip(np.nan_to_num(uv, nan=-1.0, neginf=-1.0), -1.0, 0.0)
 
 
-def choose_cut(tree: LightTree, bounds: np.ndarray, budget: float, *, steps: int = 96):
+def choose_cut(tree: LightTree, bounds: np.ndarray, budget: float, *, steps: int = 96,
+               leaves: bool = True):
     """Per tile, the internal nodes of a cut whose bounds sum to ≤ ``budget``.
 
     A cut for a threshold τ takes every topmost node with bound ≤ τ (leaves have
@@ -677,7 +678,7 @@ def choose_cut(tree: LightTree, bounds: np.ndarray, budget: float, *, steps: int
     are formed for all m at once; the largest τ whose sum fits is taken.
 
     Returns (used (T, K) bool: internal nodes used as clusters; covered (T, n_leaves)
-    bool: leaves under a used node).
+    bool: leaves under a used node, or None without ``leaves``: see :func:`leaf_ranges`).
     """
     T, K = bounds.shape
     a = np.full((T, K), np.inf)
@@ -703,7 +704,7 @@ def choose_cut(tree: LightTree, bounds: np.ndarray, budget: float, *, steps: int
     best = np.where(fits.any(axis=1), steps - 1 - np.argmax(fits[:, ::-1], axis=1), -1)
     tau = np.where(best >= 0, grid[np.maximum(best, 0)], -np.inf)[:, None]
     used = (bounds <= tau) & (tau < a)
-    return used, covered_leaves(tree, used)
+    return used, covered_leaves(tree, used) if leaves else None
 
 
 def covered_leaves(tree: LightTree, used: np.ndarray) -> np.ndarray:
@@ -721,6 +722,45 @@ def covered_leaves(tree: LightTree, used: np.ndarray) -> np.ndarray:
     return covered
 
 
+_LEAF_RANGES: dict = {}
+
+
+def leaf_ranges(tree: LightTree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An order of the leaves under the tree's nodes in which every internal node's
+    leaves are one run: (start (K,), end (K,), each leaf's place (n_leaves,), −1 for
+    a light under no node). Formed once per tree (by identity). A cut's uncovered
+    leaves are then the gaps between its nodes' runs, found in the time of their
+    number (clphong/device/culling.py), not of every leaf's (:func:`covered_leaves`)."""
+    hit = _LEAF_RANGES.get(id(tree))
+    if hit is not None and hit[0] is tree:
+        return hit[1]
+    nl, K = tree.n_leaves, tree.n_nodes
+    size = np.zeros(K, np.int64)
+
+    def sizes(c):                                    # leaves under a child: 1 for a leaf
+        inner = c >= nl
+        return np.where(inner, size[np.where(inner, c - nl, 0)], 1)
+
+    for lv in reversed(tree.levels):                 # deepest first
+        size[lv] = sizes(tree.children[lv, 0]) + sizes(tree.children[lv, 1])
+    start = np.zeros(K, np.int64)
+    roots = np.asarray(tree.levels[0]) if tree.levels else np.zeros(0, np.int64)
+    if len(roots):
+        start[roots] = np.r_[0, np.cumsum(size[roots])[:-1]]
+    place = np.full(nl, -1, np.int64)
+    for lv in tree.levels:                           # roots first
+        ch = tree.children[lv]
+        for c, at in ((ch[:, 0], start[lv]), (ch[:, 1], start[lv] + sizes(ch[:, 0]))):
+            inner = c >= nl
+            start[c[inner] - nl] = at[inner]
+            place[c[~inner]] = at[~inner]
+    out = (start, start + size, place)
+    if len(_LEAF_RANGES) > 8:
+        _LEAF_RANGES.clear()
+    _LEAF_RANGES[id(tree)] = (tree, out)
+    return out
+
+
 #: Most tile-node pairs bounded at once by :func:`threshold_cut`: its float64
 #: temporaries (3 numbers a pair) stay in cache; 2¹⁴ pairs at a time took 0.79 s where
 #: (40, 16 383) pairs at once took 1.45 s (Ice Lake, 2 cores), the same bits.
@@ -728,7 +768,7 @@ PAIR_CHUNK = 1 << 14
 
 
 def threshold_cut(tree: LightTree, bound, n_tiles: int, budget: float, *, steps: int = 96,
-                  stride: int = 8):
+                  stride: int = 8, leaves: bool = True):
     """:func:`choose_cut`'s cut, found from the top down: only the nodes whose ancestors'
     bounds all exceed the threshold are bounded.
 
@@ -819,4 +859,4 @@ def threshold_cut(tree: LightTree, bound, n_tiles: int, budget: float, *, steps:
     pick = fitted[et] & (eb <= tau[et]) & (tau[et] < ea)
     used = np.zeros((n_tiles, tree.n_nodes), bool)
     used[et[pick], ek[pick]] = True
-    return used, covered_leaves(tree, used)
+    return used, covered_leaves(tree, used) if leaves else None
