@@ -581,6 +581,7 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
             fine, ran_whole = plain(), True
         return fine
 
+    probe = None
     if tree is None or budget <= 0:
         whole()
     else:
@@ -606,21 +607,38 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
         # + its cut + its tile's culling ≤ ε (relative: times the floors)
         tree_budget = ((budget * TREE_SHARE + coarse_budget * c_unused)
                        * (1.0 if c_floors is None else c_floors))
-        cut = _tree_cut(runtime, tree, coarse_tiles, c_ranges, c_lists, point_records, n_point,
-                        frame.origin, n_super=super_x * super_y, budget=tree_budget,
-                        lanes=lanes, point_end=tree.point_end)
+
+        def super_cut(rows=None):
+            return _tree_cut(runtime, tree, coarse_tiles, c_ranges, c_lists, point_records,
+                             n_point, frame.origin, n_super=super_x * super_y,
+                             budget=tree_budget, lanes=lanes, point_end=tree.point_end,
+                             rows=rows)
+
+        # long lists (BLOCK_ENTRIES): judged on the sample's super-tiles where there is
+        # one (the probe's), so that the super-tiles' whole cut is made only where used
+        cut, long = None, None
+        sample_rows = (None if probe is None or too_long
+                       else np.flatnonzero(probe[0][:, 1] > 0))
+        if sample_rows is not None and sample_rows.size:
+            sampled = super_cut(sample_rows)
+            long = sampled is not None and float(sampled[0][:, 1].mean()) >= BLOCK_ENTRIES
+            spent += 0.0 if sampled is None else sampled[-1]
+        if not long:
+            cut = super_cut()
+            if long is None:
+                long = cut is not None and _long_lists(cut[0], shaded, tiles_x=tiles_x,
+                                                       sup=sup, super_x=super_x)
         block = None
-        if cut is not None and _long_lists(cut[0], shaded, tiles_x=tiles_x, sup=sup,
-                                           super_x=super_x):
-            # long lists: the cut again per block of BLOCK_TILES² tiles, with all the
-            # budget the super-tiles' culling left (no tiles' culling after it)
+        if long:
+            # the cut again per block of BLOCK_TILES² tiles, with all the budget the
+            # super-tiles' culling left (no tiles' culling after it)
             block = _block_cut(runtime, prog, tree, fine_tiles, e_fine, c_ranges, c_lists,
                                point_records, n_point, frame, tiles_x=tiles_x,
                                tiles_y=tiles_y, sup=sup, super_x=super_x, lanes=lanes,
                                budget=((budget - coarse_budget + coarse_budget * c_unused)
                                        * (1.0 if c_floors is None else c_floors)))
             if block is not None:
-                spent += cut[-1]                     # the super-tiles' cut, not used
+                spent += 0.0 if cut is None else cut[-1]     # the super-tiles' cut, unused
                 cut = block
         if cut is not None:
             t_ranges, t_lists, records, records64, clusters, covered, layout, tree_s = cut
@@ -753,7 +771,7 @@ def read_tile_boxes(runtime, tiles_buffer, n_tiles: int, lanes: int) -> TileBoxe
 
 
 def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_records,
-              n_point, origin, *, n_super, budget, lanes, point_end=None):
+              n_point, origin, *, n_super, budget, lanes, point_end=None, rows=None):
     """The super-tiles' lists with the tree's clusters: per super-tile, the cut of
     :func:`~clphong.model.light_tree.choose_cut` (found by
     :func:`~clphong.model.light_tree.threshold_cut` in large trees: TOP_DOWN_NODES)
@@ -763,6 +781,8 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
     no cluster fits. With light groups (``point_end``: each group's end), a group's
     clusters are its own lights' and use its own floors (``budget`` (G, 3, super-tiles)),
     and its representatives follow its lights (:class:`ExtendedLayout`).
+
+    ``rows``: only these super-tiles (a sample); the ranges are theirs, in this order.
 
     Returns (ranges, lists buffer, float32 records, float64 records, clusters,
     covered, layout, seconds).
@@ -774,6 +794,12 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
         return None
     t0 = time.perf_counter()
     boxes = read_tile_boxes(runtime, coarse_tiles, n_super, lanes)
+    if rows is not None:
+        boxes = TileBoxes(*(getattr(boxes, f)[rows] for f in ("lo", "hi", "nlo", "nhi", "D", "S")))
+        c_ranges = np.asarray(c_ranges)[rows]
+        budget = np.asarray(budget, np.float64)
+        budget = budget[..., rows] if budget.ndim else budget
+        n_super = len(rows)
     flat = np.zeros(max(c_lists.size // 4, 1), np.uint32)    # capacities ≥ counts
     cl.enqueue_copy(runtime.queue, flat, c_lists).wait()
     layout = ExtendedLayout.of(tree, n_point, point_end)
