@@ -36,7 +36,7 @@ from ..deliver.writers import (
     check_compression,
 )
 from ..device import runtime as _runtime
-from ..device.culling import BRUTE_ABOVE
+from ..device.culling import BLOCK_TILES, BRUTE_ABOVE, TILE
 from ..device.envprobe import DeviceProbeShader
 from ..device.hostrule import host
 from ..device.renderer import Renderer
@@ -434,7 +434,8 @@ def cmd_render(args) -> int:
             if cull.clusters:
                 print(f"light tree: {cull.tree_nodes} clusters over {cull.tree_lights} lights, "
                       f"built in {cull.tree_build_seconds:.3f} s; the cuts use {cull.clusters} "
-                      f"clusters for {cull.covered} lights over the super-tiles, host cut "
+                      f"clusters for {cull.covered} lights over the "
+                      f"{f'{BLOCK_TILES * TILE}-pixel blocks' if cull.tree_blocks else 'super-tiles'}, host cut "
                       f"{cull.tree_seconds:.3f} s", file=sys.stderr)
             if cull.brute:
                 print("culling: the lists keep nearly every light (more than "
