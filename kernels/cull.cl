@@ -374,7 +374,9 @@ inline floatL light_bound(const tile_t *t, float4 A, float4 B, float4 C, float4 
        even where a channel's inv is ∞ */
     const floatL scaled = MAX_(MAX_(scaled_bound(br, inv->r), scaled_bound(bg, inv->g)),
                                scaled_bound(bb, inv->b));
-    const intL zero = (intL)(MAX_(MAX_(br, bg), bb) == 0.0f) | (intL)(cone == 0.0f);
+    const floatL mx = MAX_(MAX_(br, bg), bb);
+    /* a zero cone zeroes only a finite bound: ∞·0 (a non-finite tile) stays kept */
+    const intL zero = (intL)(mx == 0.0f) | ((intL)(cone == 0.0f) & (intL)(mx < INFINITY));
     const floatL b = SEL_(scaled * cone / p_lo * (1.0f + 32.0f * U_F32), (floatL)(0.0f), zero);
     /* no bound where p⁻ ≤ 0 or anything is NaN: keep the light */
     const floatL safe = SEL_((floatL)(INFINITY), b, (intL)((p_lo > 0.0f) & (b >= 0.0f)));

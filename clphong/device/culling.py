@@ -211,8 +211,11 @@ def cluster_radius(tree: LightTree, layout: "ExtendedLayout", records: np.ndarra
     pos = records.reshape(-1, POINT_RECORD, 4)[layout.node, 0, :3].astype(np.float64)
     o = np.asarray(origin, np.float64)
     far = np.maximum(np.abs(tree.hi - o - pos), np.abs(pos - (tree.lo - o)))
+    # + the float64 roundings of the rebased corners, absolute (2⁻⁵¹ of their size each)
+    reach = np.maximum(np.abs(tree.hi - o), np.abs(tree.lo - o)).max(axis=1)
     radius = np.zeros(len(layout.source))
-    radius[layout.node] = np.sqrt((far * far).sum(axis=1)) * (1 + 1e-9)
+    radius[layout.node] = (np.sqrt((far * far).sum(axis=1)) * (1 + 1e-9)
+                           + 2.0 ** -51 * np.sqrt(3.0) * reach)
     return radius
 
 
@@ -640,6 +643,8 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
             if block is not None:
                 spent += 0.0 if cut is None else cut[-1]     # the super-tiles' cut, unused
                 cut = block
+            elif cut is None:                                # no block took a cluster
+                cut = super_cut()
         if cut is not None:
             t_ranges, t_lists, records, records64, clusters, covered, layout, tree_s = cut
             if block is not None:
@@ -721,6 +726,7 @@ def _block_cut(runtime, prog, tin, fine_tiles, e_fine, c_ranges, c_lists, point_
     with its budget: ``budget`` per super-tile, and channel where relative); returns
     :func:`_tree_cut`'s tuple, its ranges per tile (a block's tiles share its list)."""
     blk = BLOCK_TILES
+    assert sup % blk == 0, "a super-tile holds whole blocks"
     bx, by = tiles_x // blk, -(-tiles_y // blk)
     block_tiles, _ = _merge_bounds(runtime, prog, fine_tiles, fine_tiles_x=tiles_x,
                                    fine_tiles_y=tiles_y, sup=blk, tiles_x=bx, tiles_y=by,
