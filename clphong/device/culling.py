@@ -561,7 +561,9 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
     c_ranges, c_lists, _, c_seconds, c_floors, c_unused = coarse
     extra = {} if c_floors is None else {"coarse_floors": c_floors}
     shaded = tile_of_pixels(frame.shape, lanes, tiles_x).reshape(-1)[~frame.background]
-    active = int(np.unique(shaded).size)
+    shaded_tiles = np.unique(shaded)
+    active = int(shaded_tiles.size)
+    shared: dict = {}                # what every tree cut of this frame shares (_tree_cut)
 
     def fine_level(ranges_, lists_, lb_, n_lists, rest, floor_=floor):
         crb = cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(ranges_))
@@ -615,7 +617,7 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
             return _tree_cut(runtime, tree, coarse_tiles, c_ranges, c_lists, point_records,
                              n_point, frame.origin, n_super=super_x * super_y,
                              budget=tree_budget, lanes=lanes, point_end=tree.point_end,
-                             rows=rows)
+                             rows=rows, shared=shared)
 
         # long lists (BLOCK_ENTRIES): judged on the sample's super-tiles where there is
         # one (the probe's), so that the super-tiles' whole cut is made only where used
@@ -629,14 +631,14 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
         if not long:
             cut = super_cut()
             if long is None:
-                long = cut is not None and _long_lists(cut[0], shaded, tiles_x=tiles_x,
+                long = cut is not None and _long_lists(cut[0], shaded_tiles, tiles_x=tiles_x,
                                                        sup=sup, super_x=super_x)
         block = None
         if long:
             # the cut again per block of BLOCK_TILES² tiles, with all the budget the
             # super-tiles' culling left (no tiles' culling after it)
             block = _block_cut(runtime, prog, tree, fine_tiles, e_fine, c_ranges, c_lists,
-                               point_records, n_point, frame, tiles_x=tiles_x,
+                               point_records, n_point, frame, shared, tiles_x=tiles_x,
                                tiles_y=tiles_y, sup=sup, super_x=super_x, lanes=lanes,
                                budget=((budget - coarse_budget + coarse_budget * c_unused)
                                        * (1.0 if c_floors is None else c_floors)))
@@ -653,7 +655,7 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                 st = np.arange(tiles_x * tiles_y)
                 st = (st // tiles_x // sup) * super_x + (st % tiles_x) // sup
                 with_tree = (t_ranges, t_lists,
-                             int(t_ranges[np.unique(shaded), 1].sum(dtype=np.int64)), 0.0,
+                             int(t_ranges[shaded_tiles, 1].sum(dtype=np.int64)), 0.0,
                              None if c_floors is None else c_floors[..., st], None)
             else:
                 n_ext = len(records) // POINT_RECORD
@@ -712,16 +714,15 @@ BLOCK_TILES = 4
 BLOCK_ENTRIES = 1000
 
 
-def _long_lists(ranges, shaded, *, tiles_x, sup, super_x) -> bool:
+def _long_lists(ranges, tiles, *, tiles_x, sup, super_x) -> bool:
     """Whether the super-tiles' lists (``ranges``) hold BLOCK_ENTRIES or more entries on
-    average over the super-tiles with shaded tiles (``shaded``: each shaded pixel's tile)."""
-    tiles = np.unique(shaded)
+    average over the super-tiles with shaded tiles (``tiles``: those tiles)."""
     owner = np.unique((tiles // tiles_x // sup) * super_x + (tiles % tiles_x) // sup)
     return owner.size > 0 and float(np.asarray(ranges)[owner, 1].mean()) >= BLOCK_ENTRIES
 
 
 def _block_cut(runtime, prog, tin, fine_tiles, e_fine, c_ranges, c_lists, point_records,
-               n_point, frame, *, tiles_x, tiles_y, sup, super_x, lanes, budget):
+               n_point, frame, shared, *, tiles_x, tiles_y, sup, super_x, lanes, budget):
     """The tree's cut per block of BLOCK_TILES² tiles (each from its super-tile's list and
     with its budget: ``budget`` per super-tile, and channel where relative); returns
     :func:`_tree_cut`'s tuple, its ranges per tile (a block's tiles share its list)."""
@@ -738,7 +739,7 @@ def _block_cut(runtime, prog, tin, fine_tiles, e_fine, c_ranges, c_lists, point_
     b_budget = budget[..., s_of_b] if budget.ndim else budget
     cut = _tree_cut(runtime, tin, block_tiles, np.asarray(c_ranges)[s_of_b], c_lists,
                     point_records, n_point, frame.origin, n_super=bx * by, budget=b_budget,
-                    lanes=lanes, point_end=tin.point_end)
+                    lanes=lanes, point_end=tin.point_end, shared=shared)
     if cut is None:
         return None
     t = np.arange(tiles_x * tiles_y)
@@ -777,7 +778,8 @@ def read_tile_boxes(runtime, tiles_buffer, n_tiles: int, lanes: int) -> TileBoxe
 
 
 def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_records,
-              n_point, origin, *, n_super, budget, lanes, point_end=None, rows=None):
+              n_point, origin, *, n_super, budget, lanes, point_end=None, rows=None,
+              shared=None):
     """The super-tiles' lists with the tree's clusters: per super-tile, the cut of
     :func:`~clphong.model.light_tree.choose_cut` (found by
     :func:`~clphong.model.light_tree.threshold_cut` in large trees: TOP_DOWN_NODES)
@@ -789,6 +791,9 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
     and its representatives follow its lights (:class:`ExtendedLayout`).
 
     ``rows``: only these super-tiles (a sample); the ranges are theirs, in this order.
+    ``shared``: a dict kept across a frame's cuts (its sample's, its super-tiles', its
+    blocks'), which hold what depends only on the tree and the frame: the layout, the
+    records and the nodes' device records, formed once.
 
     Returns (ranges, lists buffer, float32 records, float64 records, clusters,
     covered, layout, seconds).
@@ -808,11 +813,19 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
         n_super = len(rows)
     flat = np.zeros(max(c_lists.size // 4, 1), np.uint32)    # capacities ≥ counts
     cl.enqueue_copy(runtime.queue, flat, c_lists).wait()
-    layout = ExtendedLayout.of(tree, n_point, point_end)
+    shared = {} if shared is None else shared
+    if "layout" not in shared:
+        layout = ExtendedLayout.of(tree, n_point, point_end)
+        rep32, rep64 = representative_records(tree, origin)
+        # the terms in double on the device where it can (kernels/node_bound.cl), else numpy
+        shared.update(layout=layout, records=layout.records(point_records, rep32),
+                      records64=layout.records(tin.point64, rep64),
+                      nodes=(DeviceNodeTerms(runtime, tree, tin.spec, origin)
+                             if NODE_TERMS_ON_DEVICE and DeviceNodeTerms.usable(runtime, tree)
+                             else None))
+    layout = shared["layout"]
     budget_ = np.asarray(budget, np.float64)
-    # the terms in double on the device where it can (kernels/node_bound.cl), else numpy
-    device = (DeviceNodeTerms(runtime, tree, tin.spec, origin, boxes)
-              if NODE_TERMS_ON_DEVICE and DeviceNodeTerms.usable(runtime, tree) else None)
+    device = None if shared["nodes"] is None else shared["nodes"].for_tiles(boxes)
 
     def terms(t, k, s0, pairs):
         if device is None:
@@ -875,10 +888,7 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
     lists = np.concatenate(new_lists).astype(np.uint32) if sizes.sum() else np.zeros(1, np.uint32)
     buf = cl.Buffer(runtime.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                     hostbuf=lists)
-    rep32, rep64 = representative_records(tree, origin)
-    records = layout.records(point_records, rep32)
-    records64 = layout.records(tin.point64, rep64)
-    return (ranges, buf, records, records64, clusters, covered_n, layout,
+    return (ranges, buf, shared["records"], shared["records64"], clusters, covered_n, layout,
             time.perf_counter() - t0)
 
 

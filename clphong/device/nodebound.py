@@ -11,6 +11,8 @@ form.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from ..core.floats import U
@@ -47,10 +49,11 @@ def tile_records(tiles: TileBoxes) -> np.ndarray:
 
 
 class DeviceNodeTerms:
-    """``node_terms`` for a set of tiles and a tree: called with pair rows ``t`` (tile
-    indices) and ``k`` (node indices), it returns their (P, 3) terms."""
+    """``node_terms`` for a tree (its node records on the device, once) and, after
+    :meth:`for_tiles`, a set of tiles: called with pair rows ``t`` (tile indices) and
+    ``k`` (node indices), it returns their (P, 3) terms."""
 
-    def __init__(self, runtime, tree: LightTree, spec: SpecularModel, origin, tiles: TileBoxes):
+    def __init__(self, runtime, tree: LightTree, spec: SpecularModel, origin, tiles=None):
         import pyopencl as cl
 
         self.runtime = runtime
@@ -66,7 +69,19 @@ class DeviceNodeTerms:
         nodes = node_records(tree, origin)
         self.node_doubles = nodes.shape[1]
         self.nodes = cl.Buffer(runtime.context, ro, hostbuf=nodes)
-        self.tiles = cl.Buffer(runtime.context, ro, hostbuf=tile_records(tiles))
+        self.tiles = None if tiles is None else self._tiles_buffer(tiles)
+
+    def _tiles_buffer(self, tiles: TileBoxes):
+        import pyopencl as cl
+
+        return cl.Buffer(self.runtime.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                         hostbuf=tile_records(tiles))
+
+    def for_tiles(self, tiles: TileBoxes) -> "DeviceNodeTerms":
+        """The same tree's terms over ``tiles`` (the node records are shared)."""
+        other = copy.copy(self)
+        other.tiles = self._tiles_buffer(tiles)
+        return other
 
     @staticmethod
     def usable(runtime, tree: LightTree) -> bool:
