@@ -94,7 +94,9 @@ inline double peak(double c, double a, double b)
 {
     const double xs = sqrt(a / (a + 2.0 * b));
     const double x = nmin(c, xs);
-    return pow(x, a) * pow(1.0 - x * x, b);
+    const double y = 1.0 - x * x;
+    /* b is 1/2 or 1 here: sqrt and the product are pow's own values, at less cost */
+    return pow(x, a) * (b == 0.5 ? sqrt(y) : (b == 1.0 ? y : pow(y, b)));
 }
 
 inline double falloff_slope(double c0, double c1, double c2, double x)
@@ -169,24 +171,15 @@ inline double view_dot_lower(v3 blo, v3 bhi, v3 thi, v3 tlo, double d_lo, v3 eye
     return clamp(uv, -1.0, 0.0);
 }
 
-__kernel void node_terms(__global const double *restrict tiles,
-                         __global const double *restrict nodes, const uint node_doubles,
-                         __global const uint *restrict pair_tile,
-                         __global const uint *restrict pair_node, const uint n_pairs,
-                         const double eye_x, const double eye_y, const double eye_z,
-                         const double K, __global double *restrict out)
+/* cluster_terms for one (tile, node) pair: each channel's bound, in e */
+inline void node_term(const __global double *T, const __global double *N, const v3 eye,
+                      const double K, double out[3])
 {
-    const uint i = get_global_id(0);
-    if (i >= n_pairs)
-        return;
-    const __global double *T = tiles + (size_t)pair_tile[i] * TILE_DOUBLES;
-    const __global double *N = nodes + (size_t)pair_node[i] * node_doubles;
     const v3 lo = load3(T), hi = load3(T + 3), nlo = load3(T + 6), nhi = load3(T + 9);
     const v3 D = load3(T + 12), S = load3(T + 15);
     const v3 blo = load3(N), bhi = load3(N + 3);
     const double c0 = N[6], c1 = N[7], c2 = N[8];
     const v3 Rk = load3(N + 9), M = load3(N + 12), F = load3(N + 15), Q = load3(N + 18);
-    const v3 eye = mk(eye_x, eye_y, eye_z);
     /* the tile boxes widened by the float32 rounding of the positions they hold */
     const double pad = 4.0 * U_D * nmax3(add(vabs(lo), vabs(hi)));
     const v3 tlo = sub(lo, mk(pad, pad, pad)), thi = add(hi, mk(pad, pad, pad));
@@ -274,6 +267,230 @@ __kernel void node_terms(__global const double *restrict tiles,
     for (int c = 0; c < 3; ++c) {
         double v = e[c] + U_D * Rc[c] * A_lo * (Dc[c] + Sc[c]);
         v = d_lo > 0.0 ? v : INFINITY;             /* the boxes touch (or NaN): none */
-        out[3 * (size_t)i + c] = dark ? 0.0 : v;
+        out[c] = dark ? 0.0 : v;
     }
+}
+
+__kernel void node_terms(__global const double *restrict tiles,
+                         __global const double *restrict nodes, const uint node_doubles,
+                         __global const uint *restrict pair_tile,
+                         __global const uint *restrict pair_node, const uint n_pairs,
+                         const double eye_x, const double eye_y, const double eye_z,
+                         const double K, __global double *restrict out)
+{
+    const uint i = get_global_id(0);
+    if (i >= n_pairs)
+        return;
+    double e[3];
+    node_term(tiles + (size_t)pair_tile[i] * TILE_DOUBLES,
+              nodes + (size_t)pair_node[i] * node_doubles, mk(eye_x, eye_y, eye_z), K, e);
+    for (int c = 0; c < 3; ++c)
+        out[3 * (size_t)i + c] = e[c];
+}
+
+/* cluster_bounds for one pair: the largest channel's term in units of the tile's
+ * budget (scale: each channel's 1/budget), × (1 + 10⁻⁶); a channel whose term is 0
+ * stays 0; no bound (NaN): +inf */
+inline double node_bound(const __global double *T, const __global double *N,
+                         const __global double *scale, const v3 eye, const double K)
+{
+    double e[3];
+    node_term(T, N, eye, K, e);
+    double b = 0.0;
+    for (int c = 0; c < 3; ++c) {
+        const double v = e[c] == 0.0 ? 0.0 : e[c] * scale[c];
+        if (isnan(v))
+            return INFINITY;
+        b = fmax(b, v);
+    }
+    return b * (1.0 + 1e-6);
+}
+
+/* the binary max-heap of a tile's cut: bounds hb, nodes hk, n entries */
+inline void heap_push(__global double *hb, __global uint *hk, uint n, double b, uint k)
+{
+    while (n > 0) {
+        const uint up = (n - 1) >> 1;
+        if (!(hb[up] < b))
+            break;
+        hb[n] = hb[up];
+        hk[n] = hk[up];
+        n = up;
+    }
+    hb[n] = b;
+    hk[n] = k;
+}
+
+/* remove the root of a heap of n entries (n ≥ 1): the last entry sinks from the top */
+inline void heap_pop(__global double *hb, __global uint *hk, uint n)
+{
+    const double b = hb[n - 1];
+    const uint k = hk[n - 1];
+    --n;
+    uint i = 0;
+    for (;;) {
+        uint c = 2 * i + 1;
+        if (c >= n)
+            break;
+        if (c + 1 < n && hb[c + 1] > hb[c])
+            ++c;
+        if (!(hb[c] > b))
+            break;
+        hb[i] = hb[c];
+        hk[i] = hk[c];
+        i = c;
+    }
+    hb[i] = b;
+    hk[i] = k;
+}
+
+/* a[i]'s value v sinks into the max-heap a[0 … n) below i */
+inline void sift_down(__global uint *a, uint i, const uint n, const uint v)
+{
+    for (uint c; (c = 2 * i + 1) < n; i = c) {
+        if (c + 1 < n && a[c + 1] > a[c])
+            ++c;
+        if (a[c] <= v)
+            break;
+        a[i] = a[c];
+    }
+    a[i] = v;
+}
+
+/* sort a[0 … n) ascending in place (heapsort: no scratch, n log n) */
+inline void sort_records(__global uint *a, const uint n)
+{
+    for (uint s = n / 2; s-- > 0;)
+        sift_down(a, s, n, a[s]);
+    for (uint end = n; end-- > 1;) {
+        const uint v = a[end];
+        a[end] = a[0];
+        sift_down(a, 0, end, v);
+    }
+}
+
+/* The light tree's cut per tile, on the device (clphong/model/light_tree.py
+ * greedy_cut is its float64 reference): from the roots, the node with the largest
+ * bound is split until the bounds sum to ≤ limit (in units of the tile's budget:
+ * scale) or no node is left, as Lightcuts does. A leaf reached is its light, kept
+ * where its super-tile's culling kept it (the bits of kept); the nodes left are the
+ * clusters. Each tile's list: its super-tile's lights under no node (extra), the
+ * leaves and the clusters' representatives, as records (light_rec, node_rec) in
+ * record order, at lists + tile·cap; counts (3 a tile): its length, or CUT_OVERFLOW where cap entries
+ * could not hold it (the host then gives the tile its super-tile's list), its
+ * clusters and the lights they stand for (node_size: each node's); sums: the cut's sum.
+ * One work-item per tile of tile0 … tile0 + n; heap_b, heap_k: cap entries each. */
+#define CUT_OVERFLOW 0xffffffffu
+__kernel void tile_cut(__global const double *restrict tiles,
+                       __global const double *restrict scale,
+                       __global const double *restrict nodes, const uint node_doubles,
+                       __global const int *restrict children, const uint n_leaves,
+                       __global const uint *restrict roots, const uint n_roots,
+                       __global const uint *restrict kept, const uint kept_words,
+                       __global const uint *restrict tile_super,
+                       __global const uint *restrict extra_range,
+                       __global const uint *restrict extra,
+                       __global const uint *restrict light_rec,
+                       __global const uint *restrict node_rec,
+                       __global const uint *restrict node_size,
+                       const double eye_x, const double eye_y, const double eye_z,
+                       const double K, const double limit, const uint cap,
+                       __global double *restrict heap_b, __global uint *restrict heap_k,
+                       __global uint *restrict lists, __global uint *restrict counts,
+                       __global double *restrict sums, const uint tile0, const uint n)
+{
+    const uint i = get_global_id(0);
+    if (i >= n)
+        return;
+    const uint t = tile0 + i;
+    const __global double *T = tiles + (size_t)t * TILE_DOUBLES;
+    const __global double *sc = scale + 3 * (size_t)t;
+    __global double *hb = heap_b + (size_t)i * cap;
+    __global uint *hk = heap_k + (size_t)i * cap;
+    __global uint *out = lists + (size_t)t * cap;
+    const v3 eye = mk(eye_x, eye_y, eye_z);
+    if (T[0] > T[3] || T[1] > T[4] || T[2] > T[5]) {      /* no shaded pixel */
+        counts[3 * t] = counts[3 * t + 1] = counts[3 * t + 2] = 0;
+        sums[t] = 0.0;
+        return;
+    }
+    const uint s = tile_super[t];
+    const __global uint *mask = kept + (size_t)s * kept_words;
+    uint m = 0, h = 0, n_inf = 0;
+    const uint e0 = extra_range[2 * s], e1 = e0 + extra_range[2 * s + 1];
+    if (e1 - e0 > cap) {
+        counts[3 * t] = CUT_OVERFLOW;
+        return;
+    }
+    for (uint j = e0; j < e1; ++j)
+        out[m++] = extra[j];
+    double total = 0.0;              /* the finite bounds' sum; n_inf: the others */
+    for (uint r = 0; r < n_roots; ++r) {
+        if (m + h >= cap) {
+            counts[3 * t] = CUT_OVERFLOW;
+            return;
+        }
+        const double b = node_bound(T, nodes + (size_t)roots[r] * node_doubles, sc, eye, K);
+        heap_push(hb, hk, h++, b, roots[r]);
+        if (isinf(b))
+            ++n_inf;
+        else
+            total += b;
+    }
+    for (;;) {
+        if (n_inf == 0 && total <= limit) {
+            /* the running sum drifts by roundings: the cut's own sum decides */
+            double exact = 0.0;
+            for (uint j = 0; j < h; ++j)
+                exact += hb[j];
+            if (exact <= limit)
+                break;
+            total = exact;
+        }
+        if (h == 0)
+            break;
+        const double b = hb[0];
+        const uint k = hk[0];
+        heap_pop(hb, hk, h--);
+        if (isinf(b))
+            --n_inf;
+        else
+            total -= b;
+        for (int side = 0; side < 2; ++side) {
+            const int c = children[2 * k + side];
+            if (c < (int)n_leaves) {
+                if ((mask[c >> 5] >> (c & 31)) & 1u) {
+                    if (m + h >= cap) {
+                        counts[3 * t] = CUT_OVERFLOW;
+                        return;
+                    }
+                    out[m++] = light_rec[c];
+                }
+                continue;
+            }
+            if (m + h >= cap) {
+                counts[3 * t] = CUT_OVERFLOW;
+                return;
+            }
+            const uint kk = (uint)c - n_leaves;
+            const double bk = node_bound(T, nodes + (size_t)kk * node_doubles, sc, eye, K);
+            heap_push(hb, hk, h++, bk, kk);
+            if (isinf(bk))
+                ++n_inf;
+            else
+                total += bk;
+        }
+    }
+    double sum = 0.0;
+    uint covered = 0;
+    for (uint j = 0; j < h; ++j) {
+        sum += hb[j];
+        covered += node_size[hk[j]];
+        out[m++] = node_rec[hk[j]];
+    }
+    sort_records(out, m);              /* in record order, as the kernels walk lists */
+    counts[3 * t] = m;
+    counts[3 * t + 1] = h;
+    counts[3 * t + 2] = covered;
+    sums[t] = sum;
 }

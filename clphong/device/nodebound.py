@@ -16,7 +16,7 @@ import copy
 import numpy as np
 
 from ..core.floats import U
-from ..model.light_tree import LightTree, SpecularModel, TileBoxes
+from ..model.light_tree import LightTree, SpecularModel, TileBoxes, leaf_ranges
 
 #: Doubles per tile record (TILE_DOUBLES) and per node record before its falloff's
 #: turning points (NODE_DOUBLES), kernels/node_bound.cl.
@@ -108,3 +108,70 @@ class DeviceNodeTerms:
             ev = cl.enqueue_nd_range_kernel(queue, kern, (-(-n // LOCAL) * LOCAL,), (LOCAL,))
         cl.enqueue_copy(queue, out, ob, wait_for=[ev]).wait()
         return out
+
+    def tile_cut(self, tree: LightTree, scale, tile_super, kept, extra_ranges, extra,
+                 light_rec, node_rec, *, cap: int, limit: float = 1.0 - 1e-9, reserve: int = 0):
+        """kernels/node_bound.cl ``tile_cut`` over this object's tiles (one cut each):
+        ``scale`` (T, 3) each channel's 1/budget; ``tile_super`` (T,) each tile's
+        super-tile, whose culling kept the lights of ``kept`` (S, words) bits and
+        whose lights under no node are ``extra[o:o + c]`` for its ``extra_ranges``
+        (S, 2) (o, c), as records; ``light_rec`` / ``node_rec``: the records of the
+        leaves and the internal nodes. Returns (counts (T, 3) uint32: each list's
+        length at lists + t·cap (CUT_OVERFLOW where cap entries could not hold it), its
+        clusters and the lights they stand for; sums (T,): the cut's bound in units of
+        the budget; the lists buffer: T·cap entries, then ``reserve`` more)."""
+        import pyopencl as cl
+
+        ctx, queue = self.runtime.context, self.runtime.queue
+        scale = np.ascontiguousarray(scale, np.float64).reshape(-1, 3)
+        n = len(scale)
+        ro = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+
+        def buf(a, dtype):
+            a = np.ascontiguousarray(a, dtype).reshape(-1)
+            return cl.Buffer(ctx, ro, hostbuf=a if a.size else np.zeros(1, dtype))
+
+        kids = buf(tree.children, np.int32)
+        roots = np.asarray(tree.levels[0] if tree.levels else [], np.uint32)
+        args = [self.tiles, buf(scale, np.float64), self.nodes, np.uint32(self.node_doubles),
+                kids, np.uint32(tree.n_leaves), buf(roots, np.uint32), np.uint32(roots.size),
+                buf(kept, np.uint32), np.uint32(np.asarray(kept).shape[-1]),
+                buf(tile_super, np.uint32), buf(extra_ranges, np.uint32), buf(extra, np.uint32),
+                buf(light_rec, np.uint32), buf(node_rec, np.uint32),
+                buf(_node_sizes(tree), np.uint32), *(np.float64(x) for x in self.eye), np.float64(self.K), np.float64(limit),
+                np.uint32(cap)]
+        chunk = min(CUT_CHUNK, max(n, 1))
+        heap_b = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, chunk * cap * 8)
+        heap_k = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, chunk * cap * 4)
+        lists = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, max(n * cap + reserve, 1) * 4)
+        counts_b = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, max(n, 1) * 12)
+        sums_b = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, max(n, 1) * 8)
+        kern = self.runtime.kernel(self.prog, "tile_cut")
+        ev = None
+        with self.runtime.lock:
+            for t0 in range(0, n, chunk):
+                m = min(chunk, n - t0)
+                kern.set_args(*args, heap_b, heap_k, lists, counts_b, sums_b, np.uint32(t0),
+                              np.uint32(m))
+                ev = cl.enqueue_nd_range_kernel(queue, kern, (-(-m // CUT_LOCAL) * CUT_LOCAL,),
+                                                (CUT_LOCAL,))
+        counts = np.zeros((n, 3), np.uint32)
+        sums = np.zeros(n, np.float64)
+        if n:
+            cl.enqueue_copy(queue, counts, counts_b, wait_for=[ev])
+            cl.enqueue_copy(queue, sums, sums_b).wait()
+        return counts, sums, lists
+
+
+def _node_sizes(tree: LightTree) -> np.ndarray:
+    """(K,) the lights under each internal node."""
+    start, end, _ = leaf_ranges(tree)
+    return (end - start).astype(np.uint32)
+
+
+#: kernels/node_bound.cl tile_cut's mark of a list that cap entries could not hold.
+CUT_OVERFLOW = 0xFFFFFFFF
+#: Tiles per launch of ``tile_cut`` (its heaps: cap entries each, reused across launches).
+CUT_CHUNK = 1024
+#: Work-items per work-group of ``tile_cut``.
+CUT_LOCAL = 16

@@ -647,7 +647,9 @@ def _peak(c, a, b):
     """max over x ∈ [0, c] of x^a·(1 − x²)^b (a ≥ 0, b > 0): at x*² = a/(a + 2b), or c."""
     xs = np.sqrt(a / (a + 2.0 * b))
     x = np.minimum(c, xs)
-    return x ** a * (1.0 - x * x) ** b
+    y = 1.0 - x * x
+    # b is 1/2 or 1 here: sqrt and y itself (kernels/node_bound.cl takes them for pow's cost)
+    return x ** a * (np.sqrt(y) if b == 0.5 else (y if b == 1.0 else y ** b))
 
 
 def _view_dot_lower(tiles, blo, bhi, thi, tlo, d_lo, spec):
@@ -860,3 +862,29 @@ def threshold_cut(tree: LightTree, bound, n_tiles: int, budget: float, *, steps:
     used = np.zeros((n_tiles, tree.n_nodes), bool)
     used[et[pick], ek[pick]] = True
     return used, covered_leaves(tree, used) if leaves else None
+
+
+def greedy_cut(tree: LightTree, bound, limit: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """One tile's cut as kernels/node_bound.cl ``tile_cut`` finds it (Lightcuts'
+    order): from the roots, the node with the largest bound is split until the
+    bounds sum to ≤ ``limit`` or no node is left. ``bound(k)``: the bound of internal
+    node k (0-based; NaN counts as +inf). Returns (the cut's internal nodes, the
+    leaves reached, the cut's sum of bounds)."""
+    import heapq
+
+    def b_of(k):
+        b = float(bound(k))
+        return np.inf if np.isnan(b) else b
+
+    heap = [(-b_of(k), int(k)) for k in (tree.levels[0] if tree.levels else [])]
+    heapq.heapify(heap)
+    leaves = []
+    while heap and not sum(-b for b, _ in heap) <= limit:
+        _, k = heapq.heappop(heap)
+        for c in tree.children[k]:
+            if c < tree.n_leaves:
+                leaves.append(int(c))
+            else:
+                heapq.heappush(heap, (-b_of(c - tree.n_leaves), int(c - tree.n_leaves)))
+    nodes = np.array(sorted(k for _, k in heap), np.int64)
+    return nodes, np.array(sorted(leaves), np.int64), float(sum(-b for b, _ in heap))

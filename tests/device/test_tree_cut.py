@@ -273,7 +273,8 @@ def test_spots_of_one_cone_take_clusters(seed, eps, inner, outer, tilt):
     assert np.all(tree.cone[:, 3] > 0)                        # every node is a spot's
 
 
-@pytest.mark.parametrize("case", ["grey", "colour", "blinn", "spots", "groups", "relative"])
+@pytest.mark.parametrize("case", ["grey", "colour", "blinn", "spots", "groups", "relative",
+                                  "grey-host", "blinn-host"])
 def test_the_blocks_cut_keeps_the_budget(case, monkeypatch):
     """Where the super-tiles' cuts leave long lists, the cut is made again per block of
     BLOCK_TILES² tiles with all the budget the super-tiles' culling left, and its lists
@@ -281,6 +282,10 @@ def test_the_blocks_cut_keeps_the_budget(case, monkeypatch):
     stay within ε of the full sums (per group layer and relative to each pixel where
     asked), and the pixels within ε + the error model of the reference."""
     monkeypatch.setattr(culling, "BLOCK_ENTRIES", 0)
+    # "-host": the host's cut per block where the device's per tile would be made
+    # (tests/device/test_device_cut.py); spots and groups take the host's anyway
+    case, host = case.removesuffix("-host"), case.endswith("-host")
+    monkeypatch.setattr(culling, "DEVICE_CUT", not host)
     rng = np.random.default_rng(11)
     gb = heightfield(rng, 64, 96, bumps=0.1)
     if case == "spots":
