@@ -23,8 +23,11 @@ gradient by the product rule; ‖∇²t²‖ ≤ (2s² + 6t⁺·s)/d² joins the
 used only where t has no kink over the pair (all inside the inner cone, t ≡ 1, or all
 on the ramp) (:func:`spot_factor_bounds`).
 
-The tree is a kd-tree (median split on the longest axis of the node's lights),
-built level by level with vectorised sorts: 65 536 lights in about 0.1 s.
+The tree is a kd-tree, built level by level with vectorised sorts: a node's lights are
+sorted along the longest axis of their box and split where the two sides' weighted sums
+of squared distances to their centroids (their Q below) are least, each side keeping a
+quarter of the lights or more (:data:`SPLIT`), so that compact groups stay whole;
+65 536 lights in about 0.9 s.
 
 The bound (:func:`cluster_bounds`): for a pixel ``x`` and channel ``c``, the
 error of the representative is
@@ -170,6 +173,59 @@ def clusterable_classes(arrays) -> list[np.ndarray]:
     return [idx[inv == c] for c in range(inv.max() + 1) if (inv == c).sum() >= 2]
 
 
+#: How a node's lights are split, after sorting them along the longest axis of their box:
+#: "variance", where the two sides' radiance-weighted sums of squared distances to their
+#: centroids (the second-order bound's Q) are least, each side holding at least
+#: SPLIT_SHARE of the lights; or "median", in halves. Compact groups then stay whole
+#: (a median falls inside a group as often as not, and a node holding parts of two
+#: groups has the Q of their distance). On `clusters` at 65 536 lights the nodes' Q at
+#: depth 10 sum to 0.88 against 4.03 with medians, and whole 1080p frames (Ice Lake,
+#: Intel's runtime, second frame) take 18.4 s against 25.4 s at absolute 10⁻³, 2.29 s
+#: against 4.14 s at relative 10⁻²; `wide` (uniform lights) keeps its Q (13.07 against
+#: 13.29) and its frame (relative 10⁻²: 109 s against 118 s). The build: 0.85 s
+#: against 0.57 s.
+SPLIT = "variance"
+SPLIT_SHARE = 0.25
+
+
+def _split_points(p, w, starts, ends):
+    """Per segment [start, end) of the level (its lights ``p`` (m, 3) in sorted order,
+    weights ``w`` (m,)), the split index where the two sides' weighted sums of squared
+    distances to their own centroids are least, with at least SPLIT_SHARE of the
+    segment's lights (and one) on each side."""
+    size = ends - starts
+    off = np.r_[0, np.cumsum(size)[:-1]]
+    seg = np.repeat(np.arange(size.size), size)
+    # inclusive prefix sums within each segment (global cumsums less the segment's base)
+    def prefix(x):
+        c = np.cumsum(x, axis=0)
+        base = np.where(off[:, None] > 0, c[np.maximum(off - 1, 0)], 0.0) if x.ndim > 1 \
+            else np.where(off > 0, c[np.maximum(off - 1, 0)], 0.0)
+        return c - base[seg]
+    W = prefix(w)
+    Wp = prefix(w[:, None] * p)
+    Wq = prefix(w * (p * p).sum(axis=1))
+    last = off + size - 1
+    tot_W, tot_Wp, tot_Wq = W[last][seg], Wp[last][seg], Wq[last][seg]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        left = Wq - (Wp * Wp).sum(axis=1) / W            # lights ≤ j on the left
+        rW = tot_W - W
+        rWp = tot_Wp - Wp
+        right = (tot_Wq - Wq) - (rWp * rWp).sum(axis=1) / rW
+        cost = np.nan_to_num(left, nan=0.0) + np.nan_to_num(right, nan=0.0)
+    j = np.arange(len(seg)) - off[seg]                   # position within the segment
+    least = np.maximum(np.ceil(SPLIT_SHARE * size), 1).astype(np.int64)
+    # a split after position j puts j + 1 lights on the left
+    ok = (j + 1 >= least[seg]) & (size[seg] - j - 1 >= least[seg])
+    cost = np.where(ok, cost, np.inf)
+    best = np.lexsort((j, cost, seg))                     # per segment: least cost first
+    first = np.r_[0, np.cumsum(size)[:-1]]
+    pick = best[first]
+    mids = starts + j[pick] + 1
+    # no valid split (segments of two or three lights): the middle
+    return np.where(np.isfinite(cost[pick]), mids, (starts + ends) // 2)
+
+
 def build_light_tree(arrays) -> LightTree | None:
     """The forest over ``arrays``' clusterable point lights (:func:`clusterable_classes`),
     or None when fewer than :data:`MIN_TREE_LIGHTS` may be clustered."""
@@ -228,8 +284,9 @@ def build_light_tree(arrays) -> LightTree | None:
             while len(levels) <= depth:
                 levels.append([])
             levels[depth].append(ids)
-            # children: halves; a half of one light is a leaf (its light's number)
-            mids = (starts + ends) // 2
+            # children: the two sides of the split (a side of one light is a leaf: its
+            # light's number)
+            mids = _split_points(pp, ww, starts, ends) if SPLIT == "variance" else (starts + ends) // 2
             halves = [(starts, mids), (mids, ends)]
             ch = np.empty((starts.size, 2), np.int64)
             nxt_s, nxt_e, nxt_id = [], [], []

@@ -94,6 +94,34 @@ def test_nodes_hold_their_lights_statistics():
         np.testing.assert_array_equal(tree.attenuation[k], arrays["point_attenuation"][idx[0]])
 
 
+@pytest.mark.parametrize("split", ["variance", "median"])
+def test_compact_groups_stay_whole(split, monkeypatch):
+    """With the variance split every node holds whole groups or part of one: eight compact
+    groups of 50–90 lights along a line, far apart for their size. Median splits cut
+    through groups (the test can fail: it is run with them and must see it)."""
+    import clphong.model.light_tree as lt
+
+    monkeypatch.setattr(lt, "SPLIT", split)
+    rng = np.random.default_rng(5)
+    sizes = [50, 90, 60, 80, 70, 55, 85, 65]
+    lights, group = [], []
+    for g, m in enumerate(sizes):
+        lights += clustered_lights(rng, m, centre=(3.0 * g, 0.5 * g, 5.0), spread=0.1, grey=True)
+        group += [g] * m
+    tree = build_light_tree(make_scene(lights).light_arrays)
+    group = np.asarray(group)
+    count = np.bincount(group)
+    split_groups = 0
+    for k in range(tree.n_nodes):
+        held = np.bincount(group[subtree_leaves(tree, k)], minlength=len(sizes))
+        touched = np.flatnonzero(held)
+        split_groups += touched.size > 1 and bool(np.any(held[touched] < count[touched]))
+    if split == "variance":
+        assert split_groups == 0
+    else:
+        assert split_groups > 0
+
+
 def test_too_few_lights_build_no_tree():
     rng = np.random.default_rng(1)
     scene = make_scene(clustered_lights(rng, MIN_TREE_LIGHTS - 1, centre=(0, 0, 5), spread=1.0))
