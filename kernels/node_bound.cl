@@ -112,30 +112,64 @@ inline double falloff_curve(double c0, double c1, double c2, double x)
     return 2.0 * fabs(n) / (p * p * p);
 }
 
-/* specular_cosine: an upper bound c of the lobe's cosine over the boxes (1: none) */
-inline double specular_cosine(v3 lo, v3 hi, v3 nlo, v3 nhi, v3 blo, v3 bhi, v3 eye)
+/* What a tile's bounds share over every node: its boxes, widened by the float32
+ * rounding of the positions they hold (tlo, thi), and, where it has specular, the
+ * tile's side of specular_cosine (its normals' cone, centre and radius, and its view
+ * cone): formed once per tile by tile_cut, once per pair by node_terms. */
+typedef struct {
+    v3 lo, hi, nlo, nhi, D, S, tlo, thi;
+    double reach;          /* the largest |coordinate| of the widened box */
+    int spec;              /* any S */
+    v3 n0, ct, v0;
+    double a_n, rt, a_v;
+} tile_c;
+
+inline tile_c tile_consts(const __global double *T, const v3 eye)
 {
-    double len;
-    const v3 n0 = unit(scl(add(nlo, nhi), 0.5), &len);
-    const double corner = sum3(vmin(mk(nlo.x * n0.x, nlo.y * n0.y, nlo.z * n0.z),
-                                    mk(nhi.x * n0.x, nhi.y * n0.y, nhi.z * n0.z)));
-    const double a_n = corner > 0.0 ? acos(clamp(corner, -1.0, 1.0)) : PI_D;
-    const v3 ct = scl(add(lo, hi), 0.5), cb = scl(add(blo, bhi), 0.5);
-    double rt, rb, dist;
-    unit(sub(hi, lo), &rt);
+    tile_c t;
+    t.lo = load3(T);
+    t.hi = load3(T + 3);
+    t.nlo = load3(T + 6);
+    t.nhi = load3(T + 9);
+    t.D = load3(T + 12);
+    t.S = load3(T + 15);
+    const double pad = 4.0 * U_D * nmax3(add(vabs(t.lo), vabs(t.hi)));
+    t.tlo = sub(t.lo, mk(pad, pad, pad));
+    t.thi = add(t.hi, mk(pad, pad, pad));
+    t.reach = nmax3(vmax(vabs(t.tlo), vabs(t.thi)));
+    t.spec = t.S.x != 0.0 || t.S.y != 0.0 || t.S.z != 0.0;
+    if (t.spec) {
+        double len;
+        t.n0 = unit(scl(add(t.nlo, t.nhi), 0.5), &len);
+        const double corner = sum3(vmin(mk(t.nlo.x * t.n0.x, t.nlo.y * t.n0.y, t.nlo.z * t.n0.z),
+                                        mk(t.nhi.x * t.n0.x, t.nhi.y * t.n0.y, t.nhi.z * t.n0.z)));
+        t.a_n = corner > 0.0 ? acos(clamp(corner, -1.0, 1.0)) : PI_D;
+        t.ct = scl(add(t.lo, t.hi), 0.5);
+        unit(sub(t.hi, t.lo), &t.rt);
+        t.rt *= 0.5;
+#if PERSPECTIVE
+        double de;
+        t.v0 = unit(sub(eye, t.ct), &de);
+        t.a_v = cone(t.rt, de);
+#else
+        t.v0 = eye;
+        t.a_v = 0.0;
+#endif
+    }
+    return t;
+}
+
+/* specular_cosine: an upper bound c of the lobe's cosine over the boxes (1: none) */
+inline double specular_cosine(const tile_c *t, v3 blo, v3 bhi)
+{
+    const v3 n0 = t->n0, ct = t->ct, v0 = t->v0;
+    const double a_n = t->a_n, rt = t->rt, a_v = t->a_v;
+    const v3 cb = scl(add(blo, bhi), 0.5);
+    double rb, dist;
     unit(sub(bhi, blo), &rb);
-    rt *= 0.5;
     rb *= 0.5;
     const v3 u0 = unit(sub(cb, ct), &dist);
     const double a_u = cone(rt + rb, dist);
-#if PERSPECTIVE
-    double de;
-    const v3 v0 = unit(sub(eye, ct), &de);
-    const double a_v = cone(rt, de);
-#else
-    const v3 v0 = eye;
-    const double a_v = 0.0;
-#endif
     double beta;
 #if BLINN
     const double gamma = angle(u0, v0) + a_u + a_v;
@@ -171,18 +205,15 @@ inline double view_dot_lower(v3 blo, v3 bhi, v3 thi, v3 tlo, double d_lo, v3 eye
     return clamp(uv, -1.0, 0.0);
 }
 
-/* cluster_terms for one (tile, node) pair: each channel's bound, in e */
-inline void node_term(const __global double *T, const __global double *N, const v3 eye,
-                      const double K, double out[3])
+/* cluster_terms for one (tile, node) pair: each channel's bound, in out */
+inline void node_term(const tile_c *tc, const __global double *N, const v3 eye, const double K,
+                      double out[3])
 {
-    const v3 lo = load3(T), hi = load3(T + 3), nlo = load3(T + 6), nhi = load3(T + 9);
-    const v3 D = load3(T + 12), S = load3(T + 15);
+    const v3 nlo = tc->nlo, nhi = tc->nhi, D = tc->D, S = tc->S;
+    const v3 tlo = tc->tlo, thi = tc->thi;
     const v3 blo = load3(N), bhi = load3(N + 3);
     const double c0 = N[6], c1 = N[7], c2 = N[8];
     const v3 Rk = load3(N + 9), M = load3(N + 12), F = load3(N + 15), Q = load3(N + 18);
-    /* the tile boxes widened by the float32 rounding of the positions they hold */
-    const double pad = 4.0 * U_D * nmax3(add(vabs(lo), vabs(hi)));
-    const v3 tlo = sub(lo, mk(pad, pad, pad)), thi = add(hi, mk(pad, pad, pad));
     const v3 zero = mk(0.0, 0.0, 0.0);
     const v3 gap = add(vmax(sub(blo, thi), zero), vmax(sub(tlo, bhi), zero));
     const double d_lo = sqrt(sum3(mk(gap.x * gap.x, gap.y * gap.y, gap.z * gap.z)));
@@ -192,7 +223,7 @@ inline void node_term(const __global double *T, const __global double *N, const 
     const double nl_hi = interval_dot_hi(nlo, nhi, sub(blo, thi), sub(bhi, tlo));
     const v3 span = sub(vmax(bhi, thi), vmin(blo, tlo));
     const double d_hi = sqrt(sum3(mk(span.x * span.x, span.y * span.y, span.z * span.z)));
-    const double reach = nmax3(vmax(vabs(tlo), vabs(thi))) + nmax3(vmax(vabs(blo), vabs(bhi)));
+    const double reach = tc->reach + nmax3(vmax(vabs(blo), vabs(bhi)));
     const double margin = U_D * (12.0 + 2.0 * reach / d_lo);
     const int dark = nl_hi / d_hi + margin <= 0.0;
     const int lit = nl_lo / d_hi - margin > 0.0;
@@ -225,10 +256,10 @@ inline void node_term(const __global double *T, const __global double *N, const 
         e[c] = Dc[c] * fmin(fmin(e_rng, e_lip), lit ? e_two : INFINITY);
     }
     /* specular (where the tile has any) */
-    if (Sc[0] != 0.0 || Sc[1] != 0.0 || Sc[2] != 0.0) {
+    if (tc->spec) {
         double sp[3];
 #if LOBE
-        const double cs = specular_cosine(lo, hi, nlo, nhi, blo, bhi, eye);
+        const double cs = specular_cosine(tc, blo, bhi);
         const double cK = pow(cs, K);
 #if BLINN
         const double uv = view_dot_lower(blo, bhi, thi, tlo, d_lo, eye);
@@ -282,8 +313,9 @@ __kernel void node_terms(__global const double *restrict tiles,
     if (i >= n_pairs)
         return;
     double e[3];
-    node_term(tiles + (size_t)pair_tile[i] * TILE_DOUBLES,
-              nodes + (size_t)pair_node[i] * node_doubles, mk(eye_x, eye_y, eye_z), K, e);
+    const v3 eye = mk(eye_x, eye_y, eye_z);
+    const tile_c tc = tile_consts(tiles + (size_t)pair_tile[i] * TILE_DOUBLES, eye);
+    node_term(&tc, nodes + (size_t)pair_node[i] * node_doubles, eye, K, e);
     for (int c = 0; c < 3; ++c)
         out[3 * (size_t)i + c] = e[c];
 }
@@ -291,11 +323,11 @@ __kernel void node_terms(__global const double *restrict tiles,
 /* cluster_bounds for one pair: the largest channel's term in units of the tile's
  * budget (scale: each channel's 1/budget), × (1 + 10⁻⁶); a channel whose term is 0
  * stays 0; no bound (NaN): +inf */
-inline double node_bound(const __global double *T, const __global double *N,
+inline double node_bound(const tile_c *tc, const __global double *N,
                          const __global double *scale, const v3 eye, const double K)
 {
     double e[3];
-    node_term(T, N, eye, K, e);
+    node_term(tc, N, eye, K, e);
     double b = 0.0;
     for (int c = 0; c < 3; ++c) {
         const double v = e[c] == 0.0 ? 0.0 : e[c] * scale[c];
@@ -414,6 +446,7 @@ __kernel void tile_cut(__global const double *restrict tiles,
         sums[t] = 0.0;
         return;
     }
+    const tile_c tc = tile_consts(T, eye);
     const uint s = tile_super[t];
     const __global uint *mask = kept + (size_t)s * kept_words;
     uint m = 0, h = 0, n_inf = 0;
@@ -430,7 +463,7 @@ __kernel void tile_cut(__global const double *restrict tiles,
             counts[3 * t] = CUT_OVERFLOW;
             return;
         }
-        const double b = node_bound(T, nodes + (size_t)roots[r] * node_doubles, sc, eye, K);
+        const double b = node_bound(&tc, nodes + (size_t)roots[r] * node_doubles, sc, eye, K);
         heap_push(hb, hk, h++, b, roots[r]);
         if (isinf(b))
             ++n_inf;
@@ -473,7 +506,7 @@ __kernel void tile_cut(__global const double *restrict tiles,
                 return;
             }
             const uint kk = (uint)c - n_leaves;
-            const double bk = node_bound(T, nodes + (size_t)kk * node_doubles, sc, eye, K);
+            const double bk = node_bound(&tc, nodes + (size_t)kk * node_doubles, sc, eye, K);
             heap_push(hb, hk, h++, bk, kk);
             if (isinf(bk))
                 ++n_inf;
