@@ -273,13 +273,16 @@ inline void node_term(const tile_c *tc, const __global double *N, const v3 eye, 
         const int fres = BLINN && FRESNEL;
         const double h1 = peak(cs, K - 1.0, 0.5);
         const double A1 = a1, A2 = nmax(a2, a1_lo / d_lo);
-        const double sgrad = A_lo * (K * h1 * g + (fres ? 5.0 * g * cK : 0.0)) + cK * A1;
+        /* ∇P ⊥ u ∥ ∇A: the two parts in quadrature (light_tree.py's module docstring) */
+        const double sgrad = hypot(A_lo * (K * h1 * g + (fres ? 5.0 * g * cK : 0.0)), cK * A1);
         const int second = K >= 2.0 && !fres;
         double shess = 0.0;
         if (second) {
             const double f1 = peak(cs, K - 2.0, 1.0);
-            shess = (A_lo * (K * (K - 1.0) * f1 * g * g + K * (2.0 * h1 + cK) * g * g + K * h1 * t)
-                     + 2.0 * K * h1 * g * A1 + cK * A2);
+            /* K(K−1)x^(K−2)·∇x∇xᵀ ⪰ 0 ⪰ −K·x^K·JᵀJ: the larger norm; the cross term once */
+            shess = (A_lo * (nmax(K * (K - 1.0) * f1, K * cK) * g * g + 2.0 * K * h1 * g * g
+                             + K * h1 * t)
+                     + K * h1 * g * A1 + cK * A2);
         }
         for (int c = 0; c < 3; ++c) {
             const double rng = Rc[c] * (A_lo * cK);

@@ -65,15 +65,24 @@ and 6.7A/d² for 1/d². The specular cosine ``x = cos θ`` (``n·h``, or ``r·v`
 for Phong) moves with ``|∇θ| ≤ g``: Phong's ``r = (2nnᵀ − I)u`` is an orthogonal map
 of ``u``, so ``g = 1/d``; Blinn-Phong's half vector moves by ``|∇u|/|u + v|``, so
 ``g = 1/(d·|u + v|⁻)``, ``|u + v|⁻`` from a lower bound of ``u·v``. Then ``|∇x| ≤
-sin θ·g`` and ``|∇²x| ≤ (2 sin θ + cos θ)·g² + sin θ·t`` (``t = 3g/d`` for
-Blinn-Phong, the curvature of ``u``; 0 for Phong), so for ``P = x^K`` (``K ≥ 1``;
-``K ≥ 2`` for the second order) with ``h1, f1`` the maxima over ``x ∈ [0, c]`` of
-``x^(K−1)·√(1 − x²)`` and ``x^(K−2)·(1 − x²)``:
-``Λ_s = A·K·h1·g + c^K·A₁`` (``+ 5g·c^K·A`` with Blinn-Phong's Schlick weight,
-which depends on ``v·h``) and ``H_s = A·(K(K−1)·f1·g² + K(2h1 + c^K)·g² + K·h1·t) +
-2K·h1·g·A₁ + c^K·max(A₂, |A′(d⁻)|/d⁻)`` (‖∇²A‖: radially A″, across A′/d; not used
-with Blinn-Phong's Schlick weight). A shininess map
-or ``K < 1`` leaves the specular term its range ``R·A`` alone.
+sin θ·g``, and with ``J = ∇h`` (``∇r`` for Phong; ``‖J‖ ≤ g``) and ``h·h = 1``,
+``∇²x = −x·JᵀJ + n_⊥·∇²h``: a negative semi-definite part of norm ≤ ``cos θ·g²`` and
+a part ≤ ``sin θ·(2g² + t)`` (``t = 3g/d`` for Blinn-Phong, the curvature of ``u``;
+0 for Phong). Two facts of the geometry tighten the sums (2026-12-07): ``x`` depends
+on ``p`` only through ``u``, so ``∇x ⊥ u`` while ``∇A = A′·u`` is radial (a
+gradient's two parts add in quadrature, and the cross term ``∇A ∇Pᵀ + ∇P ∇Aᵀ`` has
+norm ``|∇A|·|∇P|``, not twice it); and for ``S ⪰ 0 ⪰ N``, ``‖S + N‖ ≤ max(‖S‖,
+‖N‖)``. So for ``P = x^K`` (``K ≥ 1``; ``K ≥ 2`` for the second order), ``∇²P =
+K(K−1)x^(K−2)·∇x∇xᵀ − K·x^K·JᵀJ + K·x^(K−1)·n_⊥·∇²h``, with ``h1, f1`` the
+maxima over ``x ∈ [0, c]`` of ``x^(K−1)·√(1 − x²)`` and ``x^(K−2)·(1 − x²)``:
+``Λ_s = hypot(A·K·h1·g, c^K·A₁)`` (``A·K·h1·g + 5g·c^K·A`` in the first with
+Blinn-Phong's Schlick weight, which depends on ``v·h``) and ``H_s =
+A·(max(K(K−1)·f1, K·c^K)·g² + 2K·h1·g² + K·h1·t) + K·h1·g·A₁ +
+c^K·max(A₂, |A′(d⁻)|/d⁻)`` (‖∇²A‖: radially A″, across A′/d; not used with
+Blinn-Phong's Schlick weight). Before, ``Λ_s`` and ``H_s`` summed every part (``K(K−1)f1
++ K(2h1 + c^K)``, ``2K·h1·g·A₁``): at a highlight's 16×16 tile on ``clusters`` the
+cut keeps a quarter fewer entries now. A shininess map or ``K < 1`` leaves the
+specular term its range ``R·A`` alone.
 
 Where ``n·u ≤ 0`` over the whole box pair both sums are 0 (bound 0); where the
 boxes touch (``d⁻ = 0``) there is no bound (+inf: the node is never used there).
@@ -645,9 +654,10 @@ def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spe
     the second-order Taylor bound, with the cosine x = cos θ ≤ c (:func:`specular_cosine`)
     and |∇θ| ≤ g (Phong: g = 1/d, r being an orthogonal map of u; Blinn-Phong: g =
     1/(d·|u + v|⁻), and t = 3g/d for the curvature of u). For P = x^K, with h1 and f1
-    the power's slopes at their maxima over [0, c] (:func:`_peak`):
-    |∇(P·A)| ≤ A·K·h1·g + c^K·A₁ (+ 5g·c^K·A for Blinn-Phong's Schlick weight) and
-    ‖∇²(P·A)‖ ≤ A·(K(K−1)·f1·g² + K(2h1 + c^K)·g² + K·h1·t) + 2K·h1·g·A₁ + c^K·A₂
+    the power's slopes at their maxima over [0, c] (:func:`_peak`), ∇P ⊥ ∇A and
+    ∇²P's semi-definite parts apart (the module docstring):
+    |∇(P·A)| ≤ hypot(A·K·h1·g (+ 5g·c^K·A for Blinn-Phong's Schlick weight), c^K·A₁) and
+    ‖∇²(P·A)‖ ≤ A·(max(K(K−1)·f1, K·c^K)·g² + 2K·h1·g² + K·h1·t) + K·h1·g·A₁ + c^K·A₂
     (K ≥ 2, and not with Blinn-Phong's Schlick weight), ``slopes`` = (A₁, A₂) the sups
     of |∇A| = |A′| and ‖∇²A‖ = max(|A″|, |A′|/d) over d ≥ d⁻
     (:func:`~clphong.model.falloff.falloff_slopes`; at most 2A/d and 8A/d²). A spot's
@@ -677,17 +687,20 @@ def _specular_bound(tiles, blo, bhi, thi, tlo, d_lo, A_lo, lit, Rk, M, F, Q, spe
         # x = cos θ with |∇θ| ≤ g, so |∇x| ≤ sin θ·g: the power's slopes peak away
         # from the highlight's centre: K·x^(K−1)·|∇x| ≤ K·h1·g, K(K−1)x^(K−2)|∇x|² ≤
         # K(K−1)·f1·g², h1 and f1 the maxima over x ∈ [0, c] of x^(K−1)·√(1 − x²)
-        # and x^(K−2)·(1 − x²); |∇²x| ≤ (2 sin θ + cos θ)·g² + sin θ·t
+        # and x^(K−2)·(1 − x²); ∇²x = −x·JᵀJ (⪯ 0, ≤ cos θ·g²) + a part ≤ sin θ·(2g² + t).
+        # ∇P ⊥ u ∥ ∇A: the gradient's parts add in quadrature, the cross term counts once;
+        # K(K−1)x^(K−2)·∇x∇xᵀ ⪰ 0 ⪰ −K·x^K·JᵀJ: the larger of the two norms, not their sum
         h1 = _peak(c, K - 1.0, 0.5)
         A1, A2 = slopes
-        grad = A_lo * (K * h1 * g + (5.0 * g * cK if fres else 0.0)) + cK * A1
+        grad = np.hypot(A_lo * (K * h1 * g + (5.0 * g * cK if fres else 0.0)), cK * A1)
         g_hi = A_lo * cK                             # the term's range
         grad_t = grad * t2 + np.where(spot_lip > 0, g_hi * spot_lip, 0.0)
         e_lip = grad_t[..., None] * M
         if K >= 2 and not fres:
             f1 = _peak(c, K - 2.0, 1.0)
-            hess = (A_lo * (K * (K - 1) * f1 * g * g + K * (2.0 * h1 + cK) * g * g + K * h1 * t)
-                    + 2.0 * K * h1 * g * A1 + cK * A2)
+            hess = (A_lo * (np.maximum(K * (K - 1) * f1, K * cK) * g * g + 2.0 * K * h1 * g * g
+                            + K * h1 * t)
+                    + K * h1 * g * A1 + cK * A2)
             hess_t = hess * t2 + np.where(spot_hess > 0, 2.0 * spot_lip * grad + g_hi * spot_hess,
                                           0.0)
             e_two = grad_t[..., None] * F + 0.5 * hess_t[..., None] * Q

@@ -133,15 +133,31 @@ def test_device_cut_overflows_to_none(device):
     assert np.all(counts[:, 0] == CUT_OVERFLOW) and all(c is None for c in cuts)
 
 
-@pytest.mark.parametrize("eps,cap", [(1e-3, 4096), (3e-2, 4096), (3e-2, 300)])
+@pytest.mark.parametrize("eps,cap", [(1e-3, 4096), (3e-2, 4096), (3e-2, None)])
 def test_device_cut_frames_keep_the_budget(eps, cap, monkeypatch):
     """Frames through the device's cut (BLOCK_ENTRIES = 0) keep the budget: the lists'
     float64 sums within ε of the full sums, the pixels within ε + the error model; with
-    a cap of 300 entries some tiles keep their super-tile's list."""
+    a cap of the median cut's length (None) about half the tiles keep their super-tile's
+    list."""
     monkeypatch.setattr(culling, "BLOCK_ENTRIES", 0)
+    scene, gb = _frame()
+    if cap is None:                          # the median of the uncapped cuts' lengths
+        sizes = []
+        real = DeviceNodeTerms.tile_cut
+
+        def spy(self, *a, **k):
+            out = real(self, *a, **k)
+            sizes.append(out[0][:, 0][(out[0][:, 0] > 0) & (out[0][:, 0] != CUT_OVERFLOW)])
+            return out
+
+        monkeypatch.setattr(culling, "CUT_CAP", 4096)
+        with monkeypatch.context() as m:
+            m.setattr(DeviceNodeTerms, "tile_cut", spy)
+            r = Renderer(scene, max_error=eps)
+            r.shade(prepare_frame(gb, lanes=r.lanes))
+        cap = int(np.median(np.concatenate(sizes)))
     monkeypatch.setattr(culling, "CUT_CAP", cap)
     cuts = _count_device_cuts(monkeypatch)
-    scene, gb = _frame()
     _, cull, _ = check_tree_budget(scene, gb, eps)
     assert cuts and all(c is not None for c in cuts), "the device's cut was made"
     assert cull.tree_blocks and cull.covered > cull.clusters

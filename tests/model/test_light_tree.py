@@ -460,3 +460,54 @@ def test_the_diffuse_bound_is_within_a_few_times_the_error(att, dist, spread):
                                  att=att, size=0.05, tilt=0.0, grey=True)
         lit = err > 0
         assert np.median(bound[lit] / err[lit]) <= 8.0
+
+
+def _lobe_pairs(model, h, att, *, d=10.0, delta=0.01, n_pairs=32, seed=0):
+    """One pixel (normal +z, CAMERAS[0]) and ``n_pairs`` grey pairs of lights 2δ apart at
+    distance ``d``, about the lobe's steepest curvature (cosine near x*² = (K − 2)/K),
+    every other pair along the cosine's gradient: (errors, bounds, which nodes are
+    pairs). The pairs are compact, so the tree keeps each whole."""
+    rng = np.random.default_rng(seed)
+    eye = np.array(CAMERAS[0]["position"])
+    v, n = eye / np.linalg.norm(eye), np.array([0.0, 0.0, 1.0])
+    K = h if model == "phong" else 4.0 * h
+    # Phong's cosine is u·r_v, r_v the view reflected; Blinn-Phong's n·h, h about n
+    lobe = 2.0 * (n @ v) * n - v if model == "phong" else n
+    theta_star = np.arccos(np.sqrt((K - 2.0) / K)) * (1.0 if model == "phong" else 2.0)
+    lights = []
+    for i in range(n_pairs):
+        u = n
+        for _ in range(100):
+            theta = theta_star * rng.uniform(0.5, 2.0)
+            w = np.cross(lobe, rng.normal(size=3))
+            u = np.cos(theta) * lobe + np.sin(theta) * w / np.linalg.norm(w)
+            if u[2] > 0.2:
+                break
+        e = lobe - (lobe @ u) * u if i % 2 == 0 else rng.normal(size=3)
+        e /= np.linalg.norm(e)
+        for s in (1.0, -1.0):
+            lights.append(dict(type="point", position=tuple(d * u + s * delta * e),
+                               color=(1.0, 1.0, 1.0), intensity=1.0, attenuation=att))
+    scene = make_scene(lights, model=model, h=h, k_s=0.5, camera=CAMERAS[0], fresnel="none")
+    tree = build_light_tree(scene.light_arrays)
+    gb = make_gbuffer(np.zeros((1, 1, 3)), n.reshape(1, 1, 3), np.full((1, 1, 3), 0.5))
+    px, _, D, S, _ = reference._inputs(scene, gb)
+    bound = cluster_bounds(tree, TileBoxes.of_pixels(px.p, px.n, D, S),
+                           SpecularModel.of_scene(scene), np.zeros(3))[0]
+    pair = np.array([len(subtree_leaves(tree, k)) == 2 for k in range(tree.n_nodes)])
+    return node_errors(scene, tree, px, D, S), bound, pair
+
+
+@pytest.mark.parametrize("att", [(1.0, 0.0, 0.0), (1.0, 0.0, 0.01), (0.0, 0.0, 1.0)])
+@pytest.mark.parametrize("model,h", [("phong", 64.0), ("phong", 8.0), ("blinn-phong", 16.0)])
+def test_the_specular_bound_is_near_tight_on_the_lobes_flank(model, h, att):
+    """Pairs of lights where the lobe bends most: the error is second order, ½·δᵀHδ, and
+    the bound ½·H_s·Q (with the diffuse term's). It holds, and for some pair it is within
+    1/0.35 of the error: measured 0.39–0.68 with H_s's semi-definite parts apart and the
+    cross term once (0.26–0.63 when every part was summed). The specular H_s made 0.35×
+    as large fails 3 of these 9 cases, 0.2× fails 8 and 0.1× all."""
+    err, bound, pair = _lobe_pairs(model, h, att)
+    worst = int(np.argmax(err - bound))
+    assert np.all(err <= bound), f"node {worst}: error {err[worst]:.3g} > bound {bound[worst]:.3g}"
+    assert pair.sum() >= 24
+    assert (err[pair] / bound[pair]).max() >= 0.35
