@@ -159,8 +159,9 @@ inline tile_c tile_consts(const __global double *T, const v3 eye)
     return t;
 }
 
-/* specular_cosine: an upper bound c of the lobe's cosine over the boxes (1: none) */
-inline double specular_cosine(const tile_c *t, v3 blo, v3 bhi)
+/* specular_cosine: an upper bound c of the lobe's cosine over the boxes (1: none);
+ * s_half: sin(γ⁺/2), γ⁺ ≤ π the largest angle between u and v (Blinn-Phong; 1 for Phong) */
+inline double specular_cosine(const tile_c *t, v3 blo, v3 bhi, double *s_half)
 {
     const v3 n0 = t->n0, ct = t->ct, v0 = t->v0;
     const double a_n = t->a_n, rt = t->rt, a_v = t->a_v;
@@ -177,7 +178,9 @@ inline double specular_cosine(const tile_c *t, v3 blo, v3 bhi)
     const v3 h0 = unit(add(u0, v0), &hl);
     const double d_h = (a_u + a_v) / (2.0 * cos(nmin(gamma, PI_D) / 2.0));
     beta = gamma < PI_D ? angle(n0, h0) - a_n - d_h : -1.0;
+    *s_half = fmin(sin(nmin(gamma, PI_D) / 2.0) + 1e-5, 1.0);    /* NaN: 1 */
 #else
+    *s_half = 1.0;
     const v3 r0 = sub(scl(n0, 2.0 * sum3(mk(n0.x * u0.x, n0.y * u0.y, n0.z * u0.z))), u0);
     beta = angle(r0, v0) - a_u - 2.0 * a_n - a_v;
 #endif
@@ -259,16 +262,18 @@ inline void node_term(const tile_c *tc, const __global double *N, const v3 eye, 
     if (tc->spec) {
         double sp[3];
 #if LOBE
-        const double cs = specular_cosine(tc, blo, bhi);
+        double s_half;
+        const double cs = specular_cosine(tc, blo, bhi, &s_half);
         const double cK = pow(cs, K);
+        /* bend: ∇²x's part across h (r), over sin θ (light_tree.py's _specular_bound) */
 #if BLINN
         const double uv = view_dot_lower(blo, bhi, thi, tlo, d_lo, eye);
         const double huv = sqrt(fmax(2.0 + 2.0 * uv, 0.0));
         const double g = 1.0 / (d_lo * huv);
-        const double t = 3.0 * g / d_lo;
+        const double bend = 2.0 * s_half * g * g + (2.0 / sqrt(3.0)) * g / d_lo;
 #else
         const double g = 1.0 / d_lo;
-        const double t = 0.0;
+        const double bend = g * g;
 #endif
         const int fres = BLINN && FRESNEL;
         const double h1 = peak(cs, K - 1.0, 0.5);
@@ -280,8 +285,7 @@ inline void node_term(const tile_c *tc, const __global double *N, const v3 eye, 
         if (second) {
             const double f1 = peak(cs, K - 2.0, 1.0);
             /* K(K−1)x^(K−2)·∇x∇xᵀ ⪰ 0 ⪰ −K·x^K·JᵀJ: the larger norm; the cross term once */
-            shess = (A_lo * (nmax(K * (K - 1.0) * f1, K * cK) * g * g + 2.0 * K * h1 * g * g
-                             + K * h1 * t)
+            shess = (A_lo * (nmax(K * (K - 1.0) * f1, K * cK) * g * g + K * h1 * bend)
                      + K * h1 * g * A1 + cK * A2);
         }
         for (int c = 0; c < 3; ++c) {

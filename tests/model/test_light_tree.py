@@ -503,11 +503,11 @@ def _lobe_pairs(model, h, att, *, d=10.0, delta=0.01, n_pairs=32, seed=0):
 def test_the_specular_bound_is_near_tight_on_the_lobes_flank(model, h, att):
     """Pairs of lights where the lobe bends most: the error is second order, ½·δᵀHδ, and
     the bound ½·H_s·Q (with the diffuse term's). It holds, and for some pair it is within
-    1/0.35 of the error: measured 0.39–0.68 with H_s's semi-definite parts apart and the
-    cross term once (0.26–0.63 when every part was summed). The specular H_s made 0.35×
-    as large fails 3 of these 9 cases, 0.2× fails 8 and 0.1× all."""
+    1/0.4 of the error: measured 0.45–0.71 (0.26–0.63 when H_s summed every part and
+    bounded ∇²x's part across h by 2g² + 3g/d). The specular H_s made 0.35× as large
+    fails 5 of these 9 cases, 0.2× all."""
     err, bound, pair = _lobe_pairs(model, h, att)
     worst = int(np.argmax(err - bound))
     assert np.all(err <= bound), f"node {worst}: error {err[worst]:.3g} > bound {bound[worst]:.3g}"
     assert pair.sum() >= 24
-    assert (err[pair] / bound[pair]).max() >= 0.35
+    assert (err[pair] / bound[pair]).max() >= 0.4
