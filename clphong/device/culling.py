@@ -756,11 +756,11 @@ def _block_cut(runtime, prog, tin, fine_tiles, e_fine, c_ranges, c_lists, point_
 
 def _device_cut(runtime, tin, fine_tiles, c_ranges, c_lists, point_records, n_point, frame,
                 shared, *, tiles_x, tiles_y, sup, super_x, lanes, budget):
-    """The tree's cut per tile on the device (kernels/node_bound.cl ``tile_cut``), each
-    from its super-tile's culled lights and with its budget (``budget`` per super-tile,
+    """The tree's cut per group of CUT_GROUP² tiles on the device (kernels/node_bound.cl
+    ``tile_cut``), each from its super-tile's culled lights and with its budget (``budget`` per super-tile,
     and channel where relative, as :func:`_block_cut`'s); :func:`_tree_cut`'s tuple, or
     None where the device cannot make it (no double, spots' cones, light groups) or
-    no tile took a cluster. A tile whose cut would exceed CUT_CAP entries keeps its
+    no tile took a cluster. A tile whose group's cut would exceed the cap keeps its
     super-tile's list (exact)."""
     import pyopencl as cl
 
@@ -791,6 +791,14 @@ def _device_cut(runtime, tin, fine_tiles, c_ranges, c_lists, point_records, n_po
     share = np.broadcast_to(share.T if share.ndim == 2 else share[:, None], (n_tiles, 3))
     with np.errstate(divide="ignore"):
         scale = np.where(share > 0, (1 + 1e-12) / np.where(share > 0, share, 1.0), np.inf)
+    # one cut per group of CUT_GROUP² tiles (inside one super-tile): their boxes merged,
+    # the largest of their scales; each tile's list is its group's
+    g = CUT_GROUP if sup % CUT_GROUP == 0 else 1
+    groups_x = -(-tiles_x // g)
+    group = (t // tiles_x // g) * groups_x + (t % tiles_x) // g
+    n_groups = int(group.max()) + 1 if n_tiles else 0
+    if g > 1:
+        boxes, scale, t_super = _merge_groups(boxes, scale, t_super, group, n_groups)
     # each super-tile's culled lights: bits; those under no node: its extra records
     c_ranges = np.asarray(c_ranges, np.int64)
     words = -(-n_point // 32)
@@ -806,16 +814,17 @@ def _device_cut(runtime, tin, fine_tiles, c_ranges, c_lists, point_records, n_po
     e_ranges = np.stack([np.r_[0, np.cumsum(e_sizes)[:-1]], e_sizes], axis=1)
     extra = layout.light[np.concatenate(extra).astype(np.int64)] if e_sizes.sum() else []
     kept_bits = np.packbits(kept, axis=1, bitorder="little").view(np.uint32)
-    cap = CUT_CAP
+    cap = int(min(CUT_CAP, max(1024, CUT_LIST_BYTES // (4 * max(n_groups, 1)))))
     counts, _, lists = nodes.for_tiles(boxes).tile_cut(
         tree, scale, t_super, kept_bits, e_ranges, extra, layout.light, layout.node, cap=cap,
         reserve=flat.size)
     # a list too long for its place: the tile's super-tile's, copied after the cuts
-    cl.enqueue_copy(runtime.queue, lists, c_lists, dst_offset=n_tiles * cap * 4,
+    cl.enqueue_copy(runtime.queue, lists, c_lists, dst_offset=n_groups * cap * 4,
                     byte_count=flat.size * 4)
+    counts = counts[group]
     over = counts[:, 0] == CUT_OVERFLOW
-    ranges = np.stack([t * cap, counts[:, 0]], axis=1).astype(np.int64)
-    ranges[over] = c_ranges[t_super[over]] + [n_tiles * cap, 0]
+    ranges = np.stack([group * cap, counts[:, 0]], axis=1).astype(np.int64)
+    ranges[over] = c_ranges[t_super[group][over]] + [n_groups * cap, 0]
     clusters = int(counts[~over, 1].sum(dtype=np.int64))
     if clusters == 0:
         return None
@@ -823,22 +832,31 @@ def _device_cut(runtime, tin, fine_tiles, c_ranges, c_lists, point_records, n_po
             int(counts[~over, 2].sum(dtype=np.int64)), layout, time.perf_counter() - t0)
 
 
-#: Whether, where the blocks' cut is made, it is made per tile on the device where it
-#: can be (:func:`_device_cut`: double, no spots' cones, no light groups), rather than
-#: per block on the host (:func:`_block_cut`), while the super-tiles' lists hold fewer
-#: than DEVICE_ENTRIES entries on average. A tile's cut is coarser than its block's
-#: (a smaller box), but the device bounds ~2 nodes per entry of every tile where the
-#: host bounds them per block, and a tile whose cut exceeds CUT_CAP keeps its
-#: super-tile's whole list. Measured on `clusters`, 65 536 lights, whole 1080p frames
-#: (Ice Lake, Intel's runtime, second frame; the super-tiles' sampled mean in
-#: brackets): relative 10⁻² [4 948] 4.14 s, kept 0.0109, against the host's blocks
-#: 4.39 s, kept 0.0191; absolute 3·10⁻³ [15 481] 24.3 s (1 099 of 8 704 tiles over
-#: the cap) against 10.4 s; absolute 10⁻³ [27 515] 56.6 s against 26.5 s.
+#: Whether, where the blocks' cut is made, it is made per group of CUT_GROUP² tiles on
+#: the device where it can be (:func:`_device_cut`: double, no spots' cones, no light
+#: groups), rather than per block on the host (:func:`_block_cut`), while the
+#: super-tiles' lists hold fewer than DEVICE_ENTRIES entries on average. A group's cut
+#: is coarser than its block's (a smaller box), but the device bounds ~2 nodes per
+#: entry of every group where the host bounds them per block, and a group whose cut
+#: exceeds the cap keeps its super-tile's whole list. Measured on whole 1080p frames at
+#: 65 536 lights (Ice Lake, Intel's runtime, second frame; 256 lights brute force:
+#: 0.48 s; the super-tiles' sampled mean in brackets), groups of 2² tiles, cap 16 384,
+#: against the host's blocks: `clusters` relative 10⁻² [1 756] 1.35 s (a cut per tile:
+#: 1.59 s) against 1.64 s; absolute 3·10⁻³ [7 623] 3.08 s against 4.23 s; relative
+#: 10⁻³ [15 983] 10.5 s against 14.2 s; absolute 10⁻³ [17 087] 9.05 s (groups of 4²:
+#: 9.85 s; a cut per tile: 12.5 s) against 12.7 s; `wide` relative 10⁻¹ [42 592]
+#: 63.2 s (most groups over the cap) against 55.3 s.
 DEVICE_CUT = True
-DEVICE_ENTRIES = 8000
-#: Most entries of a tile's list from the device's cut (``tile_cut``: its place in the
-#: lists buffer and its heap); a tile whose cut needs more keeps its super-tile's list.
-CUT_CAP = 4096
+DEVICE_ENTRIES = 30000
+#: Tiles per side of a group that shares one cut from the device (1: a cut per tile):
+#: its box holds its tiles', so the cut keeps somewhat more entries, for 1/CUT_GROUP²
+#: of the cuts' work.
+CUT_GROUP = 2
+#: Most entries of a group's list from the device's cut (``tile_cut``: its place in the
+#: lists buffer and its heap); a group whose cut needs more keeps its super-tile's list.
+#: Fewer where the groups' places would pass CUT_LIST_BYTES (4K frames), 1 024 at least.
+CUT_CAP = 16384
+CUT_LIST_BYTES = 256 << 20
 
 
 def _probe(c_ranges, shaded, *, tiles_x, sup, super_x):
@@ -857,6 +875,24 @@ def _probe(c_ranges, shaded, *, tiles_x, sup, super_x):
     keep[chosen] = True
     ranges[~keep, 1] = 0
     return ranges, int(np.isin(owner, chosen).sum())
+
+
+def _merge_groups(boxes: TileBoxes, scale, t_super, group, n_groups: int):
+    """The tiles' boxes, scales and super-tiles merged per group (``group``: each
+    tile's): boxes as kernels/cull.cl merge_bounds merges them (lo, nlo: min; hi, nhi,
+    D, S: max; empty tiles' ±∞ drop out), the largest scale per channel."""
+    def merge(x, ufunc, start):
+        out = np.full((n_groups,) + x.shape[1:], start)
+        ufunc.at(out, group, x)
+        return out
+
+    lo, hi = merge(boxes.lo, np.minimum, np.inf), merge(boxes.hi, np.maximum, -np.inf)
+    nlo, nhi = merge(boxes.nlo, np.minimum, np.inf), merge(boxes.nhi, np.maximum, -np.inf)
+    D, S = merge(boxes.D, np.maximum, -np.inf), merge(boxes.S, np.maximum, -np.inf)
+    sup = np.zeros(n_groups, np.int64)
+    sup[group] = t_super
+    return (TileBoxes(lo=lo, hi=hi, nlo=nlo, nhi=nhi, D=D, S=S),
+            merge(np.asarray(scale, np.float64), np.maximum, 0.0), sup)
 
 
 def read_tile_boxes(runtime, tiles_buffer, n_tiles: int, lanes: int) -> TileBoxes:

@@ -133,13 +133,15 @@ def test_device_cut_overflows_to_none(device):
     assert np.all(counts[:, 0] == CUT_OVERFLOW) and all(c is None for c in cuts)
 
 
-@pytest.mark.parametrize("eps,cap", [(1e-3, 4096), (3e-2, 4096), (3e-2, None)])
-def test_device_cut_frames_keep_the_budget(eps, cap, monkeypatch):
-    """Frames through the device's cut (BLOCK_ENTRIES = 0) keep the budget: the lists'
-    float64 sums within ε of the full sums, the pixels within ε + the error model; with
-    a cap of the median cut's length (None) about half the tiles keep their super-tile's
-    list."""
+@pytest.mark.parametrize("eps,cap,group", [(1e-3, 4096, 1), (1e-3, 4096, 2), (3e-2, 4096, 2),
+                                           (3e-2, None, 1), (3e-2, None, 2)])
+def test_device_cut_frames_keep_the_budget(eps, cap, group, monkeypatch):
+    """Frames through the device's cut (BLOCK_ENTRIES = 0), a cut per tile or per 2×2
+    tiles, keep the budget: the lists' float64 sums within ε of the full sums, the
+    pixels within ε + the error model; with a cap of the median cut's length (None)
+    about half the cuts leave their tiles their super-tile's list."""
     monkeypatch.setattr(culling, "BLOCK_ENTRIES", 0)
+    monkeypatch.setattr(culling, "CUT_GROUP", group)
     scene, gb = _frame()
     if cap is None:                          # the median of the uncapped cuts' lengths
         sizes = []
@@ -163,6 +165,9 @@ def test_device_cut_frames_keep_the_budget(eps, cap, monkeypatch):
     assert cull.tree_blocks and cull.covered > cull.clusters
     if cap < 4096:
         assert any((c[0][:, 1] > cap).any() for c in cuts), "some tile kept its super-tile's list"
+    starts = cuts[-1][0][:, 0]
+    shared = len(starts) / len(np.unique(starts))
+    assert shared > 2.5 if group == 2 else shared < 1.5, "each group's tiles share its list"
 
 
 def test_a_device_cut_past_its_budget_is_caught(monkeypatch):
