@@ -839,13 +839,15 @@ def _device_cut(runtime, tin, fine_tiles, c_ranges, c_lists, point_records, n_po
 #: is coarser than its block's (a smaller box), but the device bounds ~2 nodes per
 #: entry of every group where the host bounds them per block, and a group whose cut
 #: exceeds the cap keeps its super-tile's whole list. Measured on whole 1080p frames at
-#: 65 536 lights (Ice Lake, Intel's runtime, second frame; 256 lights brute force:
-#: 0.48 s; the super-tiles' sampled mean in brackets), groups of 2² tiles, cap 16 384,
-#: against the host's blocks: `clusters` relative 10⁻² [1 756] 1.35 s (a cut per tile:
-#: 1.59 s) against 1.64 s; absolute 3·10⁻³ [7 623] 3.08 s against 4.23 s; relative
-#: 10⁻³ [15 983] 10.5 s against 14.2 s; absolute 10⁻³ [17 087] 9.05 s (groups of 4²:
-#: 9.85 s; a cut per tile: 12.5 s) against 12.7 s; `wide` relative 10⁻¹ [42 592]
-#: 63.2 s (most groups over the cap) against 55.3 s.
+#: 65 536 lights (Ice Lake, Intel's runtime, second frame; the super-tiles' sampled
+#: mean in brackets), groups of 2² tiles, cap 16 384, against the host's blocks, one
+#: run each (256 lights brute force: 0.53 s): `clusters` absolute 10⁻³ [17 087] 9.01 s
+#: against 13.5 s, relative 10⁻² [1 756] 1.36 s against 1.83 s; `wide` relative 10⁻¹
+#: [42 592] 62.7 s (most groups over the cap) against 57.0 s. Before node_bound.cl took
+#: Intel's own vectoriser (isolate.IMPLICIT_VECTOR_KERNELS) the cut took twice as long:
+#: `clusters` absolute 3·10⁻³ [7 623] 3.08 s against 4.23 s, relative 10⁻³ [15 983]
+#: 10.5 s against 14.2 s; a cut per tile instead of 2² tiles: 12.5 s and 1.59 s, groups
+#: of 4²: 9.85 s at absolute 10⁻³.
 DEVICE_CUT = True
 DEVICE_ENTRIES = 30000
 #: Tiles per side of a group that shares one cut from the device (1: a cut per tile):

@@ -57,19 +57,32 @@ def in_child() -> bool:
 #: (0.76 against 1.52 GPLE/s, 1080p x 256 lights, measured side by side): clphong's lane
 #: kernels are vectorised by hand, so its compiling children keep the explicit vectors
 #: (mode 1; the same speed at 1 lane). A user's own setting is kept. PoCL ignores it.
+#: Kernels written one scalar work-item at a time (kernels/node_bound.cl: the tree's
+#: bounds and cut, in double) are the other way round: the runtime's own vectoriser
+#: across work-items runs them 2-4× faster (its heuristic, mode 0: node_terms 25 against
+#: 6 M pairs/s, tile_cut 1.1 against 2.5 s a 1080p frame on Ice Lake), so they compile
+#: in a child of that mode (``implicit``). Intel's runtime reads the mode once, when a
+#: process starts: hence a child per mode. PyOpenCL's binary cache does not see the
+#: mode, so the runtime adds it to such a program's options (Runtime.program).
 INTEL_VECTORIZER_ENV = "CL_CONFIG_CPU_VECTORIZER_MODE"
 INTEL_VECTORIZER_MODE = "1"
+INTEL_IMPLICIT_MODE = "0"
+#: The kernel files of that kind.
+IMPLICIT_VECTOR_KERNELS = frozenset({"node_bound.cl"})
 
 
-def intel_vectorizer_mode() -> str:
-    """The mode Intel's runtime compiles clphong's kernels with (part of the binary key)."""
-    return os.environ.get(INTEL_VECTORIZER_ENV, INTEL_VECTORIZER_MODE)
+def intel_vectorizer_mode(implicit: bool = False) -> str:
+    """The mode Intel's runtime compiles clphong's kernels with (part of the binary key):
+    the user's own setting, else mode 1, or 0 for a kernel vectorised by the runtime
+    (``implicit``)."""
+    return os.environ.get(INTEL_VECTORIZER_ENV,
+                          INTEL_IMPLICIT_MODE if implicit else INTEL_VECTORIZER_MODE)
 
 
-def _child_env() -> dict:
+def _child_env(mode: str | None = None) -> dict:
     env = dict(os.environ)
     env[CHILD_ENV] = "1"
-    env[INTEL_VECTORIZER_ENV] = intel_vectorizer_mode()
+    env[INTEL_VECTORIZER_ENV] = intel_vectorizer_mode() if mode is None else mode
     return env
 
 
@@ -113,8 +126,9 @@ class BuildChild:
     #: The child's module (``python -m``); a test points it at one that aborts.
     module = "clphong.device.buildchild"
 
-    def __init__(self, selector: str):
+    def __init__(self, selector: str, mode: str | None = None):
         self.selector = selector
+        self.mode = mode                       # Intel's vectoriser mode (None: the default)
         self._proc: subprocess.Popen | None = None
         self._err = None
         self._lock = threading.Lock()
@@ -123,7 +137,8 @@ class BuildChild:
         self._err = tempfile.TemporaryFile(mode="w+")
         self._proc = subprocess.Popen(
             [sys.executable, "-m", self.module, "--device", self.selector],
-            env=_child_env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._err,
+            env=_child_env(self.mode), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+            stderr=self._err,
             text=True, bufsize=1)
         return self._proc
 
@@ -181,13 +196,15 @@ class BuildChild:
         self._reap()
 
 
-_CHILDREN: dict[str, BuildChild] = {}
+_CHILDREN: dict[tuple, BuildChild] = {}
 
 
-def build_child(selector: str) -> BuildChild:
-    child = _CHILDREN.get(selector)
+def build_child(selector: str, mode: str | None = None) -> BuildChild:
+    """The compiling child for ``selector`` whose Intel vectoriser mode is ``mode``
+    (None: :func:`intel_vectorizer_mode`'s default)."""
+    child = _CHILDREN.get((selector, mode))
     if child is None:
-        child = _CHILDREN[selector] = BuildChild(selector)
+        child = _CHILDREN[(selector, mode)] = BuildChild(selector, mode)
     return child
 
 

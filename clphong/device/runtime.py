@@ -26,7 +26,7 @@ from typing import Callable
 
 from ..core.errors import DeviceError
 from . import hostrule, platforms
-from .isolate import build_child, in_child, intel_vectorizer_mode
+from .isolate import IMPLICIT_VECTOR_KERNELS, build_child, in_child, intel_vectorizer_mode
 from .peak import FAST_FP64_RATIO, NATIVE_RSQRT_MAX_ULP
 
 # PoCL's CPU drivers install a SIGFPE handler (integer division by zero in a
@@ -463,20 +463,26 @@ class Runtime:
         (:mod:`clphong.device.isolate`), so that a compiler abort becomes a
         :class:`~clphong.device.isolate.VariantCrash`; its binary is loaded here."""
         opts = self.build_options(defines)
+        mode = None
+        if entry_file in IMPLICIT_VECTOR_KERNELS and self.kind == "intel-cpu":
+            # its own vectoriser mode on Intel's runtime (isolate.py), named in the
+            # options so that PyOpenCL's binary cache keeps the modes apart
+            mode = intel_vectorizer_mode(implicit=True)
+            opts.append(f"-DCLPHONG_VECTORIZER={mode}")
         key = (entry_file, tuple(opts), _sources_digest(kernel_dir()))
         with self._lock:
             prog = self._programs.get(key)
             if prog is not None:
                 return prog
             t0 = time.perf_counter()
-            store = self._binary_path(entry_file, opts, key[2])
+            store = self._binary_path(entry_file, opts, key[2], mode)
             prog = self._load_binary(store, opts) if store is not None else None
             if prog is None:
                 self._check_room_to_compile(entry_file)
                 notice = _start_notice(entry_file)
                 try:
                     prog = (self._compile(entry_file, opts) if in_child()
-                            else self._compile_in_child(entry_file, opts))
+                            else self._compile_in_child(entry_file, opts, mode))
                 finally:
                     if notice is not None:
                         notice.cancel()
@@ -522,14 +528,15 @@ class Runtime:
             raise DeviceError(f"kernels/{entry_file}: the compiled binary could not be written "
                               f"to {out}")
 
-    def _compile_in_child(self, entry_file: str, opts: list[str]):
-        """Compile in the device's compiling child and load the binary it hands back."""
+    def _compile_in_child(self, entry_file: str, opts: list[str], mode: str | None = None):
+        """Compile in the device's compiling child (of Intel's vectoriser ``mode``; None:
+        the default) and load the binary it hands back."""
         lanes = next((o.split("=", 1)[1] for o in opts if o.startswith("-DLANES=")), "?")
         what = f"kernels/{entry_file} at {lanes} lane(s) on {self.name}"
         fd, out = tempfile.mkstemp(prefix="clphong-build-", suffix=".bin")
         os.close(fd)
         try:
-            build_child(self.selector).build(entry_file, opts, out, what)
+            build_child(self.selector, mode).build(entry_file, opts, out, what)
             prog = self._load_binary(Path(out), opts)
         finally:
             try:
@@ -557,7 +564,8 @@ class Runtime:
         name = str(getattr(self.device.platform, "name", "")).lower()
         return "portable computing language" in name or "pocl" in name
 
-    def _binary_path(self, entry_file: str, opts: list[str], digest: str) -> Path | None:
+    def _binary_path(self, entry_file: str, opts: list[str], digest: str,
+                     mode: str | None = None) -> Path | None:
         """Where clphong keeps this program's binary: beside PoCL's kernel cache on PoCL
         (None with it switched off, ``POCL_KERNEL_CACHE=0``), in clphong's cache folder
         (``bin/``) on other platforms."""
@@ -569,7 +577,8 @@ class Runtime:
         # build (driver version); plus the two knobs PoCL 3.0 reads at build time.
         for part in (entry_file, *opts, digest, plat.name, plat.version, dev.name, dev.version,
                      dev.driver_version, os.environ.get("POCL_EXTRA_BUILD_FLAGS", ""),
-                     os.environ.get("POCL_WORK_GROUP_METHOD", ""), intel_vectorizer_mode()):
+                     os.environ.get("POCL_WORK_GROUP_METHOD", ""),
+                     intel_vectorizer_mode() if mode is None else mode):
             h.update(str(part).encode() + b"\0")
         if not self.is_pocl:
             return platforms.cache_dir() / "bin" / f"{Path(entry_file).stem}-{h.hexdigest()[:40]}.clbin"

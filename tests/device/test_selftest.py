@@ -155,3 +155,32 @@ def test_the_double_rate_is_measured_and_chooses_the_plan(device, monkeypatch):
         check_against_reference(scene, gb, device=device)     # the bound holds either way
         line = rt.double_line()
         assert ("under 0.25" in line) == (slow < FAST_FP64_RATIO and rt.has_fp64), line
+
+
+def test_the_tree_kernels_compile_with_intels_own_vectoriser(device, monkeypatch):
+    """kernels/node_bound.cl (one scalar work-item at a time) compiles in a child of
+    Intel's vectoriser mode 0, the hand-vectorised kernels in one of mode 1; the mode is
+    in the program's options (PyOpenCL's cache keys on them) and a user's setting holds."""
+    monkeypatch.delenv(isolate.INTEL_VECTORIZER_ENV, raising=False)
+    assert isolate.intel_vectorizer_mode() == "1"
+    assert isolate.intel_vectorizer_mode(implicit=True) == "0"
+    assert isolate._child_env("0")[isolate.INTEL_VECTORIZER_ENV] == "0"
+    assert isolate._child_env()[isolate.INTEL_VECTORIZER_ENV] == "1"
+    monkeypatch.setenv(isolate.INTEL_VECTORIZER_ENV, "16")
+    assert isolate.intel_vectorizer_mode(implicit=True) == "16"
+    monkeypatch.delenv(isolate.INTEL_VECTORIZER_ENV)
+    rt = selection.get_runtime(device)
+    modes = []
+    real = isolate.build_child
+    monkeypatch.setattr(rt, "_programs", {})
+    monkeypatch.setattr(rt, "_binary_path", lambda *a, **k: None)       # compile, not load
+    monkeypatch.setattr("clphong.device.runtime.build_child",
+                        lambda sel, mode=None: modes.append(mode) or real(sel, mode))
+    defines = dict(N_ONE=2, N_TWO=3, LOBE=1, BLINN=1, FRESNEL=0, PERSPECTIVE=1)
+    prog = rt.program("node_bound.cl", defines)
+    intel = rt.kind == "intel-cpu"                   # elsewhere the mode means nothing
+    assert prog is not None and modes == ["0" if intel else None], modes
+    assert ("node_bound.cl",) == tuple(k[0] for k in rt._programs)
+    assert ("-DCLPHONG_VECTORIZER=0" in next(iter(rt._programs))[1]) == intel
+    rt.program("peak.cl", {"LANES": 1, "CHAINS": 8, "PEAK_DOUBLE": 0})
+    assert modes[1:] == [None], "the hand-vectorised kernels keep the default child"
