@@ -757,11 +757,11 @@ def _block_cut(runtime, prog, tin, fine_tiles, e_fine, c_ranges, c_lists, point_
 def _device_cut(runtime, tin, fine_tiles, c_ranges, c_lists, point_records, n_point, frame,
                 shared, *, tiles_x, tiles_y, sup, super_x, lanes, budget):
     """The tree's cut per group of CUT_GROUP² tiles on the device (kernels/node_bound.cl
-    ``tile_cut``), each from its super-tile's culled lights and with its budget (``budget`` per super-tile,
-    and channel where relative, as :func:`_block_cut`'s); :func:`_tree_cut`'s tuple, or
-    None where the device cannot make it (no double, spots' cones, light groups) or
-    no tile took a cluster. A tile whose group's cut would exceed the cap keeps its
-    super-tile's list (exact)."""
+    ``tile_cut``), each from its super-tile's culled lights and with its budget
+    (``budget`` per super-tile, and channel where relative, as :func:`_block_cut`'s);
+    :func:`_tree_cut`'s tuple, or None where the device cannot make it (no double,
+    spots' cones, light groups) or no tile took a cluster. A tile whose group's cut
+    would exceed the cap keeps its super-tile's list (exact)."""
     import pyopencl as cl
 
     tree = tin.tree()

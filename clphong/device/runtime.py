@@ -466,8 +466,9 @@ class Runtime:
         mode = None
         if entry_file in IMPLICIT_VECTOR_KERNELS and self.kind == "intel-cpu":
             # its own vectoriser mode on Intel's runtime (isolate.py), named in the
-            # options so that PyOpenCL's binary cache keeps the modes apart
-            mode = intel_vectorizer_mode(implicit=True)
+            # options so that PyOpenCL's binary cache keeps the modes apart; a child
+            # compiles with its own process's mode, and names that one
+            mode = intel_vectorizer_mode(implicit=not in_child())
             opts.append(f"-DCLPHONG_VECTORIZER={mode}")
         key = (entry_file, tuple(opts), _sources_digest(kernel_dir()))
         with self._lock:
