@@ -327,44 +327,50 @@ __kernel void node_terms(__global const double *restrict tiles,
         out[3 * (size_t)i + c] = e[c];
 }
 
-/* cluster_bounds for one pair: the largest channel's term in units of the tile's
- * budget (scale: each channel's 1/budget), × (1 + 10⁻⁶); a channel whose term is 0
- * stays 0; no bound (NaN): +inf */
+/* cluster_bounds for one pair, per channel: each channel's term in units of the
+ * tile's budget (scale: each channel's 1/budget), × (1 + 10⁻⁶), in b[0 … 3); a channel
+ * whose term is 0 stays 0; no bound (NaN in any channel): +inf in all. Returns the
+ * largest (the cut's order). */
 inline double node_bound(const tile_c *tc, const __global double *N,
-                         const __global double *scale, const v3 eye, const double K)
+                         const __global double *scale, const v3 eye, const double K,
+                         double b[3])
 {
     double e[3];
     node_term(tc, N, eye, K, e);
-    double b = 0.0;
+    double m = 0.0;
     for (int c = 0; c < 3; ++c) {
         const double v = e[c] == 0.0 ? 0.0 : e[c] * scale[c];
-        if (isnan(v))
+        if (isnan(v)) {
+            b[0] = b[1] = b[2] = INFINITY;
             return INFINITY;
-        b = fmax(b, v);
+        }
+        b[c] = v * (1.0 + 1e-6);
+        m = fmax(m, b[c]);
     }
-    return b * (1.0 + 1e-6);
+    return m;
 }
 
-/* the binary max-heap of a tile's cut: bounds hb, nodes hk, n entries */
-inline void heap_push(__global double *hb, __global uint *hk, uint n, double b, uint k)
+/* the binary max-heap of a tile's cut: the largest channel's bound (the order) in hb,
+ * the slot holding the entry's node and each channel's bound in hs; n entries */
+inline void heap_push(__global double *hb, __global uint *hs, uint n, double b, uint slot)
 {
     while (n > 0) {
         const uint up = (n - 1) >> 1;
         if (!(hb[up] < b))
             break;
         hb[n] = hb[up];
-        hk[n] = hk[up];
+        hs[n] = hs[up];
         n = up;
     }
     hb[n] = b;
-    hk[n] = k;
+    hs[n] = slot;
 }
 
 /* remove the root of a heap of n entries (n ≥ 1): the last entry sinks from the top */
-inline void heap_pop(__global double *hb, __global uint *hk, uint n)
+inline void heap_pop(__global double *hb, __global uint *hs, uint n)
 {
     const double b = hb[n - 1];
-    const uint k = hk[n - 1];
+    const uint slot = hs[n - 1];
     --n;
     uint i = 0;
     for (;;) {
@@ -376,11 +382,11 @@ inline void heap_pop(__global double *hb, __global uint *hk, uint n)
         if (!(hb[c] > b))
             break;
         hb[i] = hb[c];
-        hk[i] = hk[c];
+        hs[i] = hs[c];
         i = c;
     }
     hb[i] = b;
-    hk[i] = k;
+    hs[i] = slot;
 }
 
 /* a[i]'s value v sinks into the max-heap a[0 … n) below i */
@@ -410,15 +416,20 @@ inline void sort_records(__global uint *a, const uint n)
 
 /* The light tree's cut per tile, on the device (clphong/model/light_tree.py
  * greedy_cut is its float64 reference): from the roots, the node with the largest
- * bound is split until the bounds sum to ≤ limit (in units of the tile's budget:
- * scale) or no node is left, as Lightcuts does. A leaf reached is its light, kept
+ * bound (its largest channel's) is split until each channel's bounds sum to ≤ limit
+ * (in units of the tile's budget for that channel: scale) or no node is left, as
+ * Lightcuts does. A leaf reached is its light, kept
  * where its super-tile's culling kept it (the bits of kept); the nodes left are the
  * clusters. Each tile's list: its super-tile's lights under no node (extra), the
  * leaves and the clusters' representatives, as records (light_rec, node_rec) in
  * record order, at lists + tile·cap; counts (3 a tile): its length, or CUT_OVERFLOW where cap entries
  * could not hold it (the host then gives the tile its super-tile's list), its
- * clusters and the lights they stand for (node_size: each node's); sums: the cut's sum.
- * One work-item per tile of tile0 … tile0 + n; heap_b, heap_k: cap entries each. */
+ * clusters and the lights they stand for (node_size: each node's); sums: the cut's
+ * largest channel's sum.
+ * One work-item per tile of tile0 … tile0 + n, each with 4·cap doubles of heap_b (the
+ * heap's orders, then each slot's three channels) and 3·cap uints of heap_k (the heap's
+ * slots, each slot's node, the free slots): an entry's channels stay in its slot while
+ * the heap moves only its order and slot. */
 #define CUT_OVERFLOW 0xffffffffu
 __kernel void tile_cut(__global const double *restrict tiles,
                        __global const double *restrict scale,
@@ -444,8 +455,10 @@ __kernel void tile_cut(__global const double *restrict tiles,
     const uint t = tile0 + i;
     const __global double *T = tiles + (size_t)t * TILE_DOUBLES;
     const __global double *sc = scale + 3 * (size_t)t;
-    __global double *hb = heap_b + (size_t)i * cap;
-    __global uint *hk = heap_k + (size_t)i * cap;
+    __global double *hb = heap_b + (size_t)i * cap * 4;
+    __global double *sb = hb + cap;
+    __global uint *hs = heap_k + (size_t)i * cap * 3;
+    __global uint *sk = hs + cap, *fs = hs + 2 * cap;
     __global uint *out = lists + (size_t)t * cap;
     const v3 eye = mk(eye_x, eye_y, eye_z);
     if (T[0] > T[3] || T[1] > T[4] || T[2] > T[5]) {      /* no shaded pixel */
@@ -456,7 +469,7 @@ __kernel void tile_cut(__global const double *restrict tiles,
     const tile_c tc = tile_consts(T, eye);
     const uint s = tile_super[t];
     const __global uint *mask = kept + (size_t)s * kept_words;
-    uint m = 0, h = 0, n_inf = 0;
+    uint m = 0, h = 0, n_inf = 0, n_slots = 0, n_free = 0;
     const uint e0 = extra_range[2 * s], e1 = e0 + extra_range[2 * s + 1];
     if (e1 - e0 > cap) {
         counts[3 * t] = CUT_OVERFLOW;
@@ -464,38 +477,48 @@ __kernel void tile_cut(__global const double *restrict tiles,
     }
     for (uint j = e0; j < e1; ++j)
         out[m++] = extra[j];
-    double total = 0.0;              /* the finite bounds' sum; n_inf: the others */
+    /* each channel's sum of the finite bounds; n_inf: the entries with none */
+    double total[3] = {0.0, 0.0, 0.0};
+    double b[3];
     for (uint r = 0; r < n_roots; ++r) {
         if (m + h >= cap) {
             counts[3 * t] = CUT_OVERFLOW;
             return;
         }
-        const double b = node_bound(&tc, nodes + (size_t)roots[r] * node_doubles, sc, eye, K);
-        heap_push(hb, hk, h++, b, roots[r]);
-        if (isinf(b))
+        const double o = node_bound(&tc, nodes + (size_t)roots[r] * node_doubles, sc, eye, K, b);
+        const uint slot = n_slots++;
+        sk[slot] = roots[r];
+        for (int c = 0; c < 3; ++c)
+            sb[3 * slot + c] = b[c];
+        heap_push(hb, hs, h++, o, slot);
+        if (isinf(o))
             ++n_inf;
         else
-            total += b;
+            for (int c = 0; c < 3; ++c)
+                total[c] += b[c];
     }
     for (;;) {
-        if (n_inf == 0 && total <= limit) {
-            /* the running sum drifts by roundings: the cut's own sum decides */
-            double exact = 0.0;
+        if (n_inf == 0 && total[0] <= limit && total[1] <= limit && total[2] <= limit) {
+            /* the running sums drift by roundings: the cut's own sums decide */
+            double exact[3] = {0.0, 0.0, 0.0};
             for (uint j = 0; j < h; ++j)
-                exact += hb[j];
-            if (exact <= limit)
+                for (int c = 0; c < 3; ++c)
+                    exact[c] += sb[3 * hs[j] + c];
+            if (exact[0] <= limit && exact[1] <= limit && exact[2] <= limit)
                 break;
-            total = exact;
+            for (int c = 0; c < 3; ++c)
+                total[c] = exact[c];
         }
         if (h == 0)
             break;
-        const double b = hb[0];
-        const uint k = hk[0];
-        heap_pop(hb, hk, h--);
-        if (isinf(b))
+        const uint top = hs[0], k = sk[top];
+        if (isinf(hb[0]))
             --n_inf;
         else
-            total -= b;
+            for (int c = 0; c < 3; ++c)
+                total[c] -= sb[3 * top + c];
+        heap_pop(hb, hs, h--);
+        fs[n_free++] = top;                /* its slot: free for the next entry */
         for (int side = 0; side < 2; ++side) {
             const int c = children[2 * k + side];
             if (c < (int)n_leaves) {
@@ -513,24 +536,32 @@ __kernel void tile_cut(__global const double *restrict tiles,
                 return;
             }
             const uint kk = (uint)c - n_leaves;
-            const double bk = node_bound(&tc, nodes + (size_t)kk * node_doubles, sc, eye, K);
-            heap_push(hb, hk, h++, bk, kk);
-            if (isinf(bk))
+            const double o = node_bound(&tc, nodes + (size_t)kk * node_doubles, sc, eye, K, b);
+            /* a free slot, else a new one: the slots in use are the heap's h < cap */
+            const uint slot = n_free > 0 ? fs[--n_free] : n_slots++;
+            sk[slot] = kk;
+            for (int j = 0; j < 3; ++j)
+                sb[3 * slot + j] = b[j];
+            heap_push(hb, hs, h++, o, slot);
+            if (isinf(o))
                 ++n_inf;
             else
-                total += bk;
+                for (int j = 0; j < 3; ++j)
+                    total[j] += b[j];
         }
     }
-    double sum = 0.0;
+    double sum[3] = {0.0, 0.0, 0.0};
     uint covered = 0;
     for (uint j = 0; j < h; ++j) {
-        sum += hb[j];
-        covered += node_size[hk[j]];
-        out[m++] = node_rec[hk[j]];
+        const uint slot = hs[j], k = sk[slot];
+        for (int c = 0; c < 3; ++c)
+            sum[c] += sb[3 * slot + c];
+        covered += node_size[k];
+        out[m++] = node_rec[k];
     }
     sort_records(out, m);              /* in record order, as the kernels walk lists */
     counts[3 * t] = m;
     counts[3 * t + 1] = h;
     counts[3 * t + 2] = covered;
-    sums[t] = sum;
+    sums[t] = fmax(fmax(sum[0], sum[1]), sum[2]);
 }

@@ -970,13 +970,14 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
             len(rows), len(kk), 3)
 
     def bound(t, k, s0, pairs=False):
-        """The bounds of super-tiles s0 + t with nodes k (all: None), in units of the
-        budget: row by row (``pairs``), or t (T, 1) × every node."""
+        """Each channel's bounds of super-tiles s0 + t with nodes k (all: None), in units
+        of the budget: row by row (``pairs``), or t (T, 1) × every node."""
         part = TileBoxes(*(getattr(boxes, f)[s0 + (t if pairs else t[:, 0])]
                            for f in ("lo", "hi", "nlo", "nhi", "D", "S")))
         e = terms(t, k, s0, pairs)
         if not budget_.ndim:
-            return cluster_bounds(tree, part, tin.spec, origin, k, pairs=pairs, terms=e)
+            return cluster_bounds(tree, part, tin.spec, origin, k, pairs=pairs, terms=e,
+                                  channels=True)
         # per super-tile and channel (and light group: a node's own group's floors):
         # each channel's bound in units of its budget (none: +inf, no cluster there)
         if budget_.ndim == 1:                        # (super-tiles,): the absolute budget
@@ -991,7 +992,7 @@ def _tree_cut(runtime, tin: TreeInput, coarse_tiles, c_ranges, c_lists, point_re
         if pairs:
             scale = scale[:, None]
         return cluster_bounds(tree, part, tin.spec, origin, k, pairs=pairs, channel_scale=scale,
-                              terms=e)
+                              terms=e, channels=True)
 
     limit = 1.0 if budget_.ndim else float(budget)     # the bounds' units
     kept_of = _KeptLights(tree, flat)

@@ -140,9 +140,9 @@ class DeviceNodeTerms:
                 buf(light_rec, np.uint32), buf(node_rec, np.uint32),
                 buf(_node_sizes(tree), np.uint32), *(np.float64(x) for x in self.eye), np.float64(self.K), np.float64(limit),
                 np.uint32(cap)]
-        chunk = min(CUT_CHUNK, max(64, CUT_HEAP_BYTES // (12 * cap)), max(n, 1))
-        heap_b = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, chunk * cap * 8)
-        heap_k = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, chunk * cap * 4)
+        chunk = min(CUT_CHUNK, max(64, CUT_HEAP_BYTES // (44 * cap)), max(n, 1))
+        heap_b = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, chunk * cap * 8 * 4)
+        heap_k = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, chunk * cap * 4 * 3)
         lists = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, max(n * cap + reserve, 1) * 4)
         counts_b = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, max(n, 1) * 12)
         sums_b = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, max(n, 1) * 8)
@@ -171,8 +171,9 @@ def _node_sizes(tree: LightTree) -> np.ndarray:
 
 #: kernels/node_bound.cl tile_cut's mark of a list that cap entries could not hold.
 CUT_OVERFLOW = 0xFFFFFFFF
-#: Tiles per launch of ``tile_cut`` (its heaps: cap entries each, reused across launches),
-#: fewer where their heaps would pass CUT_HEAP_BYTES (64 at least).
+#: Tiles per launch of ``tile_cut`` (its heaps and slots: 44 bytes for each of cap
+#: entries, reused across launches), fewer where they would pass CUT_HEAP_BYTES (64 at
+#: least).
 CUT_CHUNK = 1024
 CUT_HEAP_BYTES = 64 << 20
 #: Work-items per work-group of ``tile_cut``.

@@ -280,12 +280,13 @@ def bound_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, tiles=(1, 16, 128),
     h, w = gbuffer.shape
     out = {}
     for j, flat in enumerate(idx):
-        exact = node_errors(tree, a, px, D, S, j).max(axis=1)[None]
+        exact = node_errors(tree, a, px, D, S, j)[None]          # each channel's
         y, x = divmod(int(flat), w)
         for e in eps_list:
             out.setdefault(("exact", e), []).append(_entries(tree, *choose_cut(tree, exact, e), n))
         for t in tiles:
-            b = cluster_bounds(tree, _tile_boxes(scene, gbuffer, y, x, t), spec, np.zeros(3))
+            b = cluster_bounds(tree, _tile_boxes(scene, gbuffer, y, x, t), spec, np.zeros(3),
+                               channels=True)
             for e in eps_list:
                 out.setdefault((t, e), []).append(_entries(tree, *choose_cut(tree, b, e), n))
     return out

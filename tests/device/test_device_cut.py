@@ -1,8 +1,8 @@
 """kernels/node_bound.cl ``tile_cut`` (the light tree's cut per tile, on the device)
 against its float64 reference, clphong.model.light_tree.greedy_cut, and in frames.
 
-The kernel and the reference split the node with the largest bound until the cut's
-bounds sum to ≤ the limit. Their bounds agree within 10⁻¹⁰ relative
+The kernel and the reference split the node with the largest bound until each
+channel's bounds over the cut sum to ≤ the limit. Their bounds agree within 10⁻¹⁰ relative
 (tests/device/test_node_bound.py), so they split the same nodes in the same order
 unless two bounds, or a sum and the limit, lie within that of each other: the cuts
 must be the same on every tile here (random bounds make such ties unlikely; a tie
@@ -85,7 +85,7 @@ def _run(dev, tree, scale, kept, *, cap=4096):
 def _bound_of(tree, tiles, spec, origin, t, scale):
     part = TileBoxes(*(getattr(tiles, f)[[t]] for f in ("lo", "hi", "nlo", "nhi", "D", "S")))
     return lambda k: cluster_bounds(tree, part, spec, origin, np.array([k]), pairs=True,
-                                    channel_scale=scale[t][None, None, :])[0]
+                                    channel_scale=scale[t][None, None, :], channels=True)[0]
 
 
 @pytest.mark.parametrize("seed,budget", [(0, 1e-3), (1, 1e-2), (2, 1e-1)])
@@ -114,6 +114,9 @@ def test_device_cut_is_its_reference_cut(seed, budget, device):
         assert counts[t, 1] == nodes.size
         assert counts[t, 2] == int((end[nodes] - start[nodes]).sum())
         assert sums[t] <= limit and sums[t] == pytest.approx(want_sum, rel=1e-9, abs=0)
+        # each channel within its budget, the bounds recomputed in numpy
+        got = np.sum([b(k) for k in nodes], axis=0) if nodes.size else np.zeros(3)
+        assert np.all(got <= limit * (1 + 1e-9)), (t, got)
         # a cut: every kept light once, as a leaf or under one node
         under = np.zeros(tree.n_leaves, int)
         for k in nodes:

@@ -265,16 +265,29 @@ def test_dark_boxes_have_zero_bound_and_touching_boxes_none():
     assert np.all(np.isinf(cluster_bounds(tree, around, spec, np.zeros(3))))
 
 
+@pytest.mark.parametrize("channels", [False, True], ids=["one", "channels"])
 @pytest.mark.parametrize("budget", [1e-4, 1e-2, 1.0])
-def test_cut_sums_within_the_budget_and_covers_each_light_once(budget):
+def test_cut_sums_within_the_budget_and_covers_each_light_once(budget, channels):
+    """Each channel's bounds over the cut sum to ≤ the budget (with one bound a node,
+    that bound's); per channel, the cut is never finer than the one that sums each
+    node's largest channel, and on coloured bounds it is coarser somewhere."""
     rng = np.random.default_rng(5)
     scene = make_scene(clustered_lights(rng, 300, centre=(0, 0, 8), spread=1.0))
     tree = build_light_tree(scene.light_arrays)
-    b = rng.exponential(budget, (3, tree.n_nodes)) * rng.choice([0.1, 1, 10], (3, tree.n_nodes))
+    shape = (3, tree.n_nodes, 3) if channels else (3, tree.n_nodes)
+    b = rng.exponential(budget, shape) * rng.choice([0.1, 1, 10], shape)
     used, covered = choose_cut(tree, b, budget)
+    if channels:
+        # entries: the clusters and the lights under none
+        def entries(u, c):
+            return u.sum(axis=1) + tree.n_leaves - c.sum(axis=1)
+
+        by_max = choose_cut(tree, b.max(axis=-1), budget)
+        assert np.all(entries(used, covered) <= entries(*by_max))
+        assert np.any(entries(used, covered) < entries(*by_max))
     for t in range(3):
         nodes = np.flatnonzero(used[t])
-        assert b[t, nodes].sum() <= budget
+        assert np.all(b[t, nodes].sum(axis=0) <= budget)
         cover = np.concatenate([subtree_leaves(tree, k) for k in nodes]) if nodes.size else []
         assert len(cover) == len(set(cover)), "a light under two clusters"
         assert sorted(cover) == sorted(np.flatnonzero(covered[t]))
@@ -300,21 +313,23 @@ def axis_on_ramp(dist, inner, outer, at=0.5):
     return tuple(np.cos(theta) * w + np.sin(theta) * q)
 
 
+@pytest.mark.parametrize("channels", [False, True], ids=["one", "channels"])
 @pytest.mark.parametrize("budget", [1e-4, 1e-2, 1.0])
 @pytest.mark.parametrize("seed", range(4))
-def test_the_top_down_cut_is_the_whole_tables_cut(budget, seed):
+def test_the_top_down_cut_is_the_whole_tables_cut(budget, seed, channels):
     """threshold_cut bounds nodes only as it needs them, and finds choose_cut's cut:
     on arbitrary bound tables (not monotone down the tree), with zeros, +inf and
-    tiles where nothing fits."""
+    tiles where nothing fits; with one bound a node or each channel's."""
     rng = np.random.default_rng(seed)
     scene = make_scene(clustered_lights(rng, 300, centre=(0, 0, 8), spread=1.0)
                        + clustered_lights(rng, 100, centre=(4, 0, 8), spread=0.5,
                                           att=(1.0, 0.1, 0.0)))
     tree = build_light_tree(scene.light_arrays)
     T = 6
-    b = rng.exponential(budget, (T, tree.n_nodes)) * rng.choice([0.1, 1, 10], (T, tree.n_nodes))
+    shape = (T, tree.n_nodes, 3) if channels else (T, tree.n_nodes)
+    b = rng.exponential(budget, shape) * rng.choice([0.1, 1, 10], shape)
     b[rng.random(b.shape) < 0.05] = 0.0
-    b[rng.random(b.shape) < 0.02] = np.inf
+    b[rng.random(shape[:2]) < 0.02] = np.inf      # no bound: +inf in every channel
     b[T - 1] = 2.0 * budget                       # no node fits: no cut
     asked = []
 
