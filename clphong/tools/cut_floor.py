@@ -84,7 +84,9 @@ class KdTree:
 
 def oracle_cut(contrib, Y, R, tree: KdTree, rep_of, eps: float) -> int:
     """The greedy cut's size for one pixel: ``contrib`` (N, 3) its per-light
-    contributions in tree order, ``rep_of(Yc, Rc)`` the representative's (3,)."""
+    contributions in tree order, ``rep_of(Yc, Rc)`` the representative's (3,). The node
+    of largest error (its largest channel's) is split until each channel's errors sum
+    to ≤ ``eps``, as the light tree's cuts do."""
     pref = np.vstack([np.zeros(3), np.cumsum(contrib, axis=0)])
     pR = np.vstack([np.zeros(3), np.cumsum(R, axis=0)])
     w = R.sum(axis=1)
@@ -94,24 +96,25 @@ def oracle_cut(contrib, Y, R, tree: KdTree, rep_of, eps: float) -> int:
     def err(k):
         lo, hi = tree.lo[k], tree.hi[k]
         if hi - lo == 1:
-            return 0.0
+            return np.zeros(3)
         exact = pref[hi] - pref[lo]
         W_ = pW[hi] - pW[lo]
         yc = (pYW[hi] - pYW[lo]) / W_ if W_ > 0 else Y[lo]
-        return float(np.abs(exact - rep_of(yc, pR[hi] - pR[lo])).max())
+        return np.abs(exact - rep_of(yc, pR[hi] - pR[lo]))
 
-    heap = [(-err(0), 0)]
-    total = -heap[0][0]
-    while total > eps and heap:
-        e, k = heapq.heappop(heap)
-        total += e
+    e0 = err(0)
+    heap = [(-float(e0.max()), 0, e0)]
+    total = e0.copy()
+    while (total > eps).any() and heap:
+        _, k, e = heapq.heappop(heap)
+        total -= e
         if tree.children[k] is None:        # a single light: exact (error 0)
-            heapq.heappush(heap, (0.0, k))
+            heapq.heappush(heap, (0.0, k, np.zeros(3)))
             break
         for ch in tree.children[k]:
             ec = err(ch)
             total += ec
-            heapq.heappush(heap, (-ec, ch))
+            heapq.heappush(heap, (-float(ec.max()), ch, ec))
     return len(heap)
 
 
