@@ -847,18 +847,23 @@ def _device_cut(runtime, tin, fine_tiles, c_ranges, c_lists, point_records, n_po
 #: Intel's own vectoriser (isolate.IMPLICIT_VECTOR_KERNELS) the cut took twice as long:
 #: `clusters` absolute 3·10⁻³ [7 623] 3.08 s against 4.23 s, relative 10⁻³ [15 983]
 #: 10.5 s against 14.2 s; a cut per tile instead of 2² tiles: 12.5 s and 1.59 s, groups
-#: of 4²: 9.85 s at absolute 10⁻³.
+#: of 4²: 9.85 s at absolute 10⁻³. With the cap at 32 768 and more (it was 16 384, where
+#: most of `wide`'s groups passed it) the device's groups win on `wide` too: relative
+#: 10⁻¹ [41 826] 39.2 s against the blocks' 61.0 s, relative 10⁻² [57 652] 112 s
+#: against 138 s (Ice Lake, Intel's runtime, one run each, 2026-12-07).
 DEVICE_CUT = True
-DEVICE_ENTRIES = 30000
+DEVICE_ENTRIES = 60000
 #: Tiles per side of a group that shares one cut from the device (1: a cut per tile):
 #: its box holds its tiles', so the cut keeps somewhat more entries, for 1/CUT_GROUP²
 #: of the cuts' work.
 CUT_GROUP = 2
 #: Most entries of a group's list from the device's cut (``tile_cut``: its place in the
 #: lists buffer and its heap); a group whose cut needs more keeps its super-tile's list.
-#: Fewer where the groups' places would pass CUT_LIST_BYTES (4K frames), 1 024 at least.
-CUT_CAP = 16384
-CUT_LIST_BYTES = 256 << 20
+#: Fewer where the groups' places would pass CUT_LIST_BYTES (the culling lists' own
+#: limit, MAX_LIST_ENTRIES; 1080p: 65 536, 4K: 16 448), 1 024 at least. A cut of n
+#: lights never holds more than n entries, so at 65 536 lights no 1080p group passes it.
+CUT_CAP = 65536
+CUT_LIST_BYTES = 4 * MAX_LIST_ENTRIES
 
 
 def _probe(c_ranges, shaded, *, tiles_x, sup, super_x):
