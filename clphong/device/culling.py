@@ -814,7 +814,9 @@ def _device_cut(runtime, tin, fine_tiles, c_ranges, c_lists, point_records, n_po
     e_ranges = np.stack([np.r_[0, np.cumsum(e_sizes)[:-1]], e_sizes], axis=1)
     extra = layout.light[np.concatenate(extra).astype(np.int64)] if e_sizes.sum() else []
     kept_bits = np.packbits(kept, axis=1, bitorder="little").view(np.uint32)
-    cap = int(min(CUT_CAP, max(1024, CUT_LIST_BYTES // (4 * max(n_groups, 1)))))
+    # a cut of n lights holds at most n entries (each light once, alone or in a node)
+    cap = int(min(CUT_CAP, max(n_point, 1),
+                  max(1024, CUT_LIST_BYTES // (4 * max(n_groups, 1)))))
     counts, _, lists = nodes.for_tiles(boxes).tile_cut(
         tree, scale, t_super, kept_bits, e_ranges, extra, layout.light, layout.node, cap=cap,
         reserve=flat.size)

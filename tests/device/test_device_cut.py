@@ -136,6 +136,19 @@ def test_device_cut_overflows_to_none(device):
     assert np.all(counts[:, 0] == CUT_OVERFLOW) and all(c is None for c in cuts)
 
 
+def test_a_cap_of_the_lights_holds_any_cut(device):
+    """A cut never holds more entries than lights (culling.CUT_CAP's reason to take
+    min(cap, lights)): split to the leaves, a cap of exactly n lights holds every list
+    (all n lights, no node) and never marks it overflowed."""
+    rng, tree, tiles, spec, origin, dev = _setup(3, device, n_tiles=6)
+    n = tree.n_leaves
+    scale = np.full((6, 3), 1e9)                     # a budget of 10⁻⁹: split to the leaves
+    cuts, counts, _ = _run(dev, tree, scale, np.arange(n), cap=n)
+    assert np.all(counts[:, 0] == n) and np.all(counts[:, 1] == 0)
+    assert all(c is not None and c[0].size == 0 and np.array_equal(c[1], np.arange(n))
+               for c in cuts)
+
+
 @pytest.mark.parametrize("eps,cap,group", [(1e-3, 4096, 1), (1e-3, 4096, 2), (3e-2, 4096, 2),
                                            (3e-2, None, 1), (3e-2, None, 2)])
 def test_device_cut_frames_keep_the_budget(eps, cap, group, monkeypatch):
