@@ -849,10 +849,11 @@ def _device_cut(runtime, tin, fine_tiles, c_ranges, c_lists, point_records, n_po
 #: Intel's own vectoriser (isolate.IMPLICIT_VECTOR_KERNELS) the cut took twice as long:
 #: `clusters` absolute 3·10⁻³ [7 623] 3.08 s against 4.23 s, relative 10⁻³ [15 983]
 #: 10.5 s against 14.2 s; a cut per tile instead of 2² tiles: 12.5 s and 1.59 s, groups
-#: of 4²: 9.85 s at absolute 10⁻³. With the cap at 32 768 and more (it was 16 384, where
-#: most of `wide`'s groups passed it) the device's groups win on `wide` too: relative
-#: 10⁻¹ [41 826] 39.2 s against the blocks' 61.0 s, relative 10⁻² [57 652] 112 s
-#: against 138 s (Ice Lake, Intel's runtime, one run each, 2026-12-07).
+#: of 4²: 9.85 s at absolute 10⁻³. With the cap at 65 536 (it was 16 384, where most of
+#: `wide`'s groups passed it) the device's groups win on `wide` too: relative 10⁻¹
+#: [41 826] 43.9 s against the blocks' 65.9 s, relative 10⁻² [57 652] 112 s against
+#: 138 s (the blocks' first frame, which also builds the tree in ~1 s) (Ice Lake,
+#: Intel's runtime, one run each, 2026-12-07).
 DEVICE_CUT = True
 DEVICE_ENTRIES = 60000
 #: Tiles per side of a group that shares one cut from the device (1: a cut per tile):
