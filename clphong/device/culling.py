@@ -814,9 +814,10 @@ def _device_cut(runtime, tin, fine_tiles, c_ranges, c_lists, point_records, n_po
     e_ranges = np.stack([np.r_[0, np.cumsum(e_sizes)[:-1]], e_sizes], axis=1)
     extra = layout.light[np.concatenate(extra).astype(np.int64)] if e_sizes.sum() else []
     kept_bits = np.packbits(kept, axis=1, bitorder="little").view(np.uint32)
-    # a cut of n lights holds at most n entries (each light once, alone or in a node)
-    cap = int(min(CUT_CAP, max(n_point, 1),
-                  max(1024, CUT_LIST_BYTES // (4 * max(n_groups, 1)))))
+    # a cut of n lights holds at most n entries (each light once, alone or in a node);
+    # the groups' places and the super-tiles' lists after them share one buffer
+    room = CUT_LIST_BYTES // 4 - flat.size
+    cap = int(min(CUT_CAP, max(n_point, 1), max(1024, room // max(n_groups, 1))))
     counts, _, lists = nodes.for_tiles(boxes).tile_cut(
         tree, scale, t_super, kept_bits, e_ranges, extra, layout.light, layout.node, cap=cap,
         reserve=flat.size)
@@ -862,9 +863,10 @@ DEVICE_ENTRIES = 60000
 CUT_GROUP = 2
 #: Most entries of a group's list from the device's cut (``tile_cut``: its place in the
 #: lists buffer and its heap); a group whose cut needs more keeps its super-tile's list.
-#: Fewer where the groups' places would pass CUT_LIST_BYTES (the culling lists' own
-#: limit, MAX_LIST_ENTRIES; 1080p: 65 536, 4K: 16 448), 1 024 at least. A cut of n
-#: lights never holds more than n entries, so at 65 536 lights no 1080p group passes it.
+#: Fewer where the groups' places and the super-tiles' lists (copied after them, for the
+#: groups that pass the cap) would pass CUT_LIST_BYTES in their one buffer (the culling
+#: lists' own limit, MAX_LIST_ENTRIES; at most 65 536 at 1080p, 16 448 at 4K), 1 024 at
+#: least; and never more than the lights: a cut of n lights holds at most n entries.
 CUT_CAP = 65536
 CUT_LIST_BYTES = 4 * MAX_LIST_ENTRIES
 

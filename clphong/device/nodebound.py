@@ -118,8 +118,8 @@ class DeviceNodeTerms:
         (S, 2) (o, c), as records; ``light_rec`` / ``node_rec``: the records of the
         leaves and the internal nodes. Returns (counts (T, 3) uint32: each list's
         length at lists + t·cap (CUT_OVERFLOW where cap entries could not hold it), its
-        clusters and the lights they stand for; sums (T,): the cut's bound in units of
-        the budget; the lists buffer: T·cap entries, then ``reserve`` more)."""
+        clusters and the lights they stand for; sums (T,): the cut's largest channel's sum
+        of bounds, in units of that channel's budget; the lists buffer: T·cap entries, then ``reserve`` more)."""
         import pyopencl as cl
 
         ctx, queue = self.runtime.context, self.runtime.queue

@@ -877,7 +877,7 @@ def threshold_cut(tree: LightTree, bound, n_tiles: int, budget: float, *, steps:
     with bound ≤ τ, so lowering τ only splits nodes, and every node of the cut of any
     τ ≥ τ_m has been bounded once the cut of τ_m has. So the search lowers τ by
     ``stride`` thresholds at a time (or more: to the next one that splits a node) until
-    a cut's bounds sum to ≤ ``budget``; then the sums of every threshold above it come
+    a cut's bounds sum to ≤ ``budget`` in each channel; then the sums of every threshold above it come
     from the nodes already bounded, as choose_cut forms them, and the largest that
     fits is taken: choose_cut's own choice on the whole (T, K) table. (Its sums run over
     the deeper nodes too, in another order: where a cut's sum lies within a few

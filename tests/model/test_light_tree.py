@@ -128,9 +128,10 @@ def test_too_few_lights_build_no_tree():
     assert build_light_tree(scene.light_arrays) is None
 
 
-def node_errors(scene, tree, px, D, S):
+def node_errors(scene, tree, px, D, S, *, channels=False):
     """(K,) max over the pixels and channels of |Σ leaves − representative|, exactly
-    (float64), with the reference's per-light contributions."""
+    (float64), with the reference's per-light contributions; ``channels``: each
+    channel's max over the pixels, (K, 3)."""
     arrays = scene.light_arrays
     reps = []
     for k in range(tree.n_nodes):
@@ -152,11 +153,11 @@ def node_errors(scene, tree, px, D, S):
             contrib.append(L * (D * diffuse[..., None] + spec))
     contrib = np.concatenate(contrib)                    # (n + K, M, 3)
     n = len(arrays["point_position"])
-    out = np.zeros(tree.n_nodes)
+    out = np.zeros((tree.n_nodes, 3))
     for k in range(tree.n_nodes):
         idx = subtree_leaves(tree, k)
-        out[k] = np.abs(contrib[idx].sum(axis=0) - contrib[n + k]).max()
-    return out
+        out[k] = np.abs(contrib[idx].sum(axis=0) - contrib[n + k]).max(axis=0)
+    return out if channels else out.max(axis=1)
 
 
 def patch(rng, *, centre, size, tilt, m=60):
@@ -179,11 +180,19 @@ def check_bound(rng, *, model, h, k_s, fresnel, camera, spread, dist, att, size,
     gb = make_gbuffer(P.reshape(1, -1, 3), N.reshape(1, -1, 3), C.reshape(1, -1, 3))
     px, _, D, S, _ = reference._inputs(scene, gb)
     boxes = TileBoxes.of_pixels(px.p, px.n, D, S)
-    bound = cluster_bounds(tree, boxes, SpecularModel.of_scene(scene), np.zeros(3))[0]
-    err = node_errors(scene, tree, px, D, S)
+    spec = SpecularModel.of_scene(scene)
+    bound = cluster_bounds(tree, boxes, spec, np.zeros(3))[0]
+    # the cuts sum each channel's bound against that channel's budget, so each channel's
+    # bound must hold that channel's error (not only the largest bound the largest error)
+    per = cluster_bounds(tree, boxes, spec, np.zeros(3), channels=True)[0]
+    err3 = node_errors(scene, tree, px, D, S, channels=True)
+    err = err3.max(axis=1)
     worst = int(np.argmax(err - bound))
     assert np.all(err <= bound), (f"node {worst}: error {err[worst]:.3g} > bound "
                                   f"{bound[worst]:.3g}")
+    k, c = np.unravel_index(int(np.argmax(err3 - per)), per.shape)
+    assert np.all(err3 <= per), (f"node {k} channel {c}: error {err3[k, c]:.3g} > bound "
+                                 f"{per[k, c]:.3g}")
     return err, bound
 
 
