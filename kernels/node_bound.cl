@@ -389,6 +389,26 @@ inline void heap_pop(__global double *hb, __global uint *hs, uint n)
     hs[i] = slot;
 }
 
+/* tile_cut's new entry, node k with each channel's bound b and order o: into a free slot,
+ * else a new one (the slots in use are the heap's h < cap), the heap and the running
+ * sums of the finite entries (n_inf counts the others) */
+inline void cut_push(__global double *hb, __global uint *hs, __global uint *sk,
+                     __global double *sb, __global const uint *fs, uint *h, uint *n_slots,
+                     uint *n_free, uint *n_inf, double total[3], const double o,
+                     const double b[3], const uint k)
+{
+    const uint slot = *n_free > 0 ? fs[--*n_free] : (*n_slots)++;
+    sk[slot] = k;
+    for (int c = 0; c < 3; ++c)
+        sb[3 * slot + c] = b[c];
+    heap_push(hb, hs, (*h)++, o, slot);
+    if (isinf(o))
+        ++*n_inf;
+    else
+        for (int c = 0; c < 3; ++c)
+            total[c] += b[c];
+}
+
 /* a[i]'s value v sinks into the max-heap a[0 … n) below i */
 inline void sift_down(__global uint *a, uint i, const uint n, const uint v)
 {
@@ -486,16 +506,7 @@ __kernel void tile_cut(__global const double *restrict tiles,
             return;
         }
         const double o = node_bound(&tc, nodes + (size_t)roots[r] * node_doubles, sc, eye, K, b);
-        const uint slot = n_slots++;
-        sk[slot] = roots[r];
-        for (int c = 0; c < 3; ++c)
-            sb[3 * slot + c] = b[c];
-        heap_push(hb, hs, h++, o, slot);
-        if (isinf(o))
-            ++n_inf;
-        else
-            for (int c = 0; c < 3; ++c)
-                total[c] += b[c];
+        cut_push(hb, hs, sk, sb, fs, &h, &n_slots, &n_free, &n_inf, total, o, b, roots[r]);
     }
     for (;;) {
         if (n_inf == 0 && total[0] <= limit && total[1] <= limit && total[2] <= limit) {
@@ -537,17 +548,7 @@ __kernel void tile_cut(__global const double *restrict tiles,
             }
             const uint kk = (uint)c - n_leaves;
             const double o = node_bound(&tc, nodes + (size_t)kk * node_doubles, sc, eye, K, b);
-            /* a free slot, else a new one: the slots in use are the heap's h < cap */
-            const uint slot = n_free > 0 ? fs[--n_free] : n_slots++;
-            sk[slot] = kk;
-            for (int j = 0; j < 3; ++j)
-                sb[3 * slot + j] = b[j];
-            heap_push(hb, hs, h++, o, slot);
-            if (isinf(o))
-                ++n_inf;
-            else
-                for (int j = 0; j < 3; ++j)
-                    total[j] += b[j];
+            cut_push(hb, hs, sk, sb, fs, &h, &n_slots, &n_free, &n_inf, total, o, b, kk);
         }
     }
     double sum[3] = {0.0, 0.0, 0.0};
