@@ -13,8 +13,9 @@ import statistics
 
 import numpy as np
 
-__all__ = ["measure_peak_gflops", "peak_shapes", "measure_fp64_ratio", "FAST_FP64_RATIO",
-           "native_rsqrt_inputs", "measure_native_rsqrt_ulp", "NATIVE_RSQRT_MAX_ULP"]
+__all__ = ["measure_peak_gflops", "peak_shapes", "ratio_shapes", "measure_fp64_ratio",
+           "FAST_FP64_RATIO", "native_rsqrt_inputs", "measure_native_rsqrt_ulp",
+           "measure_builtin_rsqrt_ulp", "measure_rsqrt_ulp", "NATIVE_RSQRT_MAX_ULP"]
 
 
 def peak_shapes(lanes: int) -> tuple[tuple[int, int], ...]:
@@ -54,6 +55,19 @@ def _shape_gflops(runtime, lanes: int, chains: int, repeats: int, double: bool =
     return statistics.median(run() for _ in range(repeats))
 
 
+def ratio_shapes(lanes: int) -> tuple[tuple[tuple[int, int], ...], tuple[tuple[int, int], ...]]:
+    """The (LANES, CHAINS) shapes at which :func:`measure_fp64_ratio` times float, and
+    those at which it times double: the float shapes' widths and, where it is a width
+    lanes.h takes (4, 8 or 16), half of each (the same register bytes a chain). Each
+    precision keeps its best shape, so that neither is read through spills: 12 chains of
+    float16 are 24 ymm registers on AVX2 (16 in all), and of double16 48; Intel's runtime
+    at 16 lanes read 0.2 on Zen 3 (AVX2), whose hardware runs double at half the float
+    rate (2026-12-07)."""
+    single = tuple(dict.fromkeys([(lanes, 12), (min(lanes, 8), 12)]))
+    halves = [(n // 2, c) for n, c in single if n // 2 in (4, 8, 16)]
+    return single, tuple(dict.fromkeys([*single, *halves]))
+
+
 def measure_fp64_ratio(runtime, repeats: int = 5) -> float:
     """The device's double-to-float FMA rate, measured (0 without cl_khr_fp64): about 0.5
     on CPUs with AVX and on the H100/H200, A100 and MI300, 1/16-1/64 on consumer GPUs. The
@@ -61,16 +75,17 @@ def measure_fp64_ratio(runtime, repeats: int = 5) -> float:
 
     Float and double run in turns and each keeps its best run: a busy machine only ever
     slows a run, and slowed float runs must not read as double outrunning float (a CI
-    run on 2-core Zen 4 measured 1.79 with medians of three float runs, then three double)."""
+    run on 2-core Zen 4 measured 1.79 with medians of three float runs, then three double).
+    Each precision is timed at the shapes of :func:`ratio_shapes` and keeps its best."""
     if not runtime.has_fp64:
         return 0.0
-    lanes = max(runtime.lanes, 1)
-    single = _fma_timer(runtime, lanes, 12)
-    double = _fma_timer(runtime, lanes, 12, double=True)
+    single_shapes, double_shapes = ratio_shapes(max(runtime.lanes, 1))
+    single = [_fma_timer(runtime, n, c) for n, c in single_shapes]
+    double = [_fma_timer(runtime, n, c, double=True) for n, c in double_shapes]
     best_single = best_double = 0.0
     for _ in range(repeats):
-        best_single = max(best_single, single())
-        best_double = max(best_double, double())
+        best_single = max([best_single] + [run() for run in single])
+        best_double = max([best_double] + [run() for run in double])
     return best_double / best_single if best_single > 0 else 0.0
 
 
@@ -121,10 +136,27 @@ def measure_native_rsqrt_ulp(runtime, lanes: int | None = None, chunk: int = 1 <
     :func:`native_rsqrt_inputs`; inf where it is not finite there, or gets rsqrt(0) = +∞
     or rsqrt(+∞) = 0 wrong. The plan takes that guess (RSQRT_NATIVE) only within
     :data:`NATIVE_RSQRT_MAX_ULP`."""
+    return measure_rsqrt_ulp(runtime, lanes, chunk, guess=4)
+
+
+def measure_builtin_rsqrt_ulp(runtime, lanes: int | None = None, chunk: int = 1 << 22) -> float:
+    """:func:`measure_native_rsqrt_ulp` for the OpenCL C builtin rsqrt in float
+    (RSQRT_GUESS_KIND 3), built as the shading kernel is (``-cl-denorms-are-zero``). The
+    specification allows it 2 ulp, but Intel's CPU runtime 2026.2 on an AVX2 host (Zen 3)
+    returned 2.4·10⁻¹⁹ for every x ≥ 8.5·10³⁷ at 1, 8 and 16 lanes (2·10⁷ ulp; right at 4
+    lanes, and without denormals flushed): the plan takes the builtin (RSQRT_BUILTIN)
+    only at a width where this is within :data:`NATIVE_RSQRT_MAX_ULP` (2026-12-07)."""
+    return measure_rsqrt_ulp(runtime, lanes, chunk, guess=3)
+
+
+def measure_rsqrt_ulp(runtime, lanes: int | None = None, chunk: int = 1 << 22, *,
+                      guess: int) -> float:
+    """The largest error, in float ulp, of rsqrt_dist with the first guess ``guess``
+    (clphong.h's RSQRT_GUESS_KIND) over :func:`native_rsqrt_inputs`, 0 and +∞."""
     import pyopencl as cl
 
     lanes = max(lanes or runtime.lanes, 1)
-    defines = {"LANES": lanes, "RSQRT_GUESS_KIND": 4, "DIRECTIONS_FP64": 0, "SUM_FP64": 0,
+    defines = {"LANES": lanes, "RSQRT_GUESS_KIND": guess, "DIRECTIONS_FP64": 0, "SUM_FP64": 0,
                "SPEC_INT_POW": 0, "SPEC_COS": 0, "POW_FP32": 0, "WEIGHTS_FP64": 0}
     prog = runtime.program("rsqrt_probe.cl", defines)
     x_all = np.concatenate([np.float32([0.0, np.inf]), native_rsqrt_inputs()])

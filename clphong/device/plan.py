@@ -233,14 +233,21 @@ def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp
     if dir_cull and not culling:
         put("CULL_TILE", TILE, f"{TILE}x{TILE}-pixel tiles of the directional lists")
     native_float = bool(rsqrt_native) and not fp64_directions
-    put("RSQRT_BUILTIN", rsqrt_builtin,
+    fmt = "double" if fp64_directions else "float"
+    # True: the builtin in both formats; else the formats (Runtime.rsqrt_builtin) it is taken in
+    builtin = rsqrt_builtin is True or (not isinstance(rsqrt_builtin, bool) and fmt in rsqrt_builtin)
+    put("RSQRT_BUILTIN", builtin,
         "1/√x by the OpenCL C builtin rsqrt (2 ulp by the specification): on this platform "
         "faster than clphong's inline steps"
         + (" (not used here: each 1/√x is in float, by RSQRT_NATIVE below)" if native_float
            else "")
-        if rsqrt_builtin
-        else "1/√x by clphong's inline Newton steps (kernels/include/clphong.h), within the "
-             "builtin's 2 ulp: PoCL calls the builtin out of line (GPUs: not measured with it)")
+        if builtin
+        else f"1/√x in {fmt} by clphong's inline Newton steps (kernels/include/clphong.h), "
+             "within the builtin's 2 ulp: PoCL calls the builtin out of line (GPUs: not "
+             "measured with it)" if not rsqrt_builtin
+        else f"1/√x in {fmt} by clphong's inline Newton steps (kernels/include/clphong.h): "
+             f"this platform's builtin is taken in {' and '.join(rsqrt_builtin)} only "
+             "(Runtime.rsqrt_builtin)")
     native = native_float
     put("RSQRT_NATIVE", native,
         "float 1/√x from native_rsqrt and one Newton step: the self-test measured it within "
@@ -367,10 +374,11 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
         the work-group stages T records at a time through local memory (LIGHT_TILE,
         GPUs: ``Runtime.light_tile``), any T with any work-group size (each work-item
         loads every work-group-size-th float4). Bit-identical results either way.
-    rsqrt_builtin : bool
+    rsqrt_builtin : bool or collection of "float", "double"
         Lane kernel: 1/√x by the OpenCL C builtin rsqrt (RSQRT_BUILTIN: the
-        specification's 2 ulp; ``Runtime.rsqrt_builtin``, Intel's CPU runtime), else
-        clphong's inline Newton steps (kernels/include/clphong.h).
+        specification's 2 ulp; ``Runtime.rsqrt_builtin``, Intel's CPU runtime) where the
+        directions' format is one of these (True: both), else clphong's inline Newton
+        steps (kernels/include/clphong.h).
     rsqrt_native : bool
         Lane kernel with float directions: the first guess of 1/√x is native_rsqrt, then
         one Newton step (RSQRT_NATIVE; ``Runtime.rsqrt_native``: where the self-test

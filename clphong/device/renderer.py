@@ -386,7 +386,7 @@ class Renderer:
                          relative=self.relative, has_fp64=self.runtime.fast_fp64, int_pow=self.int_pow,
                          coverage=coverage, groups=self.scene.light_groups, aovs=self.aovs,
                          light_tile=self.light_tile if self.kernel_kind == "lanes" else 0,
-                         rsqrt_builtin=self.runtime.rsqrt_builtin,
+                         rsqrt_builtin=self.runtime.rsqrt_builtin(self.lanes),
                          light_unroll=self.light_unroll if self.kernel_kind == "lanes" else 0,
                          rsqrt_native=self.runtime.rsqrt_native(self.lanes),
                          dir_lists=dir_lists and self.dir_lists)

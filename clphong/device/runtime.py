@@ -302,6 +302,10 @@ class Runtime:
     #: step, measured by the self-test (:func:`clphong.device.peak.measure_native_rsqrt_ulp`);
     #: None or absent: not measured.
     native_rsqrt_ulps: dict = field(default_factory=dict)
+    #: Per lane width, the error in float ulp of the builtin rsqrt, measured by the
+    #: self-test (:func:`clphong.device.peak.measure_builtin_rsqrt_ulp`); None or absent:
+    #: not measured.
+    builtin_rsqrt_ulps: dict = field(default_factory=dict)
 
     @property
     def kind(self) -> str:
@@ -352,14 +356,25 @@ class Runtime:
         per_unit = 2 if self.device.type & _cl().device_type.CPU else FILL_GROUPS
         return int(self.device.max_compute_units) * per_unit
 
-    @property
-    def rsqrt_builtin(self) -> bool:
-        """Whether the shading kernel takes 1/√x from the OpenCL C builtin (``plan``'s
-        RSQRT_BUILTIN): on Intel's CPU runtime, whose builtin (an SVML call) measured 1.5x
-        the accurate and 2x the fast path's lights loop of clphong's inline steps on Zen 5.
-        PoCL 3.0 calls it out of line at a higher cost, and a GPU was not measured with
-        it: clphong's inline steps there."""
-        return self.kind == "intel-cpu"
+    def rsqrt_builtin(self, lanes: int) -> tuple[str, ...]:
+        """The formats, "float" and "double", in which the shading kernel at ``lanes``
+        takes 1/√x from the OpenCL C builtin (``plan``'s RSQRT_BUILTIN), on Intel's CPU
+        runtime only: PoCL 3.0 calls it out of line at a higher cost, and a GPU was not
+        measured with it (clphong's inline steps there).
+
+        * float: where the width's self-test measured it within the specification's 2
+          ulp (:func:`~clphong.device.peak.measure_builtin_rsqrt_ulp`; Intel's runtime on
+          Zen 3's AVX2 returned 2.4e-19 for every x ≥ 2^126 at 1, 8 and 16 lanes until
+          rsqrt_dist scaled such x). Faster than the inline steps on Zen 5 (the fast
+          path's lights loop 2x) and on Zen 3 (0.822 against 0.765 GPLE/s, 2026-12-07).
+        * double: on an AVX-512 host (Zen 5: the accurate path's lights loop 1.5x). On
+          Zen 3 (AVX2) the double SVML call was the slower: 0.527 against 0.629 GPLE/s for
+          the inline steps, 1080p × 256 lights, 16 lanes (2026-12-07)."""
+        if self.kind not in NATIVE_RSQRT_KINDS:
+            return ()
+        ulp = self.builtin_rsqrt_ulps.get(lanes)
+        formats = ("float",) if ulp is not None and ulp <= NATIVE_RSQRT_MAX_ULP else ()
+        return formats + (("double",) if hostrule.host().avx512 else ())
 
     def rsqrt_native(self, lanes: int) -> bool:
         """Whether the shading kernel's float 1/√x at ``lanes`` starts from native_rsqrt
@@ -422,9 +437,15 @@ class Runtime:
         ulp = self.native_rsqrt_ulps.get(self.lanes)
         if ulp is None:
             return "float 1/√x: the builtin rsqrt (native_rsqrt not measured at this width)"
+        builtin = self.builtin_rsqrt_ulps.get(self.lanes)
         how = ("native_rsqrt and one Newton step" if self.rsqrt_native(self.lanes)
-               else "the builtin rsqrt (native_rsqrt and one Newton step are over 2 ulp here)")
-        return f"float 1/√x: {how}; measured {ulp:.3g} ulp over every float of [1, 4) and more"
+               else "the builtin rsqrt (native_rsqrt and one Newton step are over 2 ulp here)"
+               if "float" in self.rsqrt_builtin(self.lanes)
+               else "clphong's inline Newton steps (native_rsqrt and one step are over 2 ulp "
+                    "here, and the builtin rsqrt "
+                    + ("was not measured)" if builtin is None else f"measured {builtin:.3g} ulp)"))
+        return (f"float 1/√x: {how}; native_rsqrt and one step measured {ulp:.3g} ulp over "
+                "every float of [1, 4) and more")
 
     def kernel(self, program, name: str):
         """The ``cl.Kernel`` ``name`` of a program built by :meth:`program`, created once

@@ -93,7 +93,7 @@ _RUNTIMES: dict[str | None, Runtime] = {}
 _RT_LOCK = threading.Lock()
 
 #: Bumped when the self-test changes what it checks: older verdicts are not reused.
-SELFTEST_VERSION = 4
+SELFTEST_VERSION = 5
 _VERDICTS: dict[Path, dict] = {}
 
 
@@ -117,6 +117,7 @@ def verify(rt: Runtime, width: int) -> dict:
     # the width's measure of native_rsqrt goes with every reading of its verdict, so the
     # plan at this width takes what its self-test ran (Runtime.rsqrt_native)
     rt.native_rsqrt_ulps[width] = verdict.get("native_rsqrt_ulp") if verdict.get("ok") else None
+    rt.builtin_rsqrt_ulps[width] = verdict.get("builtin_rsqrt_ulp") if verdict.get("ok") else None
     return verdict
 
 

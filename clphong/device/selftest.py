@@ -30,7 +30,7 @@ from ..core.errors import ClphongError, InputWarning
 from ..io.gbuffer import GBuffer
 from ..model.scene import parse_scene
 from ..reference import shading as reference
-from .peak import measure_fp64_ratio, measure_native_rsqrt_ulp
+from .peak import measure_builtin_rsqrt_ulp, measure_fp64_ratio, measure_native_rsqrt_ulp
 from .runtime import NATIVE_RSQRT_KINDS
 from .renderer import Renderer, prepare_frame
 from .selection import get_runtime
@@ -107,6 +107,14 @@ def check(device: str, lanes: int, *, fault: float = 0.0) -> dict:
         except Exception:  # noqa: BLE001 - a probe that fails takes the builtin, not the device
             ulp = None
     rt.native_rsqrt_ulps[lanes] = ulp
+    # and whether the builtin rsqrt is within its 2 ulp here (plan RSQRT_BUILTIN)
+    builtin = None
+    if rt.kind in NATIVE_RSQRT_KINDS:
+        try:
+            builtin = measure_builtin_rsqrt_ulp(rt, lanes)
+        except Exception:  # noqa: BLE001 - a probe that fails takes the inline steps
+            builtin = None
+    rt.builtin_rsqrt_ulps[lanes] = builtin
     if fault:
         rt.extra_defines = {"SELFTEST_FAULT": f"{float(fault)!r}f"}
     gb = _gbuffer()
@@ -134,7 +142,8 @@ def check(device: str, lanes: int, *, fault: float = 0.0) -> dict:
                           f"{rgb[y, x, c]:.9g} against the reference's {ref[y, x, c]:.9g} "
                           f"(|err|/bound {here:.3g})")
     verdict = {"ok": bool(worst <= 1.0), "worst": worst, "detail": detail,
-               "fp64_ratio": rt.fp64_ratio, "native_rsqrt_ulp": ulp}
+               "fp64_ratio": rt.fp64_ratio, "native_rsqrt_ulp": ulp,
+               "builtin_rsqrt_ulp": builtin}
     if verdict["ok"] and not fault:
         verdict["pair_rate"] = calibrate(device, lanes)
     return verdict

@@ -235,6 +235,7 @@ typedef floatL dirL;
 #endif
 
 #if RSQRT_GUESS_KIND == 3
+/* the builtin (in float, for x < 2^124 only on some platforms: see rsqrt_dist below) */
 inline dirL rsqrt_dir(dirL x) { return rsqrt(x); }
 #elif RSQRT_GUESS_KIND == 4
 /* native_rsqrt's guess y and one Newton step written as (y/2)·(3 − (x·y)·y): the same
@@ -272,7 +273,18 @@ inline dirL rsqrt_dir(dirL x)
 #if DIRECTIONS_FP64
 #define RSQRT_DIST(x) rsqrt_dir(x)
 #elif RSQRT_GUESS_KIND == 3
-inline dirL rsqrt_dist(dirL x) { return rsqrt(x); }   /* the builtin has the guards below */
+/* the builtin has the guards below, but Intel's CPU runtime 2026.2 on an AVX2 host (Zen
+   3) returns 2.4e-19 for every x ≥ 2^126 with denormals flushed, at 1, 8 and 16 lanes
+   (2e7 ulp; right at 4 lanes): x ≥ 2^124 is scaled by 2^-4 first (exact) and the result
+   by 2^-2 (exact), +∞ still gives 0. The self-test measures this form at each width
+   (clphong/device/peak.py measure_builtin_rsqrt_ulp) and the plan takes it only within
+   2 ulp. RSQRT_DIR's callers pass |l + v|² ≤ 4 only. */
+inline dirL rsqrt_dist(dirL x)
+{
+    const intL huge = x >= 0x1p124f;
+    const dirL y = rsqrt(SELECT(x, x * 0x1p-4f, huge));
+    return SELECT(y, y * 0x1p-2f, huge);
+}
 #define RSQRT_DIST(x) rsqrt_dist(x)
 #else
 /* 1/√x for a squared distance in float: rsqrt_dir with the two guards that the
