@@ -392,9 +392,13 @@ class Runtime:
         LIGHT_UNROLL): 4 on Intel's CPU runtime on an AVX-512 host, whose compiled loop let
         the core overlap too little of one light's ~40-operation chain with the next (Zen
         5, 1080p × 256 lights: fast 1.27x, accurate 1.35x; 8 added 0-3 % more for twice
-        the code). 0 elsewhere, as not measured: PoCL, GPUs, and AVX2 hosts, whose 16
-        vector registers four chains at once may spill."""
-        return 4 if self.kind == "intel-cpu" and hostrule.host().avx512 else 0
+        the code); 2 on an AVX2 host, whose 16 vector registers hold fewer chains (Zen 3,
+        the same frame: accurate 0.635 → 0.721 GPLE/s at 2, 0.703 at 4; fast 0.835 →
+        0.866, 0.870; 2026-12-07). 0 elsewhere: PoCL (Zen 3: no faster at 2 or 4) and
+        GPUs (not measured)."""
+        if self.kind != "intel-cpu":
+            return 0
+        return 4 if hostrule.host().avx512 else 2
 
     @property
     def light_tile(self) -> bool:
