@@ -112,6 +112,35 @@ inline double falloff_curve(double c0, double c1, double c2, double x)
     return 2.0 * fabs(n) / (p * p * p);
 }
 
+/* light_tree.py diffuse_gradient_sup: sup |∇g| over c ∈ [c_lo, c_hi] (|∇g|² is linear
+ * in c²: an end of the range) */
+inline double diffuse_gradient_sup(double c_lo, double c_hi, double L, double A1)
+{
+    const double c = L >= A1 ? c_lo : c_hi;
+    return sqrt((1.0 - c * c) * L * L + c * c * A1 * A1);
+}
+
+/* light_tree.py diffuse_hessian_sup: the spectral norm's sup over c ∈ [c_lo, c_hi],
+ * 0 ≤ m ≤ M, |A″| ≤ A2 (the derivation is there) */
+inline double hessian_vertex(double c_lo, double c_hi, double M, double alpha)
+{
+    const double P = fabs(alpha - M);
+    const double Q = (alpha + M) * (alpha + M) - 4.0 * M * M;
+    double top = 2.0 * P * M / sqrt(Q * (Q - P * P));
+    top = isnan(top) ? 0.0 : top;
+    const double c = Q >= 0.0 ? c_hi : fmin(fmax(top, c_lo), c_hi);
+    return 0.5 * (c * P + sqrt(c * c * ((alpha + M) * (alpha + M)) + 4.0 * (1.0 - c * c) * M * M));
+}
+
+inline double diffuse_hessian_sup(double c_lo, double c_hi, double M, double A2)
+{
+    if (!(isfinite(M) && isfinite(A2) && isfinite(c_lo) && isfinite(c_hi))) {
+        const double mm = nmax(M, A2);
+        return sqrt(M * M + mm * mm) + 0.0 * (c_lo + c_hi);
+    }
+    return fmax(fmax(0.0, hessian_vertex(c_lo, c_hi, M, A2)), hessian_vertex(c_lo, c_hi, M, -A2));
+}
+
 /* What a tile's bounds share over every node: its boxes, widened by the float32
  * rounding of the positions they hold (tlo, thi), and, where it has specular, the
  * tile's side of specular_cosine (its normals' cone, centre and radius, and its view
@@ -243,12 +272,12 @@ inline void node_term(const tile_c *tc, const __global double *N, const v3 eye, 
         s2 = fmax(s2, r > d_lo ? falloff_curve(c0, c1, c2, r) : 0.0);
     }
     const double a1 = s1 * (1.0 + SLOPE_SLACK_D), a2 = s2 * (1.0 + SLOPE_SLACK_D);
-    /* diffuse */
+    /* diffuse, over the cosine's range c ∈ [c⁻, c⁺] (c⁻ = 0 unless surely lit) */
     const double g_hi = A_lo * nu_hi;
-    const double grad = nmax(lip, a1);
+    const double c_lo = lit ? clamp(nl_lo / d_hi - margin, 0.0, 1.0) : 0.0;
+    const double grad = diffuse_gradient_sup(c_lo, nu_hi, lip, a1);
     const double m = (lip + a1_lo) / d_lo;
-    const double mm = nmax(m, a2);
-    const double hess = sqrt(m * m + mm * mm);
+    const double hess = diffuse_hessian_sup(c_lo, nu_hi, m, a2);
     double e[3];
     const double Rc[3] = {Rk.x, Rk.y, Rk.z}, Mc[3] = {M.x, M.y, M.z}, Fc[3] = {F.x, F.y, F.z},
                  Qc[3] = {Q.x, Q.y, Q.z}, Dc[3] = {D.x, D.y, D.z}, Sc[3] = {S.x, S.y, S.z};

@@ -58,10 +58,13 @@ point beyond it; ``|A′| ≤ 2A/d`` and ``|A″| ≤ 8A/d²`` always). With ``c
 ``s = √(1 − c²)`` and ``w`` the unit vector of ``n − c·u``, the diffuse weight ``g =
 c·A`` has ``∇g = A·s/d·w + c·A′·u``, so ``|∇g| ≤ Λ_d = max(A/d, A₁)``; its Hessian is,
 in the frame (u, w, u × w), ``[[c·A″, −s·m, 0], [−s·m, −c·m, 0], [0, 0, −c·m]]`` with
-``m = A/d² + |A′|/d`` (both decreasing in d), whose norm is at most its Frobenius
-norm's largest value over c: ``H_d = √(m² + max(m, A₂)²)``. That is √2·A/d² without
-falloff (the constants 3A/d and 15A/d², used before 2026-12-06, were 3× and 10× that),
-and 6.7A/d² for 1/d². The specular cosine ``x = cos θ`` (``n·h``, or ``r·v``
+``m = A/d² + |A′|/d`` (both decreasing in d). ``H_d`` is its spectral norm's largest
+value over ``c`` in the pair's range ``[c⁻, c⁺]`` (:func:`diffuse_hessian_sup`, in closed
+form): ``2A/(√3·d²)`` without falloff where ``c`` may be ``1/√3``, and ``A/d²`` straight
+under the light. Before 2026-12-07 it was the Frobenius bound ``√(m² + max(m, A₂)²)``,
+``√2·A/d²`` without falloff (the constants 3A/d and 15A/d², used before 2026-12-06, were
+3× and 10× that). Likewise ``Λ_d`` is ``|∇g|``'s largest value over ``[c⁻, c⁺]``
+(:func:`diffuse_gradient_sup`), ``max(A/d, A₁)`` when the range is ``[0, 1]``. The specular cosine ``x = cos θ`` (``n·h``, or ``r·v``
 for Phong) moves with ``|∇θ| ≤ g``: Phong's ``r = (2nnᵀ − I)u`` is an orthogonal map
 of ``u``, so ``g = 1/d``; Blinn-Phong's half vector moves by ``|∇u|/|u + v|``, so
 ``g = 1/(d·|u + v|⁻)``, ``|u + v|⁻`` from a lower bound of ``u·v``. Then ``|∇x| ≤
@@ -582,10 +585,11 @@ def cluster_terms(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
         Q = side(tree.quadratic[k]) + Rk * rp * (rp + 2 * side(tree.moment[k]) / np.maximum(Rk, 1e-300))
         # the falloff's slopes over d ≥ d⁻: |A′(d⁻)|, sup |A′|, sup |A″|
         a1_lo, a1, a2 = falloff_slopes(c0, c1, c2, d_lo, tuple(side(x[k]) for x in tree.peaks))
-        # diffuse g = (n·u)·A: both sums lie in [0, R·A(d⁻)·(n·u)⁺]; |∇g| ≤ Λ_d =
-        # max(A/d, sup|A′|); where surely lit, Taylor to second order: ‖∇²g‖ ≤ H_d =
-        # √(m² + max(m, sup|A″|)²), m = A/d² + |A′|/d (both decreasing in d), and the
-        # first-order term |∇g(p_k)·Σ R_i (p_i − p_k)| ≤ Λ_d·F
+        # diffuse g = (n·u)·A: both sums lie in [0, R·A(d⁻)·(n·u)⁺]; |∇g| ≤ Λ_d, its
+        # sup over n·u ∈ [c⁻, c⁺] with A/d ≤ A(d⁻)/d⁻ and |A′| ≤ sup|A′|; where surely lit,
+        # Taylor to second order: ‖∇²g‖ ≤ H_d, the spectral norm's sup over the same range
+        # with m = A/d² + |A′|/d ≤ its value at d⁻ (both decreasing in d) and |A″| ≤
+        # sup|A″|, and the first-order term |∇g(p_k)·Σ R_i (p_i − p_k)| ≤ Λ_d·F
         # |∇t²| ≤ 2t⁺·s/d and ‖∇²t²‖ ≤ (2s² + 6t⁺·s)/d² (|∇cos θ| ≤ 1/d, ‖∇²cos θ‖ ≤
         # 3/d²); 0 where t ≡ 1 (slope 0: a point light, or inside the inner cone)
         spot = slope > 0
@@ -593,9 +597,12 @@ def cluster_terms(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
         spot_hess = np.where(spot, (2.0 * slope * slope + 6.0 * t_hi * slope) / d_lo ** 2, 0.0)
         g_hi = A_lo * nu_hi                          # the diffuse weight's range
         e_rng = Rk * (g_hi * t2)[..., None]
-        grad_g = np.maximum(lip, a1)
+        # the cosine's range over the pair: c ∈ [c⁻, c⁺] (c⁻ = 0 unless surely lit)
+        c_lo = np.where(lit, np.clip(nl_lo / d_hi - margin, 0.0, 1.0), 0.0)
+        c_hi = nu_hi
+        grad_g = diffuse_gradient_sup(c_lo, c_hi, lip, a1)
         m = (lip + a1_lo) / d_lo
-        hess_g = np.sqrt(m * m + np.maximum(m, a2) ** 2)
+        hess_g = diffuse_hessian_sup(c_lo, c_hi, m, a2)
         grad = grad_g * t2 + np.where(spot, g_hi * spot_lip, 0.0)
         e_lip = grad[..., None] * M
         hess = hess_g * t2 + np.where(spot, 2.0 * spot_lip * grad_g + g_hi * spot_hess, 0.0)
@@ -615,6 +622,42 @@ def cluster_terms(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
         e = e + U * Rk * A_lo[..., None] * (D + S)
     e = np.where((d_lo > 0)[..., None], e, np.inf)       # the boxes touch (or NaN): none
     return np.where(dark[..., None], 0.0, e)
+
+
+def diffuse_gradient_sup(c_lo, c_hi, L, A1):
+    """sup |∇g| of the diffuse weight g = (n·u)·A over c = n·u ∈ [c_lo, c_hi] ⊂ [0, 1]:
+    ∇g = A·s/d·w + c·A′·u has orthogonal parts, so |∇g|² ≤ (1 − c²)·L² + c²·A1² with L ≥
+    A/d and A1 ≥ |A′|, linear in c²: its largest value is at c_lo where L ≥ A1, else at
+    c_hi (max(L, A1) when the range is all of [0, 1])."""
+    c = np.where(L >= A1, c_lo, c_hi)
+    return np.sqrt((1.0 - c * c) * L * L + c * c * A1 * A1)
+
+
+def diffuse_hessian_sup(c_lo, c_hi, M, A2):
+    """sup ‖∇²g‖ (spectral norm) of the diffuse weight over c ∈ [c_lo, c_hi] ⊂ [0, 1],
+    with 0 ≤ m ≤ M and |A″| ≤ A2 (module docstring). In the frame (u, w, u × w) the
+    Hessian is [[c·A″, −s·m, 0], [−s·m, −c·m, 0], [0, 0, −c·m]], s = √(1 − c²): for a
+    fixed c it is affine in (A″, m), so its norm, convex, is largest at a vertex of the
+    box: m = 0 gives c·|A″|; m = M gives, for the 2×2 block, f(c) = ½(c·|α − M| + √(c²(α
+    + M)² + 4(1 − c²)M²)) with α = ±A2, which is ≥ c·|α| and ≥ c·M (the third
+    eigenvalue). f(c) = ½(cP + √(4M² + Qc²)), Q = (α + M)² − 4M²: increasing where Q ≥
+    0, else concave with its top at c* = 2PM/√(Q(Q − P²)). So the sup is f at c_hi, or at
+    c* clipped to [c_lo, c_hi]. Without falloff curvature (A2 = 0) it is 2M/√3 at c =
+    1/√3, and M at c = 1 (straight under a light); the Frobenius bound √(m² + max(m,
+    A2)²) used before 2026-12-07 was √2·M."""
+    best = np.zeros(np.broadcast(c_lo, c_hi, M, A2).shape)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        for alpha in (A2, -A2):
+            P = np.abs(alpha - M)
+            Q = (alpha + M) ** 2 - 4.0 * M * M
+            top = 2.0 * P * M / np.sqrt(Q * (Q - P * P))
+            c = np.where(Q >= 0, c_hi, np.clip(np.nan_to_num(top, nan=0.0), c_lo, c_hi))
+            f = 0.5 * (c * P + np.sqrt(c * c * (alpha + M) ** 2 + 4.0 * (1.0 - c * c) * M * M))
+            best = np.fmax(best, f)
+    finite = np.isfinite(M) & np.isfinite(A2) & np.isfinite(c_lo) & np.isfinite(c_hi)
+    # not finite (boxes that touch, NaN inputs): the Frobenius form, inf or NaN as before
+    with np.errstate(invalid="ignore", over="ignore"):
+        return np.where(finite, best, np.sqrt(M * M + np.maximum(M, A2) ** 2) + 0.0 * (c_lo + c_hi))
 
 
 def spot_factor_bounds(cone, tlo, thi, blo, bhi):

@@ -535,3 +535,40 @@ def test_the_specular_bound_is_near_tight_on_the_lobes_flank(model, h, att):
     assert np.all(err <= bound), f"node {worst}: error {err[worst]:.3g} > bound {bound[worst]:.3g}"
     assert pair.sum() >= 24
     assert (err[pair] / bound[pair]).max() >= 0.4
+
+
+def test_the_diffuse_hessian_and_gradient_sups_are_the_largest_over_the_range():
+    """diffuse_hessian_sup is the largest spectral norm of [[c·A″, −s·m, 0], [−s·m, −c·m,
+    0], [0, 0, −c·m]] (s = √(1 − c²)) over c ∈ [c⁻, c⁺], 0 ≤ m ≤ M, |A″| ≤ A2, and
+    diffuse_gradient_sup the largest √((1 − c²)L² + c²A1²): never below a dense grid's
+    largest eigenvalue (a bound 1 % low fails) and within its resolution of it (so it
+    is the sup, not merely a bound). Without falloff curvature over [0, 1] it is
+    2M/√3, against √2·M for the Frobenius bound it replaced."""
+    from clphong.model.light_tree import diffuse_gradient_sup, diffuse_hessian_sup
+
+    rng = np.random.default_rng(27)
+    for _ in range(300):
+        M, A2 = rng.uniform(0.0, 2.0), rng.choice([0.0, rng.uniform(0.0, 6.0)])
+        c_lo, c_hi = np.sort(rng.uniform(0.0, 1.0, 2))
+        c_lo = 0.0 if rng.random() < 0.3 else c_lo
+        c_hi = 1.0 if rng.random() < 0.3 else c_hi
+        c = np.linspace(c_lo, c_hi, 801)[:, None, None]
+        m = np.array([0.0, M])[None, :, None]            # the norm is convex in (A″, m):
+        a = np.array([-A2, A2])[None, None, :]           # its sup is at the box's vertices
+        s = np.sqrt(1.0 - c * c)
+        c, m, a, s = np.broadcast_arrays(c, m, a, s)
+        H = np.zeros(c.shape + (3, 3))
+        H[..., 0, 0], H[..., 0, 1], H[..., 1, 0] = c * a, -s * m, -s * m
+        H[..., 1, 1], H[..., 2, 2] = -c * m, -c * m
+        grid = float(np.abs(np.linalg.eigvalsh(H)).max())
+        sup = float(diffuse_hessian_sup(c_lo, c_hi, M, A2))
+        assert grid <= sup * (1 + 1e-12), (M, A2, c_lo, c_hi)
+        assert sup <= grid * (1 + 1e-4) + 1e-12, (sup, grid)
+        L, A1 = rng.uniform(0.0, 2.0, 2)
+        cc = np.linspace(c_lo, c_hi, 801)
+        g = float(np.sqrt((1 - cc * cc) * L * L + cc * cc * A1 * A1).max())
+        assert g == pytest.approx(float(diffuse_gradient_sup(c_lo, c_hi, L, A1)), rel=1e-12)
+    assert diffuse_hessian_sup(0.0, 1.0, 1.0, 0.0) == pytest.approx(2 / np.sqrt(3), rel=1e-15)
+    assert diffuse_hessian_sup(1.0, 1.0, 1.0, 0.0) == pytest.approx(1.0, rel=1e-15)
+    assert np.isinf(diffuse_hessian_sup(0.0, 1.0, np.inf, 0.0))
+    assert np.isnan(diffuse_hessian_sup(0.0, np.nan, 1.0, 0.0))
