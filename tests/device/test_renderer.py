@@ -531,20 +531,29 @@ def test_native_rsqrt_step_has_the_bits_of_the_halved_form(device, lanes):
         int((ours != halved).sum())
 
 
+def _fake_runtime(kind, **measures):
+    """A Runtime of platform ``kind`` with the self-test's measures given (no device)."""
+    from clphong.device.runtime import Runtime
+
+    class _Fake(Runtime):
+        def __init__(self):
+            self.native_rsqrt_ulps, self.builtin_rsqrt_ulps = {}, {}
+            self.__dict__.update(measures)
+
+        @property
+        def kind(self):
+            return kind
+
+    return _Fake()
+
+
 def test_native_rsqrt_follows_the_measure_not_the_platform_alone(monkeypatch):
     """A measure over 2 ulp, or none, keeps the builtin on Intel's runtime; PoCL and GPUs
     never take the native guess; the plan never takes it with double directions."""
     from clphong.device.plan import make_plan
-    from clphong.device.runtime import Runtime
 
-    class _Fake(Runtime):
-        def __init__(self, kind, ulps):
-            self.native_rsqrt_ulps = ulps
-            self._kind = kind
-
-        @property
-        def kind(self):
-            return self._kind
+    def _Fake(kind, ulps):
+        return _fake_runtime(kind, native_rsqrt_ulps=ulps)
 
     assert _Fake("intel-cpu", {16: 1.96}).rsqrt_native(16)
     assert not _Fake("intel-cpu", {16: 2.39}).rsqrt_native(16)
@@ -567,18 +576,11 @@ def test_the_builtin_rsqrt_follows_its_measure(monkeypatch):
 
     from clphong.device import hostrule
     from clphong.device.plan import make_plan
-    from clphong.device.runtime import Runtime
 
     real = hostrule.host()
 
-    class _Fake(Runtime):
-        def __init__(self, kind, ulps):
-            self.builtin_rsqrt_ulps = ulps
-            self._kind = kind
-
-        @property
-        def kind(self):
-            return self._kind
+    def _Fake(kind, ulps):
+        return _fake_runtime(kind, builtin_rsqrt_ulps=ulps)
 
     for wide in (True, False):
         feats = real.features | {"avx512f"} if wide else real.features - {"avx512f"}
