@@ -438,18 +438,18 @@ class Runtime:
         platform does not measure native_rsqrt: :data:`NATIVE_RSQRT_KINDS`)."""
         if self.kind not in NATIVE_RSQRT_KINDS:
             return None
-        ulp = self.native_rsqrt_ulps.get(self.lanes)
-        if ulp is None:
-            return "float 1/√x: the builtin rsqrt (native_rsqrt not measured at this width)"
+        native = self.native_rsqrt_ulps.get(self.lanes)
         builtin = self.builtin_rsqrt_ulps.get(self.lanes)
         how = ("native_rsqrt and one Newton step" if self.rsqrt_native(self.lanes)
-               else "the builtin rsqrt (native_rsqrt and one Newton step are over 2 ulp here)"
-               if "float" in self.rsqrt_builtin(self.lanes)
-               else "clphong's inline Newton steps (native_rsqrt and one step are over 2 ulp "
-                    "here, and the builtin rsqrt "
-                    + ("was not measured)" if builtin is None else f"measured {builtin:.3g} ulp)"))
-        return (f"float 1/√x: {how}; native_rsqrt and one step measured {ulp:.3g} ulp over "
-                "every float of [1, 4) and more")
+               else "the builtin rsqrt" if "float" in self.rsqrt_builtin(self.lanes)
+               else "clphong's inline Newton steps")
+
+        def measured(ulp):
+            return "not measured at this width" if ulp is None else f"{ulp:.3g} ulp"
+
+        return (f"float 1/√x: {how} (each within 2 ulp or not taken; over every float of "
+                f"[1, 4) and more: native_rsqrt and one step {measured(native)}, the builtin "
+                f"{measured(builtin)})")
 
     def kernel(self, program, name: str):
         """The ``cl.Kernel`` ``name`` of a program built by :meth:`program`, created once

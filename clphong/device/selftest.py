@@ -90,6 +90,18 @@ def _scenes() -> dict:
             "blinn-many": parse_scene(blinn, "<self-test blinn-many>")}
 
 
+def _rsqrt_measure(probe, rt, lanes: int) -> float | None:
+    """``probe``'s ulp at ``lanes`` on the platforms that measure their 1/√x
+    (NATIVE_RSQRT_KINDS); None elsewhere, or where the probe fails: the plan then does
+    not take that form, and the device stays usable."""
+    if rt.kind not in NATIVE_RSQRT_KINDS:
+        return None
+    try:
+        return probe(rt, lanes)
+    except Exception:  # noqa: BLE001 - a probe that fails costs the form, not the device
+        return None
+
+
 def check(device: str, lanes: int, *, fault: float = 0.0) -> dict:
     """Measure the device's double-to-float rate, then shade the fixed frame on ``device``
     ("P:D") at ``lanes`` on every path of :data:`PATHS`; ``{"ok": bool, "worst": max
@@ -99,22 +111,10 @@ def check(device: str, lanes: int, *, fault: float = 0.0) -> dict:
     # so the variants checked here are the ones the parent will run
     rt.fp64_ratio = measure_fp64_ratio(rt)
     # likewise: whether the float 1/√x may start from native_rsqrt at this width (plan
-    # RSQRT_NATIVE), so that the variants checked below are the ones the parent runs
-    ulp = None
-    if rt.kind in NATIVE_RSQRT_KINDS:
-        try:
-            ulp = measure_native_rsqrt_ulp(rt, lanes)
-        except Exception:  # noqa: BLE001 - a probe that fails takes the builtin, not the device
-            ulp = None
-    rt.native_rsqrt_ulps[lanes] = ulp
-    # and whether the builtin rsqrt is within its 2 ulp here (plan RSQRT_BUILTIN)
-    builtin = None
-    if rt.kind in NATIVE_RSQRT_KINDS:
-        try:
-            builtin = measure_builtin_rsqrt_ulp(rt, lanes)
-        except Exception:  # noqa: BLE001 - a probe that fails takes the inline steps
-            builtin = None
-    rt.builtin_rsqrt_ulps[lanes] = builtin
+    # RSQRT_NATIVE), and whether the builtin rsqrt is within its 2 ulp (RSQRT_BUILTIN),
+    # so that the variants checked below are the ones the parent runs
+    ulp = rt.native_rsqrt_ulps[lanes] = _rsqrt_measure(measure_native_rsqrt_ulp, rt, lanes)
+    builtin = rt.builtin_rsqrt_ulps[lanes] = _rsqrt_measure(measure_builtin_rsqrt_ulp, rt, lanes)
     if fault:
         rt.extra_defines = {"SELFTEST_FAULT": f"{float(fault)!r}f"}
     gb = _gbuffer()
