@@ -275,7 +275,7 @@ def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp
     check_float_power(int_pow, fp64_directions)
     use = specular and "h" not in maps and whole and (in_float or (fp64 and int_pow))
     exponent = f"k = {'4h' if blinn else 'h'} = {k:g}"
-    cos_form = use and fp64_directions and (not blinn or int(k) % 2 == 0)
+    cos_form = use and (fp64_directions or in_float) and (not blinn or int(k) % 2 == 0)
     kind = "float" if in_float else "double"
     put("SPEC_INT_POW", use,
         f"{exponent} is a whole number: binary powering in {kind}, "
@@ -293,12 +293,15 @@ def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp
         "branch per bit (1.04-1.12x on the bench scene; one program per exponent)" if use
         else "no integer power")
     put("SPEC_COS", cos_form,
-        ("the power's base is (n·h)² = (n·l + n·v)²/|l + v|² in double, raised to "
+        (f"the power's base is (n·h)² = (n·l + n·v)²/|l + v|² in {kind}, raised to "
          f"K/2 = {int(k) // 2}: no square root and no |n − h|²/2 (docs/error-model.md)" if blinn
-         else "the power's base is r·v = 2(n·l)(n·v) − l·v in double: no |r − v|²/2 "
-              "(docs/error-model.md)") if cos_form
+         else f"the power's base is r·v = 2(n·l)(n·v) − l·v in {kind}: no |r − v|²/2 "
+              "(docs/error-model.md)")
+        + (": on the fast path, all in float, within its own bound (docs/error-model.md)"
+           if in_float else "") if cos_form
         else ("no integer power" if not use
-              else "directions in float: the base stays 1 − δ with δ = |·|²/2, free of cancellation"
+              else "directions in float with the power in double: the base stays 1 − δ with "
+                   "δ = |·|²/2, free of cancellation"
               if not fp64_directions
               else f"Blinn with an odd K = {int(k)}: 1 − δ with δ = |n − h|²/2"))
     put("POW_FP32", use and in_float,

@@ -321,26 +321,34 @@ def _specular_error(px: Pixels, l, NoL, eps_NoL, eta_l, eta_v, eta_n, k, form, u
             e_vec = eta_n + 2.0 * (eta_l + eta_v + 2.0 * ud) / lv
             # SPEC_COS: n·(l + v) and |l + v|² in double, off by the roundings and
             # the unit vectors' length errors (≤ ud each), ≤ 4ud/|l + v| in x = n·h.
-            e_cos = 8.0 * ud / lv
+            # "cos32" (the fast path, all in float): n·l and n·v 3u each, their sum
+            # u·|q| ≤ 2u, so ≤ 8u in q = n·(l + v), 8u/|l + v| in n·h = q/|l + v|;
+            # |l + v|² relative ≤ 5u, q² u, the division 2.5 ulp (5u): ≤ 5.5u more
+            # in n·h ≤ 1 (docs/error-model.md).
+            e_cos = 8.0 * ud / lv if form != "cos32" else (8.0 / lv + 6.0) * U
     else:
         delta = phong_delta(px.n, l, px.v, NoL)
         # r = 2n(n·l) − l: twice the error of n·l and of n, plus l's; then − v.
         e_vec = 3.0 * eps_NoL + eta_v
         # SPEC_COS: 2(n·l)(n·v) − l·v in double, terms ≤ 3: length errors of n
         # (≤ 4ud: |n|² enters 2(n·l)(n·v)) and of l, v (a few 2⁻⁵³), ~20 roundings of
-        # 2⁻⁵³: about 6ud; 8ud kept.
-        e_cos = np.full(np.shape(delta), 8.0 * ud)
+        # 2⁻⁵³: about 6ud; 8ud kept. "cos32" (all in float): n·l and n·v 3u each,
+        # times 2|n·v|, 2|n·l| ≤ 2: 12u; l·v 3u; the fused rounding u; |n|² off by
+        # ≤ 4u (n rounded to float, in both dot products): 20u; 24u kept.
+        e_cos = np.full(np.shape(delta), 8.0 * ud if form != "cos32" else 24.0 * U)
     delta = np.minimum(delta, 2.0)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        if form == "cos":
+        if form in ("cos", "cos32"):
             # x = 1 − δ formed directly, in double: the directions' first-order
             # error √(2δ)·e (as for δ, the same quantity for unit vectors) plus
             # the absolute e_cos; x^k relative k·|Δx|/x; the powering (Blinn:
             # (x²)^(k/2), one division more) ≤ 4k·2⁻⁵³; one rounding uw.
+            # "cos32" (POW_FP32): the powering in float, ≤ 2k·u as "int32" (the
+            # division is in e_cos).
             d_delta = np.sqrt(2.0 * delta) * e_vec + 0.5 * e_vec ** 2 + e_cos
             s = specular_power(delta, k)
-            ud53 = U_D
-            rel = uw + k * d_delta / np.maximum(1.0 - delta, 1e-300) + 4.0 * k * ud53
+            pow_err = 2.0 * k * U if form == "cos32" else 4.0 * k * U_D
+            rel = uw + k * d_delta / np.maximum(1.0 - delta, 1e-300) + pow_err
         elif form in ("delta", "int", "int32"):
             # |Δδ| for δ = |e|²/2 when |Δe| ≤ e_vec and |e| = √(2δ); the exp form
             # rounds δ to float first (r_out), the integer power takes it as it is.
@@ -431,8 +439,9 @@ def _plan_forms(plan):
     lanes = plan.kernel == "lanes"
     compensated = lanes and bool(plan.defines.get("COMPENSATED_SUM", 0))
     sum_fp64 = lanes and bool(plan.defines.get("SUM_FP64", 0))
-    form = (("cos" if plan.defines.get("SPEC_COS", 0)
-             else "int32" if plan.defines.get("POW_FP32", 0) else "int")
+    fp32_pow = plan.defines.get("POW_FP32", 0)
+    form = ((("cos32" if fp32_pow else "cos") if plan.defines.get("SPEC_COS", 0)
+             else "int32" if fp32_pow else "int")
             if plan.defines.get("SPEC_INT_POW", 0) else "delta") if lanes else "naive"
     directions = "fp64" if plan.defines.get("DIRECTIONS_FP64", 0) else "fp32"
     weights = "fp64" if lanes and plan.defines.get("WEIGHTS_FP64", 0) else "fp32"
@@ -442,8 +451,8 @@ def _plan_forms(plan):
 def _check_forms(form, directions, weights) -> None:
     if directions not in ("fp32", "fp64"):
         raise ValueError(f"directions must be 'fp32' or 'fp64', not {directions!r}")
-    if form == "int32" and directions != "fp32":
-        raise ValueError("form 'int32' (the fast path's float power) goes with fp32 directions")
+    if form in ("int32", "cos32") and directions != "fp32":
+        raise ValueError(f"form {form!r} (the fast path's float power) goes with fp32 directions")
     if weights not in ("fp32", "fp64") or (weights == "fp64" and directions != "fp64"):
         raise ValueError(f"weights must be 'fp32', or 'fp64' with fp64 directions, not {weights!r}")
 
@@ -672,13 +681,14 @@ def error_bound(scene, gbuffer, *, origin=None, compensated=True, form="delta",
     sum_fp64 : bool
         Whether it summed them in double, rounded once (SUM_FP64; overrides
         ``compensated``).
-    form : {"delta", "int", "int32", "cos", "naive"}
+    form : {"delta", "int", "int32", "cos", "cos32", "naive"}
         ``"delta"``: the specular power as exp(k·log1p(−δ)) with δ from
         |r − v|²/2 (shade.cl). ``"int"``: (1 − δ)^k by binary powering in
         double, k whole (SPEC_INT_POW). ``"cos"``: the same powering of the
         cosine formed in double (SPEC_COS: :func:`phong_cos`,
         :func:`blinn_cos_sq`). ``"int32"``: (1 − δ)^k by binary powering in
-        float (POW_FP32, the fast path). ``"naive"``: pow(r·v, k)
+        float (POW_FP32, the fast path), ``"cos32"`` the cosine's, all in float
+        (POW_FP32 with SPEC_COS: the fast path where k allows it). ``"naive"``: pow(r·v, k)
         (shade_obvious.cl).
     directions : {"fp32", "fp64"}
         Whether positions, directions, n·l and δ were computed in float or in

@@ -100,13 +100,18 @@ inline wL specular_power_fp64(dirL delta, wL k)
 #endif
 
 #if SPEC_COS
-/* SPEC_COS (double directions and a whole exponent): the integer power takes the
- * cosine itself, formed in double. The cancellation that |r − v|²/2 and
- * |n − h|²/2 avoid costs nothing here: 1 − δ = cos carries an absolute error of
- * a few 2⁻⁵³ plus the directions' own (2⁻⁴⁷), and x^K turns an absolute error e
- * of x into K·e/x relative, ≤ 10⁻⁹ near the peak even for K = 65536
+/* SPEC_COS (double directions, or POW_FP32, and a whole exponent): the integer
+ * power takes the cosine itself, formed in double (in float with POW_FP32). The
+ * cancellation that |r − v|²/2 and |n − h|²/2 avoid costs nothing in double:
+ * 1 − δ = cos carries an absolute error of a few 2⁻⁵³ plus the directions' own
+ * (2⁻⁴⁷), and x^K turns an absolute error e of x into K·e/x relative, ≤ 10⁻⁹ near the peak even for K = 65536
  * (docs/error-model.md). It also saves a square root: the lights loop ran 1.35×
  * faster on the bench scene (Blinn, K = 128).
+ * With POW_FP32 (the fast path: float directions and power) the cosine is formed
+ * in float: an absolute error of ~8u/|l + v| (Blinn) or ~24u (Phong) near the
+ * peak, so K·8u relative there where |r − v|²/2 and |n − h|²/2 had ~0, which the
+ * fast path's own bound allows (its powering alone is 2K·u); for Blinn it saves
+ * the half vector's 1/√x, its normalisation and |n − h|²/2 (docs/bench.md).
  *
  * Phong: max(r·v, 0) with r·v = (2n(n·l) − l)·v = 2(n·l)(n·v) − l·v. */
 inline dirL phong_cos(dirL lx, dirL ly, dirL lz, dirL vx, dirL vy, dirL vz,
@@ -114,7 +119,7 @@ inline dirL phong_cos(dirL lx, dirL ly, dirL lz, dirL vx, dirL vy, dirL vz,
 {
     const dirL LoV = MUL_ADD(lx, vx, MUL_ADD(ly, vy, lz * vz));
     const dirL x = MUL_ADD(NoL + NoL, NoV, -LoV);
-    return SELECT_DIR(x, (dirL)(0.0), x <= 0.0);    /* max(r·v, 0); NaN stays NaN */
+    return SELECT_DIR(x, (dirL)(0.0f), x <= (dirL)(0.0f));    /* max(r·v, 0); NaN stays NaN */
 }
 
 /* Blinn-Phong: (n·h)² = (n·l + n·v)²/|l + v|² where n·h > 0, else 0, so that
@@ -132,7 +137,8 @@ inline dirL blinn_cos_sq(dirL lx, dirL ly, dirL lz, dirL vx, dirL vy, dirL vz,
     const dirL hh = MUL_ADD(hx, hx, MUL_ADD(hy, hy, hz * hz));
     const dirL q = NoL + NoV;                    /* n·(l + v) */
     const dirL y = q * q / hh;
-    return SELECT_DIR((dirL)(0.0), SELECT_DIR(y, (dirL)(1.0), y > 1.0), (q > 0.0) & (hh > 0.0));
+    return SELECT_DIR((dirL)(0.0f), SELECT_DIR(y, (dirL)(1.0f), y > (dirL)(1.0f)),
+                      (q > (dirL)(0.0f)) & (hh > (dirL)(0.0f)));
 }
 
 /* Blinn-Phong with a half vector constant per light (blinn_delta_const_h):
@@ -140,9 +146,9 @@ inline dirL blinn_cos_sq(dirL lx, dirL ly, dirL lz, dirL vx, dirL vy, dirL vz,
 inline dirL blinn_cos_sq_const_h(dirL nx, dirL ny, dirL nz, float4 h, float4 h_lo)
 {
     if (h.w != 0.0f)
-        return (dirL)(0.0);
+        return (dirL)(0.0f);
     const dirL x = MUL_ADD(nx, HI_LO(h.x, h_lo.x), MUL_ADD(ny, HI_LO(h.y, h_lo.y), nz * HI_LO(h.z, h_lo.z)));
-    return SELECT_DIR((dirL)(0.0), x * x, x > 0.0);
+    return SELECT_DIR((dirL)(0.0f), x * x, x > (dirL)(0.0f));
 }
 #endif
 

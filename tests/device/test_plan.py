@@ -6,8 +6,8 @@ from conftest import make_scene
 
 
 def test_plan_forms_the_cosine_and_weights_in_double_where_they_apply():
-    """SPEC_COS needs double directions and the integer power (and an even k for
-    Blinn, whose base is (n·h)²); WEIGHTS_FP64 needs double directions and the
+    """SPEC_COS needs double directions (or the fast path's float power) and the integer
+    power (and an even k for Blinn, whose base is (n·h)²); WEIGHTS_FP64 needs double directions and the
     double sum. `clphong plan` says why either is off."""
     from clphong.device.plan import make_plan
 
@@ -26,6 +26,11 @@ def test_plan_forms_the_cosine_and_weights_in_double_where_they_apply():
     assert defines(37.0, int_pow=False)[:2] == (0, 1)
     cos, w, text = defines(37.0, fp64_directions=False)
     assert (cos, w) == (0, 0) and "directions in float" in text
+    # the fast path (all in float, the power too) forms the cosine in float
+    cos, w, text = defines(37.0, fp64_directions=False, int_pow="float", compensated=False)
+    assert (cos, w) == (1, 0) and "in float" in text and "fast path" in text
+    assert defines(32.0, "blinn-phong", fp64_directions=False, int_pow="float")[:2] == (1, 0)
+    assert defines(8.25, "blinn-phong", fp64_directions=False, int_pow="float")[0] == 0
     assert defines(37.0, compensated=True)[1] == 0           # a float (Neumaier) sum
     assert defines(37.0, has_fp64=False, compensated=True)[:2] == (0, 0)
 

@@ -178,14 +178,18 @@ def test_both_specular_power_forms_hold_their_bound(model, h, int_pow, fp64, dev
                                       ("phong", 2000.0), ("blinn-phong", 1.0e4),
                                       ("blinn-phong", 8.25)])
 def test_fast_path_holds_its_bound(model, h, device):
-    """path="fast": float directions, the integer power in float (POW_FP32) and a naive
-    float sum, within the error model's bound (its powering term 2k·u); a highlight of
+    """path="fast": float directions, the integer power in float (POW_FP32) of the cosine
+    formed in float (SPEC_COS, where k allows) and a naive float sum, within the error
+    model's bound (form "cos32", its powering term 2k·u); a highlight of
     k = 4·10⁴ shows what the float power costs (checked: beyond the 5e-6 target)."""
     scene, gb = _highlight(h, model)
     r = Renderer(scene, path="fast", device=device)
     d = r.plan_for(()).defines
     assert (d["DIRECTIONS_FP64"], d["SUM_FP64"], d["COMPENSATED_SUM"], d["SPEC_INT_POW"],
             d["POW_FP32"]) == (0, 0, 0, 1, 1)
+    # the cosine itself, in float, where Blinn's (n·h)² to k/2 allows it (k even)
+    k = 4 * h if model == "blinn-phong" else h
+    assert d["SPEC_COS"] == (model == "phong" or k % 2 == 0)
     rgb, ref, bound, band = check_against_reference(scene, gb, compensated=False,
                                                     fp64_directions=False, int_pow="float", device=device)
     if h == 1.0e4:
