@@ -72,13 +72,15 @@ def phong_cos(l, v, NoL, NoV):
 
 def blinn_cos_sq(l, v, NoL, NoV):
     """(n·h)² = (n·l + n·v)²/|l + v|² where n·h > 0, else 0; 0 where l = −v; capped
-    at 1 where |l + v| is rounding noise (SPEC_COS)."""
+    at 1 where |l + v| is rounding noise (SPEC_COS). The kernel's guards: max(q, 0)²
+    over max(|l + v|², FLT_MIN), then min(·, 1), a NaN q counting as 0."""
     hv = l + v
     hh = _dot(hv, hv)
-    q = NoL + NoV
+    q0 = NoL + NoV
+    q = np.where(q0 > 0.0, q0, 0.0)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        y = np.minimum(q * q / hh, 1.0)
-    return np.where((q > 0.0) & (hh > 0.0), y, 0.0)
+        y = q * q / np.where(hh > FLT_MIN, hh, FLT_MIN)
+    return np.where(y < 1.0, y, 1.0)
 
 
 def blinn_cos_sq_const_h(n, h, undefined=False):
