@@ -197,11 +197,22 @@ def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated
         + ("Neumaier summation keeps the sum's error at ~2u" if compensated
            else "in double (SUM_FP64)" if sum_fp64
            else f"naive float sum within {max(n_lights - 1, 0)}u"))
-    falloff = bool((scene.light_arrays["point_attenuation"][:, 1:] != 0).any())
+    c = scene.light_arrays["point_attenuation"]
+    falloff = bool((c[:, 1:] != 0).any())
     put("HAS_ATTENUATION", falloff,
         "some point light has c1 or c2 ≠ 0: 1/(c0 + c1·d + c2·d²) per pixel" if falloff
         else ("every point light has c1 = c2 = 0: the falloff is the constant 1/c0"
               if n_point else "no point light"))
+    c0_zero = bool((c[:, 0] == 0).any())
+    flat = falloff and bool(((c[:, 1] == 0) & (c[:, 2] == 0)).any())
+    put("POINT_GUARD", c0_zero or flat,
+        ("some point light has c0 = 0: its falloff is infinite at d = 0, so a select "
+         "gives it nothing there" if c0_zero else
+         "some point light has c1 = c2 = 0 beside others that fall off: at d = ∞ (float) "
+         "its 1/(c0 + 0·∞) would be NaN, so a select gives it nothing there")
+        if c0_zero or flat else
+        "no select for d = 0 or ∞: l = 0 there, and every light's falloff is finite at 0 "
+        "(c0 > 0) and 0 at ∞ (lights.h)" if n_point else "no point light")
 
 
 def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp64_directions,

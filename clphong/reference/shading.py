@@ -459,6 +459,12 @@ def _check_forms(form, directions, weights) -> None:
         raise ValueError(f"weights must be 'fp32', or 'fp64' with fp64 directions, not {weights!r}")
 
 
+#: The float path's smallest bounded squared distance to a point light: 2⁻⁹⁶ (d ≈ 3.6e-15),
+#: where the lights loop's bias 2⁻¹²² (RSQRT_LIGHT, kernels/include/clphong.h) moves
+#: 1/√d² by 2⁻²⁷ relative, 1/16 of a float ulp.
+D2_FLOOR = 2.0 ** -96
+
+
 def _point_geometry(params, px, o, rp, ud, uw, fp64):
     """A batch of point lights' geometry and falloff errors for :func:`error_bound`:
     (n·l, l, η_l, the falloff's relative error, d, the pixels whose float path leaves
@@ -469,15 +475,19 @@ def _point_geometry(params, px, o, rp, ud, uw, fp64):
     unbounded = None
     with np.errstate(divide="ignore", invalid="ignore"):
         rl = 0.0 if fp64 else np.sqrt(_dot(Lp - o, Lp - o))     # float32 record
-        eta_l = np.where(d > 0, ud * (2.0 + (rp + rl) / d), 0.0)
+        # float: + the bias of RSQRT_LIGHT, 1/√(d² + 2⁻¹²²), ≤ 2⁻¹²³/d² relative in l (and d)
+        eta_l = np.where(d > 0, ud * (2.0 + (rp + rl) / d) + (0.0 if fp64 else 2.0 ** -123 / (d * d)), 0.0)
         c0, c1, c2 = params["c"]
         cond = (abs(c0) + abs(c1) * d + abs(c2) * d * d) / (c0 + c1 * d + c2 * d * d)
         cond = np.where(d > 0, cond, 0.0)     # d = 0 adds nothing (shade_point_light)
         if not fp64:
             # float d², c2·d² or the polynomial outside float's normal
             # range: flushed or infinite, the result is not bounded.
+            # Below D2_FLOOR the lights loop's 1/√(d² + 2⁻¹²²) (RSQRT_LIGHT, clphong.h)
+            # is off by more than 2⁻²⁷ relative: not bounded either.
             terms = np.stack([d * d, np.abs(c2) * d * d, c0 + c1 * d + c2 * d * d])
-            out_of_range = (d > 0) & np.any((terms > FLT_MAX) | ((terms > 0) & (terms < FLT_MIN)), axis=0)
+            out_of_range = (d > 0) & (np.any((terms > FLT_MAX) | ((terms > 0) & (terms < FLT_MIN)), axis=0)
+                                      | (d * d < D2_FLOOR))
             unbounded = np.any(out_of_range, axis=0)
     # d from the rounded position difference and rsqrt; Horner's three
     # roundings; the coefficients rounded to float32; the division.

@@ -252,7 +252,8 @@ inline dirL rsqrt_dir(dirL x)
     return ((dirL)(0.5f) * y) * ((dirL)(3.0f) - (x * y) * y);
 }
 #else
-inline dirL rsqrt_dir(dirL x)
+/* the guess and its Newton steps, for x > 0 (rsqrt_dir adds the value at 0) */
+inline dirL rsqrt_steps(dirL x)
 {
     dirL y = RSQRT_GUESS(x);
     const dirL h = 0.5f * x;
@@ -266,8 +267,13 @@ inline dirL rsqrt_dir(dirL x)
 #if RSQRT_STEPS > 3
     y = NEWTON_RSQRT(y, h);
 #endif
-    return x == 0.0f ? (dirL)(INFINITY) : y;   /* as rsqrt(0) = +inf */
+    return y;
 }
+inline dirL rsqrt_dir(dirL x)
+{
+    return x == 0.0f ? (dirL)(INFINITY) : rsqrt_steps(x);   /* as rsqrt(0) = +inf */
+}
+#define RSQRT_STEPS_ONLY(x) rsqrt_steps(x)
 #endif
 #define RSQRT_DIR(x) rsqrt_dir(x)
 #if DIRECTIONS_FP64
@@ -310,6 +316,33 @@ inline dirL rsqrt_dist(dirL x)
 }
 #endif
 #define RSQRT_DIST(x) rsqrt_dist(x)
+#endif
+
+/* RSQRT_LIGHT(x), float directions: the lights loop's 1/√(x + 2⁻¹²²) for a squared
+ * distance x ≥ 0 (+∞ gives 0). The bias keeps every first guess away from 0 and from
+ * the bottom binade, so the loop needs no select for x = 0 (its l = 0·2⁶¹ = 0) nor
+ * rsqrt_dist's rescaling of tiny x; it moves the result by ≤ 2⁻²⁷ relative (1/16 ulp)
+ * for x ≥ 2⁻⁹⁶, and the error model calls the float path unbounded below that
+ * (d < 3.6e-15; it was d < 1.1e-19, where x flushes: docs/error-model.md). The builtin
+ * (RSQRT_GUESS_KIND 3) takes x/16 + 2⁻¹²⁶ by a multiply-add, then 2⁻² (exact
+ * scalings), so its input stays ≤ FLT_MAX/16 < 2¹²⁴, below Intel's AVX2 fault above,
+ * where the self-test measured it (rsqrt_dist below 2¹²⁴ is the bare builtin); five
+ * operations fewer a light than rsqrt_dist and the select (docs/bench.md). The
+ * inline steps keep a select for +∞ only. Double directions keep RSQRT_DIST and the
+ * select: their d² never flushes. */
+#if !DIRECTIONS_FP64
+#if RSQRT_GUESS_KIND == 3
+#define RSQRT_LIGHT(x) (rsqrt(MUL_ADD((x), (dirL)(0x1p-4f), (dirL)(0x1p-126f))) * 0x1p-2f)
+#else
+#ifndef RSQRT_STEPS_ONLY
+#define RSQRT_STEPS_ONLY(x) rsqrt_dir(x)    /* native_rsqrt's step: no select at 0 either */
+#endif
+inline dirL rsqrt_light(dirL x)
+{
+    return SELECT(RSQRT_STEPS_ONLY(x + 0x1p-122f), (dirL)(0.0f), x > FLT_MAX);
+}
+#define RSQRT_LIGHT(x) rsqrt_light(x)
+#endif
 #endif
 
 /* sumL: the type of the running light sums; double with SUM_FP64. */

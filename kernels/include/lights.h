@@ -135,7 +135,11 @@ inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
 {
     const dirL dx = Lx - p->px, dy = Ly - p->py, dz = Lz - p->pz;
     const dirL d2 = MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz));
+#if DIRECTIONS_FP64
     const dirL inv_d = SELECT_DIR(RSQRT_DIST(d2), (dirL)(0.0f), d2 <= (dirL)(0.0f));
+#else
+    const dirL inv_d = RSQRT_LIGHT(d2);   /* 1/√(d² + 2⁻¹²²): finite at d² = 0, where l = 0 */
+#endif
     const dirL lx = dx * inv_d, ly = dy * inv_d, lz = dz * inv_d;
     const dirL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
     weights_t w = shade_direction(p, lx, ly, lz, NoL);
@@ -143,7 +147,7 @@ inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
     /* finite in double: |P| ≤ FLT_MAX, and the scene refuses a light position
        beyond float (clphong/model/scene.py), so d² < 3·(2·FLT_MAX)² */
     const dirL d = d2 * inv_d;
-#define NO_LIGHT (d2 <= (dirL)(0.0f))
+#define NO_LIGHT (d2 <= (dirL)(0.0f))     /* d = 0: 1/c0 may be ∞ (POINT_GUARD) */
 #else
     const dirL d = SELECT_DIR(d2 * inv_d, d2, d2 > FLT_MAX);   /* isinf(d2): d2 ≥ 0 (isinf is out of line) */
     /* d² beyond float (d ≳ 1.8e19): l = 0 already (rsqrt(∞) = 0), and the falloff at
@@ -151,13 +155,21 @@ inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
        contribution there either, as the error model's "unbounded" pixels say */
 #define NO_LIGHT ((d2 <= (dirL)(0.0f)) | (d2 > FLT_MAX))
 #endif
-    /* d = 0: no contribution, also where c0 = 0 makes the falloff infinite. */
+    /* NO_LIGHT's select only where the plan's POINT_GUARD says some light needs it: at
+       d = 0, l = 0 already (both weights 0), so only c0 = 0 (an infinite falloff, ∞·0)
+       needs it; at d = ∞ (float), l = 0 and the falloff 1/(c0 + c1·∞ + c2·∞²) is 0
+       unless c1 = c2 = 0 (0·∞ = NaN). Elsewhere the weights are 0 and the falloff
+       finite: two compares, an or and a blend fewer a light. */
 #if HAS_SPOT
     /* the cone scales the falloff (at d = 0, l = 0 and the factor is t(o)², times 0) */
-    const dirL att = SELECT_DIR(attenuation(c0, c1, c2, d) * spot_factor(lx, ly, lz, ax, ay, az, s, o),
-                                (dirL)(0.0f), NO_LIGHT);
+    const dirL att0 = attenuation(c0, c1, c2, d) * spot_factor(lx, ly, lz, ax, ay, az, s, o);
 #else
-    const dirL att = SELECT_DIR(attenuation(c0, c1, c2, d), (dirL)(0.0f), NO_LIGHT);
+    const dirL att0 = attenuation(c0, c1, c2, d);
+#endif
+#if POINT_GUARD
+    const dirL att = SELECT_DIR(att0, (dirL)(0.0f), NO_LIGHT);   /* d = 0 (or ∞): nothing */
+#else
+    const dirL att = att0;
 #endif
 #undef NO_LIGHT
     *ar = DIR_TO_W(att * Rr);

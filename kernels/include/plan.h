@@ -23,6 +23,8 @@
  *   COMPENSATED_SUM  Neumaier-compensated light sum (error ~2u instead of ~N·u)
  *   HAS_ATTENUATION  some point light has c1 ≠ 0 or c2 ≠ 0; 0: the falloff is 1/c0,
  *                    a constant per light (no distance polynomial, no division per pixel)
+ *   POINT_GUARD      some point light has c0 = 0, or c1 = c2 = 0 beside others that do not:
+ *                    the select of lights.h for d = 0 (and ∞ in float); 0: no select
  *   CULLING          point lights come from per-tile lists built by cull.cl, whose
  *                    dropped lights sum to at most the user's budget ε
  *                    (clphong/device/culling.py)
@@ -39,7 +41,7 @@
  * shade_obvious.cl shades the beauty only: the plan refuses layers for it.
  *
  * shade_obvious.cl reads no culling lists: it sets CULLING = 0 itself. The plan
- * sets BLINN_CONST_H, COMPENSATED_SUM and HAS_ATTENUATION for it too, unused.
+ * sets BLINN_CONST_H, COMPENSATED_SUM, HAS_ATTENUATION and POINT_GUARD for it too, unused.
  */
 #ifndef CLPHONG_PLAN_H
 #define CLPHONG_PLAN_H
@@ -101,6 +103,9 @@
 #endif
 #ifndef HAS_ATTENUATION
 #error "HAS_ATTENUATION must be set by the shading plan (clphong/device/plan.py)"
+#endif
+#ifndef POINT_GUARD
+#error "POINT_GUARD must be set by the shading plan (clphong/device/plan.py)"
 #endif
 #ifndef CULLING
 #error "CULLING must be set by the shading plan (clphong/device/plan.py)"

@@ -141,3 +141,44 @@ def test_power_lights_cull_with_a_bounded_error():
     res = Renderer(scene, max_error=eps).render(gb)
     assert res.cull is not None and res.cull.kept_fraction < 0.9      # lights are culled
     assert np.abs(res.image.astype(np.float64) - full).max() <= eps + 1e-6
+
+
+@pytest.mark.parametrize("path", ["accurate", "float", "fast"])
+@pytest.mark.parametrize("c0", [0.0, 1.0], ids=["c0=0", "c0=1"])
+def test_a_light_at_a_pixel_adds_nothing_with_or_without_the_guard(path, c0, device):
+    """A light exactly at a pixel (d = 0) adds nothing there, on every path. The plan
+    compiles the lights loop's select for d = 0 (POINT_GUARD) only where some light has
+    c0 = 0: with c0 > 0 none is needed (l = 0 there, and 1/c0 is finite: lights.h)."""
+    gb = _flat()
+    P = gb.position[5, 7].astype(np.float64)
+    lights = [dict(type="point", position=tuple(map(float, P)), color=(1.0, 1.0, 1.0), intensity=2.0,
+                   attenuation=(c0, 0.5, 1.0)),
+              dict(type="point", position=(1.0, 1.0, 2.0), intensity=1.0, attenuation=(1.0, 0.0, 0.3))]
+    scene = make_scene(lights, model="blinn-phong", h=32.0)
+    assert Renderer(scene, path=path, device=device).plan_for(()).defines["POINT_GUARD"] == (c0 == 0.0)
+    rgb, ref, bound, _ = check_against_reference(scene, gb, path=path, device=device)
+    alone = make_scene(lights[1:], model="blinn-phong", h=32.0)      # the pixel without the first
+    from clphong.reference import shading as reference
+    assert np.abs(rgb[5, 7] - reference.shade(alone, gb)[5, 7]).max() <= bound[5, 7].max()
+
+
+@pytest.mark.parametrize("path", ["accurate", "fast"])
+@pytest.mark.parametrize("flat", [False, True], ids=["all-fall-off", "one-flat"])
+def test_a_light_beyond_float_range_adds_nothing_with_or_without_the_guard(path, flat, device):
+    """A light at 3e19 (d² beyond float on the float paths, where it adds nothing, and the
+    bound says so): never a NaN. Its falloff 1/(c0 + c1·∞ + c2·∞²) is 0 where c1 or
+    c2 > 0; with c1 = c2 = 0 beside a light that falls off (1/(c0 + 0·∞) = NaN at ∞) the
+    plan turns the select on (POINT_GUARD)."""
+    gb = _flat()
+    lights = [dict(type="point", position=(3e19, 0.0, 1.0), intensity=1.0,
+                   attenuation=(1.0, 0.0, 0.0) if flat else (1.0, 0.0, 1.0)),
+              dict(type="point", position=(1.0, 1.0, 2.0), intensity=1.0, attenuation=(1.0, 0.2, 0.3))]
+    scene = make_scene(lights, model="blinn-phong", h=32.0)
+    assert Renderer(scene, path=path, device=device).plan_for(()).defines["POINT_GUARD"] == flat
+    rgb, ref, _, _ = check_against_reference(scene, gb, path=path, device=device)
+    assert np.all(np.isfinite(rgb))
+    # the far light's n·l is ~3e-20 (and its falloff ~1e-39 without the flat one): the
+    # frame is the near light's, to the bit on the fast path (it adds an exact 0 there)
+    near = Renderer(make_scene(lights[1:], model="blinn-phong", h=32.0), path=path, device=device)
+    np.testing.assert_array_equal(rgb, near.render(gb).image) if path == "fast" else \
+        np.testing.assert_allclose(rgb, near.render(gb).image, rtol=1e-6)
