@@ -104,9 +104,9 @@ inline wL specular_power_fp64(dirL delta, wL k)
  * power takes the cosine itself, formed in double (in float with POW_FP32). The
  * cancellation that |r − v|²/2 and |n − h|²/2 avoid costs nothing in double:
  * 1 − δ = cos carries an absolute error of a few 2⁻⁵³ plus the directions' own
- * (2⁻⁴⁷), and x^K turns an absolute error e of x into K·e/x relative, ≤ 10⁻⁹ near the peak even for K = 65536
- * (docs/error-model.md). It also saves a square root: the lights loop ran 1.35×
- * faster on the bench scene (Blinn, K = 128).
+ * (2⁻⁴⁷), and x^K turns an absolute error e of x into K·e/x relative, ≤ 10⁻⁹ near
+ * the peak even for K = 65536 (docs/error-model.md). It also saves a square root:
+ * the lights loop ran 1.35× faster on the bench scene (Blinn, K = 128).
  * With POW_FP32 (the fast path: float directions and power) the cosine is formed
  * in float: an absolute error of ~8u/|l + v| (Blinn) or ~24u (Phong) near the
  * peak, so K·8u relative there where |r − v|²/2 and |n − h|²/2 had ~0, which the
@@ -126,8 +126,9 @@ inline dirL phong_cos(dirL lx, dirL ly, dirL lz, dirL vx, dirL vy, dirL vz,
  * ((n·h)²)^(K/2) = max(n·h, 0)^K for an even K with no square root.
  * Guards, as blinn_delta: l = −v (|l + v| = 0, the half vector undefined) gives 0
  * (n·h taken as 0), so the term vanishes for K > 0; |l + v|² below FLT_MIN counts
- * as FLT_MIN (no division by 0; the cap below). Where |l + v| is only rounding noise (l within ~2⁻⁵² of −v), n·(l + v) and |l + v|² are both noise
- * and their ratio can be anything: capped at 1, as a normalised half vector
+ * as FLT_MIN (no division by 0; the cap below). Where |l + v| is only rounding
+ * noise (l within ~2⁻⁵² of −v), n·(l + v) and |l + v|² are both noise and their
+ * ratio can be anything: capped at 1, as a normalised half vector
  * gives (the error model bounds the whole term there, and culling assumes a
  * specular weight ≤ 1). */
 inline dirL blinn_cos_sq(dirL lx, dirL ly, dirL lz, dirL vx, dirL vy, dirL vz,
