@@ -110,15 +110,18 @@ def build_and_disassemble(path: str = "accurate", lanes: int | None = None) -> s
         # PoCL reads POCL_CACHE_DIR when it starts: this must be a fresh process
         code = ("import sys; from clphong.tools import bench; "
                 "from clphong.device.renderer import Renderer, prepare_frame; "
-                f"o = dict(bench.PATHS[{path!r}]); "
+                f"o = dict(bench.PATHS[{path!r}], device='pocl'); "
                 + (f"o['lanes'] = {int(lanes)}; " if lanes else "")
                 + "r = Renderer(bench.bench_scene('wide', 4), **o); "
                 "r.shade(prepare_frame(bench.bench_gbuffer(128, 16), lanes=r.lanes))")
-        env = dict(os.environ, POCL_CACHE_DIR=folder)
+        # clphong's own cache would hand back a built binary: PoCL would compile nothing
+        env = dict(os.environ, POCL_CACHE_DIR=folder, CLPHONG_CACHE_DIR=os.path.join(folder, "clphong"))
         res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
         if res.returncode != 0:
             raise ClphongError(f"building the kernel failed: {res.stderr.strip().splitlines()[-1]}")
-        libs = glob.glob(os.path.join(folder, "**", "shade.so"), recursive=True)
+        # the self-tests build their own variants first: the frame's is the newest
+        libs = sorted(glob.glob(os.path.join(folder, "**", "shade.so"), recursive=True),
+                      key=os.path.getmtime, reverse=True)
         if not libs:
             raise ClphongError(f"PoCL left no shade.so in {folder} (not a PoCL CPU device?)")
         return subprocess.run([objdump, "-d", "--no-show-raw-insn", libs[0]],
