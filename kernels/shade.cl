@@ -261,6 +261,14 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
         p.vz = SELECT_DIR(ez * inv, p.nz, ee <= (dirL)(0.0f));
     }
 #endif
+#if !DIRECTIONS_FP64
+    /* the point lights' loop works in quarter units: their records come with positions
+       × 1/4 (frame.py shading_records), and P − origin is quartered to match, now that v
+       is formed (exact, as long as it stays normal: RSQRT_LIGHT in clphong.h) */
+    p.px *= 0.25f;
+    p.py *= 0.25f;
+    p.pz *= 0.25f;
+#endif
 
 #if SPEC_COS
     p.NoV = MUL_ADD(p.nx, p.vx, MUL_ADD(p.ny, p.vy, p.nz * p.vz));

@@ -17,15 +17,17 @@ import numpy as np
 from ..core.errors import SceneError
 from ..core.floats import F32_ROUNDS_TO_INF, FLT_MAX, FLT_MIN, U
 from ..core.geometry import (
-    frame_origin,
     half_vector,
     nearest_within,
+    origin_of_bounds,
+    position_bounds,
     split_hi_lo,
     unit_normal_planes,
     view_vector,
 )
 from ..model.scene import MATERIAL_MAPS
 from .culling import POINT_RECORD
+from .plan import FAR_LIGHT
 
 #: Work-items per work-group. PoCL runs anything from 8 to ~1000 equally well
 #: and 1 badly (POCL-NOTES "Local size").
@@ -54,6 +56,7 @@ class Frame:
     origin: np.ndarray        # (3,) float32
     background: np.ndarray    # (H*W,) bool
     coverage: bool = False    # gbuf has the α plane: some pixel is partly covered
+    bounds: tuple[np.ndarray, np.ndarray] | None = None   # (lo, hi) float64 of the shaded P
 
     @property
     def pixels(self) -> int:
@@ -96,9 +99,10 @@ def prepare_frame(gbuffer, *, lanes: int = 16) -> Frame:
     # The origin from the position planes just written: the same float32 values, per axis
     # a contiguous plane rather than every third float of the rows (2x faster).
     position = gbuf[:3, :n].T if gbuffer.position.dtype == np.float32 else gbuffer.position
+    bounds = position_bounds(position, background)
     return Frame(gbuf=gbuf, maps=maps, map_names=tuple(names), shape=(h, w), stride=stride,
-                 origin=frame_origin(position, background), background=background,
-                 coverage=partial)
+                 origin=origin_of_bounds(*bounds), background=background,
+                 coverage=partial, bounds=bounds)
 
 
 @dataclass(frozen=True)
@@ -121,13 +125,26 @@ class LightArrays:
 
 
 
-def shading_records(records: np.ndarray, has_spot: bool) -> np.ndarray:
+def shading_records(records: np.ndarray, has_spot: bool, *, quarter: bool = False) -> np.ndarray:
     """Point records as the shading kernels read them (POINT_LIGHT_FLOAT4S, plan.h):
     all POINT_RECORD float4s with spots, else the first 3 (a point light's fourth,
-    its cone (0, 1), is not read): fewer bytes gathered through the tile lists."""
-    if has_spot:
-        return records
-    return np.ascontiguousarray(records.reshape(-1, POINT_RECORD, 4)[:, :3]).reshape(-1, 4)
+    its cone (0, 1), is not read): fewer bytes gathered through the tile lists.
+
+    ``quarter`` (the lane kernel's float path): the (rebased float32) positions × 1/4,
+    c1 × 4 and c2 × 16, all exact (a position below 2⁻¹²⁴ becomes subnormal, which the
+    kernel flushes; a 4c1 or 16c2 beyond float becomes ∞, for which the plan turns
+    POINT_GUARD on). The kernel quarters P − origin too, so its d²/16, 4/d and d/4
+    carry the bits of d², 1/d and d, with no scalings or selects in the loop
+    (RSQRT_LIGHT, kernels/include/clphong.h)."""
+    k = POINT_RECORD if has_spot else 3
+    out = np.array(records.reshape(-1, POINT_RECORD, 4)[:, :k])   # a copy, float32 or float64
+    if quarter:
+        assert out.dtype == np.float32, "the float path's records are quartered, not the fp64 path's"
+        with np.errstate(over="ignore"):
+            out[:, 0, :3] *= np.float32(0.25)
+            out[:, 1, 3] *= np.float32(4.0)
+            out[:, 2, 0] *= np.float32(16.0)
+    return out.reshape(-1, 4)
 
 
 def _check_reach(scene, o: np.ndarray, rebased: np.ndarray) -> None:
@@ -234,6 +251,23 @@ def near_field_radius(c1, c2, radiance, fp64: bool):
         # the positive root of c2·d² + c1·d = q, in the stable form
         d = 2 * q / (c1 + np.sqrt(c1 * c1 + 4 * c2 * q))
     return np.where(np.isfinite(d), d, 0.0) * (1 + 64 * U)
+
+
+def has_far_lights(frame: Frame, lights: LightArrays) -> bool:
+    """Whether some point light may lie :data:`~clphong.device.plan.FAR_LIGHT` (2⁶⁴) or
+    more from a shaded pixel of ``frame`` (the reach of the rebased records plus the
+    pixels' bounding box about the frame's origin, an upper bound): the float lanes loop
+    then needs POINT_GUARD (clphong.h RSQRT_LIGHT's cap)."""
+    recs = lights.point.reshape(-1, POINT_RECORD, 4)[:, 0, :3].astype(np.float64)
+    reach = float(np.sqrt((recs * recs).sum(axis=1)).max(initial=0.0))
+    n = frame.pixels
+    lo, hi = frame.bounds if frame.bounds is not None else \
+        position_bounds(frame.gbuf[:3, :n].T, frame.background[:n])
+    if not np.all(np.isfinite(lo)):
+        return False                       # no shaded pixel
+    o = frame.origin.astype(np.float64)
+    half = np.maximum(np.abs(hi - o), np.abs(lo - o))
+    return reach + float(np.sqrt((half * half).sum())) >= FAR_LIGHT
 
 
 def check_near_field(scene, frame: Frame, lights: LightArrays, fp64: bool) -> None:

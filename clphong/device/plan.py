@@ -14,6 +14,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ..core.errors import SceneError
 from ..core.geometry import split_hi_lo
 from ..model.options import check_float_power, check_kernel, check_unroll
@@ -33,6 +35,12 @@ DEFAULT_LANES = 16
 #: environment becomes thousands; a scene's sun and sky lights, a few, for which
 #: a list pass would cost more than it saves.
 DIR_CULL_MIN = 64
+
+
+#: The distance from which the float lanes loop's d²/16 may pass its cap 2¹²⁵ (d = 2⁶⁴·√2,
+#: kernels/include/clphong.h RSQRT_LIGHT), with a margin for the roundings: a frame with
+#: a point light that far from some pixel takes POINT_GUARD (frame.has_far_lights).
+FAR_LIGHT = 2.0 ** 64
 
 
 #: The largest whole exponent k (h, or 4h for Blinn-Phong) raised by binary
@@ -186,7 +194,8 @@ def _env_defines(put, scene, maps, *, kernel, groups, specular) -> None:
         f"in light group {group!r}" if group is not None and group in groups else "no light group")
 
 
-def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated) -> None:
+def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated,
+                 fp64_directions=False, far_lights=False) -> None:
     """How the lights are summed, and whether the falloff depends on distance."""
     if kernel == "lanes":
         put("SUM_FP64", sum_fp64,
@@ -204,15 +213,24 @@ def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated
         else ("every point light has c1 = c2 = 0: the falloff is the constant 1/c0"
               if n_point else "no point light"))
     c0_zero = bool((c[:, 0] == 0).any())
-    flat = falloff and bool(((c[:, 1] == 0) & (c[:, 2] == 0)).any())
-    put("POINT_GUARD", c0_zero or flat,
-        ("some point light has c0 = 0: its falloff is infinite at d = 0, so a select "
-         "gives it nothing there" if c0_zero else
-         "some point light has c1 = c2 = 0 beside others that fall off: at d = ∞ (float) "
-         "its 1/(c0 + 0·∞) would be NaN, so a select gives it nothing there")
-        if c0_zero or flat else
-        "no select for d = 0 or ∞: l = 0 there, and every light's falloff is finite at 0 "
-        "(c0 > 0) and 0 at ∞ (lights.h)" if n_point else "no point light")
+    # the float lanes loop's records carry 4c1 and 16c2 (frame.shading_records)
+    quarter = kernel == "lanes" and not fp64_directions
+    with np.errstate(over="ignore"):
+        c32 = c.astype(np.float32)
+        scaled_inf = quarter and bool(np.isinf(c32[:, 1] * np.float32(4)).any()
+                                      or np.isinf(c32[:, 2] * np.float32(16)).any())
+    far = quarter and far_lights
+    put("POINT_GUARD", c0_zero or scaled_inf or far,
+        "some point light has c0 = 0: its falloff is infinite at d = 0, so a select "
+        "gives it nothing there" if c0_zero else
+        "some point light's 4·c1 or 16·c2 is beyond float (the float loop's quartered "
+        "falloff): ∞·0 at d = 0, so a select gives it nothing there" if scaled_inf else
+        f"some point light may lie {FAR_LIGHT:.3g} or more from a pixel of this frame, "
+        "beyond the float loop's cap on d²/16 (clphong.h RSQRT_LIGHT): selects give it "
+        "nothing there (the error model's unbounded pixels)" if far else
+        "no select for d = 0: l = 0 there, and every light's falloff is finite at 0 "
+        "(c0 > 0)" + (", and no light of this frame reaches the float loop's cap on d²/16"
+                      if quarter else "") + " (lights.h)" if n_point else "no point light")
 
 
 def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp64_directions,
@@ -334,7 +352,7 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
               aovs: Sequence[str] = (), light_tile: int = 0,
               rsqrt_builtin: bool = False, light_unroll: int = 0,
               rsqrt_native: bool = False, relative: bool = False,
-              dir_lists: bool = True) -> ShadingPlan:
+              dir_lists: bool = True, far_lights: bool = False) -> ShadingPlan:
     """Choose the kernel variant for ``scene`` and the material ``maps`` present.
 
     Parameters
@@ -376,6 +394,10 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     dir_lists : bool
         With :data:`DIR_CULL_MIN` directional lights or more: read them from per-tile
         lists (DIR_CULLING; False: the frame's lists would be too long).
+    far_lights : bool
+        Some point light may lie :data:`FAR_LIGHT` or more from a pixel of the frame
+        (:func:`clphong.device.frame.has_far_lights`): on the float lanes path the plan
+        turns POINT_GUARD on, whose selects give such a light nothing.
     coverage : bool
         The frame has partly covered pixels: gbuf plane 12 holds α and every
         output is α-premultiplied (COVERAGE).
@@ -434,7 +456,8 @@ def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LAN
     put("HAS_DIRECTIONAL", n_dir > 0, f"{n_dir} directional light(s)")
     _material_defines(put, scene, maps, kernel=kernel, specular=specular, n_dir=n_dir)
     _sum_defines(put, scene, kernel=kernel, n_lights=n_point + n_dir, n_point=n_point,
-                 sum_fp64=sum_fp64, compensated=compensated)
+                 sum_fp64=sum_fp64, compensated=compensated, fp64_directions=fp64_directions,
+                 far_lights=far_lights)
     if kernel == "lanes":
         _lane_defines(put, scene, maps, n_point=n_point, n_dir=n_dir, specular=specular,
                       blinn=blinn, fp64=fp64, fp64_directions=fp64_directions, int_pow=int_pow,

@@ -66,6 +66,7 @@ from .frame import (
     LOCAL_SIZE,
     Frame,
     check_near_field,
+    has_far_lights,
     material_uniforms,
     pack_lights,
     prepare_frame,
@@ -379,7 +380,7 @@ class Renderer:
         return plan
 
     def _plan_and_program(self, map_names, *, culling: bool = True, coverage: bool = False,
-                          dir_lists: bool = True):
+                          dir_lists: bool = True, far: bool = False):
         plan = make_plan(self.scene, map_names, kernel=self.kernel_kind, lanes=self.lanes,
                          compensated=self.compensated, fp64_directions=self.fp64_directions,
                          max_error=self.max_error if culling else None,
@@ -389,7 +390,7 @@ class Renderer:
                          rsqrt_builtin=self.runtime.rsqrt_builtin(self.lanes),
                          light_unroll=self.light_unroll if self.kernel_kind == "lanes" else 0,
                          rsqrt_native=self.runtime.rsqrt_native(self.lanes),
-                         dir_lists=dir_lists and self.dir_lists)
+                         dir_lists=dir_lists and self.dir_lists, far_lights=far)
         return plan, self.runtime.program(plan.entry_file, plan.defines)
 
     # ------------------------------------------------------------------ a whole frame
@@ -581,7 +582,7 @@ class Renderer:
 
     # ------------------------------------------------------------------ one launch
 
-    def _cull_or_brute(self, plan, prog, frame, lights, **buffers):
+    def _cull_or_brute(self, plan, prog, frame, lights, *, far=False, **buffers):
         """With a culling plan: the frame's tile lists, or brute force where they lose
         (too long, or keeping nearly every light: their cost stays in ``cull.seconds``,
         their kept share in the result) or lost on one of the last CULL_RETRY frames.
@@ -604,7 +605,8 @@ class Renderer:
             if cull is not None:
                 cull = dataclasses.replace(cull, brute=True)
             self._cull_rest = CULL_RETRY
-        plan, prog = self._plan_and_program(frame.map_names, culling=False, coverage=frame.coverage)
+        plan, prog = self._plan_and_program(frame.map_names, culling=False, coverage=frame.coverage,
+                                            far=far)
         return plan, prog, cull, [], None
 
     def shade(self, frame: Frame, *, display: DisplayTransform | None = None) -> RenderResult:
@@ -613,8 +615,9 @@ class Renderer:
         import pyopencl as cl
 
         t0 = time.perf_counter()
-        plan, prog = self._plan_and_program(frame.map_names, coverage=frame.coverage)
         lights = pack_lights(self.scene, frame.origin)
+        far = has_far_lights(frame, lights)    # POINT_GUARD on the float lanes path
+        plan, prog = self._plan_and_program(frame.map_names, coverage=frame.coverage, far=far)
         check_near_field(self.scene, frame, lights, bool(plan.defines.get("DIRECTIONS_FP64")))
         k_d, S, k = material_uniforms(self.scene, frame.map_names)
         ctx, queue = self.runtime.context, self.runtime.queue
@@ -635,8 +638,9 @@ class Renderer:
             _, (kd_lo, *S_lo, k_lo) = split_hi_lo([k_d, *S, k])
             amb_lo = split_hi_lo(lights.ambient)[1]
             spots = plan.n_spot > 0
+            quarter = not fp64 and plan.kernel == "lanes"    # the float lanes loop's units
             pl = cl.Buffer(ctx, ro, hostbuf=shading_records(
-                lights.point64 if fp64 else lights.point, spots))
+                lights.point64 if fp64 else lights.point, spots, quarter=quarter))
             dl = cl.Buffer(ctx, ro, hostbuf=lights.directional)
             out = np.empty((3 * (1 + len(plan.layers)), frame.stride), np.float32)
             gt = cl.Buffer(ctx, ro, hostbuf=lights.group_table)
@@ -646,10 +650,10 @@ class Renderer:
             ob = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             bg = self.scene.background
             plan, prog, cull, cull_args, records = self._cull_or_brute(
-                plan, prog, frame, lights, k_d=k_d, S=S, gbuf_buffer=g, maps_buffer=mp)
+                plan, prog, frame, lights, far=far, k_d=k_d, S=S, gbuf_buffer=g, maps_buffer=mp)
             if records is not None:                  # the lists name the tree's clusters too
                 pl = cl.Buffer(ctx, ro, hostbuf=shading_records(records[1] if fp64 else records[0],
-                                                                spots))
+                                                                spots, quarter=quarter))
                 if cull.point_end is not None:       # each group's representatives follow it
                     table = lights.group_table.copy()
                     table[len(cull.point_end):] = cull.point_end
@@ -662,7 +666,7 @@ class Renderer:
                 if dirs is None:                      # too long: the plain loop this frame
                     plan, prog = self._plan_and_program(
                         frame.map_names, culling=bool(plan.defines.get("CULLING")),
-                        coverage=frame.coverage, dir_lists=False)
+                        coverage=frame.coverage, dir_lists=False, far=far)
                 else:
                     dir_args = dirs.kernel_args()
             kern = self.runtime.kernel(prog, "shade")

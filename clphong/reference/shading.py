@@ -464,6 +464,14 @@ def _check_forms(form, directions, weights) -> None:
 #: 1/√d² by 2⁻²⁷ relative, 1/16 of a float ulp.
 D2_FLOOR = 2.0 ** -96
 
+def _quarter_eta(d):
+    """The float lanes loop's own relative error in l (and d) at distance ``d``: it works
+    on quartered positions (d²/16; frame.shading_records), so a square (Δ/4)² below
+    FLT_MIN flushes (d² may lose up to 3·2⁻¹²²; RSQRT_LIGHT's bias adds 2⁻¹²²), and a
+    component Δ/4 below FLT_MIN flushes too (2⁻¹²⁴/d in l, after 4/d). Their sum:
+    2⁻¹²¹/d² + 2⁻¹²⁴/d (2⁻²⁵ at D2_FLOOR)."""
+    return 2.0 ** -121 / (d * d) + 2.0 ** -124 / d
+
 
 def _point_geometry(params, px, o, rp, ud, uw, fp64):
     """A batch of point lights' geometry and falloff errors for :func:`error_bound`:
@@ -475,8 +483,9 @@ def _point_geometry(params, px, o, rp, ud, uw, fp64):
     unbounded = None
     with np.errstate(divide="ignore", invalid="ignore"):
         rl = 0.0 if fp64 else np.sqrt(_dot(Lp - o, Lp - o))     # float32 record
-        # float: + the bias of RSQRT_LIGHT, 1/√(d² + 2⁻¹²²), ≤ 2⁻¹²³/d² relative in l (and d)
-        eta_l = np.where(d > 0, ud * (2.0 + (rp + rl) / d) + (0.0 if fp64 else 2.0 ** -123 / (d * d)), 0.0)
+        # float: + the bias of RSQRT_LIGHT, 1/√(d² + 2⁻¹²²), and the flushes of the quartered
+        # loop (_quarter_eta) relative in l (and d)
+        eta_l = np.where(d > 0, ud * (2.0 + (rp + rl) / d) + (0.0 if fp64 else _quarter_eta(d)), 0.0)
         c0, c1, c2 = params["c"]
         cond = (abs(c0) + abs(c1) * d + abs(c2) * d * d) / (c0 + c1 * d + c2 * d * d)
         cond = np.where(d > 0, cond, 0.0)     # d = 0 adds nothing (shade_point_light)
@@ -485,9 +494,13 @@ def _point_geometry(params, px, o, rp, ud, uw, fp64):
             # range: flushed or infinite, the result is not bounded.
             # Below D2_FLOOR the lights loop's 1/√(d² + 2⁻¹²²) (RSQRT_LIGHT, clphong.h)
             # is off by more than 2⁻²⁷ relative: not bounded either.
+            # The quartered loop's 4·c1 and 16·c2 (frame.shading_records) beyond float: ∞.
             terms = np.stack([d * d, np.abs(c2) * d * d, c0 + c1 * d + c2 * d * d])
+            c32 = np.float32
+            scaled = (np.abs(c1.astype(c32).astype(float)) * 4.0 > FLT_MAX) | \
+                (np.abs(c2.astype(c32).astype(float)) * 16.0 > FLT_MAX)
             out_of_range = (d > 0) & (np.any((terms > FLT_MAX) | ((terms > 0) & (terms < FLT_MIN)), axis=0)
-                                      | (d * d < D2_FLOOR))
+                                      | (d * d < D2_FLOOR) | scaled)
             unbounded = np.any(out_of_range, axis=0)
     # d from the rounded position difference and rsqrt; Horner's three
     # roundings; the coefficients rounded to float32; the division.

@@ -281,13 +281,13 @@ inline dirL rsqrt_dir(dirL x)
 #elif RSQRT_GUESS_KIND == 3
 /* the builtin has the guards below, but Intel's CPU runtime 2026.2 on an AVX2 host (Zen
    3) returns 2.4e-19 for every x ≥ 2^126 with denormals flushed, at 1, 8 and 16 lanes
-   (2e7 ulp; right at 4 lanes): x ≥ 2^124 is scaled by 2^-4 first (exact) and the result
+   (2e7 ulp; right at 4 lanes): x > 2^125 is scaled by 2^-4 first (exact) and the result
    by 2^-2 (exact), +∞ still gives 0. The self-test measures this form at each width
    (clphong/device/peak.py measure_builtin_rsqrt_ulp) and the plan takes it only within
    2 ulp. RSQRT_DIR's callers pass |l + v|² ≤ 4 only. */
 inline dirL rsqrt_dist(dirL x)
 {
-    const intL huge = x >= 0x1p124f;
+    const intL huge = x > 0x1p125f;
     const dirL y = rsqrt(SELECT(x, x * 0x1p-4f, huge));
     return SELECT(y, y * 0x1p-2f, huge);
 }
@@ -318,30 +318,34 @@ inline dirL rsqrt_dist(dirL x)
 #define RSQRT_DIST(x) rsqrt_dist(x)
 #endif
 
-/* RSQRT_LIGHT(x), float directions: the lights loop's 1/√(x + 2⁻¹²²) for a squared
- * distance x ≥ 0 (+∞ gives 0). The bias keeps every first guess away from 0 and from
- * the bottom binade, so the loop needs no select for x = 0 (its l = 0·2⁶¹ = 0) nor
- * rsqrt_dist's rescaling of tiny x; it moves the result by ≤ 2⁻²⁷ relative (1/16 ulp)
- * for x ≥ 2⁻⁹⁶, and the error model calls the float path unbounded below that
- * (d < 3.6e-15; it was d < 1.1e-19, where x flushes: docs/error-model.md). The builtin
- * (RSQRT_GUESS_KIND 3) takes x/16 + 2⁻¹²⁶ by a multiply-add, then 2⁻² (exact
- * scalings), so its input stays ≤ FLT_MAX/16 < 2¹²⁴, below Intel's AVX2 fault above,
- * where the self-test measured it (rsqrt_dist below 2¹²⁴ is the bare builtin); five
- * operations fewer a light than rsqrt_dist and the select (docs/bench.md). The
- * inline steps keep a select for +∞ only. Double directions keep RSQRT_DIST and the
- * select: their d² never flushes. */
+/* RSQRT_LIGHT(x), float directions: the lights loop's 4/√(16x + 2⁻¹²²) for x = d²/16,
+ * the squared distance of the quartered positions: the light records come with their
+ * positions × 1/4, c1 × 4 and c2 × 16 (clphong/device/frame.py shading_records), and
+ * shade.cl quarters the pixel's P − origin. Every scaling is by a power of 2, so l =
+ * (Δ/4)·(4/d) and d/4 = (d²/16)·(4/d) carry the bits of Δ·(1/d) and d²·(1/d) unscaled,
+ * and Horner's (d/4)·((d/4)·16c2 + 4c1) + c0 those of d·(d·c2 + c1) + c0, where nothing
+ * leaves float's normal range; the loop saves the 2⁻² and 2⁻⁴ scalings the builtin
+ * needed and every select (docs/bench.md).
+ * - The bias 2⁻¹²⁶ (2⁻¹²² on d²) keeps the result finite at x = 0 (l = 0·2⁶³ = 0, no
+ *   select) and moves it by ≤ 2⁻²⁷ relative (1/16 ulp) for d² ≥ 2⁻⁹⁶; below that the error
+ *   model calls the float path unbounded (D2_FLOOR, docs/error-model.md). There the
+ *   inline steps' x/2 may flush (x < 2⁻¹²⁵): their result is off, but finite.
+ * - The cap 2¹²⁵ (d ≥ 2⁶⁴·√2, beyond the bounded range d² ≤ FLT_MAX) keeps the input
+ *   below Intel's AVX2 fault (the builtin returns 2.4e-19 for x ≥ 2¹²⁶ there, rsqrt_dist
+ *   above) and never +∞, so d/4 = x·(4/d) needs no select for ∞·0 either. A frame with a
+ *   light that far from a pixel takes POINT_GUARD's selects (lights.h, plan.py), which
+ *   give such a light nothing, as before.
+ * Double directions keep RSQRT_DIST and the select: their d² never flushes. */
 #if !DIRECTIONS_FP64
+#define LIGHT_D2_CAP 0x1p125f
+#define CAP_LIGHT_D2(x) ((x) < (dirL)(LIGHT_D2_CAP) ? (x) : (dirL)(LIGHT_D2_CAP))
 #if RSQRT_GUESS_KIND == 3
-#define RSQRT_LIGHT(x) (rsqrt(MUL_ADD((x), (dirL)(0x1p-4f), (dirL)(0x1p-126f))) * 0x1p-2f)
+#define RSQRT_LIGHT(x) rsqrt(CAP_LIGHT_D2(x) + 0x1p-126f)
 #else
 #ifndef RSQRT_STEPS_ONLY
 #define RSQRT_STEPS_ONLY(x) rsqrt_dir(x)    /* native_rsqrt's step: no select at 0 either */
 #endif
-inline dirL rsqrt_light(dirL x)
-{
-    return SELECT(RSQRT_STEPS_ONLY(x + 0x1p-122f), (dirL)(0.0f), x > FLT_MAX);
-}
-#define RSQRT_LIGHT(x) rsqrt_light(x)
+#define RSQRT_LIGHT(x) RSQRT_STEPS_ONLY(CAP_LIGHT_D2(x) + 0x1p-126f)
 #endif
 #endif
 

@@ -114,7 +114,7 @@ inline dirL spot_factor(dirL lx, dirL ly, dirL lz, dirS ax, dirS ay, dirS az, di
     return t * t;
 }
 
-/* A point light at L (rebased on the frame origin, or as it is with
+/* A point light at L (rebased on the frame origin and quartered, or as it is with
  * DIRECTIONS_FP64), falloff coefficients c0, c1,
  * c2 and radiance R, all in dirS (double from the host's float64 records with
  * DIRECTIONS_FP64, shade.cl): l = (L − P)/d. Returns the unattenuated weights, and in
@@ -137,8 +137,12 @@ inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
     const dirL d2 = MUL_ADD(dx, dx, MUL_ADD(dy, dy, dz * dz));
 #if DIRECTIONS_FP64
     const dirL inv_d = SELECT_DIR(RSQRT_DIST(d2), (dirL)(0.0f), d2 <= (dirL)(0.0f));
+#elif POINT_GUARD
+    /* d2 is d²/16 here, and inv_d 4/d (RSQRT_LIGHT: the records come quartered); a light
+       beyond the cap (d ≥ 2⁶⁴·√2) gets l = 0, as NO_LIGHT's select gives it no falloff */
+    const dirL inv_d = SELECT_DIR(RSQRT_LIGHT(d2), (dirL)(0.0f), d2 > (dirL)(LIGHT_D2_CAP));
 #else
-    const dirL inv_d = RSQRT_LIGHT(d2);   /* 1/√(d² + 2⁻¹²²): finite at d² = 0, where l = 0 */
+    const dirL inv_d = RSQRT_LIGHT(d2);   /* d2 = d²/16, inv_d = 4/d; finite at d = 0 (l = 0) */
 #endif
     const dirL lx = dx * inv_d, ly = dy * inv_d, lz = dz * inv_d;
     const dirL NoL = MUL_ADD(p->nx, lx, MUL_ADD(p->ny, ly, p->nz * lz));
@@ -149,17 +153,18 @@ inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
     const dirL d = d2 * inv_d;
 #define NO_LIGHT (d2 <= (dirL)(0.0f))     /* d = 0: 1/c0 may be ∞ (POINT_GUARD) */
 #else
-    const dirL d = SELECT_DIR(d2 * inv_d, d2, d2 > FLT_MAX);   /* isinf(d2): d2 ≥ 0 (isinf is out of line) */
-    /* d² beyond float (d ≳ 1.8e19): l = 0 already (rsqrt(∞) = 0), and the falloff at
-       d = ∞ is ∞·0 = NaN in Horner's form where c2 = 0 (or c1 = c2 = 0): no
-       contribution there either, as the error model's "unbounded" pixels say */
-#define NO_LIGHT ((d2 <= (dirL)(0.0f)) | (d2 > FLT_MAX))
+    /* d/4, which the records' 4c1 and 16c2 expect; finite, as inv_d is (the cap) */
+    const dirL d = d2 * inv_d;
+    /* d = 0, or d² beyond the cap (then d/4 may be ∞·0 = NaN under the guard) */
+#define NO_LIGHT ((d2 <= (dirL)(0.0f)) | (d2 > (dirL)(LIGHT_D2_CAP)))
 #endif
     /* NO_LIGHT's select only where the plan's POINT_GUARD says some light needs it: at
        d = 0, l = 0 already (both weights 0), so only c0 = 0 (an infinite falloff, ∞·0)
-       needs it; at d = ∞ (float), l = 0 and the falloff 1/(c0 + c1·∞ + c2·∞²) is 0
-       unless c1 = c2 = 0 (0·∞ = NaN). Elsewhere the weights are 0 and the falloff
-       finite: two compares, an or and a blend fewer a light. */
+       needs it, or on the float path a 4c1 or 16c2 beyond float (∞·0 at d = 0); and a
+       frame with a light beyond the cap from some pixel (float path), whose l and falloff
+       would be wrong there: it gets nothing, as the error model's "unbounded" pixels say.
+       Elsewhere the weights are 0 at d = 0 and the falloff finite: two compares, an or
+       and a blend fewer a light. */
 #if HAS_SPOT
     /* the cone scales the falloff (at d = 0, l = 0 and the factor is t(o)², times 0) */
     const dirL att0 = attenuation(c0, c1, c2, d) * spot_factor(lx, ly, lz, ax, ay, az, s, o);

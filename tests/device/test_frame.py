@@ -162,23 +162,67 @@ def test_a_light_at_a_pixel_adds_nothing_with_or_without_the_guard(path, c0, dev
     assert np.abs(rgb[5, 7] - reference.shade(alone, gb)[5, 7]).max() <= bound[5, 7].max()
 
 
-@pytest.mark.parametrize("path", ["accurate", "fast"])
-@pytest.mark.parametrize("flat", [False, True], ids=["all-fall-off", "one-flat"])
-def test_a_light_beyond_float_range_adds_nothing_with_or_without_the_guard(path, flat, device):
-    """A light at 3e19 (d² beyond float on the float paths, where it adds nothing, and the
-    bound says so): never a NaN. Its falloff 1/(c0 + c1·∞ + c2·∞²) is 0 where c1 or
-    c2 > 0; with c1 = c2 = 0 beside a light that falls off (1/(c0 + 0·∞) = NaN at ∞) the
-    plan turns the select on (POINT_GUARD)."""
-    gb = _flat()
-    lights = [dict(type="point", position=(3e19, 0.0, 1.0), intensity=1.0,
+def _far_scene(x, flat):
+    lights = [dict(type="point", position=(x, 0.0, 1.0), intensity=1.0,
                    attenuation=(1.0, 0.0, 0.0) if flat else (1.0, 0.0, 1.0)),
               dict(type="point", position=(1.0, 1.0, 2.0), intensity=1.0, attenuation=(1.0, 0.2, 0.3))]
-    scene = make_scene(lights, model="blinn-phong", h=32.0)
-    assert Renderer(scene, path=path, device=device).plan_for(()).defines["POINT_GUARD"] == flat
+    return make_scene(lights, model="blinn-phong", h=32.0), make_scene(lights[1:], model="blinn-phong", h=32.0)
+
+
+@pytest.mark.parametrize("path", ["accurate", "float", "fast"])
+@pytest.mark.parametrize("x", [3e19, 1e30], ids=["3e19", "1e30"])
+@pytest.mark.parametrize("flat", [False, True], ids=["all-fall-off", "one-flat"])
+def test_a_light_beyond_float_range_adds_nothing(path, x, flat, device):
+    """A light at 3e19 or 1e30 (d ≥ 2⁶⁴·√2: beyond the float loop's cap on d²/16, where the
+    error model calls its pixels unbounded): never a NaN, and nothing added. The frame has a
+    light that far from its pixels, so on the float paths its plan turns POINT_GUARD on
+    (frame.has_far_lights), whose selects give it l = 0 and no falloff; with double
+    directions d² stays in range and the falloff (~1e-39, or 1/c0 with c1 = c2 = 0 times
+    n·l ~3e-20) adds nothing at float's precision."""
+    gb = _flat()
+    scene, near_scene = _far_scene(x, flat)
+    r = Renderer(scene, path=path, device=device)
+    float_dirs = not r.plan_for(()).defines["DIRECTIONS_FP64"]
+    assert r.plan_for(()).defines["POINT_GUARD"] == 0          # the scene alone needs none
     rgb, ref, _, _ = check_against_reference(scene, gb, path=path, device=device)
+    assert r.render(gb).plan.defines["POINT_GUARD"] == float_dirs   # this frame's plan
     assert np.all(np.isfinite(rgb))
-    # the far light's n·l is ~3e-20 (and its falloff ~1e-39 without the flat one): the
-    # frame is the near light's, to the bit on the fast path (it adds an exact 0 there)
-    near = Renderer(make_scene(lights[1:], model="blinn-phong", h=32.0), path=path, device=device)
-    np.testing.assert_array_equal(rgb, near.render(gb).image) if path == "fast" else \
-        np.testing.assert_allclose(rgb, near.render(gb).image, rtol=1e-6)
+    near = Renderer(near_scene, path=path, device=device).render(gb).image
+    np.testing.assert_array_equal(rgb, near) if float_dirs else \
+        np.testing.assert_allclose(rgb, near, rtol=1e-6)
+
+
+@pytest.mark.parametrize("path", ["float", "fast"])
+def test_without_the_far_guard_a_far_light_is_wrong(path, device, monkeypatch):
+    """The far-light guard is needed: with frame.has_far_lights forced off, a light with
+    c1 = c2 = 0 at 1e30 (d²/16 = ∞, capped: l is garbage, the falloff 1/c0) changes the
+    frame that test_a_light_beyond_float_range_adds_nothing holds to the near light's."""
+    import clphong.device.renderer as renderer
+    gb = _flat()
+    scene, near_scene = _far_scene(1e30, True)
+    monkeypatch.setattr(renderer, "has_far_lights", lambda frame, lights: False)
+    res = Renderer(scene, path=path, device=device).render(gb)
+    assert res.plan.defines["POINT_GUARD"] == 0
+    near = Renderer(near_scene, path=path, device=device).render(gb).image
+    assert not np.array_equal(res.image, near)
+
+
+def test_far_lights_are_those_that_may_pass_the_cap():
+    """has_far_lights: the lights' reach from the frame's origin plus the pixels' half
+    extent, against FAR_LIGHT = 2⁶⁴ (1.84e19); the frame's own extent counts."""
+    from clphong.device.frame import has_far_lights, pack_lights, prepare_frame
+    from clphong.device.plan import FAR_LIGHT
+    gb = _flat()
+    frame = prepare_frame(gb)
+    assert FAR_LIGHT == 2.0 ** 64
+    for x, far in [(1.0, False), (1.8e19, False), (1.85e19, True), (1e30, True)]:
+        scene, _ = _far_scene(x, False)
+        assert has_far_lights(frame, pack_lights(scene, frame.origin)) == far, x
+    # the same light, and pixels 2e18 away on the other side: now far
+    P = gb.position.copy()
+    P[0, 0] = (-2e18, 0.0, 0.0)
+    wide = prepare_frame(make_gbuffer(P.astype(np.float64), gb.normal.astype(np.float64),
+                                      gb.albedo.astype(np.float64)))
+    scene, _ = _far_scene(1.7e19, False)
+    assert not has_far_lights(frame, pack_lights(scene, frame.origin))
+    assert has_far_lights(wide, pack_lights(scene, wide.origin))
