@@ -655,7 +655,9 @@ def _batch_error(e: _Rounding, kind, L, params, diffuse, specular):
         att = att_raw * t * t
         e_att = e_att + (ud if fp64 else U)
     # The product L·(D·w_d + S·w_s): five roundings, in float or (WEIGHTS_FP64)
-    # in double; D = C·k_d and S = k_s·C_s: k_d, k_s rounded to float and up to
+    # in double (att·R, D·w_d, S·w_s, their sum and the product; or, where att and
+    # the weights share a type, att·w_d, att·w_s, S·(att·w_s), the sum and R·(…): four
+    # on each term); D = C·k_d and S = k_s·C_s: k_d, k_s rounded to float and up to
     # two products (3u), or (WEIGHTS_FP64) in double from hi + lo (3u_d).
     e_prod = 5.0 * U if not w64 else 3.0 * ud + 5.0 * uw
     e_diff = diffuse * e_att + att * diff_abs + diffuse * e_prod
@@ -678,9 +680,11 @@ def _batch_error(e: _Rounding, kind, L, params, diffuse, specular):
         band_fg = np.zeros(len(px.p), bool)
     # Underflow: intermediates below FLT_MIN are flushed to zero: the weights
     # and their products with D and S (each then scaled by att·L), and att·L
-    # itself.
+    # itself; or (lights.h, where att and the weights share a type) att·w_d and
+    # att·w_s, their products with D and S and their sum (each then scaled by L),
+    # and the last product with L.
     DS = np.abs(D) + np.abs(S)
-    floor = FLT_MIN * ((2.0 + DS) * (np.maximum(att, 1.0)[..., None] * Lc) + DS)
+    floor = FLT_MIN * ((2.0 + DS) * (np.maximum(att, 1.0)[..., None] * Lc) + DS + 1.0)
     b_add = np.sum(Lc * (np.abs(D) * e_diff[..., None] + np.abs(S) * e_spec[..., None]) + floor, axis=0)
     parts = [b_add]                              # added to the bound in this order
     if px.f0 is not None:
