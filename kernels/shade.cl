@@ -316,7 +316,8 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
 #if COVERAGE
     const floatL alpha = vloadL(i, gbuf + 12 * stride);
 #endif
-/* The beauty's term of one light (its radiance × falloff L, weights w): one
+/* The beauty's term of one light (its radiance L, times the falloff unless the weights w
+   carry it: FALLOFF_ON_WEIGHTS, lights.h): one
    expression, so that the compiler contracts it with the sum exactly as it did
    before the layers existed (bit-identical beauty with or without them). */
 /* S·w_s, plus with Blinn's per-light Fresnel S1·w_f (S1 the S·(1 − f0) of S)
@@ -462,7 +463,8 @@ __kernel void shade(SHADE_ARGS)   /* include/shade_args.h */
             const pointrec_t X = (rec)[0];   /* position, c0 */ \
             const pointrec_t L = (rec)[1];   /* radiance, c1 */ \
             const pointrec_t Q = (rec)[2];   /* c2, a spot's axis */ \
-            wL ar, ag, ab;                   /* radiance × attenuation(d) (× the cone) */ \
+            wL ar, ag, ab;                   /* radiance (× attenuation(d) × the cone, unless \
+                                                the weights carry it: lights.h) */ \
             const weights_t w = POINT_WEIGHTS(rec); \
             ADD_LIGHT(ar, ag, ab, w); }
 #if CULLING

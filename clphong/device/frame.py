@@ -132,8 +132,9 @@ def shading_records(records: np.ndarray, has_spot: bool, *, quarter: bool = Fals
 
     ``quarter`` (the lane kernel's float path): the (rebased float32) positions × 1/4,
     c1 × 4 and c2 × 16, all exact (a position below 2⁻¹²⁴ becomes subnormal, which the
-    kernel flushes; a 4c1 or 16c2 beyond float becomes ∞, for which the plan turns
-    POINT_GUARD on). The kernel quarters P − origin too, so its d²/16, 4/d and d/4
+    kernel flushes; a 4c1 or 16c2 beyond float is clipped to ±FLT_MAX, never ±∞, so
+    Horner meets no ∞ − ∞ and d = 0 no ∞·0: the error model calls such a light's pixels
+    unbounded). The kernel quarters P − origin too, so its d²/16, 4/d and d/4
     carry the bits of d², 1/d and d, with no scalings or selects in the loop
     (RSQRT_LIGHT, kernels/include/clphong.h)."""
     k = POINT_RECORD if has_spot else 3
@@ -144,6 +145,8 @@ def shading_records(records: np.ndarray, has_spot: bool, *, quarter: bool = Fals
             out[:, 0, :3] *= np.float32(0.25)
             out[:, 1, 3] *= np.float32(4.0)
             out[:, 2, 0] *= np.float32(16.0)
+        np.clip(out[:, 1, 3], -FLT_MAX, FLT_MAX, out=out[:, 1, 3])
+        np.clip(out[:, 2, 0], -FLT_MAX, FLT_MAX, out=out[:, 2, 0])
     return out.reshape(-1, 4)
 
 

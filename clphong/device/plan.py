@@ -43,6 +43,11 @@ DIR_CULL_MIN = 64
 FAR_LIGHT = 2.0 ** 64
 
 
+#: The smallest c0 (with c1, c2 ≥ 0) for which the float loop multiplies the weights by the
+#: falloff (FALLOFF_ON_WEIGHTS): att ≤ (1 + 3u)/(c0·(1 − 4u)) < 1.5 there.
+FALLOFF_ON_WEIGHTS_C0 = 0.7
+
+
 #: The largest whole exponent k (h, or 4h for Blinn-Phong) raised by binary
 #: powering (SPEC_INT_POW): at most 16 squarings and 15 products per light.
 #: Blinn-Phong with h = 10⁴ (k = 4·10⁴) is inside.
@@ -215,16 +220,10 @@ def _sum_defines(put, scene, *, kernel, n_lights, n_point, sum_fp64, compensated
     c0_zero = bool((c[:, 0] == 0).any())
     # the float lanes loop's records carry 4c1 and 16c2 (frame.shading_records)
     quarter = kernel == "lanes" and not fp64_directions
-    with np.errstate(over="ignore"):
-        c32 = c.astype(np.float32)
-        scaled_inf = quarter and bool(np.isinf(c32[:, 1] * np.float32(4)).any()
-                                      or np.isinf(c32[:, 2] * np.float32(16)).any())
-    far = quarter and far_lights
-    put("POINT_GUARD", c0_zero or scaled_inf or far,
+    far = quarter and far_lights and n_point > 0
+    put("POINT_GUARD", c0_zero or far,
         "some point light has c0 = 0: its falloff is infinite at d = 0, so a select "
         "gives it nothing there" if c0_zero else
-        "some point light's 4·c1 or 16·c2 is beyond float (the float loop's quartered "
-        "falloff): ∞·0 at d = 0, so a select gives it nothing there" if scaled_inf else
         f"some point light may lie {FAR_LIGHT:.3g} or more from a pixel of this frame, "
         "beyond the float loop's cap on d²/16 (clphong.h RSQRT_LIGHT): selects give it "
         "nothing there (the error model's unbounded pixels)" if far else
@@ -343,6 +342,25 @@ def _lane_defines(put, scene, maps, *, n_point, n_dir, specular, blinn, fp64, fp
         + ", into the double sum: nothing rounded to float before the result" if weights
         else ("directions in float: weights in float" if not fp64_directions
               else "light sum in float: weights rounded to float"))
+    # lights.h: the weights take the falloff and the sums form R·(D·att·w_d + S·att·w_s),
+    # one product a light fewer than (att·R)·(D·w_d + S·w_s). In double always; in float
+    # only where every falloff stays ≤ 1/0.7 (c0 ≥ 0.7, c1, c2 ≥ 0: p(d) ≥ c0), so that
+    # D·att·w_d + S·att·w_s < 1.5·2¹²⁷ < FLT_MAX for D, S < 2¹²⁶ (clphong/io/nonfinite.py's
+    # limits); a stronger falloff keeps att·R, which the scene and the near-field check
+    # keep in float, and the weights ≤ 1.
+    c = scene.light_arrays["point_attenuation"]
+    tame = bool(np.all((c[:, 0] >= FALLOFF_ON_WEIGHTS_C0) & (c[:, 1] >= 0) & (c[:, 2] >= 0)))
+    on_weights = n_point > 0 and (weights or (not fp64_directions and tame))
+    put("FALLOFF_ON_WEIGHTS", on_weights,
+        "the weights take each light's falloff: R·(D·att·w_d + S·att·w_s), one product a "
+        "light fewer (lights.h)" + ("" if weights else f"; every c0 ≥ {FALLOFF_ON_WEIGHTS_C0:g} and "
+                                    "c1, c2 ≥ 0, so att·w stays ≤ 1.5")
+        if on_weights else
+        "no point light" if not n_point else
+        "double directions with float weights: att·R is formed in double and rounded once"
+        if fp64_directions else
+        f"some point light has c0 < {FALLOFF_ON_WEIGHTS_C0:g} or a negative c1 or c2: its falloff may "
+        "pass 1.5, so att·R (kept in float by the scene) and weights ≤ 1, as D·att·w_d could overflow")
 
 
 def make_plan(scene, maps=(), *, kernel: str = "lanes", lanes: int = DEFAULT_LANES,

@@ -39,16 +39,17 @@ value, not from trial:
     E − P. Two float32 values below 2^127 in magnitude are at most
     2·(2^127 − 2^103) = FLT_MAX apart, so every such difference of points inside
     that range is finite; one point at 2^127 or beyond and another on the far
-    side of the origin give ±Inf, and Inf·0 = NaN. (Squared distances d² overflow
-    far earlier, at d ≥ 2^64 ≈ 1.8e19, on the float path only: that is the
-    documented d := ∞ limitation of that path, which the default path shades
-    exactly, e.g. the hard case ``c2-only-huge-d`` at 5e20; it is not a sign
-    of a bad file.)
+    side of the origin give ±Inf, and Inf·0 = NaN. (Squared distances leave
+    float far earlier, from d ≈ 2^64 ≈ 1.8e19, on the float paths only: that is
+    their documented limitation (the lanes loop caps d²/16 at 2^125 and gives such
+    a light nothing, docs/accuracy.md), which the default path shades exactly, e.g.
+    the hard case ``c2-only-huge-d`` at 5e20; it is not a sign of a bad file.)
 ``albedo``, ``k_d``, ``k_s``, ``specular_color``: 2^63 (9.2e18)
     The float-weight paths form D = C_d·k_d and S = k_s·C_s·(the scene's
     factor) in float32, each a product of up to two G-buffer values, then
-    D·w_d + S·w_s with weights w ≤ 1. Two values below 2^63 multiply to less
-    than 2^126, so that sum stays below 2^127 < FLT_MAX for any scene whose
+    D·w_d + S·w_s with weights w ≤ 1 (or, where the plan's FALLOFF_ON_WEIGHTS
+    puts each light's falloff on them, att·w ≤ 1.5). Two values below 2^63 multiply
+    to less than 2^126, so that sum stays below 1.5·2^127 < FLT_MAX for any scene whose
     k_d and k_s·specular_color are at most 1 (beyond, a light's radiance
     saturates the pixel at FLT_MAX, as documented). Past it D or S can be ∞,
     and ∞ times a back-facing light's weight 0 is NaN.

@@ -468,9 +468,9 @@ def _quarter_eta(d):
     """The float lanes loop's own relative error in l (and d) at distance ``d``: it works
     on quartered positions (d²/16; frame.shading_records), so a square (Δ/4)² below
     FLT_MIN flushes (d² may lose up to 3·2⁻¹²²; RSQRT_LIGHT's bias adds 2⁻¹²²), and a
-    component Δ/4 below FLT_MIN flushes too (2⁻¹²⁴/d in l, after 4/d). Their sum:
-    2⁻¹²¹/d² + 2⁻¹²⁴/d (2⁻²⁵ at D2_FLOOR)."""
-    return 2.0 ** -121 / (d * d) + 2.0 ** -124 / d
+    component flushes too: L/4, P/4 and their difference, ≤ 3·2⁻¹²⁶ each, so ≤ 2⁻¹²²/d
+    in l after 4/d. Their sum: 2⁻¹²¹/d² + 2⁻¹²²/d (2⁻²⁵ at D2_FLOOR)."""
+    return 2.0 ** -121 / (d * d) + 2.0 ** -122 / d
 
 
 def _point_geometry(params, px, o, rp, ud, uw, fp64):
@@ -656,7 +656,7 @@ def _batch_error(e: _Rounding, kind, L, params, diffuse, specular):
         e_att = e_att + (ud if fp64 else U)
     # The product L·(D·w_d + S·w_s): five roundings, in float or (WEIGHTS_FP64)
     # in double (att·R, D·w_d, S·w_s, their sum and the product; or, where att and
-    # the weights share a type, att·w_d, att·w_s, S·(att·w_s), the sum and R·(…): four
+    # FALLOFF_ON_WEIGHTS, att·w_d, att·w_s, S·(att·w_s), the sum and R·(…): four
     # on each term); D = C·k_d and S = k_s·C_s: k_d, k_s rounded to float and up to
     # two products (3u), or (WEIGHTS_FP64) in double from hi + lo (3u_d).
     e_prod = 5.0 * U if not w64 else 3.0 * ud + 5.0 * uw
@@ -680,11 +680,11 @@ def _batch_error(e: _Rounding, kind, L, params, diffuse, specular):
         band_fg = np.zeros(len(px.p), bool)
     # Underflow: intermediates below FLT_MIN are flushed to zero: the weights
     # and their products with D and S (each then scaled by att·L), and att·L
-    # itself; or (lights.h, where att and the weights share a type) att·w_d and
-    # att·w_s, their products with D and S and their sum (each then scaled by L),
+    # itself; or (lights.h, FALLOFF_ON_WEIGHTS) att·w_d, att·w_s (and Blinn's Fresnel
+    # att·w_f), their products with D and S and their sum (each then scaled by L),
     # and the last product with L.
     DS = np.abs(D) + np.abs(S)
-    floor = FLT_MIN * ((2.0 + DS) * (np.maximum(att, 1.0)[..., None] * Lc) + DS + 1.0)
+    floor = FLT_MIN * ((3.0 + DS) * (np.maximum(att, 1.0)[..., None] * Lc) + DS + 1.0)
     b_add = np.sum(Lc * (np.abs(D) * e_diff[..., None] + np.abs(S) * e_spec[..., None]) + floor, axis=0)
     parts = [b_add]                              # added to the bound in this order
     if px.f0 is not None:

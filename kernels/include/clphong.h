@@ -156,8 +156,9 @@ typedef floatL dirL;
  *  - x = +∞ gives −∞, not 0, and a guard for it cost 12 % of the float path's
  *    lights loop (PoCL 3.0, any form of it): so the float RSQRT_DIR takes finite
  *    x only (Blinn's |l + v|² ≤ 4, once per light); RSQRT_DIST, for squared
- *    distances (to a light, once per light, and to the eye, once per pixel)
- *    that overflow float beyond ≈ 1.8e19, adds the guards (rsqrt_dist). */
+ *    distances that overflow float beyond ≈ 1.8e19 (to the eye, once per pixel,
+ *    and to a light with double directions), adds the guards (rsqrt_dist); the
+ *    float lights loop caps its d²/16 instead (RSQRT_LIGHT). */
 /* The first guess: the hardware's 14-bit estimate where the target has one
  * (AVX-512 vrsqrt14pd/ps, relative error ≤ 2⁻¹⁴, through clang's target
  * builtins: there is no OpenCL C builtin for it, and PoCL's native_rsqrt is the

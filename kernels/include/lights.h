@@ -24,7 +24,8 @@ inline dirL attenuation(dirS c0, dirS c1, dirS c2, dirL d)
 
 /* A pixel's shading inputs, all rebased or unit as described in shade.cl. */
 typedef struct {
-    dirL px, py, pz;        /* position, minus the frame origin (0 with DIRECTIONS_FP64) */
+    dirL px, py, pz;        /* position, minus the frame origin and quartered (as it is
+                               with DIRECTIONS_FP64): the point lights' loop's units */
     dirL nx, ny, nz;        /* unit normal */
     dirL vx, vy, vz;        /* unit direction to the viewer */
 #if SPEC_COS
@@ -115,18 +116,22 @@ inline dirL spot_factor(dirL lx, dirL ly, dirL lz, dirS ax, dirS ay, dirS az, di
 }
 
 /* A point light at L (rebased on the frame origin and quartered, or as it is with
- * DIRECTIONS_FP64), falloff coefficients c0, c1,
- * c2 and radiance R, all in dirS (double from the host's float64 records with
- * DIRECTIONS_FP64, shade.cl): l = (L − P)/d. Where the weights have the directions'
- * type (float throughout, or WEIGHTS_FP64), returns the weights times attenuation(d)
- * and in *ar, *ag, *ab the radiance. Else (double directions, float weights) returns the
- * unattenuated weights, and in *ar, *ag, *ab the light's radiance times
- * attenuation(d), formed in double and then rounded to float, so that a huge falloff
- * and a tiny intensity (or the reverse) meet before anything is rounded to float.
+ * DIRECTIONS_FP64), falloff coefficients c0, c1 (4c1 quartered),
+ * c2 (16c2 quartered) and radiance R, all in dirS (double from the host's float64 records
+ * with DIRECTIONS_FP64, shade.cl): l = (L − P)/d. With FALLOFF_ON_WEIGHTS (plan.py)
+ * returns the weights times attenuation(d) and in *ar, *ag, *ab the radiance. Else returns
+ * the unattenuated weights (≤ 1), and in *ar, *ag, *ab the light's radiance times
+ * attenuation(d), formed in dirL and then converted to the weights' type, so that a huge
+ * falloff and a tiny intensity (or the reverse) meet before anything is rounded to float.
  * Guards: a light exactly at the shaded point (d = 0) has no direction; it
  * contributes nothing (l := 0, d := 0, so n·l = 0 switches both terms off), as in
- * the reference; rsqrt(0) = inf would give 0·inf = NaN. In float, d² overflows for
- * d ≳ 1.8e19: d := ∞ there, so the falloff is 0 (and l = 0) instead of ∞·0 = NaN. */
+ * the reference. In float, d²/16 is capped at 2¹²⁵ (RSQRT_LIGHT, clphong.h): a light that
+ * far (d ≥ 2⁶⁴·√2, where the error model calls the pixels unbounded) gets nothing from
+ * POINT_GUARD's selects, which the plan compiles for any frame with a light 2⁶⁴ or more
+ * from a pixel (frame.has_far_lights). */
+#ifndef FALLOFF_ON_WEIGHTS
+#error "FALLOFF_ON_WEIGHTS must be set by the shading plan (clphong/device/plan.py)"
+#endif
 inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
                                    dirS c0, dirS c1, dirS c2, dirS Rr, dirS Rg, dirS Rb,
 #if HAS_SPOT
@@ -178,10 +183,11 @@ inline weights_t shade_point_light(const pixel_t *p, dirS Lx, dirS Ly, dirS Lz,
     const dirL att = att0;
 #endif
 #undef NO_LIGHT
-#if !DIRECTIONS_FP64 || WEIGHTS_FP64
-    /* the falloff and the weights share a type: the weights take att (two products),
-       the radiance stays as it is, and the sums form R·(D·att·w_d + S·att·w_s): one
-       product a light fewer than (att·R)·(D·w_d + S·w_s) and no more roundings in a
+#if FALLOFF_ON_WEIGHTS
+    /* the plan's FALLOFF_ON_WEIGHTS (double weights, or a float loop whose every falloff
+       stays ≤ 1.5, so that D·att·w_d cannot overflow): the weights take att (two
+       products), the radiance stays as it is, and the sums form R·(D·att·w_d + S·att·w_s):
+       one product a light fewer than (att·R)·(D·w_d + S·w_s) and no more roundings in a
        term (the error model's five: clphong/reference/shading.py). 1.06-1.07x on Intel's
        runtime (Zen 3), both paths; PoCL level (docs/bench.md). */
     w.diffuse *= att;

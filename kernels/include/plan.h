@@ -23,10 +23,12 @@
  *   COMPENSATED_SUM  Neumaier-compensated light sum (error ~2u instead of ~N·u)
  *   HAS_ATTENUATION  some point light has c1 ≠ 0 or c2 ≠ 0; 0: the falloff is 1/c0,
  *                    a constant per light (no distance polynomial, no division per pixel)
- *   POINT_GUARD      some point light has c0 = 0; or, on the float lanes path, a 4·c1 or
- *                    16·c2 beyond float, or a light 2⁶⁴ or more from a pixel of the frame:
- *                    the selects of lights.h for d = 0 (and beyond the cap in float);
- *                    0: no select
+ *   POINT_GUARD      some point light has c0 = 0; or, on the float lanes path, a light
+ *                    2⁶⁴ or more from a pixel of the frame: the selects of lights.h for
+ *                    d = 0 (and beyond the cap in float); 0: no select
+ *   FALLOFF_ON_WEIGHTS  (lane kernel, lights.h) the weights take each light's falloff
+ *                    and the radiance stays bare: double weights, or a float loop whose
+ *                    every falloff stays ≤ 1.5 (c0 ≥ 0.7, c1, c2 ≥ 0)
  *   CULLING          point lights come from per-tile lists built by cull.cl, whose
  *                    dropped lights sum to at most the user's budget ε
  *                    (clphong/device/culling.py)

@@ -162,8 +162,8 @@ def test_a_light_at_a_pixel_adds_nothing_with_or_without_the_guard(path, c0, dev
     assert np.abs(rgb[5, 7] - reference.shade(alone, gb)[5, 7]).max() <= bound[5, 7].max()
 
 
-def _far_scene(x, flat):
-    lights = [dict(type="point", position=(x, 0.0, 1.0), intensity=1.0,
+def _far_scene(x, flat, position=None):
+    lights = [dict(type="point", position=position or (x, 0.0, 1.0), intensity=1.0,
                    attenuation=(1.0, 0.0, 0.0) if flat else (1.0, 0.0, 1.0)),
               dict(type="point", position=(1.0, 1.0, 2.0), intensity=1.0, attenuation=(1.0, 0.2, 0.3))]
     return make_scene(lights, model="blinn-phong", h=32.0), make_scene(lights[1:], model="blinn-phong", h=32.0)
@@ -195,11 +195,14 @@ def test_a_light_beyond_float_range_adds_nothing(path, x, flat, device):
 @pytest.mark.parametrize("path", ["float", "fast"])
 def test_without_the_far_guard_a_far_light_is_wrong(path, device, monkeypatch):
     """The far-light guard is needed: with frame.has_far_lights forced off, a light with
-    c1 = c2 = 0 at 1e30 (d²/16 = ∞, capped: l is garbage, the falloff 1/c0) changes the
-    frame that test_a_light_beyond_float_range_adds_nothing holds to the near light's."""
+    c1 = c2 = 0 at 1e30 straight above the floor (d²/16 = ∞, capped: l = (Δ/4)·2⁻⁶²·⁵ is
+    ~4e10 long, the falloff 1/c0) changes the frame, which with the guard is the near
+    light's alone (test_a_light_beyond_float_range_adds_nothing)."""
     import clphong.device.renderer as renderer
     gb = _flat()
-    scene, near_scene = _far_scene(1e30, True)
+    scene, near_scene = _far_scene(1e30, True, position=(0.0, 0.0, 1e30))
+    assert np.array_equal(Renderer(scene, path=path, device=device).render(gb).image,
+                          Renderer(near_scene, path=path, device=device).render(gb).image)
     monkeypatch.setattr(renderer, "has_far_lights", lambda frame, lights: False)
     res = Renderer(scene, path=path, device=device).render(gb)
     assert res.plan.defines["POINT_GUARD"] == 0
@@ -226,3 +229,38 @@ def test_far_lights_are_those_that_may_pass_the_cap():
     scene, _ = _far_scene(1.7e19, False)
     assert not has_far_lights(frame, pack_lights(scene, frame.origin))
     assert has_far_lights(wide, pack_lights(scene, wide.origin))
+
+
+def test_the_weights_take_the_falloff_only_where_it_cannot_overflow(device, monkeypatch):
+    """FALLOFF_ON_WEIGHTS (lights.h): R·(D·att·w_d + S·att·w_s) on the float path only where
+    every falloff stays ≤ 1.5. Here D = C·k_d = 2⁶²·2⁶² (both inside io/nonfinite.py's
+    limits) and a light with c0 = 0.01 just above the floor (att ≈ 80) and no green: the
+    plan keeps (att·R)·(D·w_d), whose green is 0·finite = 0; forced on, D·att·w_d
+    overflows and green is 0·∞ = NaN."""
+    import dataclasses
+
+    import clphong.device.renderer as renderer
+    from clphong.device.plan import make_plan
+    from clphong.tools.hardcases import make_gbuffer as mk
+    base = _flat()
+    big = np.float64(2.0 ** 62)
+    gb = mk(base.position.astype(np.float64), base.normal.astype(np.float64),
+            np.full(base.albedo.shape, big), maps={"k_d": np.full(base.albedo.shape[:2], big)})
+    lights = [dict(type="point", position=(1.0, 1.0, 0.05), color=(1.0, 0.0, 1.0), intensity=1.0,
+                   attenuation=(0.01, 0.0, 1.0))]
+    scene = make_scene(lights, model="blinn-phong", h=32.0)
+    tame = make_scene([dict(lights[0], attenuation=(1.0, 0.0, 1.0))], model="blinn-phong", h=32.0)
+    assert make_plan(scene, ["k_d"]).defines["FALLOFF_ON_WEIGHTS"] == 0
+    assert make_plan(tame, ["k_d"]).defines["FALLOFF_ON_WEIGHTS"] == 1
+    assert make_plan(scene, ["k_d"], fp64_directions=True, has_fp64=True).defines["FALLOFF_ON_WEIGHTS"] == 1
+    res = Renderer(scene, path="fast", device=device, nonfinite="pass").render(gb)
+    assert res.plan.defines["FALLOFF_ON_WEIGHTS"] == 0
+    assert not np.isnan(res.image).any() and np.all(res.image[..., 1] == res.image[0, 0, 1])
+    orig = renderer.make_plan
+
+    def forced(*a, **k):
+        p = orig(*a, **k)
+        return dataclasses.replace(p, defines={**p.defines, "FALLOFF_ON_WEIGHTS": 1})
+    monkeypatch.setattr(renderer, "make_plan", forced)
+    wrong = Renderer(scene, path="fast", device=device, nonfinite="pass").render(gb)
+    assert np.isnan(wrong.image[..., 1]).any()
