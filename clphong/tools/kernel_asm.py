@@ -4,12 +4,12 @@
 
 Builds the bench scene's shading kernel (:mod:`clphong.tools.bench`, 4 point
 lights: the same variant as any light count) in a fresh PoCL cache, disassembles
-PoCL's own ``shade.so`` with ``objdump``, and finds the lights loop (the
-smallest backward-jumping block of ``_pocl_kernel_shade`` with at least 30
-vector multiplies). It prints the instructions one light costs a work-item
-(LANES pixels), the stack references among them (spills), the calls (PoCL 3.0
-calls some builtins out of line, which spills every vector register), and the
-divisions and square roots. With ``--mca`` (``llvm-mca``, Debian's ``llvm``
+the program the bench frame used (its ``shade.so``, cut from PoCL's program binary)
+with ``objdump``, and finds the lights loop (the smallest backward-jumping block of
+``_pocl_kernel_shade`` with at least 30 vector multiplies). It prints the
+instructions one light costs a work-item (LANES pixels), the stack references among
+them (spills), the calls (PoCL 3.0 calls some builtins out of line, which spills every
+vector register), the divisions and square roots, and the double operations. With ``--mca`` (``llvm-mca``, Debian's ``llvm``
 package, the LLVM PoCL uses), the simulated cycles per light for ``--cpu`` and
 its bottleneck analysis: resource pressure per port against register
 dependencies (the critical path). Not a test; a tool for kernel work
@@ -19,7 +19,6 @@ dependencies (the critical path). Not a test; a tool for kernel work
 from __future__ import annotations
 
 import argparse
-import glob
 import os
 import re
 import shutil
@@ -70,12 +69,15 @@ def summary(loop: list[str]) -> dict:
     """Counts of one lights-loop iteration."""
     return {
         "instructions": sum(1 for t in loop if not t.startswith(("nop", "data16", "cs "))),
-        "stack_references": sum(1 for t in loop if "(%rsp)" in t),
+        # through the stack pointer, the frame pointer, or %rbx where LLVM realigns the
+        # frame (PoCL's 32-byte-aligned spill slots); the light records are indexed
+        "stack_references": sum(1 for t in loop if re.search(r"\(%r(?:sp|bp|bx)\)", t)),
         "calls": sum(1 for t in loop if t.startswith("call")),
         "divisions": sum(1 for t in loop if re.match(r"vdivp[sd]", t)),
         "square_roots": sum(1 for t in loop if re.match(r"vsqrtp[sd]", t)),
         "rsqrt_estimates": sum(1 for t in loop if re.match(r"vrsqrt(14)?p[sd]", t)),
         "conversions": sum(1 for t in loop if re.match(r"vcvt", t)),
+        "double_ops": sum(1 for t in loop if re.match(r"v\w+pd\b", t) and not t.startswith("vmov")),
     }
 
 
@@ -99,37 +101,66 @@ def run_mca(loop: list[str], cpu: str, iterations: int = 300) -> tuple[float, st
     return int(total.group(1)) / iterations, res.stdout
 
 
+def elf_in(blob: bytes) -> bytes:
+    """The one ELF object inside a PoCL program binary (its kernel's ``.so``): from its
+    magic to the end of its section header table, as the ELF64 header gives it."""
+    start = blob.find(b"\x7fELF")
+    if start < 0 or blob.find(b"\x7fELF", start + 4) >= 0:
+        raise ClphongError("the program's binary holds no single kernel object (not PoCL's CPU device?)")
+    head = blob[start:start + 64]
+    shoff = int.from_bytes(head[0x28:0x30], "little")
+    shentsize = int.from_bytes(head[0x3A:0x3C], "little")
+    shnum = int.from_bytes(head[0x3C:0x3E], "little")
+    return blob[start:start + shoff + shentsize * shnum]
+
+
+#: The child's script: the bench frame shaded once, then the very program that frame used
+#: (the renderer's own plan for it) written out as PoCL's binary.
+_CHILD = """
+import sys
+import pyopencl as cl
+from clphong.tools import bench
+from clphong.device.frame import has_far_lights, pack_lights
+from clphong.device.renderer import Renderer, prepare_frame
+o = dict(bench.PATHS[sys.argv[1]], device="pocl")
+if sys.argv[2] != "0":
+    o["lanes"] = int(sys.argv[2])
+r = Renderer(bench.bench_scene("wide", 4), **o)
+f = prepare_frame(bench.bench_gbuffer(128, 16), lanes=r.lanes)
+r.shade(f)
+far = has_far_lights(f, pack_lights(r.scene, f.origin))
+_, prog = r._plan_and_program(f.map_names, coverage=f.coverage, far=far)
+with open(sys.argv[3], "wb") as out:
+    out.write(prog.get_info(cl.program_info.BINARIES)[0])
+"""
+
+
 def build_and_disassemble(path: str = "accurate", lanes: int | None = None) -> str:
-    """Build the bench kernel for ``path`` in a temporary PoCL cache; its objdump text."""
+    """Build the bench kernel for ``path`` in a temporary PoCL cache; the objdump text of
+    the program the frame used. (Not the newest ``shade.so`` in the cache: the self-tests
+    build other variants, some after the frame's.)"""
     objdump = shutil.which("objdump")
     if objdump is None:
         raise ClphongError("objdump not found: install binutils")
     folder = tempfile.mkdtemp(prefix="clphong-asm-")
-    old = os.environ.get("POCL_CACHE_DIR")
     try:
-        # PoCL reads POCL_CACHE_DIR when it starts: this must be a fresh process
-        code = ("import sys; from clphong.tools import bench; "
-                "from clphong.device.renderer import Renderer, prepare_frame; "
-                f"o = dict(bench.PATHS[{path!r}], device='pocl'); "
-                + (f"o['lanes'] = {int(lanes)}; " if lanes else "")
-                + "r = Renderer(bench.bench_scene('wide', 4), **o); "
-                "r.shade(prepare_frame(bench.bench_gbuffer(128, 16), lanes=r.lanes))")
+        binary = os.path.join(folder, "program.poclbin")
+        # PoCL reads POCL_CACHE_DIR when it starts, so this runs in a fresh process;
         # clphong's own cache would hand back a built binary: PoCL would compile nothing
         env = dict(os.environ, POCL_CACHE_DIR=folder, CLPHONG_CACHE_DIR=os.path.join(folder, "clphong"))
-        res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+        res = subprocess.run([sys.executable, "-c", _CHILD, path, str(int(lanes or 0)), binary],
+                             env=env, capture_output=True, text=True)
         if res.returncode != 0:
             raise ClphongError(f"building the kernel failed: {res.stderr.strip().splitlines()[-1]}")
-        # the self-tests build their own variants first: the frame's is the newest
-        libs = sorted(glob.glob(os.path.join(folder, "**", "shade.so"), recursive=True),
-                      key=os.path.getmtime, reverse=True)
-        if not libs:
-            raise ClphongError(f"PoCL left no shade.so in {folder} (not a PoCL CPU device?)")
-        return subprocess.run([objdump, "-d", "--no-show-raw-insn", libs[0]],
+        with open(binary, "rb") as fh:
+            so = elf_in(fh.read())
+        lib = os.path.join(folder, "shade.so")
+        with open(lib, "wb") as fh:
+            fh.write(so)
+        return subprocess.run([objdump, "-d", "--no-show-raw-insn", lib],
                               capture_output=True, text=True, check=True).stdout
     finally:
         shutil.rmtree(folder, ignore_errors=True)
-        if old is not None:
-            os.environ["POCL_CACHE_DIR"] = old
 
 
 def main(argv=None) -> int:
