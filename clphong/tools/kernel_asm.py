@@ -32,13 +32,18 @@ from ..core.errors import ClphongError
 MIN_MULTIPLIES = 30
 
 
-def parse_objdump(text: str, function: str = "_pocl_kernel_shade") -> list[tuple[int, str]]:
-    """(address, instruction) of ``function`` in ``objdump -d --no-show-raw-insn`` output."""
+#: The shading kernel's function: PoCL's (``shade.so``), then Intel's runtime's (its object).
+KERNEL_FUNCTIONS = ("_pocl_kernel_shade", "shade")
+
+
+def parse_objdump(text: str, function: str | None = None) -> list[tuple[int, str]]:
+    """(address, instruction) of ``function`` (the first of :data:`KERNEL_FUNCTIONS` found
+    when None) in ``objdump -d --no-show-raw-insn`` output."""
     lines = text.splitlines()
-    try:
-        start = next(i for i, ln in enumerate(lines) if ln.endswith(f"<{function}>:"))
-    except StopIteration:
-        raise ClphongError(f"no function {function} in the disassembly") from None
+    names = (function,) if function else KERNEL_FUNCTIONS
+    start = next((i for name in names for i, ln in enumerate(lines) if ln.endswith(f"<{name}>:")), None)
+    if start is None:
+        raise ClphongError(f"no function {' or '.join(names)} in the disassembly")
     out = []
     for ln in lines[start + 1:]:
         if ln.endswith(">:"):
@@ -46,6 +51,29 @@ def parse_objdump(text: str, function: str = "_pocl_kernel_shade") -> list[tuple
         m = re.match(r"\s*([0-9a-f]+):\s+(.*)$", ln)
         if m:
             out.append((int(m.group(1), 16), m.group(2).split("#")[0].strip()))
+    return out
+
+
+def parse_listing(text: str) -> list[tuple[int, str]]:
+    """(index, instruction) of an assembler listing with labels (LLVM's ``.s``, as numba's
+    ``NUMBA_DUMP_ASSEMBLY`` prints it): directives and comments dropped, and each jump to
+    a label rewritten as a jump to its instruction's index (hex), as objdump gives it."""
+    instructions, labels = [], {}
+    for ln in text.splitlines():
+        t = ln.split("#")[0].strip()
+        m = re.match(r"^([.\w$]+):", t)
+        if m:
+            labels[m.group(1)] = len(instructions)
+            t = t[m.end():].strip()
+        if not t or t.startswith(".") or t.startswith(("=", "-")):
+            continue
+        instructions.append(" ".join(t.split()))
+    out = []
+    for i, t in enumerate(instructions):
+        m = re.match(r"(j\w+)\s+([.\w$]+)$", t)
+        if m and m.group(2) in labels:
+            t = f"{m.group(1)} {labels[m.group(2)]:x}"
+        out.append((i, t))
     return out
 
 
@@ -101,6 +129,36 @@ def run_mca(loop: list[str], cpu: str, iterations: int = 300) -> tuple[float, st
     return int(total.group(1)) / iterations, res.stdout
 
 
+def pressure(report: str) -> list[tuple[str, float]]:
+    """llvm-mca's resource pressure per iteration (cycles each resource is busy a light),
+    busiest first: the busiest one bounds the cycles a light from below, on its model."""
+    names = re.findall(r"^\[([0-9.]+)\]\s+-\s+(\S+)", report, re.M)
+    at = report.find("Resource pressure per iteration:")
+    if at < 0 or not names:
+        return []
+    rows = report[at:].splitlines()
+    values = rows[2].split() if len(rows) > 2 else []
+    out = [(name, float(v)) for (_, name), v in zip(names, values) if v != "-"]
+    return sorted(out, key=lambda nv: -nv[1])
+
+
+def section(blob: bytes, name: str) -> bytes:
+    """The contents of section ``name`` of an ELF64 file (Intel's CPU runtime ships its
+    program binary as one: ``.ocl.ir``, ``.ocl.meta``, ``.ocl.obj`` with the x86 object)."""
+    if blob[:4] != b"\x7fELF":
+        raise ClphongError("the program's binary is not an ELF file (not Intel's CPU runtime?)")
+    u = lambda at, n: int.from_bytes(blob[at:at + n], "little")  # noqa: E731
+    shoff, shentsize, shnum, shstrndx = u(0x28, 8), u(0x3A, 2), u(0x3C, 2), u(0x3E, 2)
+    heads = [shoff + k * shentsize for k in range(shnum)]
+    strtab = u(heads[shstrndx] + 0x18, 8) if shstrndx < shnum else 0
+    for h in heads:
+        at = strtab + u(h, 4)
+        if blob[at:blob.index(b"\0", at)].decode("latin-1") == name:
+            off, size = u(h + 0x18, 8), u(h + 0x20, 8)
+            return blob[off:off + size]
+    raise ClphongError(f"no section {name} in the program's binary")
+
+
 def elf_in(blob: bytes) -> bytes:
     """The one ELF object inside a PoCL program binary (its kernel's ``.so``): from its
     magic to the end of its section header table, as the ELF64 header gives it."""
@@ -115,14 +173,14 @@ def elf_in(blob: bytes) -> bytes:
 
 
 #: The child's script: the bench frame shaded once, then the very program that frame used
-#: (the renderer's own plan for it) written out as PoCL's binary.
+#: (the renderer's own plan for it) written out as the platform's binary.
 _CHILD = """
 import sys
 import pyopencl as cl
 from clphong.tools import bench
 from clphong.device.frame import has_far_lights, pack_lights
 from clphong.device.renderer import Renderer, prepare_frame
-o = dict(bench.PATHS[sys.argv[1]], device="pocl")
+o = dict(bench.PATHS[sys.argv[1]], device=sys.argv[4])
 if sys.argv[2] != "0":
     o["lanes"] = int(sys.argv[2])
 r = Renderer(bench.bench_scene("wide", 4), **o)
@@ -135,52 +193,86 @@ with open(sys.argv[3], "wb") as out:
 """
 
 
-def build_and_disassemble(path: str = "accurate", lanes: int | None = None) -> str:
-    """Build the bench kernel for ``path`` in a temporary PoCL cache; the objdump text of
-    the program the frame used. (Not the newest ``shade.so`` in the cache: the self-tests
-    build other variants, some after the frame's.)"""
+#: The numba peer's child: its loop compiled for the bench scene (the same exponent).
+_PEER_CHILD = """
+from clphong.tools.bench_scenes import bench_gbuffer, bench_scene
+from clphong.tools.numba_peer import NumbaPeer
+NumbaPeer(bench_scene("wide", 4), bench_gbuffer(128, 16))
+"""
+
+
+def build_and_disassemble(path: str = "accurate", lanes: int | None = None,
+                          device: str = "pocl") -> str:
+    """Build the bench kernel for ``path`` on ``device`` (``pocl`` or ``intel``) in fresh
+    caches; the objdump text of the program the frame used. (Not the newest ``shade.so``
+    in PoCL's cache: the self-tests build other variants, some after the frame's.) PoCL's
+    binary holds the kernel's ``.so``; Intel's runtime's is an ELF file whose ``.ocl.obj``
+    section is the kernel's x86 object."""
     objdump = shutil.which("objdump")
     if objdump is None:
         raise ClphongError("objdump not found: install binutils")
     folder = tempfile.mkdtemp(prefix="clphong-asm-")
     try:
-        binary = os.path.join(folder, "program.poclbin")
+        binary = os.path.join(folder, "program.bin")
         # PoCL reads POCL_CACHE_DIR when it starts, so this runs in a fresh process;
         # clphong's own cache would hand back a built binary: PoCL would compile nothing
         env = dict(os.environ, POCL_CACHE_DIR=folder, CLPHONG_CACHE_DIR=os.path.join(folder, "clphong"))
-        res = subprocess.run([sys.executable, "-c", _CHILD, path, str(int(lanes or 0)), binary],
+        res = subprocess.run([sys.executable, "-c", _CHILD, path, str(int(lanes or 0)), binary, device],
                              env=env, capture_output=True, text=True)
         if res.returncode != 0:
             raise ClphongError(f"building the kernel failed: {res.stderr.strip().splitlines()[-1]}")
         with open(binary, "rb") as fh:
-            so = elf_in(fh.read())
-        lib = os.path.join(folder, "shade.so")
+            blob = fh.read()
+        obj = section(blob, ".ocl.obj") if blob[:4] == b"\x7fELF" else elf_in(blob)
+        lib = os.path.join(folder, "shade.o")
         with open(lib, "wb") as fh:
-            fh.write(so)
+            fh.write(obj)
         return subprocess.run([objdump, "-d", "--no-show-raw-insn", lib],
                               capture_output=True, text=True, check=True).stdout
     finally:
         shutil.rmtree(folder, ignore_errors=True)
 
 
+def peer_listing() -> str:
+    """The numba peer's assembly (``NUMBA_DUMP_ASSEMBLY``) for the bench scene, from a
+    child process."""
+    env = dict(os.environ, NUMBA_DUMP_ASSEMBLY="1")
+    res = subprocess.run([sys.executable, "-c", _PEER_CHILD], env=env, capture_output=True, text=True)
+    if res.returncode != 0:
+        last = res.stderr.strip().splitlines()[-1] if res.stderr.strip() else res.returncode
+        raise ClphongError(f"compiling the numba peer failed (pip install 'clphong[bench]'): {last}")
+    return res.stdout
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m clphong.tools.kernel_asm", description=__doc__.split("\n\n")[0])
     ap.add_argument("--path", default="accurate", help="a bench path (clphong.tools.bench.PATHS)")
+    ap.add_argument("--device", default="pocl", choices=("pocl", "intel"),
+                    help="the platform whose compiler is read (default: pocl)")
+    ap.add_argument("--peer", action="store_true", help="the numba peer's loop instead (8 or 16 px a light)")
     ap.add_argument("--lanes", type=int, default=None, help="pixels per work-item (default: the device's)")
     ap.add_argument("--cpu", default="icelake-server", help="llvm-mca's CPU model (e.g. znver3)")
     ap.add_argument("--mca", action="store_true", help="simulate the loop with llvm-mca")
     ap.add_argument("--show", action="store_true", help="print the loop's instructions")
     args = ap.parse_args(argv)
     try:
-        loop = lights_loop(parse_objdump(build_and_disassemble(args.path, args.lanes)))
+        if args.peer:
+            what = "numba peer"
+            loop = lights_loop(parse_listing(peer_listing()))
+        else:
+            what = f"{args.path} on {args.device}"
+            loop = lights_loop(parse_objdump(build_and_disassemble(args.path, args.lanes, args.device)))
         s = summary(loop)
-        print(f"{args.path}: one light per work-item: " + ", ".join(f"{k.replace('_', ' ')} {v}"
-                                                                   for k, v in s.items()))
+        print(f"{what}: one light per work-item: " + ", ".join(f"{k.replace('_', ' ')} {v}"
+                                                             for k, v in s.items()))
         if args.show:
             print("\n".join(loop))
         if args.mca:
             cycles, report = run_mca(loop, args.cpu)
             print(f"llvm-mca -mcpu={args.cpu}: {cycles:.1f} cycles a light")
+            busiest = pressure(report)[:4]
+            if busiest:
+                print("busiest resources, cycles a light: " + ", ".join(f"{n} {v:.1f}" for n, v in busiest))
             head = report[report.find("Cycles with backend pressure"):]
             print(head[:head.find("Critical sequence")].rstrip())
     except ClphongError as exc:
