@@ -381,8 +381,11 @@ class Runtime:
         with one Newton step (``plan``'s RSQRT_NATIVE): on the platforms where it was
         measured faster (:data:`NATIVE_RSQRT_KINDS`: Intel's CPU runtime inlines the
         hardware estimate where its builtin is a call, 1.06x the fast path on Zen 5),
-        and only at a width whose self-test measured it within the error model's 2 ulp
-        (Zen 5: 1.96 at 16 lanes; 2.39 at 1 and 8, whose estimate is coarser)."""
+        and only at a width whose self-test measured it within the error model's 2 ulp.
+        The step's form (clphong.h) reads 1.74 ulp on Zen 3 at every width (its 12-bit
+        vrsqrtps), where the textbook form read 2.39 and kept the builtin's call: the
+        fast path 1.23-1.26x there; the textbook form read 1.96 at 16 lanes on Zen 5
+        and 2.39 at 1 and 8."""
         ulp = self.native_rsqrt_ulps.get(lanes)
         return self.kind in NATIVE_RSQRT_KINDS and ulp is not None and ulp <= NATIVE_RSQRT_MAX_ULP
 

@@ -487,8 +487,9 @@ def test_native_rsqrt_is_taken_only_where_measured_within_two_ulp(device, lanes)
     """RSQRT_NATIVE (native_rsqrt and one Newton step, float): the self-test's measure
     (clphong.device.peak.measure_native_rsqrt_ulp) agrees with this harness over the same
     inputs, and the plan takes the guess only within 2 ulp, on the platforms listed.
-    Zen 5 on Intel's runtime measured 1.96 ulp at 16 lanes and 2.39 at 1 and 8: one
-    width takes it, the others keep the builtin."""
+    Zen 5 on Intel's runtime measured the textbook step's 1.96 ulp at 16 lanes and 2.39
+    at 1 and 8: one width took it, the others kept the builtin; Zen 3 measures this
+    step's 1.74 at every width."""
     from clphong.device.peak import NATIVE_RSQRT_MAX_ULP, measure_native_rsqrt_ulp, native_rsqrt_inputs
     from clphong.device.runtime import NATIVE_RSQRT_KINDS
     from clphong.device.selection import get_runtime
@@ -516,12 +517,14 @@ def test_native_rsqrt_is_taken_only_where_measured_within_two_ulp(device, lanes)
 
 
 @pytest.mark.parametrize("lanes", [1, 16])
-def test_native_rsqrt_step_has_the_bits_of_the_halved_form(device, lanes):
-    """RSQRT_NATIVE's Newton step (y/2)·(3 − (x·y)·y) (clphong.h) gives the bits of the
-    textbook y·(1.5 − (x/2)·y·y) wherever x/2 is normal: the same roundings, each scaled
-    by an exact 2. So the fast path's pixels did not move when the rewrite let
-    rsqrt_dist drop its rescaling of [FLT_MIN, 2·FLT_MIN) (1.10x on Zen 4, Intel's
-    runtime). A step that rounds differently fails here."""
+def test_native_rsqrt_step_errs_less_than_the_textbook_form(device, lanes):
+    """RSQRT_NATIVE's Newton step y + (y/2)·e, e = 1 − (x·y)·y in one FMA (clphong.h),
+    against the textbook (y/2)·(3 − (x·y)·y) from the same native_rsqrt guess, both
+    against float64 over every fifth float of [1, 4) and a spread to 3e38: the textbook
+    form rounds 3 − (x·y)·y ≈ 2 to float, an error of y's size, where this one rounds a
+    small correction (Zen 3, Intel's runtime: 1.74 against 2.39 ulp; PoCL 0.87 against
+    1.53). The plan takes the step only within 2 ulp, and on Zen 3 only this form is. A
+    step written back in the textbook form fails here."""
     skip_unless_lanes(lanes, device)
     binade = np.arange(0x3F800000, 0x40800000, 5, dtype=np.uint32).view(np.float32)
     spread = np.geomspace(4 * np.finfo(np.float32).tiny, 3e38, 100_001).astype(np.float32)
@@ -529,10 +532,16 @@ def test_native_rsqrt_step_has_the_bits_of_the_halved_form(device, lanes):
     opts = ["-DDIRECTIONS_FP64=0", "-cl-denorms-are-zero", "-DRSQRT_GUESS_KIND=4"]
     ours = _rsqrt_dir_on_device(x, "float", opts, device, fn="rsqrt_dist", lanes=lanes)
     halved = _rsqrt_dir_on_device(
-        x, "float", [*opts, "-DHALVED(x)=(native_rsqrt(x)*(1.5f-((0.5f*(x))*native_rsqrt(x))*native_rsqrt(x)))"],
+        x, "float", [*opts, "-DHALVED(x)=((0.5f*native_rsqrt(x))*(3.0f-((x)*native_rsqrt(x))*native_rsqrt(x)))"],
         device, fn="HALVED", lanes=lanes)
-    assert np.array_equal(ours.view(np.uint32), halved.view(np.uint32)), \
-        int((ours != halved).sum())
+    ref = 1.0 / np.sqrt(x.astype(np.float64))
+    ulp = 2.0 ** (np.floor(np.log2(ref)) - 23)
+    err_ours = float((np.abs(ours - ref) / ulp).max())
+    err_halved = float((np.abs(halved - ref) / ulp).max())
+    if err_halved <= 1.0:
+        pytest.skip(f"native_rsqrt here leaves the textbook step at {err_halved:.3g} ulp: "
+                    "nothing for the form to gain")
+    assert err_ours < err_halved and err_ours <= 2.0, (err_ours, err_halved)
 
 
 def _fake_runtime(kind, **measures):
