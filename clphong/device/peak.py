@@ -150,14 +150,14 @@ def measure_builtin_rsqrt_ulp(runtime, lanes: int | None = None, chunk: int = 1 
 
 
 def measure_rsqrt_ulp(runtime, lanes: int | None = None, chunk: int = 1 << 22, *,
-                      guess: int, extra: dict | None = None) -> float:
+                      guess: int) -> float:
     """The largest error, in float ulp, of rsqrt_dist with the first guess ``guess``
     (clphong.h's RSQRT_GUESS_KIND) over :func:`native_rsqrt_inputs`, 0 and +∞."""
     import pyopencl as cl
 
     lanes = max(lanes or runtime.lanes, 1)
     defines = {"LANES": lanes, "RSQRT_GUESS_KIND": guess, "DIRECTIONS_FP64": 0, "SUM_FP64": 0,
-               "SPEC_INT_POW": 0, "SPEC_COS": 0, "POW_FP32": 0, "WEIGHTS_FP64": 0, **(extra or {})}
+               "SPEC_INT_POW": 0, "SPEC_COS": 0, "POW_FP32": 0, "WEIGHTS_FP64": 0}
     prog = runtime.program("rsqrt_probe.cl", defines)
     x_all = np.concatenate([np.float32([0.0, np.inf]), native_rsqrt_inputs()])
     chunk -= chunk % lanes

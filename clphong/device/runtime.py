@@ -385,7 +385,9 @@ class Runtime:
         The step's form (clphong.h) reads 1.74 ulp on Zen 3 at every width (its 12-bit
         vrsqrtps), where the textbook form read 2.39 and kept the builtin's call: the
         fast path 1.23-1.26x there; the textbook form read 1.96 at 16 lanes on Zen 5
-        and 2.39 at 1 and 8."""
+        and 2.39 at 1 and 8. The new form is not measured on Zen 4 or 5: where it reads
+        within 2 ulp at 8 or 1 lanes too, those widths now take it instead of the
+        builtin."""
         ulp = self.native_rsqrt_ulps.get(lanes)
         return self.kind in NATIVE_RSQRT_KINDS and ulp is not None and ulp <= NATIVE_RSQRT_MAX_ULP
 

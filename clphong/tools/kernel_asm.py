@@ -4,9 +4,9 @@
 
 Builds the bench scene's shading kernel (:mod:`clphong.tools.bench`, 4 point
 lights: the same variant as any light count) in a fresh PoCL cache, disassembles
-the program the bench frame used (its ``shade.so``, cut from PoCL's program binary)
-with ``objdump``, and finds the lights loop (the smallest backward-jumping block of
-``_pocl_kernel_shade`` with at least 30 vector multiplies). It prints the
+the program the bench frame used (its kernel object, cut from the platform's program
+binary) with ``objdump``, and finds the lights loop (the smallest backward-jumping
+block of the kernel's function with at least 30 vector multiplies). It prints the
 instructions one light costs a work-item (LANES pixels), the stack references among
 them (spills), the calls (PoCL 3.0 calls some builtins out of line, which spills every
 vector register), the divisions and square roots, and the double operations. With ``--mca`` (``llvm-mca``, Debian's ``llvm``
@@ -57,23 +57,38 @@ def parse_objdump(text: str, function: str | None = None) -> list[tuple[int, str
 def parse_listing(text: str) -> list[tuple[int, str]]:
     """(index, instruction) of an assembler listing with labels (LLVM's ``.s``, as numba's
     ``NUMBA_DUMP_ASSEMBLY`` prints it): directives and comments dropped, and each jump to
-    a label rewritten as a jump to its instruction's index (hex), as objdump gives it."""
-    instructions, labels = [], {}
+    a label rewritten as a jump to its instruction's index (hex), as objdump gives it.
+    Labels are resolved within their own module: numba prints one listing per module,
+    between banner lines of ``-`` or ``=``, and LLVM's local labels (``.LBB0_3``)
+    repeat from one module to the next."""
+    out: list[tuple[int, str]] = []
+    module: list[tuple[int, str]] = []
+    labels: dict[str, int] = {}
+
+    def close():
+        for i, t in module:
+            m = re.match(r"(j\w+)\s+([.\w$]+)$", t)
+            if m and m.group(2) in labels:
+                t = f"{m.group(1)} {labels[m.group(2)]:x}"
+            out.append((i, t))
+        module.clear()
+        labels.clear()
+
+    n = 0
     for ln in text.splitlines():
         t = ln.split("#")[0].strip()
+        if t.startswith(("=", "-")):          # a banner: the next module's listing
+            close()
+            continue
         m = re.match(r"^([.\w$]+):", t)
         if m:
-            labels[m.group(1)] = len(instructions)
+            labels[m.group(1)] = n
             t = t[m.end():].strip()
-        if not t or t.startswith(".") or t.startswith(("=", "-")):
+        if not t or t.startswith("."):
             continue
-        instructions.append(" ".join(t.split()))
-    out = []
-    for i, t in enumerate(instructions):
-        m = re.match(r"(j\w+)\s+([.\w$]+)$", t)
-        if m and m.group(2) in labels:
-            t = f"{m.group(1)} {labels[m.group(2)]:x}"
-        out.append((i, t))
+        module.append((n, " ".join(t.split())))
+        n += 1
+    close()
     return out
 
 
@@ -82,7 +97,7 @@ def lights_loop(instructions: list[tuple[int, str]]) -> list[str]:
     that holds at least :data:`MIN_MULTIPLIES` vector multiplies or FMAs."""
     loops = []
     for addr, text in instructions:
-        m = re.match(r"j\w+\s+([0-9a-f]+)", text)
+        m = re.match(r"j\w+\s+([0-9a-f]+)(?:\s|$)", text)
         if m and int(m.group(1), 16) < addr:
             target = int(m.group(1), 16)
             loops.append([t for a, t in instructions if target <= a <= addr])
@@ -138,7 +153,10 @@ def pressure(report: str) -> list[tuple[str, float]]:
         return []
     rows = report[at:].splitlines()
     values = rows[2].split() if len(rows) > 2 else []
-    out = [(name, float(v)) for (_, name), v in zip(names, values) if v != "-"]
+    # a resource with several units (Zn3FPP45 twice) is named by its index too
+    count = {name: sum(1 for _, n in names if n == name) for _, name in names}
+    out = [(name if count[name] == 1 else f"{name}[{index}]", float(v))
+           for (index, name), v in zip(names, values) if v != "-"]
     return sorted(out, key=lambda nv: -nv[1])
 
 
@@ -147,14 +165,23 @@ def section(blob: bytes, name: str) -> bytes:
     program binary as one: ``.ocl.ir``, ``.ocl.meta``, ``.ocl.obj`` with the x86 object)."""
     if blob[:4] != b"\x7fELF":
         raise ClphongError("the program's binary is not an ELF file (not Intel's CPU runtime?)")
+    if blob[4:6] != b"\x02\x01":
+        raise ClphongError("the program's binary is not a 64-bit little-endian ELF file")
     u = lambda at, n: int.from_bytes(blob[at:at + n], "little")  # noqa: E731
     shoff, shentsize, shnum, shstrndx = u(0x28, 8), u(0x3A, 2), u(0x3C, 2), u(0x3E, 2)
     heads = [shoff + k * shentsize for k in range(shnum)]
-    strtab = u(heads[shstrndx] + 0x18, 8) if shstrndx < shnum else 0
+    if not shnum or shstrndx >= shnum or heads[-1] + 0x28 > len(blob):
+        raise ClphongError("the program's binary has no readable section table")
+    strtab = u(heads[shstrndx] + 0x18, 8)
     for h in heads:
         at = strtab + u(h, 4)
-        if blob[at:blob.index(b"\0", at)].decode("latin-1") == name:
+        end = blob.find(b"\0", at)
+        if end < 0:
+            raise ClphongError("the program's binary has a section name past its end")
+        if blob[at:end].decode("latin-1") == name:
             off, size = u(h + 0x18, 8), u(h + 0x20, 8)
+            if off + size > len(blob):
+                raise ClphongError(f"the program's section {name} runs past its end")
             return blob[off:off + size]
     raise ClphongError(f"no section {name} in the program's binary")
 
@@ -169,7 +196,10 @@ def elf_in(blob: bytes) -> bytes:
     shoff = int.from_bytes(head[0x28:0x30], "little")
     shentsize = int.from_bytes(head[0x3A:0x3C], "little")
     shnum = int.from_bytes(head[0x3C:0x3E], "little")
-    return blob[start:start + shoff + shentsize * shnum]
+    end = shoff + shentsize * shnum
+    if not shoff or not 64 <= end <= len(blob) - start:
+        raise ClphongError("the kernel object in the program's binary is cut short")
+    return blob[start:start + end]
 
 
 #: The child's script: the bench frame shaded once, then the very program that frame used
@@ -184,6 +214,9 @@ o = dict(bench.PATHS[sys.argv[1]], device=sys.argv[4])
 if sys.argv[2] != "0":
     o["lanes"] = int(sys.argv[2])
 r = Renderer(bench.bench_scene("wide", 4), **o)
+want = {"pocl": "pocl", "intel": "intel-cpu"}[sys.argv[4]]
+if r.runtime.kind != want:
+    sys.exit(f"--device {sys.argv[4]} matched a {r.runtime.kind} device, not {want}")
 f = prepare_frame(bench.bench_gbuffer(128, 16), lanes=r.lanes)
 r.shade(f)
 far = has_far_lights(f, pack_lights(r.scene, f.origin))
@@ -220,15 +253,18 @@ def build_and_disassemble(path: str = "accurate", lanes: int | None = None,
         res = subprocess.run([sys.executable, "-c", _CHILD, path, str(int(lanes or 0)), binary, device],
                              env=env, capture_output=True, text=True)
         if res.returncode != 0:
-            raise ClphongError(f"building the kernel failed: {res.stderr.strip().splitlines()[-1]}")
+            last = res.stderr.strip().splitlines()[-1] if res.stderr.strip() else f"exit {res.returncode}"
+            raise ClphongError(f"building the kernel failed: {last}")
         with open(binary, "rb") as fh:
             blob = fh.read()
         obj = section(blob, ".ocl.obj") if blob[:4] == b"\x7fELF" else elf_in(blob)
         lib = os.path.join(folder, "shade.o")
         with open(lib, "wb") as fh:
             fh.write(obj)
-        return subprocess.run([objdump, "-d", "--no-show-raw-insn", lib],
-                              capture_output=True, text=True, check=True).stdout
+        res = subprocess.run([objdump, "-d", "--no-show-raw-insn", lib], capture_output=True, text=True)
+        if res.returncode != 0:
+            raise ClphongError(f"objdump could not read the kernel object: {res.stderr.strip()[:200]}")
+        return res.stdout
     finally:
         shutil.rmtree(folder, ignore_errors=True)
 
@@ -239,7 +275,7 @@ def peer_listing() -> str:
     env = dict(os.environ, NUMBA_DUMP_ASSEMBLY="1")
     res = subprocess.run([sys.executable, "-c", _PEER_CHILD], env=env, capture_output=True, text=True)
     if res.returncode != 0:
-        last = res.stderr.strip().splitlines()[-1] if res.stderr.strip() else res.returncode
+        last = res.stderr.strip().splitlines()[-1] if res.stderr.strip() else f"exit {res.returncode}"
         raise ClphongError(f"compiling the numba peer failed (pip install 'clphong[bench]'): {last}")
     return res.stdout
 
@@ -249,7 +285,8 @@ def main(argv=None) -> int:
     ap.add_argument("--path", default="accurate", help="a bench path (clphong.tools.bench.PATHS)")
     ap.add_argument("--device", default="pocl", choices=("pocl", "intel"),
                     help="the platform whose compiler is read (default: pocl)")
-    ap.add_argument("--peer", action="store_true", help="the numba peer's loop instead (8 or 16 px a light)")
+    ap.add_argument("--peer", action="store_true",
+                    help="the numba peer's loop instead (8 px a light; --path, --lanes and --device do not apply)")
     ap.add_argument("--lanes", type=int, default=None, help="pixels per work-item (default: the device's)")
     ap.add_argument("--cpu", default="icelake-server", help="llvm-mca's CPU model (e.g. znver3)")
     ap.add_argument("--mca", action="store_true", help="simulate the loop with llvm-mca")

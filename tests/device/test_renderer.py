@@ -523,8 +523,9 @@ def test_native_rsqrt_step_errs_less_than_the_textbook_form(device, lanes):
     against float64 over every fifth float of [1, 4) and a spread to 3e38: the textbook
     form rounds 3 − (x·y)·y ≈ 2 to float, an error of y's size, where this one rounds a
     small correction (Zen 3, Intel's runtime: 1.74 against 2.39 ulp; PoCL 0.87 against
-    1.53). The plan takes the step only within 2 ulp, and on Zen 3 only this form is. A
-    step written back in the textbook form fails here."""
+    1.53). The plan takes the step only within 2 ulp (the self-test's measure, tested
+    above), and on Zen 3 only this form is. A step written back in the textbook form
+    fails here."""
     skip_unless_lanes(lanes, device)
     binade = np.arange(0x3F800000, 0x40800000, 5, dtype=np.uint32).view(np.float32)
     spread = np.geomspace(4 * np.finfo(np.float32).tiny, 3e38, 100_001).astype(np.float32)
@@ -541,7 +542,7 @@ def test_native_rsqrt_step_errs_less_than_the_textbook_form(device, lanes):
     if err_halved <= 1.0:
         pytest.skip(f"native_rsqrt here leaves the textbook step at {err_halved:.3g} ulp: "
                     "nothing for the form to gain")
-    assert err_ours < err_halved and err_ours <= 2.0, (err_ours, err_halved)
+    assert err_ours < err_halved, (err_ours, err_halved)
 
 
 def _fake_runtime(kind, **measures):

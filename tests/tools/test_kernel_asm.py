@@ -61,6 +61,8 @@ def test_the_kernel_object_is_cut_from_the_program_binary_at_its_section_table_e
         kernel_asm.elf_in(b"poclbin\x00 nothing")
     with pytest.raises(ClphongError, match="no single kernel object"):
         kernel_asm.elf_in(blob + elf)
+    with pytest.raises(ClphongError, match="cut short"):
+        kernel_asm.elf_in(b"poclbin\x00" + elf[:150])
 
 
 def _elf_with_sections(sections: dict[str, bytes]) -> bytes:
@@ -82,7 +84,7 @@ def _elf_with_sections(sections: dict[str, bytes]) -> bytes:
         heads.append(bytes(h))
         name_at += len(n) + 1
     head = bytearray(64)
-    head[:4] = b"\x7fELF"
+    head[:6] = b"\x7fELF\x02\x01"                 # ELF64, little-endian
     head[0x28:0x30] = at.to_bytes(8, "little")
     head[0x3A:0x3C] = (64).to_bytes(2, "little")
     head[0x3C:0x3E] = len(heads).to_bytes(2, "little")
@@ -98,6 +100,10 @@ def test_intels_kernel_object_is_its_binarys_ocl_obj_section():
         kernel_asm.section(blob, ".ocl.meta")
     with pytest.raises(ClphongError, match="not an ELF file"):
         kernel_asm.section(b"poclbin\0", ".ocl.obj")
+    with pytest.raises(ClphongError, match="64-bit little-endian"):
+        kernel_asm.section(blob[:4] + b"\x01" + blob[5:], ".ocl.obj")
+    with pytest.raises(ClphongError, match="no readable section table"):
+        kernel_asm.section(blob[:-40], ".ocl.obj")
 
 
 LISTING = "\n".join([
@@ -113,6 +119,25 @@ def test_an_assembler_listing_has_its_jumps_turned_to_addresses():
     assert ins[33] == (33, "jne 1")
     loop = kernel_asm.lights_loop(ins)
     assert len(loop) == 33 and loop[0].startswith("vfmadd") and loop[-1] == "jne 1"
+
+
+def test_each_modules_labels_are_its_own():
+    """numba prints a listing per module between banners, and LLVM's local labels repeat
+    across them: the first module's loop stays a backward jump to its own label."""
+    banner = "-" * 20 + "ASSEMBLY nrt" + "-" * 20
+    other = "\n".join(["\t.text", ".LBB0_3:", "\tvaddps %ymm0, %ymm0, %ymm0", "\tjne .LBB0_3"])
+    ins = kernel_asm.parse_listing(LISTING + "\n" + banner + "\n" + other)
+    assert ins[33] == (33, "jne 1")                 # not the second module's .LBB0_3
+    assert ins[-1] == (len(ins) - 1, f"jne {len(ins) - 2:x}")
+    loop = kernel_asm.lights_loop(ins)
+    assert len(loop) == 33
+
+
+def test_a_jump_to_a_symbol_is_not_an_address():
+    """`jmp cfunc` does not read as a jump to 0xcf (a false backward loop)."""
+    ins = [(0x1000 + i, "vmulps %ymm0, %ymm0, %ymm0") for i in range(40)] + [(0x2000, "jmp cfunc")]
+    with pytest.raises(ClphongError, match="no lights loop"):
+        kernel_asm.lights_loop(ins)
 
 
 def test_the_busiest_resources_come_first():
