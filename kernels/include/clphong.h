@@ -240,17 +240,17 @@ typedef floatL dirL;
 inline dirL rsqrt_dir(dirL x) { return rsqrt(x); }
 #elif RSQRT_GUESS_KIND == 4
 /* native_rsqrt's guess y and one Newton step written as y + (y/2)·e, e = 1 − (x·y)·y
- * with the bracket in one fused multiply-add: e is small (|e| ≤ 7.3e-4 from a 12-bit
- * estimate, ≤ 1.5·2⁻¹²·2), so the step adds a small correction to y and rounds once
- * more; what remains is Newton's own ≈1.5·ε² for the estimate's error ε, and about
- * 0.2 ulp from rounding x·y. The textbook (y/2)·(3 − (x·y)·y) also rounds the bracket,
- * ≈ 2, to float, and the product after it: 2.39 ulp against this form's 1.74 over the
+ * with the bracket in one fused multiply-add: e is small (|e| ≈ 2ε ≤ 7.3e-4 for a
+ * 12-bit estimate's relative error ε ≤ 1.5·2⁻¹²), so the step adds a small correction
+ * to y and rounds once more; what remains is Newton's own ≈1.5·ε², and about 0.2 ulp
+ * from rounding x·y. The textbook (y/2)·(3 − (x·y)·y) also rounds the bracket, ≈ 2, to
+ * float, and the product after it: 2.39 ulp against this form's 1.74 over the
  * self-test's probe floats on Zen 3 (Intel's runtime, 12-bit vrsqrtps; at 16, 8, 4 and
- * 1 lanes), 1.53 against 0.87 on PoCL (not measured on Zen 4 or 5). Within the error model's 2 ulp there, so the
- * plan takes it where the textbook form was refused (the fast path 1.23-1.26x the
- * builtin's call, median of 30 frames, three processes, 2026-12-07). x/2 is never
- * formed, so x in [FLT_MIN, 2·FLT_MIN) needs no rescaling in rsqrt_dist (x·y ≈ 2⁻⁶³
- * there). */
+ * 1 lanes), 1.53 against 0.87 on PoCL (not measured on Zen 4 or 5). Within the error
+ * model's 2 ulp there, so the plan takes it where the textbook form was refused (the
+ * fast path 1.23-1.26x the builtin's call, median of 30 frames, three processes,
+ * 2026-12-07). x/2 is never formed, so x in [FLT_MIN, 2·FLT_MIN) needs no rescaling in
+ * rsqrt_dist (x·y ≈ 2⁻⁶³ there). */
 inline dirL rsqrt_dir(dirL x)
 {
     /* no guard for 0 (NaN there): RSQRT_DIR's callers select their own value, and
