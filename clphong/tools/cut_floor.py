@@ -31,6 +31,7 @@ from ..model.light_tree import (
     build_light_tree,
     choose_cut,
     cluster_bounds,
+    leaf_ranges,
 )
 from ..reference import shading as reference
 from .bench import bench_gbuffer, bench_scene
@@ -295,6 +296,172 @@ def bound_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, tiles=(1, 16, 128),
     return out
 
 
+def node_moments(tree, arrays) -> tuple[np.ndarray, np.ndarray]:
+    """Each internal node's radiance moments about its representative p_k, per channel
+    c: F (K, 3, 3), F_c = Σ_i R_ic·(p_i − p_k), and M (K, 3, 3, 3), M_c = Σ_i
+    R_ic·(p_i − p_k)(p_i − p_k)ᵀ. Formed bottom-up by the parallel-axis rule (a child's
+    moments moved to its parent's representative), so no large sums cancel. The tree
+    keeps |F_c| (``first``) and tr M_c (``quadratic``) only; the bounds use those."""
+    P = np.asarray(arrays["point_position"], np.float64)
+    R = np.asarray(arrays["point_radiance"], np.float64)
+    nl = tree.n_leaves
+    F = np.zeros((tree.n_nodes, 3, 3))
+    M = np.zeros((tree.n_nodes, 3, 3, 3))
+    for lv in reversed(tree.levels):              # deepest first: children before parents
+        for side in (0, 1):
+            c = tree.children[lv, side]
+            inner = c >= nl
+            ci = np.where(inner, c - nl, 0)
+            cl = np.where(inner, 0, c)
+            pos = np.where(inner[:, None], tree.position[ci], P[cl])
+            rad = np.where(inner[:, None], tree.radiance[ci], R[cl])
+            Fc = np.where(inner[:, None, None], F[ci], 0.0)
+            Mc = np.where(inner[:, None, None, None], M[ci], 0.0)
+            d = pos - tree.position[lv]                           # (m, 3)
+            F[lv] += Fc + rad[:, :, None] * d[:, None, :]
+            M[lv] += (Mc + Fc[..., :, None] * d[:, None, None, :]
+                      + d[:, None, :, None] * Fc[..., None, :]
+                      + rad[:, :, None, None] * (d[:, :, None] * d[:, None, :])[:, None])
+    return F, M
+
+
+def taylor_terms(tree, F, M, one, D, S) -> np.ndarray:
+    """(K, 3): each node's second-order Taylor estimate of its error at the one pixel
+    ``one`` (a reference Pixels of one pixel, with its D and S (3,)), per channel:
+    |∇f_c·F_c| + ½·|tr(∇²f_c·M_c)|, where f_c(L) is the contribution of a light of unit
+    radiance at L with the node's falloff (the reference's D_c·diffuse + S_c·specular)
+    and the derivatives are taken at the node's representative, by central differences
+    (step 10⁻³ of its distance to the pixel).
+
+    Not a bound: no remainder, and the derivatives at the pixel itself. Every bound that
+    rests on these moments with derivatives bounded over a box holding the pixel (as
+    :func:`~clphong.model.light_tree.cluster_bounds`' second-order term does: sup|∇f|·|F_c|
+    + ½·sup‖∇²f‖·tr M_c, and any split of tr(∇²f·M_c) by its trace) is at least this
+    where the node's lights are lit, so a cut made with it is the floor of that family."""
+    att = tree.attenuation
+
+    def f(Y):
+        dif, spe = reference.shade_point_light(one, Y[:, None, :], att[:, 0:1], att[:, 1:2],
+                                               att[:, 2:3])
+        return dif[:, :1] * D + spe[:, :1] * S                  # (K, 3)
+
+    p = tree.position
+    h = 1e-3 * np.linalg.norm(p - one.p[0], axis=1)[:, None]     # (K, 1)
+    E = np.eye(3)
+    f0 = f(p)
+    grad = np.stack([(f(p + h * E[a]) - f(p - h * E[a])) / (2 * h) for a in range(3)], -1)
+    H = np.empty((len(p), 3, 3, 3))
+    for a in range(3):
+        H[..., a, a] = ((f(p + 2 * h * E[a]) - 2 * f0 + f(p - 2 * h * E[a])) / (4 * h * h))
+        for b in range(a + 1, 3):
+            s, t = E[a] + E[b], E[a] - E[b]
+            H[..., a, b] = H[..., b, a] = ((f(p + h * s) - f(p + h * t) - f(p - h * t)
+                                            + f(p - h * s)) / (4 * h * h))
+    first = np.abs(np.einsum("kci,kci->kc", F, grad))
+    return first + 0.5 * np.abs(np.einsum("kcij,kcij->kc", M, H))
+
+
+def third_moments(tree, arrays) -> np.ndarray:
+    """(K, 3): each internal node's Σ_i R_ic·|p_i − p_k|³ about its representative, per
+    channel (a level's nodes hold disjoint runs of the leaves, :func:`leaf_ranges`)."""
+    P = np.asarray(arrays["point_position"], np.float64)
+    R = np.asarray(arrays["point_radiance"], np.float64)
+    start, end, place = leaf_ranges(tree)
+    order = np.argsort(np.where(place < 0, np.iinfo(np.int64).max, place))
+    out = np.zeros((tree.n_nodes, 3))
+    for lv in tree.levels:
+        size = end[lv] - start[lv]
+        owner = np.repeat(np.arange(len(lv)), size)
+        at = np.repeat(start[lv], size) + np.arange(size.sum()) - np.repeat(np.cumsum(size) - size, size)
+        lights = order[at]
+        d3 = np.linalg.norm(P[lights] - tree.position[lv][owner], axis=1) ** 3
+        np.add.at(out, lv[owner], R[lights] * d3[:, None])
+    return out
+
+
+#: Unit directions (13, one of each ± pair) along which :func:`remainder_estimate`
+#: samples the third derivative: the axes, the face and the body diagonals.
+_DIRS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
+                  if (i, j, k) > (0, 0, 0)], np.float64)
+_DIRS /= np.linalg.norm(_DIRS, axis=1)[:, None]
+
+
+def remainder_estimate(tree, T3, one, D, S) -> np.ndarray:
+    """(K, 3): an estimate of the third-order remainder of :func:`taylor_terms`,
+    ⅙·sup‖∇³f_c‖·Σ_i R_ic·|p_i − p_k|³ (``T3``: :func:`third_moments`), with the sup
+    taken over samples only: |∂³f_c/∂u³| along 13 directions, by central differences
+    (step 10⁻² of the distance), at the node's representative and the 8 corners of its
+    box. Not a bound (a sampled sup): it says what a proven remainder of this form
+    might give, before one is derived."""
+    att = tree.attenuation
+
+    def f(Y):
+        dif, spe = reference.shade_point_light(one, Y[:, None, :], att[:, 0:1], att[:, 1:2],
+                                               att[:, 2:3])
+        return dif[:, :1] * D + spe[:, :1] * S
+
+    sup = np.zeros((tree.n_nodes, 3))
+    corners = [np.where(np.array([(c >> i) & 1 for i in range(3)], bool), tree.hi, tree.lo)
+               for c in range(8)]
+    for X in corners + [tree.position]:
+        h = 1e-2 * np.linalg.norm(X - one.p[0], axis=1)[:, None]
+        for u in _DIRS:
+            d3 = (f(X + 2 * h * u) - 2 * f(X + h * u) + 2 * f(X - h * u) - f(X - 2 * h * u)) / (2 * h ** 3)
+            sup = np.fmax(sup, np.abs(d3))
+    return sup * T3 / 6.0
+
+
+def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool = False,
+                     seed: int = 0):
+    """{(what, ε): [list entries per sample pixel]} of the threshold cut at each pixel,
+    ``what`` one of "exact" (true errors), "taylor" (the floor of the second-order
+    family: :func:`taylor_terms` where the node is surely lit and smooth, the proven
+    bound elsewhere, and never more than the proven bound), "remainder" (the same with
+    :func:`remainder_estimate` added: what a Taylor bound with a third-order remainder
+    might keep, an estimate) and "bound" (the proven
+    :func:`~clphong.model.light_tree.cluster_bounds` on the one-pixel tile). With
+    ``relative`` each channel's budget is ε times the pixel's float64 value (ambient
+    and every light), as the relative budget asks."""
+    tree = build_light_tree(scene.light_arrays)
+    if tree is None:
+        raise ValueError("the scene has too few clusterable point lights for a tree")
+    a = scene.light_arrays
+    n = len(a["point_position"])
+    spec = SpecularModel.of_scene(scene)
+    F, M = node_moments(tree, a)
+    T3 = third_moments(tree, a)
+    fg = np.flatnonzero(~gbuffer.background_mask().reshape(-1))
+    rng = np.random.default_rng(seed)
+    idx = rng.choice(fg, size=min(n_pixels, len(fg)), replace=False)
+    px, D, S = _pixels_of(scene, gbuffer, idx)
+    albedo = gbuffer.albedo.reshape(-1, 3)[idx].astype(np.float64)
+    w = gbuffer.shape[1]
+    out = {}
+    for j, flat in enumerate(idx):
+        one = reference.Pixels(p=px.p[j:j + 1], n=px.n[j:j + 1], v=px.v[j:j + 1],
+                               k=px.k[j:j + 1], blinn=px.blinn, specular=px.specular)
+        exact = node_errors(tree, a, px, D, S, j)
+        y, x = divmod(int(flat), w)
+        parts = {}
+        b = cluster_bounds(tree, _tile_boxes(scene, gbuffer, y, x, 1), spec, np.zeros(3),
+                           channels=True, parts=parts)[0]
+        smooth = np.isfinite(np.broadcast_to(parts["diffuse_second"], (1,) + b.shape)[0])
+        t2 = taylor_terms(tree, F, M, one, D[j], S[j])
+        tay = np.where(smooth, np.fmin(t2, b), b)
+        rem = np.where(smooth, np.fmin(t2 + remainder_estimate(tree, T3, one, D[j], S[j]), b), b)
+        scale = 1.0
+        if relative:
+            value = (albedo[j] * reference.ambient_radiance(scene)
+                     + light_contributions(one, D[j:j + 1], S[j:j + 1], a["point_position"],
+                                           a["point_radiance"], a["point_attenuation"])[:, 0].sum(0))
+            scale = 1.0 / value
+        for what, e_ in (("exact", exact), ("taylor", tay), ("remainder", rem), ("bound", b)):
+            for e in eps_list:
+                used, cov = choose_cut(tree, (e_ * scale)[None], e)
+                out.setdefault((what, e), []).append(_entries(tree, used, cov, n))
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m clphong.tools.cut_floor", description=__doc__.split("\n\n")[0])
     p.add_argument("--eps", default="1e-3,1e-2,3e-2", help="budgets, relative to white 1.0")
@@ -305,11 +472,30 @@ def main(argv=None) -> int:
     p.add_argument("--bound", action="store_true",
                    help="also the threshold cut of the light tree itself: with the true errors, "
                         "and with the proven bound on tiles of 1, 16 and 128 pixels")
+    p.add_argument("--taylor", action="store_true",
+                   help="only the cut at each sample pixel with the true errors, with the "
+                        "second-order Taylor terms at the pixel (the floor of the proven "
+                        "bound's family: taylor_terms), with those plus a sampled estimate of "
+                        "a third-order remainder (remainder_estimate), and with the proven bound")
+    p.add_argument("--relative", action="store_true",
+                   help="with --taylor: each channel's budget is ε times the pixel's value")
     p.add_argument("--levels", action="store_true",
                    help="only the bound against the true error per depth of the tree, and "
                         "the terms that set it (level_slack)")
     args = p.parse_args(argv)
     eps = [float(x) for x in args.eps.split(",")]
+    if args.taylor:
+        got = taylor_cut_sizes(bench_scene(args.scene, args.lights), bench_gbuffer(1920, 1080),
+                               eps, args.pixels, relative=args.relative)
+        rows = []
+        for e in eps:
+            ex, ty, rm, bd = (np.median(got[(w_, e)]) for w_ in ("exact", "taylor", "remainder", "bound"))
+            rows.append([f"{e:g}" + (" relative" if args.relative else ""), args.lights,
+                         f"{ex:.0f}"] + [f"{v:.0f} ({v / ex:.1f}×)" for v in (ty, rm, bd)])
+        print(markdown_table(["ε", "lights", "true errors", "Taylor at the pixel (floor)",
+                              "with a sampled 3rd-order remainder (estimate)",
+                              "proven bound, 1 px"], rows))
+        return 0
     if args.levels:
         got = level_slack(bench_scene(args.scene, args.lights), bench_gbuffer(1920, 1080),
                           args.pixels)
