@@ -245,6 +245,45 @@ def falloff_slopes(c0, c1, c2, d, peaks):
     return at, s1 * (1 + SLOPE_SLACK), s2 * (1 + SLOPE_SLACK)
 
 
+def falloff_third_sup(att, d):
+    """``sup |A‴|`` over ``[d, ∞)`` for ``A = 1/p``, ``p = c0 + c1·d + c2·d²`` (``c0, c1, c2
+    ≥ 0``; ``att`` (K, 3) rows, ``d`` (K,)). ``A‴ = 6p′(p·p″ − p′²)/p⁴`` (p‴ = 0), and
+    ``A⁗``'s numerator ``6p″²p² − 36p′²p″p + 24p′⁴`` is a quartic in d: the sup is the
+    value at ``d`` or at one of its positive real roots beyond ``d`` (the limit is 0).
+    Roots are searched once per distinct row, on the row over its largest coefficient,
+    as :func:`falloff_peaks` does; the sup carries :data:`SLOPE_SLACK`."""
+    att = np.asarray(att, np.float64).reshape(-1, 3)
+    d = np.asarray(d, np.float64)
+    rows, inv = np.unique(att, axis=0, return_inverse=True)
+    roots = np.full((len(rows), 4), np.nan)
+    P = np.polynomial.polynomial
+    scale = np.maximum(rows.max(axis=1, keepdims=True), np.finfo(np.float64).tiny)
+    for i, (c0, c1, c2) in enumerate((rows / scale).tolist()):
+        p, p1, p2 = [c0, c1, c2], [c1, 2 * c2], [2 * c2]
+        quartic = P.polyadd(P.polysub(P.polymul(P.polymul([6.0], P.polymul(p2, p2)), P.polymul(p, p)),
+                                      P.polymul(P.polymul([36.0], P.polymul(p1, p1)), P.polymul(p2, p))),
+                            P.polymul([24.0], P.polymul(P.polymul(p1, p1), P.polymul(p1, p1))))
+        quartic = P.polytrim(np.asarray(quartic, np.float64))
+        r = P.polyroots(quartic) if len(quartic) > 1 else np.zeros(0)
+        real = np.real(r[np.abs(np.imag(r)) <= 1e-9 * (np.abs(r) + 1.0)])
+        real = np.sort(real[real > 0])[:4]
+        roots[i, :len(real)] = real
+    roots = roots[inv.reshape(-1)]
+    c0, c1, c2 = att[:, 0], att[:, 1], att[:, 2]
+
+    def third(x):
+        p = c0 + x * (c1 + x * c2)
+        p1 = c1 + 2.0 * c2 * x
+        return 6.0 * np.abs(p1 * (2.0 * c2 * p - p1 * p1)) / (p * p) / (p * p)
+
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        s = third(d)
+        for j in range(roots.shape[1]):
+            r = roots[:, j]
+            s = np.fmax(s, np.where(r > d, third(r), 0.0))
+    return s * (1 + SLOPE_SLACK)
+
+
 def radiance_problem(radiance: float, att: Vec3) -> str:
     """The message for a light whose ``max(color) x intensity`` (``radiance``) times
     the largest falloff of ``att`` is beyond float32 (see :func:`kernel_falloff_bound`)."""

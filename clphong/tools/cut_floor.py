@@ -390,8 +390,8 @@ def remainder_estimate(tree, T3, one, D, S) -> np.ndarray:
     """(K, 3): an estimate of the third-order remainder of :func:`taylor_terms`,
     ⅙·sup‖∇³f_c‖·Σ_i R_ic·|p_i − p_k|³ (``T3``: :func:`third_moments`), with the sup
     taken over samples only: |∂³f_c/∂u³| along 13 directions, by central differences
-    (step 10⁻² of the distance), at the node's representative and the 8 corners of its
-    box. Not a bound (a sampled sup): it says what a proven remainder of this form
+    (step 10⁻² of the distance), at the node's representative, the 8 corners of its box
+    and its point nearest the pixel. Not a bound (a sampled sup): it says what a proven remainder of this form
     might give, before one is derived."""
     att = tree.attenuation
 
@@ -403,7 +403,8 @@ def remainder_estimate(tree, T3, one, D, S) -> np.ndarray:
     sup = np.zeros((tree.n_nodes, 3))
     corners = [np.where(np.array([(c >> i) & 1 for i in range(3)], bool), tree.hi, tree.lo)
                for c in range(8)]
-    for X in corners + [tree.position]:
+    nearest = np.clip(one.p[0], tree.lo, tree.hi)             # the box's point nearest the pixel
+    for X in corners + [tree.position, nearest]:
         h = 1e-2 * np.linalg.norm(X - one.p[0], axis=1)[:, None]
         for u in _DIRS:
             d3 = (f(X + 2 * h * u) - 2 * f(X + h * u) + 2 * f(X - h * u) - f(X - 2 * h * u)) / (2 * h ** 3)
@@ -420,14 +421,14 @@ def taylor_bound(tree, F, M, T3, one, D) -> np.ndarray:
     box holds every segment from p_k to a light). Where the box is not surely lit (g has
     its kink there) or touches the pixel: +inf.
 
-    sup‖∇³g‖ ≤ 3·sup‖∇²φ‖ + sup|n·x|·sup‖∇³φ‖ (∇³g = 3·sym(n ⊗ ∇²φ) + (n·x)·∇³φ), and for
+    sup‖∇³g‖ ≤ 3·sup‖∇²φ‖ + c⁺·sup d·‖∇³φ‖ (∇³g = 3·sym(n ⊗ ∇²φ) + (n·x)·∇³φ, n·x = c·d), and for
     a radial φ, along a unit e with t = u·e: ∇²φ[e,e] = φ″t² + (φ′/d)(1 − t²) and
     ∇³φ[e,e,e] = φ‴t³ + 3t(1 − t²)(φ″/d − φ′/d²), so ‖∇²φ‖ ≤ max(|φ″|, |φ′|/d) and
     ‖∇³φ‖ ≤ |φ‴| + (2/√3)·|φ″/d − φ′/d²|. φ's derivatives are bounded term by term by
     A(d⁻) and :func:`~clphong.model.falloff.falloff_slopes`' sup|A′| and sup|A″| over
-    d ≥ d⁻, and |A‴| ≤ 48·A/d³ (A‴ = 6p′p″/p³ − 6p′³/p⁴ with p′/p ≤ 2/d and p″/p ≤ 2/d²
-    for c0, c1, c2 ≥ 0: each term ≤ 24 and 48 A/d³, of one sign each)."""
-    from ..model.falloff import falloff_slopes
+    d ≥ d⁻, and :func:`~clphong.model.falloff.falloff_third_sup`'s sup|A‴| (the crude
+    |A‴| ≤ 48·A/d³ made the remainder 5–13× the sampled one on the bench's falloff)."""
+    from ..model.falloff import falloff_slopes, falloff_third_sup
     n, P = one.n[0], one.p[0]
     c0, c1, c2 = (tree.attenuation[:, i] for i in range(3))
     x = tree.position - P
@@ -461,12 +462,15 @@ def taylor_bound(tree, F, M, T3, one, D) -> np.ndarray:
         lit = nx.min(axis=0) > 0
         _, a1, a2 = falloff_slopes(c0, c1, c2, d_lo, tree.peaks)
         A_lo = 1.0 / (c0 + d_lo * (c1 + d_lo * c2))
-        a3 = 48.0 * A_lo / d_lo ** 3
+        a3 = falloff_third_sup(tree.attenuation, d_lo)
         f1 = a1 / d_lo + A_lo / d_lo ** 2                       # sup |φ′|
         f2 = a2 / d_lo + 2 * a1 / d_lo ** 2 + 2 * A_lo / d_lo ** 3          # sup |φ″|
         f3 = a3 / d_lo + 3 * a2 / d_lo ** 2 + 6 * a1 / d_lo ** 3 + 6 * A_lo / d_lo ** 4   # |φ‴|
+        # n·ξ = c·|ξ| with c ≤ c⁺ = min(1, max n·ξ / d⁻), and |ξ|·‖∇³φ(|ξ|)‖ is bounded by
+        # terms that each fall with |ξ|: its value at d⁻
+        c_hi = np.minimum(nx.max(axis=0) / d_lo, 1.0)
         sup3 = (3 * np.maximum(f2, f1 / d_lo)
-                + nx.max(axis=0) * (f3 + (2 / np.sqrt(3)) * (f2 / d_lo + f1 / d_lo ** 2)))
+                + c_hi * d_lo * (f3 + (2 / np.sqrt(3)) * (f2 / d_lo + f1 / d_lo ** 2)))
         e = D * (first + 0.5 * second + sup3[:, None] * T3 / 6.0)
     return np.where((lit & (d_lo > 0))[:, None] & np.isfinite(e), e, np.inf)
 

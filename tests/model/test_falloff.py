@@ -110,3 +110,33 @@ def test_the_slopes_hold_at_the_float32_extremes_a_scene_allows():
         _, s1, s2 = falloff_slopes(*row, np.array([d]), peaks)
         _, m1, m2 = _on_grid(*row, d)
         assert m1 <= s1[0] <= m1 * (1 + 1e-6) and m2 <= s2[0] <= m2 * (1 + 1e-6), row
+
+
+@settings(max_examples=300, deadline=None)
+@given(c0=coefficient, c1=coefficient, c2=coefficient, d=st.floats(1e-3, 1e3))
+def test_the_third_derivatives_sup_is_the_largest_value_beyond_d(c0, c1, c2, d):
+    """falloff_third_sup against |A‴| on a dense grid of [d, ∞) (A‴ by its closed form,
+    itself checked against differences of A below): never below the grid's largest
+    value (a missed turning point would show), and within the slack of it."""
+    from clphong.model.falloff import falloff_third_sup
+    if c0 + c1 + c2 == 0 or (c0 == 0 and c1 == 0 and c2 * d * d < 1e-300):
+        return
+    x = d * np.exp(np.linspace(0.0, 16.0, 400_001))
+    p = c0 + x * (c1 + x * c2)
+    p1 = c1 + 2 * c2 * x
+    grid = np.abs(6 * p1 * (2 * c2 * p - p1 * p1) / p ** 4)
+    s = falloff_third_sup([[c0, c1, c2]], np.array([d]))[0]
+    assert grid.max() <= s <= grid.max() * (1 + 1e-6) + 1e-300
+
+
+def test_the_third_derivatives_closed_form():
+    """A‴ = 6p′(p·p″ − p′²)/p⁴ against fourth-order differences of A, and its known sup:
+    for A = 1/d², |A‴| = 24/d⁵ falls, so the sup over [d, ∞) is the value at d."""
+    from clphong.model.falloff import SLOPE_SLACK, falloff_third_sup
+    c0, c1, c2, d, h = 0.7, 0.3, 0.2, 1.3, 1e-3
+    A = lambda x: 1.0 / (c0 + x * (c1 + x * c2))               # noqa: E731
+    fd = (A(d + 2 * h) - 2 * A(d + h) + 2 * A(d - h) - A(d - 2 * h)) / (2 * h ** 3)
+    p, p1 = c0 + d * (c1 + d * c2), c1 + 2 * c2 * d
+    assert np.isclose(fd, 6 * p1 * (p * 2 * c2 - p1 * p1) / p ** 4, rtol=1e-5)
+    s = falloff_third_sup([[0.0, 0.0, 1.0]], np.array([2.0]))
+    assert np.isclose(s[0], 24 / 32 * (1 + SLOPE_SLACK), rtol=1e-15)
