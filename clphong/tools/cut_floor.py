@@ -412,6 +412,31 @@ def remainder_estimate(tree, T3, one, D, S) -> np.ndarray:
     return sup * T3 / 6.0
 
 
+#: Points of θ ∈ [0, π/2] at which :func:`third_derivative_sup` evaluates its bound.
+THETA_POINTS = 97
+
+
+def third_derivative_sup(c_hi, d, f1, f2, f3) -> np.ndarray:
+    """sup over unit e of |∇³g[e,e,e]| for g = (n·x)·φ(|x|), given at |x| ≥ d: c⁺ ≥ n·x/|x|
+    and sups f1 ≥ |φ′|, f2 ≥ |φ″|, f3 ≥ |φ‴| whose products with the powers of |x| below
+    fall with |x|. With t = u·e = cos θ, s = sin θ: ∇³g[e,e,e] = 3(n·e)·∇²φ[e,e] + (n·x)·
+    ∇³φ[e,e,e], |n·e| ≤ c⁺t + s, |∇²φ[e,e]| ≤ f2·t² + (f1/d)·s², |∇³φ[e,e,e]| ≤ f3·t³ +
+    3t·s²·(f2/d + f1/d²), so E(θ) = 3(c⁺t + s)(f2t² + (f1/d)s²) + c⁺d·(f3t³ + 3ts²(f2/d +
+    f1/d²)) bounds it. Its largest value on a grid of :data:`THETA_POINTS` over [0, π/2],
+    plus |E′|·Δθ/2 with |E′| ≤ 3·(the sum of its coefficients) (each term is a product of
+    cos and sin of degree ≤ 3), bounds its sup."""
+    B = f2 / d + f1 / d ** 2
+    k1, k2 = f2, f1 / d
+    k3, k4 = c_hi * d * f3, 3 * c_hi * d * B
+    best = np.zeros(np.shape(d))
+    for theta in np.linspace(0.0, np.pi / 2, THETA_POINTS):
+        t, s_ = np.cos(theta), np.sin(theta)
+        E = 3 * (c_hi * t + s_) * (k1 * t * t + k2 * s_ * s_) + k3 * t ** 3 + k4 * t * s_ * s_
+        best = np.fmax(best, E)
+    slope = 3 * (3 * (c_hi + 1) * (k1 + k2) + k3 + k4)
+    return best + slope * (np.pi / 2 / (THETA_POINTS - 1)) / 2
+
+
 def taylor_bound(tree, F, M, T3, one, D) -> np.ndarray:
     """(K, 3): a proven bound of each node's diffuse error at the one pixel ``one`` (a
     reference Pixels of one pixel, its D (3,)), against the float64 node error:
@@ -469,8 +494,7 @@ def taylor_bound(tree, F, M, T3, one, D) -> np.ndarray:
         # n·ξ = c·|ξ| with c ≤ c⁺ = min(1, max n·ξ / d⁻), and |ξ|·‖∇³φ(|ξ|)‖ is bounded by
         # terms that each fall with |ξ|: its value at d⁻
         c_hi = np.minimum(nx.max(axis=0) / d_lo, 1.0)
-        sup3 = (3 * np.maximum(f2, f1 / d_lo)
-                + c_hi * d_lo * (f3 + (2 / np.sqrt(3)) * (f2 / d_lo + f1 / d_lo ** 2)))
+        sup3 = third_derivative_sup(c_hi, d_lo, f1, f2, f3)
         e = D * (first + 0.5 * second + sup3[:, None] * T3 / 6.0)
     return np.where((lit & (d_lo > 0))[:, None] & np.isfinite(e), e, np.inf)
 
