@@ -437,30 +437,40 @@ def third_derivative_sup(c_hi, d, f1, f2, f3) -> np.ndarray:
     return best + slope * (np.pi / 2 / (THETA_POINTS - 1)) / 2
 
 
-def taylor_bound(tree, F, M, T3, one, D) -> np.ndarray:
-    """(K, 3): a proven bound of each node's diffuse error at the one pixel ``one`` (a
-    reference Pixels of one pixel, its D (3,)), against the float64 node error:
-    D_c·(|∇g·F_c| + ½·|tr(∇²g·M_c)| + ⅙·sup‖∇³g‖·Σ R_ic·|p_i − p_k|³), with g(x) =
-    (n·x)·φ(|x|), φ = A(d)/d, x = L − P, the first two terms exact at the representative
-    and the third over the node's box (Taylor's theorem with the Lagrange remainder: the
-    box holds every segment from p_k to a light). Where the box is not surely lit (g has
-    its kink there) or touches the pixel: +inf.
+def taylor_bound(tree, F, M, T3, tile: TileBoxes, D) -> np.ndarray:
+    """(K, 3): a proven bound of each node's diffuse error at every pixel of one tile
+    (``tile``, a :class:`~clphong.model.light_tree.TileBoxes` of one tile: the boxes of
+    its positions and of its unit normals; one pixel: both boxes points), with the
+    tile's D (3,), against the float64 node error, for the diffuse weight g(x) =
+    (n·x)·φ(|x|), φ = A(d)/d, x = L − P. Where the node's box is not surely lit from
+    the tile (g has its kink) or touches it: +inf.
 
-    sup‖∇³g‖ ≤ 3·sup‖∇²φ‖ + c⁺·sup d·‖∇³φ‖ (∇³g = 3·sym(n ⊗ ∇²φ) + (n·x)·∇³φ, n·x = c·d), and for
-    a radial φ, along a unit e with t = u·e: ∇²φ[e,e] = φ″t² + (φ′/d)(1 − t²) and
-    ∇³φ[e,e,e] = φ‴t³ + 3t(1 − t²)(φ″/d − φ′/d²), so ‖∇²φ‖ ≤ max(|φ″|, |φ′|/d) and
-    ‖∇³φ‖ ≤ |φ‴| + (2/√3)·|φ″/d − φ′/d²|. φ's derivatives are bounded term by term by
-    A(d⁻) and :func:`~clphong.model.falloff.falloff_slopes`' sup|A′| and sup|A″| over
-    d ≥ d⁻, and :func:`~clphong.model.falloff.falloff_third_sup`'s sup|A‴| (the crude
-    |A‴| ≤ 48·A/d³ made the remainder 5–13× the sampled one on the bench's falloff)."""
+    At a pixel (P, n), Taylor's theorem with the Lagrange remainder (the node's box
+    holds every segment from p_k to a light) gives the error as ∇g·F_c + ½·tr(∇²g·M_c)
+    at x̄ = p_k − P, plus at most ⅙·sup‖∇³g‖·Σ R_ic·|p_i − p_k|³. Both terms are linear
+    in n: ∇g·F = n·w₁, w₁ = φF + φ′(u·F)x, and tr(∇²g·M) = n·w₂, w₂ = 2φ′·Mu +
+    x·(φ″·uᵀMu + (φ′/d)·(tr M − uᵀMu)). They are taken at the tile's centre (P₀, the
+    normals' box centre n₀): |n·w| ≤ |n₀·w| + |n − n₀|·|w|, and a move of P by at most
+    r (the position box's half-diagonal) changes ∇g·F by at most sup‖∇²g‖·|F_c|·r
+    (:func:`~clphong.model.light_tree.diffuse_hessian_sup` over the pair) and
+    tr(∇²g·M) by at most sup‖∇³g‖·tr M_c·r. sup‖∇³g‖ over the pair of boxes is
+    :func:`third_derivative_sup` with φ's derivatives bounded term by term by A(d⁻) and
+    :func:`~clphong.model.falloff.falloff_slopes`' sup|A′| and sup|A″| over d ≥ d⁻, and
+    :func:`~clphong.model.falloff.falloff_third_sup`'s sup|A‴| (the crude |A‴| ≤ 48A/d³
+    made the remainder 5–13× the sampled one on the bench's falloff)."""
     from ..model.falloff import falloff_slopes, falloff_third_sup
-    n, P = one.n[0], one.p[0]
+    from ..model.light_tree import _interval_dot, diffuse_hessian_sup
+    tlo, thi = tile.lo[0], tile.hi[0]
+    nlo, nhi = tile.nlo[0], tile.nhi[0]
+    P = 0.5 * (tlo + thi)
+    r = 0.5 * np.linalg.norm(thi - tlo)
+    n = 0.5 * (nlo + nhi)
+    dn = 0.5 * np.linalg.norm(nhi - nlo)
     c0, c1, c2 = (tree.attenuation[:, i] for i in range(3))
     x = tree.position - P
     d = np.linalg.norm(x, axis=1)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         u = x / d[:, None]
-        c = u @ n
         p = c0 + d * (c1 + d * c2)
         A = 1.0 / p
         A1 = -(c1 + 2 * c2 * d) / (p * p)
@@ -468,39 +478,47 @@ def taylor_bound(tree, F, M, T3, one, D) -> np.ndarray:
         phi = A / d
         phi1 = A1 / d - A / d ** 2
         phi2 = A2 / d - 2 * A1 / d ** 2 + 2 * A / d ** 3
-        nF = np.einsum("kci,i->kc", F, n)
+        # w₁ = φF + φ′(u·F)x and w₂ (K, 3 channels, 3)
         uF = np.einsum("kci,ki->kc", F, u)
-        first = np.abs(phi[:, None] * nF + (c * d * phi1)[:, None] * uF)
+        w1 = phi[:, None, None] * F + (phi1[:, None] * uF)[..., None] * x[:, None, :]
         Mu = np.einsum("kcij,kj->kci", M, u)
         uMu = np.einsum("kci,ki->kc", Mu, u)
-        nMu = np.einsum("kci,i->kc", Mu, n)
         trM = np.trace(M, axis1=-2, axis2=-1)
-        second = np.abs(2 * phi1[:, None] * nMu
-                        + (c * d)[:, None] * (phi2[:, None] * uMu + (phi1 / d)[:, None] * (trM - uMu)))
-        # the box: its distance from the pixel and n·(ξ − P) at its corners (linear: the
-        # extremes are corners)
-        gap = np.maximum(tree.lo - P, 0) + np.maximum(P - tree.hi, 0)
+        w2 = (2 * phi1[:, None, None] * Mu
+              + (phi2[:, None] * uMu + (phi1 / d)[:, None] * (trM - uMu))[..., None] * x[:, None, :])
+        first = np.abs(w1 @ n) + dn * np.linalg.norm(w1, axis=-1)
+        second = np.abs(w2 @ n) + dn * np.linalg.norm(w2, axis=-1)
+        # the pair of boxes: the distance d⁻ between them, n·(ξ − P) over them
+        gap = np.maximum(tree.lo - thi, 0) + np.maximum(tlo - tree.hi, 0)
         d_lo = np.linalg.norm(gap, axis=1)
-        corners = np.stack([np.where(np.array([(k >> i) & 1 for i in range(3)], bool),
-                                     tree.hi, tree.lo) - P for k in range(8)])
-        nx = corners @ n                                        # (8, K)
-        lit = nx.min(axis=0) > 0
-        _, a1, a2 = falloff_slopes(c0, c1, c2, d_lo, tree.peaks)
+        span = np.maximum(tree.hi, thi) - np.minimum(tree.lo, tlo)
+        d_hi = np.linalg.norm(span, axis=1)
+        nl_lo, nl_hi = _interval_dot(nlo, nhi, tree.lo - thi, tree.hi - tlo)
+        lit = nl_lo > 0
+        c_lo = np.clip(nl_lo / d_hi, 0.0, 1.0)
+        c_hi = np.clip(nl_hi / d_lo, 0.0, 1.0)
+        a1_lo, a1, a2 = falloff_slopes(c0, c1, c2, d_lo, tree.peaks)
         A_lo = 1.0 / (c0 + d_lo * (c1 + d_lo * c2))
         a3 = falloff_third_sup(tree.attenuation, d_lo)
         f1 = a1 / d_lo + A_lo / d_lo ** 2                       # sup |φ′|
         f2 = a2 / d_lo + 2 * a1 / d_lo ** 2 + 2 * A_lo / d_lo ** 3          # sup |φ″|
         f3 = a3 / d_lo + 3 * a2 / d_lo ** 2 + 6 * a1 / d_lo ** 3 + 6 * A_lo / d_lo ** 4   # |φ‴|
-        # n·ξ = c·|ξ| with c ≤ c⁺ = min(1, max n·ξ / d⁻), and |ξ|·‖∇³φ(|ξ|)‖ is bounded by
-        # terms that each fall with |ξ|: its value at d⁻
-        c_hi = np.minimum(nx.max(axis=0) / d_lo, 1.0)
         sup3 = third_derivative_sup(c_hi, d_lo, f1, f2, f3)
+        hess = diffuse_hessian_sup(c_lo, c_hi, (A_lo / d_lo + a1_lo) / d_lo, a2)
+        first = first + (hess * r)[:, None] * np.linalg.norm(F, axis=-1)
+        second = second + (sup3 * r)[:, None] * trM
         e = D * (first + 0.5 * second + sup3[:, None] * T3 / 6.0)
     return np.where((lit & (d_lo > 0))[:, None] & np.isfinite(e), e, np.inf)
 
 
+def _pixel_tile(one) -> TileBoxes:
+    """The one-pixel tile of a reference Pixels of one pixel (D and S unused)."""
+    z = np.zeros((1, 3))
+    return TileBoxes(lo=one.p[:1], hi=one.p[:1], nlo=one.n[:1], nhi=one.n[:1], D=z, S=z)
+
+
 def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool = False,
-                     seed: int = 0):
+                     tile: int = 1, seed: int = 0):
     """{(what, ε): [list entries per sample pixel]} of the threshold cut at each pixel,
     ``what`` one of "exact" (true errors), "taylor" (the floor of the second-order
     family: :func:`taylor_terms` where the node is surely lit and smooth, the proven
@@ -512,7 +530,9 @@ def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool 
     specular term as it is) and "bound" (the proven
     :func:`~clphong.model.light_tree.cluster_bounds` on the one-pixel tile). With
     ``relative`` each channel's budget is ε times the pixel's float64 value (ambient
-    and every light), as the relative budget asks."""
+    and every light), as the relative budget asks. ``tile``: the proven bounds ("proven,
+    diffuse" and "bound") hold for the aligned ``tile`` × ``tile`` block holding the
+    pixel (the others are the pixel's own)."""
     tree = build_light_tree(scene.light_arrays)
     if tree is None:
         raise ValueError("the scene has too few clusterable point lights for a tree")
@@ -537,6 +557,7 @@ def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool 
         b = cluster_bounds(tree, _tile_boxes(scene, gbuffer, y, x, 1), spec, np.zeros(3),
                            channels=True, parts=parts)[0]
         smooth = np.isfinite(np.broadcast_to(parts["diffuse_second"], (1,) + b.shape)[0])
+        box = _tile_boxes(scene, gbuffer, y, x, tile)
         t2 = taylor_terms(tree, F, M, one, D[j], S[j])
         tay = np.where(smooth, np.fmin(t2, b), b)
         rem = np.where(smooth, np.fmin(t2 + remainder_estimate(tree, T3, one, D[j], S[j]), b), b)
@@ -547,7 +568,14 @@ def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool 
         t2d = (taylor_terms(tree, F, M, one, D[j], zero)
                + remainder_estimate(tree, T3, one, D[j], zero))
         rem_d = b - dif + np.where(smooth, np.fmin(t2d, dif), dif)
-        proven = b - dif + np.fmin(taylor_bound(tree, F, M, T3, one, D[j]), dif)
+        if tile > 1:
+            parts = {}
+            bt = cluster_bounds(tree, box, spec, np.zeros(3), channels=True, parts=parts)[0]
+            dif_t = np.broadcast_to(parts["diffuse"], (1,) + bt.shape)[0]
+            proven = bt - dif_t + np.fmin(taylor_bound(tree, F, M, T3, box, box.D[0]), dif_t)
+        else:
+            bt = b
+            proven = b - dif + np.fmin(taylor_bound(tree, F, M, T3, _pixel_tile(one), D[j]), dif)
         scale = 1.0
         if relative:
             value = (albedo[j] * reference.ambient_radiance(scene)
@@ -555,7 +583,7 @@ def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool 
                                            a["point_radiance"], a["point_attenuation"])[:, 0].sum(0))
             scale = 1.0 / value
         for what, e_ in (("exact", exact), ("taylor", tay), ("remainder", rem),
-                         ("remainder, diffuse", rem_d), ("proven, diffuse", proven), ("bound", b)):
+                         ("remainder, diffuse", rem_d), ("proven, diffuse", proven), ("bound", bt)):
             for e in eps_list:
                 used, cov = choose_cut(tree, (e_ * scale)[None], e)
                 out.setdefault((what, e), []).append(_entries(tree, used, cov, n))
@@ -579,6 +607,9 @@ def main(argv=None) -> int:
                         "a third-order remainder (remainder_estimate), and with the proven bound")
     p.add_argument("--relative", action="store_true",
                    help="with --taylor: each channel's budget is ε times the pixel's value")
+    p.add_argument("--tile", type=int, default=1,
+                   help="with --taylor: the proven bounds over the aligned tile of this many "
+                        "pixels a side that holds each sample pixel (default 1)")
     p.add_argument("--levels", action="store_true",
                    help="only the bound against the true error per depth of the tree, and "
                         "the terms that set it (level_slack)")
@@ -586,7 +617,7 @@ def main(argv=None) -> int:
     eps = [float(x) for x in args.eps.split(",")]
     if args.taylor:
         got = taylor_cut_sizes(bench_scene(args.scene, args.lights), bench_gbuffer(1920, 1080),
-                               eps, args.pixels, relative=args.relative)
+                               eps, args.pixels, relative=args.relative, tile=args.tile)
         rows = []
         for e in eps:
             ex, *more = (np.median(got[(w_, e)]) for w_ in
@@ -596,8 +627,9 @@ def main(argv=None) -> int:
                          f"{ex:.0f}"] + [f"{v:.0f} ({v / ex:.1f}×)" for v in more])
         print(markdown_table(["ε", "lights", "true errors", "Taylor at the pixel (floor)",
                               "with a sampled 3rd-order remainder (estimate)",
-                              "the same, diffuse only", "proven: diffuse by Taylor at the pixel",
-                              "proven bound, 1 px"], rows))
+                              "the same, diffuse only",
+                              f"proven: diffuse by Taylor, {args.tile} px",
+                              f"proven bound, {args.tile} px"], rows))
         return 0
     if args.levels:
         got = level_slack(bench_scene(args.scene, args.lights), bench_gbuffer(1920, 1080),

@@ -171,13 +171,16 @@ def test_the_sampled_remainder_covers_the_true_error():
        att=st.sampled_from([(1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (1.0, 0.5, 0.0), (0.2, 0.1, 0.3),
                             (1.0, 0.1, 0.05), (0.0, 1.0, 0.0)]),
        spread=st.sampled_from([0.02, 0.3, 1.5]), dist=st.sampled_from([0.8, 3.0, 20.0]),
-       tilt=st.sampled_from([0.0, 0.5, 1.2]), grey=st.booleans())
-def test_taylor_bound_holds_at_its_pixel(seed, att, spread, dist, tilt, grey):
-    """The proven one-pixel Taylor bound of the diffuse term is never below any node's true
-    diffuse error (float64), for falloffs from constant to inverse square, clouds of
-    lights near and far, tilted normals and coloured or grey lights; and it is finite
-    where the whole cloud is in front of the surface (the test is not vacuous)."""
-    from clphong.model.light_tree import build_light_tree
+       tilt=st.sampled_from([0.0, 0.5, 1.2]), grey=st.booleans(),
+       size=st.sampled_from([0.0, 0.05, 0.3]), bend=st.sampled_from([0.0, 0.02, 0.15]))
+def test_taylor_bound_holds_over_its_tile(seed, att, spread, dist, tilt, grey, size, bend):
+    """The proven Taylor bound of the diffuse term over a tile (a box of positions and of
+    unit normals; size 0 and bend 0: one pixel) is never below any node's true diffuse
+    error (float64) at any of the tile's pixels, for falloffs from constant to inverse
+    square, clouds of lights near and far, tilted and spread normals, coloured or grey
+    lights; and it is finite where the whole cloud is in front of the surface (the test
+    is not vacuous)."""
+    from clphong.model.light_tree import TileBoxes, build_light_tree
     from clphong.reference import shading as reference
     from clphong.tools.cut_floor import node_errors, node_moments, taylor_bound, third_moments
     from clphong.tools.hardcases import make_scene
@@ -185,7 +188,7 @@ def test_taylor_bound_holds_at_its_pixel(seed, att, spread, dist, tilt, grey):
     lights = []
     for _ in range(96):
         pos = np.array([0.0, 0.0, dist]) + rng.normal(0, spread, 3)
-        pos[2] = abs(pos[2]) + 0.05                  # in front of the surface z = 0
+        pos[2] = abs(pos[2]) + 0.05 + size               # in front of the surface z = 0
         lights.append(dict(type="point", position=tuple(pos), attenuation=att,
                            color=(1.0, 1.0, 1.0) if grey else tuple(rng.uniform(0.3, 1.0, 3)),
                            intensity=float(rng.uniform(0.5, 2.0))))
@@ -194,16 +197,21 @@ def test_taylor_bound_holds_at_its_pixel(seed, att, spread, dist, tilt, grey):
     tree = build_light_tree(a)
     F, M = node_moments(tree, a)
     T3 = third_moments(tree, a)
-    n = np.array([np.sin(tilt), 0.0, np.cos(tilt)])
-    P = np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), 0.0])
-    px = reference.Pixels(p=P[None], n=n[None], v=np.array([[0.0, 0.0, 1.0]]), k=np.array([32.0]),
+    m = 6 if size or bend else 1
+    P = np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), 0.0]) + rng.uniform(-size, size, (m, 3))
+    P[:, 2] = np.minimum(P[:, 2], 0.0)
+    n = np.array([np.sin(tilt), 0.0, np.cos(tilt)]) + rng.uniform(-bend, bend, (m, 3))
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    D = np.array([0.7, 0.5, 0.3])
+    tile = TileBoxes.of_pixels(P, n, np.broadcast_to(D, (m, 3)), np.zeros(3))
+    tb = taylor_bound(tree, F, M, T3, tile, D)
+    px = reference.Pixels(p=P, n=n, v=np.tile([0.0, 0.0, 1.0], (m, 1)), k=np.full(m, 32.0),
                           blinn=False, specular=False)
-    D = np.array([[0.7, 0.5, 0.3]])
-    exact = node_errors(tree, a, px, D, np.zeros((1, 3)), 0)
-    tb = taylor_bound(tree, F, M, T3, px, D[0])
-    scale = (tree.radiance * D[0]).max() * 1e-13           # float64 noise of the true error
-    assert (exact <= tb * (1 + 1e-9) + scale).all()
-    if tilt == 0.0:
+    scale = (tree.radiance * D).max() * 1e-13              # float64 noise of the true error
+    for j in range(m):
+        exact = node_errors(tree, a, px, np.broadcast_to(D, (m, 3)), np.zeros((m, 3)), j)
+        assert (exact <= tb * (1 + 1e-9) + scale).all()
+    if tilt == 0.0 and bend == 0.0:
         assert np.isfinite(tb).mean() >= 0.9
 
 
