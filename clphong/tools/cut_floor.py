@@ -166,9 +166,11 @@ def _entries(tree, used, covered, n_lights):
     return int(used.sum()) + n_lights - int(covered.sum())
 
 
-def node_errors(tree, arrays, px, D, S, j: int) -> np.ndarray:
+def node_errors(tree, arrays, px, D, S, j: int, *, magnitude: bool = False):
     """(K, 3) each internal node's true error at sample pixel ``j``: |Σ of its lights'
-    contributions − its representative's|, float64 (the reference's shading)."""
+    contributions − its representative's|, float64 (the reference's shading). With
+    ``magnitude``, also (K, 3) Σ|contribution| + |representative's|, which with the
+    node's light count bounds the float64 rounding of the error."""
     one = reference.Pixels(p=px.p[j:j + 1], n=px.n[j:j + 1], v=px.v[j:j + 1],
                            k=px.k[j:j + 1], blinn=px.blinn, specular=px.specular)
     leaves = light_contributions(one, D[j:j + 1], S[j:j + 1], arrays["point_position"],
@@ -176,13 +178,17 @@ def node_errors(tree, arrays, px, D, S, j: int) -> np.ndarray:
     reps = light_contributions(one, D[j:j + 1], S[j:j + 1], tree.position, tree.radiance,
                                tree.attenuation)[:, 0]
     sums = np.zeros_like(reps)
+    mags = np.zeros_like(reps)
     for lv in reversed(tree.levels):              # deepest first: children before parents
         for side in (0, 1):
             c = tree.children[lv, side]
             inner = c >= tree.n_leaves
             sums[lv[~inner]] += leaves[c[~inner]]
             sums[lv[inner]] += sums[c[inner] - tree.n_leaves]
-    return np.abs(sums - reps)
+            mags[lv[~inner]] += np.abs(leaves[c[~inner]])
+            mags[lv[inner]] += mags[c[inner] - tree.n_leaves]
+    err = np.abs(sums - reps)
+    return (err, mags + np.abs(reps)) if magnitude else err
 
 
 #: cluster_bounds' terms, in the order :func:`level_slack` reports their shares.
@@ -331,13 +337,14 @@ def taylor_terms(tree, F, M, one, D, S) -> np.ndarray:
     |∇f_c·F_c| + ½·|tr(∇²f_c·M_c)|, where f_c(L) is the contribution of a light of unit
     radiance at L with the node's falloff (the reference's D_c·diffuse + S_c·specular)
     and the derivatives are taken at the node's representative, by central differences
-    (step 10⁻³ of its distance to the pixel).
+    (step 10⁻³ of its distance to the pixel, less near the pixel's plane).
 
-    Not a bound: no remainder, and the derivatives at the pixel itself. Every bound that
-    rests on these moments with derivatives bounded over a box holding the pixel (as
-    :func:`~clphong.model.light_tree.cluster_bounds`' second-order term does: sup|∇f|·|F_c|
-    + ½·sup‖∇²f‖·tr M_c, and any split of tr(∇²f·M_c) by its trace) is at least this
-    where the node's lights are lit, so a cut made with it is the floor of that family."""
+    Not a bound: no remainder, and the derivatives at the pixel itself. A bound that
+    bounds each term's size (sup|∇f|·|F_c| + ½·sup‖∇²f‖·tr M_c, as
+    :func:`~clphong.model.light_tree.cluster_bounds`' second order does, or any split
+    of tr(∇²f·M_c)) over boxes holding the pixel and the node is at least this where
+    the node's lights are lit; one that keeps the terms' signs may be less.
+    """
     att = tree.attenuation
 
     def f(Y):
@@ -346,7 +353,10 @@ def taylor_terms(tree, F, M, one, D, S) -> np.ndarray:
         return dif[:, :1] * D + spe[:, :1] * S                  # (K, 3)
 
     p = tree.position
-    h = 1e-3 * np.linalg.norm(p - one.p[0], axis=1)[:, None]     # (K, 1)
+    # 10⁻³ of the distance, and less than 0.4 of the height above the pixel's plane (the
+    # stencil stays on the lit side of the diffuse term's kink)
+    h = np.minimum(1e-3 * np.linalg.norm(p - one.p[0], axis=1),
+                   0.4 * np.abs((p - one.p[0]) @ one.n[0]))[:, None]     # (K, 1)
     E = np.eye(3)
     f0 = f(p)
     grad = np.stack([(f(p + h * E[a]) - f(p - h * E[a])) / (2 * h) for a in range(3)], -1)
@@ -390,9 +400,11 @@ def remainder_estimate(tree, T3, one, D, S) -> np.ndarray:
     """(K, 3): an estimate of the third-order remainder of :func:`taylor_terms`,
     ⅙·sup‖∇³f_c‖·Σ_i R_ic·|p_i − p_k|³ (``T3``: :func:`third_moments`), with the sup
     taken over samples only: |∂³f_c/∂u³| along 13 directions, by central differences
-    (step 10⁻² of the distance), at the node's representative, the 8 corners of its box
-    and its point nearest the pixel. Not a bound (a sampled sup): it says what a proven remainder of this form
-    might give, before one is derived."""
+    (step 10⁻² of the distance, and less than 0.4 of the point's height n·(X − P) above
+    the pixel's plane, so that the stencil stays on the lit side of the diffuse term's
+    kink; points below it are skipped), at the node's representative, the 8 corners of
+    its box and its point nearest the pixel. Not a bound (a sampled sup): it says what
+    a proven remainder of this form might give."""
     att = tree.attenuation
 
     def f(Y):
@@ -405,10 +417,14 @@ def remainder_estimate(tree, T3, one, D, S) -> np.ndarray:
                for c in range(8)]
     nearest = np.clip(one.p[0], tree.lo, tree.hi)             # the box's point nearest the pixel
     for X in corners + [tree.position, nearest]:
-        h = 1e-2 * np.linalg.norm(X - one.p[0], axis=1)[:, None]
-        for u in _DIRS:
-            d3 = (f(X + 2 * h * u) - 2 * f(X + h * u) + 2 * f(X - h * u) - f(X - 2 * h * u)) / (2 * h ** 3)
-            sup = np.fmax(sup, np.abs(d3))
+        height = (X - one.p[0]) @ one.n[0]
+        h = np.minimum(1e-2 * np.linalg.norm(X - one.p[0], axis=1), 0.4 * height)[:, None]
+        above = (height > 0)[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for u in _DIRS:
+                d3 = (f(X + 2 * h * u) - 2 * f(X + h * u) + 2 * f(X - h * u)
+                      - f(X - 2 * h * u)) / (2 * h ** 3)
+                sup = np.fmax(sup, np.where(above, np.abs(d3), 0.0))
     return sup * T3 / 6.0
 
 
@@ -437,6 +453,36 @@ def third_derivative_sup(c_hi, d, f1, f2, f3) -> np.ndarray:
     return best + slope * (np.pi / 2 / (THETA_POINTS - 1)) / 2
 
 
+def pair_sups(tree, tile: TileBoxes) -> dict:
+    """What :func:`taylor_bound` needs of each node's box paired with one tile's boxes
+    (K,) each: ``d_lo`` ≤ |ξ − P| ≤ ``d_hi`` for ξ in the node's box and P in the tile's;
+    ``lit`` (n·(ξ − P) > 0 for every n in the normals' box); ``c_lo`` ≤ n·(ξ − P)/|ξ − P|
+    ≤ ``c_hi`` for unit n there (where lit); ``A_lo`` = A(d⁻), ``a1_lo`` = |A′(d⁻)|, ``a1``
+    and ``a2`` the sups of |A′| and |A″| over d ≥ d⁻; and sups over d ≥ d⁻ of φ = A/d's
+    derivatives, each a sum of terms that fall with d (so d^k times them does too):
+    ``f1`` ≥ |φ′|, ``f2`` ≥ |φ″|, ``f3`` ≥ |φ‴|."""
+    from ..model.falloff import falloff_slopes, falloff_third_sup
+    from ..model.light_tree import _interval_dot
+    tlo, thi = tile.lo[0], tile.hi[0]
+    c0, c1, c2 = (tree.attenuation[:, i] for i in range(3))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        gap = np.maximum(tree.lo - thi, 0) + np.maximum(tlo - tree.hi, 0)
+        d_lo = np.linalg.norm(gap, axis=1)
+        span = np.maximum(tree.hi, thi) - np.minimum(tree.lo, tlo)
+        d_hi = np.linalg.norm(span, axis=1)
+        nl_lo, nl_hi = _interval_dot(tile.nlo[0], tile.nhi[0], tree.lo - thi, tree.hi - tlo)
+        a1_lo, a1, a2 = falloff_slopes(c0, c1, c2, d_lo, tree.peaks)
+        A_lo = 1.0 / (c0 + d_lo * (c1 + d_lo * c2))
+        a3 = falloff_third_sup(tree.attenuation, d_lo)
+        return dict(
+            d_lo=d_lo, d_hi=d_hi, lit=nl_lo > 0,
+            c_lo=np.clip(nl_lo / d_hi, 0.0, 1.0), c_hi=np.clip(nl_hi / d_lo, 0.0, 1.0),
+            A_lo=A_lo, a1_lo=a1_lo, a1=a1, a2=a2,
+            f1=a1 / d_lo + A_lo / d_lo ** 2,
+            f2=a2 / d_lo + 2 * a1 / d_lo ** 2 + 2 * A_lo / d_lo ** 3,
+            f3=a3 / d_lo + 3 * a2 / d_lo ** 2 + 6 * a1 / d_lo ** 3 + 6 * A_lo / d_lo ** 4)
+
+
 def taylor_bound(tree, F, M, T3, tile: TileBoxes, D) -> np.ndarray:
     """(K, 3): a proven bound of each node's diffuse error at every pixel of one tile
     (``tile``, a :class:`~clphong.model.light_tree.TileBoxes` of one tile: the boxes of
@@ -458,8 +504,7 @@ def taylor_bound(tree, F, M, T3, tile: TileBoxes, D) -> np.ndarray:
     :func:`~clphong.model.falloff.falloff_slopes`' sup|A′| and sup|A″| over d ≥ d⁻, and
     :func:`~clphong.model.falloff.falloff_third_sup`'s sup|A‴| (the crude |A‴| ≤ 48A/d³
     made the remainder 5–13× the sampled one on the bench's falloff)."""
-    from ..model.falloff import falloff_slopes, falloff_third_sup
-    from ..model.light_tree import _interval_dot, diffuse_hessian_sup
+    from ..model.light_tree import diffuse_hessian_sup
     tlo, thi = tile.lo[0], tile.hi[0]
     nlo, nhi = tile.nlo[0], tile.nhi[0]
     P = 0.5 * (tlo + thi)
@@ -488,23 +533,11 @@ def taylor_bound(tree, F, M, T3, tile: TileBoxes, D) -> np.ndarray:
               + (phi2[:, None] * uMu + (phi1 / d)[:, None] * (trM - uMu))[..., None] * x[:, None, :])
         first = np.abs(w1 @ n) + dn * np.linalg.norm(w1, axis=-1)
         second = np.abs(w2 @ n) + dn * np.linalg.norm(w2, axis=-1)
-        # the pair of boxes: the distance d⁻ between them, n·(ξ − P) over them
-        gap = np.maximum(tree.lo - thi, 0) + np.maximum(tlo - tree.hi, 0)
-        d_lo = np.linalg.norm(gap, axis=1)
-        span = np.maximum(tree.hi, thi) - np.minimum(tree.lo, tlo)
-        d_hi = np.linalg.norm(span, axis=1)
-        nl_lo, nl_hi = _interval_dot(nlo, nhi, tree.lo - thi, tree.hi - tlo)
-        lit = nl_lo > 0
-        c_lo = np.clip(nl_lo / d_hi, 0.0, 1.0)
-        c_hi = np.clip(nl_hi / d_lo, 0.0, 1.0)
-        a1_lo, a1, a2 = falloff_slopes(c0, c1, c2, d_lo, tree.peaks)
-        A_lo = 1.0 / (c0 + d_lo * (c1 + d_lo * c2))
-        a3 = falloff_third_sup(tree.attenuation, d_lo)
-        f1 = a1 / d_lo + A_lo / d_lo ** 2                       # sup |φ′|
-        f2 = a2 / d_lo + 2 * a1 / d_lo ** 2 + 2 * A_lo / d_lo ** 3          # sup |φ″|
-        f3 = a3 / d_lo + 3 * a2 / d_lo ** 2 + 6 * a1 / d_lo ** 3 + 6 * A_lo / d_lo ** 4   # |φ‴|
+        q = pair_sups(tree, tile)
+        d_lo, lit, c_lo, c_hi = q["d_lo"], q["lit"], q["c_lo"], q["c_hi"]
+        f1, f2, f3 = q["f1"], q["f2"], q["f3"]
         sup3 = third_derivative_sup(c_hi, d_lo, f1, f2, f3)
-        hess = diffuse_hessian_sup(c_lo, c_hi, (A_lo / d_lo + a1_lo) / d_lo, a2)
+        hess = diffuse_hessian_sup(c_lo, c_hi, (q["A_lo"] / d_lo + q["a1_lo"]) / d_lo, q["a2"])
         first = first + (hess * r)[:, None] * np.linalg.norm(F, axis=-1)
         second = second + (sup3 * r)[:, None] * trM
         e = D * (first + 0.5 * second + sup3[:, None] * T3 / 6.0)
@@ -520,9 +553,10 @@ def _pixel_tile(one) -> TileBoxes:
 def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool = False,
                      tile: int = 1, seed: int = 0):
     """{(what, ε): [list entries per sample pixel]} of the threshold cut at each pixel,
-    ``what`` one of "exact" (true errors), "taylor" (the floor of the second-order
-    family: :func:`taylor_terms` where the node is surely lit and smooth, the proven
-    bound elsewhere, and never more than the proven bound), "remainder" (the same with
+    ``what`` one of "exact" (true errors), "taylor" (:func:`taylor_terms` where the
+    node is surely lit and smooth, never more than the proven bound, and the true error
+    elsewhere: what a bound that adds the two terms' sizes would keep with exact
+    derivatives and no remainder), "remainder" (the same with
     :func:`remainder_estimate` added: what a Taylor bound with a third-order remainder
     might keep, an estimate), "remainder, diffuse" (that for the diffuse term only, the
     proven bound's specular term as it is), "proven, diffuse" (the diffuse term by
@@ -559,7 +593,9 @@ def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool 
         smooth = np.isfinite(np.broadcast_to(parts["diffuse_second"], (1,) + b.shape)[0])
         box = _tile_boxes(scene, gbuffer, y, x, tile)
         t2 = taylor_terms(tree, F, M, one, D[j], S[j])
-        tay = np.where(smooth, np.fmin(t2, b), b)
+        # where the expansion does not hold (a node across the pixel's horizon) the least
+        # any bound may charge is the true error
+        tay = np.where(smooth, np.fmin(t2, b), exact)
         rem = np.where(smooth, np.fmin(t2 + remainder_estimate(tree, T3, one, D[j], S[j]), b), b)
         # the diffuse term alone by Taylor and the estimated remainder, the proven
         # bound's specular term (and rounding) as it is
