@@ -638,9 +638,10 @@ def main(argv=None) -> int:
                         "and with the proven bound on tiles of 1, 16 and 128 pixels")
     p.add_argument("--taylor", action="store_true",
                    help="only the cut at each sample pixel with the true errors, with the "
-                        "second-order Taylor terms at the pixel (the floor of the proven "
-                        "bound's family: taylor_terms), with those plus a sampled estimate of "
-                        "a third-order remainder (remainder_estimate), and with the proven bound")
+                        "second-order Taylor terms at the pixel (taylor_terms), with those plus "
+                        "a sampled estimate of a third-order remainder (remainder_estimate), "
+                        "with the proven Taylor bound of the diffuse term (taylor_bound) and "
+                        "with today's proven bound")
     p.add_argument("--relative", action="store_true",
                    help="with --taylor: each channel's budget is ε times the pixel's value")
     p.add_argument("--tile", type=int, default=1,
@@ -661,7 +662,7 @@ def main(argv=None) -> int:
                           "bound"))
             rows.append([f"{e:g}" + (" relative" if args.relative else ""), args.lights,
                          f"{ex:.0f}"] + [f"{v:.0f} ({v / ex:.1f}×)" for v in more])
-        print(markdown_table(["ε", "lights", "true errors", "Taylor at the pixel (floor)",
+        print(markdown_table(["ε", "lights", "true errors", "Taylor terms at the pixel (no remainder)",
                               "with a sampled 3rd-order remainder (estimate)",
                               "the same, diffuse only",
                               f"proven: diffuse by Taylor, {args.tile} px",

@@ -105,7 +105,7 @@ def test_taylor_terms_are_the_true_error_of_small_clusters():
             assert np.percentile(r, 10) >= 0.8 and np.percentile(r, 90) <= 1.1
 
 
-def test_taylor_floor_lies_between_the_true_errors_and_the_bound():
+def test_taylor_cut_lies_between_the_true_errors_and_the_bound():
     """At one pixel the cut with the Taylor terms keeps at most the proven bound's entries
     (its terms never exceed the bound's) and not far fewer than the true errors' (it
     omits only the remainder), in absolute and relative budgets; the CLI prints the
@@ -124,7 +124,7 @@ def test_taylor_floor_lies_between_the_true_errors_and_the_bound():
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
         assert main(["--taylor", "--relative", "--lights", "512", "--pixels", "1", "--eps", "1e-1"]) == 0
-    assert "Taylor at the pixel" in buf.getvalue() and "0.1 relative" in buf.getvalue()
+    assert "Taylor terms at the pixel" in buf.getvalue() and "0.1 relative" in buf.getvalue()
 
 
 def test_third_moments_sum_over_each_nodes_lights():
