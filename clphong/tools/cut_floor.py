@@ -207,15 +207,7 @@ def level_slack(scene, gbuffer, n_pixels: int, seed: int = 0) -> list[dict]:
     where the specular term is the larger; and, where the diffuse second order sets
     it, the median share of its first-moment part Λ·F (F = |Σ R_i (p_i − p_k)|, 0
     for lights of one colour) against its curvature part ½H·Q."""
-    tree = build_light_tree(scene.light_arrays)
-    if tree is None:
-        raise ValueError("the scene has too few clusterable point lights for a tree")
-    a = scene.light_arrays
-    spec = SpecularModel.of_scene(scene)
-    fg = np.flatnonzero(~gbuffer.background_mask().reshape(-1))
-    rng = np.random.default_rng(seed)
-    idx = rng.choice(fg, size=min(n_pixels, len(fg)), replace=False)
-    px, D, S = _pixels_of(scene, gbuffer, idx)
+    tree, a, spec, idx, px, D, S = _sample(scene, gbuffer, n_pixels, seed)
     w = gbuffer.shape[1]
     depth = np.zeros(tree.n_nodes, np.int64)
     for d, lv in enumerate(tree.levels):
@@ -270,6 +262,18 @@ def level_slack(scene, gbuffer, n_pixels: int, seed: int = 0) -> list[dict]:
     return out
 
 
+def _sample(scene, gbuffer, n_pixels: int, seed: int):
+    """The scene's light tree, light arrays and specular model, and ``n_pixels`` shaded
+    pixels drawn with ``seed``: (tree, arrays, spec, flat indices, Pixels, D, S)."""
+    tree = build_light_tree(scene.light_arrays)
+    if tree is None:
+        raise ValueError("the scene has too few clusterable point lights for a tree")
+    fg = np.flatnonzero(~gbuffer.background_mask().reshape(-1))
+    idx = np.random.default_rng(seed).choice(fg, size=min(n_pixels, len(fg)), replace=False)
+    px, D, S = _pixels_of(scene, gbuffer, idx)
+    return tree, scene.light_arrays, SpecularModel.of_scene(scene), idx, px, D, S
+
+
 def bound_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, tiles=(1, 16, 128), seed: int = 0):
     """{(what, ε): [list entries per sample pixel]} of the threshold cut
     (:func:`clphong.model.light_tree.choose_cut`) of the scene's light tree: ``what``
@@ -277,16 +281,8 @@ def bound_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, tiles=(1, 16, 128),
     (the proven :func:`~clphong.model.light_tree.cluster_bounds` on the aligned tile
     holding the pixel). The gap from "exact" to tile 1 is the bound's slack; from
     tile 1 to the super-tiles', the tile's."""
-    tree = build_light_tree(scene.light_arrays)
-    if tree is None:
-        raise ValueError("the scene has too few clusterable point lights for a tree")
-    a = scene.light_arrays
+    tree, a, spec, idx, px, D, S = _sample(scene, gbuffer, n_pixels, seed)
     n = len(a["point_position"])
-    spec = SpecularModel.of_scene(scene)
-    fg = np.flatnonzero(~gbuffer.background_mask().reshape(-1))
-    rng = np.random.default_rng(seed)
-    idx = rng.choice(fg, size=min(n_pixels, len(fg)), replace=False)
-    px, D, S = _pixels_of(scene, gbuffer, idx)
     h, w = gbuffer.shape
     out = {}
     for j, flat in enumerate(idx):
@@ -560,25 +556,17 @@ def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool 
     :func:`remainder_estimate` added: what a Taylor bound with a third-order remainder
     might keep, an estimate), "remainder, diffuse" (that for the diffuse term only, the
     proven bound's specular term as it is), "proven, diffuse" (the diffuse term by
-    :func:`taylor_bound`, a proven bound at the pixel, where it is the tighter; the
+    :func:`taylor_bound`, a proven bound over the tile, where it is the tighter; the
     specular term as it is) and "bound" (the proven
     :func:`~clphong.model.light_tree.cluster_bounds` on the one-pixel tile). With
     ``relative`` each channel's budget is ε times the pixel's float64 value (ambient
     and every light), as the relative budget asks. ``tile``: the proven bounds ("proven,
     diffuse" and "bound") hold for the aligned ``tile`` × ``tile`` block holding the
     pixel (the others are the pixel's own)."""
-    tree = build_light_tree(scene.light_arrays)
-    if tree is None:
-        raise ValueError("the scene has too few clusterable point lights for a tree")
-    a = scene.light_arrays
+    tree, a, spec, idx, px, D, S = _sample(scene, gbuffer, n_pixels, seed)
     n = len(a["point_position"])
-    spec = SpecularModel.of_scene(scene)
     F, M = node_moments(tree, a)
     T3 = third_moments(tree, a)
-    fg = np.flatnonzero(~gbuffer.background_mask().reshape(-1))
-    rng = np.random.default_rng(seed)
-    idx = rng.choice(fg, size=min(n_pixels, len(fg)), replace=False)
-    px, D, S = _pixels_of(scene, gbuffer, idx)
     albedo = gbuffer.albedo.reshape(-1, 3)[idx].astype(np.float64)
     w = gbuffer.shape[1]
     out = {}
