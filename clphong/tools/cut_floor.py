@@ -25,12 +25,15 @@ import sys
 
 import numpy as np
 
+from ..model.falloff import falloff_slopes, falloff_third_sup
 from ..model.light_tree import (
     SpecularModel,
     TileBoxes,
+    _interval_dot,
     build_light_tree,
     choose_cut,
     cluster_bounds,
+    diffuse_hessian_sup,
     leaf_ranges,
 )
 from ..reference import shading as reference
@@ -457,8 +460,6 @@ def pair_sups(tree, tile: TileBoxes) -> dict:
     and ``a2`` the sups of |A′| and |A″| over d ≥ d⁻; and sups over d ≥ d⁻ of φ = A/d's
     derivatives, each a sum of terms that fall with d (so d^k times them does too):
     ``f1`` ≥ |φ′|, ``f2`` ≥ |φ″|, ``f3`` ≥ |φ‴|."""
-    from ..model.falloff import falloff_slopes, falloff_third_sup
-    from ..model.light_tree import _interval_dot
     tlo, thi = tile.lo[0], tile.hi[0]
     c0, c1, c2 = (tree.attenuation[:, i] for i in range(3))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -500,7 +501,6 @@ def taylor_bound(tree, F, M, T3, tile: TileBoxes, D) -> np.ndarray:
     :func:`~clphong.model.falloff.falloff_slopes`' sup|A′| and sup|A″| over d ≥ d⁻, and
     :func:`~clphong.model.falloff.falloff_third_sup`'s sup|A‴| (the crude |A‴| ≤ 48A/d³
     made the remainder 5–13× the sampled one on the bench's falloff)."""
-    from ..model.light_tree import diffuse_hessian_sup
     tlo, thi = tile.lo[0], tile.hi[0]
     nlo, nhi = tile.nlo[0], tile.nhi[0]
     P = 0.5 * (tlo + thi)
