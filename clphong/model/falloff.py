@@ -188,6 +188,16 @@ def kernel_falloff_bound(c0: float, c1: float, c2: float) -> float:
 SLOPE_SLACK = 1e-9
 
 
+def _positive_roots(poly, most: int) -> np.ndarray:
+    """The polynomial's (coefficients, lowest degree first) positive real roots, ascending,
+    at most ``most`` of them (a root counts as real within 10⁻⁹ of its size)."""
+    P = np.polynomial.polynomial
+    poly = P.polytrim(np.asarray(poly, np.float64))
+    r = P.polyroots(poly) if len(poly) > 1 else np.zeros(0)
+    real = np.real(r[np.abs(np.imag(r)) <= 1e-9 * (np.abs(r) + 1.0)])
+    return np.sort(real[real > 0])[:most]
+
+
 def falloff_peaks(att) -> tuple:
     """Where the slopes of the falloff ``A(d) = 1/p(d)``, ``p = c0 + c1·d + c2·d²``
     (``c0, c1, c2 ≥ 0``, one row of ``att`` (K, 3) each), may peak for ``d > 0``.
@@ -208,10 +218,7 @@ def falloff_peaks(att) -> tuple:
         C = P.polysub(P.polymul([3 * c1 * c2, 6 * c2 * c2], [c0, c1, c2]),
                       P.polymul(3 * N, [c1, 2 * c2]))
         for out, poly in ((one, N), (two, C)):
-            poly = P.polytrim(np.asarray(poly, np.float64))
-            r = P.polyroots(poly) if len(poly) > 1 else np.zeros(0)
-            real = np.real(r[np.abs(np.imag(r)) <= 1e-9 * (np.abs(r) + 1.0)])
-            real = np.sort(real[real > 0])[:out.shape[1]]
+            real = _positive_roots(poly, out.shape[1])
             out[i, :len(real)] = real
     inv = inv.reshape(-1)
     return one[inv], two[inv]
@@ -263,10 +270,7 @@ def falloff_third_sup(att, d):
         quartic = P.polyadd(P.polysub(P.polymul(P.polymul([6.0], P.polymul(p2, p2)), P.polymul(p, p)),
                                       P.polymul(P.polymul([36.0], P.polymul(p1, p1)), P.polymul(p2, p))),
                             P.polymul([24.0], P.polymul(P.polymul(p1, p1), P.polymul(p1, p1))))
-        quartic = P.polytrim(np.asarray(quartic, np.float64))
-        r = P.polyroots(quartic) if len(quartic) > 1 else np.zeros(0)
-        real = np.real(r[np.abs(np.imag(r)) <= 1e-9 * (np.abs(r) + 1.0)])
-        real = np.sort(real[real > 0])[:4]
+        real = _positive_roots(quartic, 4)
         roots[i, :len(real)] = real
     roots = roots[inv.reshape(-1)]
     c0, c1, c2 = att[:, 0], att[:, 1], att[:, 2]
