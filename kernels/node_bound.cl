@@ -15,16 +15,20 @@
  * Node records (NODE_DOUBLES + the falloff's turning points): lo[3] hi[3] (rebased)
  * c0 c1 c2, R[3], M[3], F[3], Q[3] (the moments with the record's float32
  * roundings already added, as cluster_terms adds them), then N_ONE turning points
- * of A′ and N_TWO of A″ (NaN: none).
+ * of A′ and N_TWO of A″ (NaN: none), then the Taylor term's TAYLOR_DOUBLES: 4 turning
+ * points of |A‴| (NaN: none), the float64 representative p_k (rebased), F[3][3] (each
+ * channel's Σ R (p_i − p_k)), M[3][6] (each channel's Σ R ΔΔᵀ: xx yy zz xy xz yz),
+ * T3[3] (Σ R |Δ|³) and rp (the record's position rounding).
  *
  * Defines (clphong/device/nodebound.py): N_ONE, N_TWO; LOBE (1: the lobe's exponent
  * K ≥ 1 is the argument K; 0: a shininess map or K < 1, the range alone), BLINN,
- * FRESNEL, PERSPECTIVE.
+ * FRESNEL, PERSPECTIVE; THETA_POINTS (clphong/model/taylor.py).
  */
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 
 #define TILE_DOUBLES 18
 #define NODE_DOUBLES 21
+#define TAYLOR_DOUBLES 38
 #define U_D 5.9604644775390625e-8          /* 2^-24: clphong.core.floats.U */
 #define SLOPE_SLACK_D 1e-9                 /* clphong.model.falloff.SLOPE_SLACK */
 #define PI_D 3.141592653589793
@@ -141,6 +145,87 @@ inline double diffuse_hessian_sup(double c_lo, double c_hi, double M, double A2)
     return fmax(fmax(0.0, hessian_vertex(c_lo, c_hi, M, A2)), hessian_vertex(c_lo, c_hi, M, -A2));
 }
 
+/* falloff.py falloff_third_sup's |A‴| at x */
+inline double falloff_third(double c0, double c1, double c2, double x)
+{
+    const double p = c0 + x * (c1 + x * c2);
+    const double p1 = c1 + 2.0 * c2 * x;
+    return 6.0 * fabs(p1 * (2.0 * c2 * p - p1 * p1)) / (p * p) / (p * p);
+}
+
+/* taylor.py third_derivative_sup: sup‖∇³g‖ from c⁺, d⁻ and φ's sups: the cubic form
+ * a·t³ + b·ts² + c·st² + e·s³ on a grid of THETA_POINTS over [0, π/2] (θ stepped by a
+ * rotation), plus the slope's margin */
+inline double third_derivative_sup(double c_hi, double d, double f1, double f2, double f3)
+{
+    const double k1 = f2, k2 = f1 / d;
+    const double B = f2 / d + f1 / (d * d);
+    const double a = 3.0 * c_hi * k1 + c_hi * d * f3;
+    const double b = 3.0 * c_hi * k2 + 3.0 * c_hi * d * B;
+    const double c = 3.0 * k1, e = 3.0 * k2;
+    const double step = (PI_D / 2.0) / (THETA_POINTS - 1);
+    const double C = cos(step), S = sin(step);
+    double best = 0.0, t = 1.0, s = 0.0;
+    for (int j = 0; j < THETA_POINTS; ++j) {
+        const double t2 = t * t, s2 = s * s;
+        best = fmax(best, a * (t2 * t) + b * (t * s2) + c * (s * t2) + e * (s2 * s));
+        const double tn = t * C - s * S;
+        s = s * C + t * S;
+        t = tn;
+    }
+    return best + 3.0 * (a + b + c + e) * step / 2.0;
+}
+
+/* light_tree.py taylor_term and taylor.py taylor_diffuse: each channel's Taylor bound of
+ * the diffuse error over the tile, in out (without D), for a surely lit pair; Tn: the
+ * node's Taylor block */
+inline void taylor_term(const v3 p0, const v3 m0, const double r, const double dn,
+                        const __global double *Tn, const double c0, const double c1,
+                        const double c2, const double d_lo, const double A_lo, const double a1,
+                        const double a2, const double c_hi, const double hess, double out[3])
+{
+    double s3 = falloff_third(c0, c1, c2, d_lo);
+    for (int j = 0; j < 4; ++j) {
+        const double q = Tn[j];
+        s3 = fmax(s3, q > d_lo ? falloff_third(c0, c1, c2, q) : 0.0);
+    }
+    const double a3 = s3 * (1.0 + SLOPE_SLACK_D);
+    const double dl2 = d_lo * d_lo, dl3 = dl2 * d_lo;
+    const double f1 = a1 / d_lo + A_lo / dl2;
+    const double f2 = a2 / d_lo + 2.0 * a1 / dl2 + 2.0 * A_lo / dl3;
+    const double f3 = a3 / d_lo + 3.0 * a2 / dl2 + 6.0 * a1 / dl3 + 6.0 * A_lo / (dl3 * d_lo);
+    const double sup3 = third_derivative_sup(c_hi, d_lo, f1, f2, f3);
+    const v3 x = sub(load3(Tn + 4), p0);
+    const double d = sqrt(sum3(mk(x.x * x.x, x.y * x.y, x.z * x.z)));
+    const v3 u = mk(x.x / d, x.y / d, x.z / d);
+    const double p = c0 + d * (c1 + d * c2);
+    const double A = 1.0 / p, A1 = -(c1 + 2.0 * c2 * d) / (p * p);
+    const double A2 = 2.0 * (d * (3.0 * c2 * c2 * d + 3.0 * c1 * c2) + c1 * c1 - c0 * c2) / (p * p * p);
+    const double phi = A / d;
+    const double d2 = d * d;
+    const double phi1 = A1 / d - A / d2;
+    const double phi2 = A2 / d - 2.0 * A1 / d2 + 2.0 * A / (d2 * d);
+    for (int c = 0; c < 3; ++c) {
+        const v3 F = load3(Tn + 7 + 3 * c);
+        const __global double *M = Tn + 16 + 6 * c;
+        const double uF = F.x * u.x + F.y * u.y + F.z * u.z;
+        const v3 w1 = add(scl(F, phi), scl(x, phi1 * uF));
+        const v3 Mu = mk(M[0] * u.x + M[3] * u.y + M[4] * u.z,
+                         M[3] * u.x + M[1] * u.y + M[5] * u.z,
+                         M[4] * u.x + M[5] * u.y + M[2] * u.z);
+        const double uMu = Mu.x * u.x + Mu.y * u.y + Mu.z * u.z;
+        const double trM = M[0] + M[1] + M[2];
+        const v3 w2 = add(scl(Mu, 2.0 * phi1), scl(x, phi2 * uMu + (phi1 / d) * (trM - uMu)));
+        const double first = fabs(sum3(mk(w1.x * m0.x, w1.y * m0.y, w1.z * m0.z)))
+            + dn * sqrt(sum3(mk(w1.x * w1.x, w1.y * w1.y, w1.z * w1.z)))
+            + (hess * r) * sqrt(sum3(mk(F.x * F.x, F.y * F.y, F.z * F.z)));
+        const double second = fabs(sum3(mk(w2.x * m0.x, w2.y * m0.y, w2.z * m0.z)))
+            + dn * sqrt(sum3(mk(w2.x * w2.x, w2.y * w2.y, w2.z * w2.z)))
+            + (sup3 * r) * trM;
+        out[c] = first + 0.5 * second + sup3 * Tn[34 + c] / 6.0;
+    }
+}
+
 /* What a tile's bounds share over every node: its boxes, widened by the float32
  * rounding of the positions they hold (tlo, thi), and, where it has specular, the
  * tile's side of specular_cosine (its normals' cone, centre and radius, and its view
@@ -149,6 +234,8 @@ typedef struct {
     v3 lo, hi, nlo, nhi, D, S, tlo, thi;
     double reach;          /* the largest |coordinate| of the widened box */
     int spec;              /* any S */
+    v3 p0, m0;             /* the Taylor term's tile centre (widened box) and normals' centre */
+    double r, dn;          /* their half-diagonals */
     v3 n0, ct, v0;
     double a_n, rt, a_v;
 } tile_c;
@@ -167,6 +254,11 @@ inline tile_c tile_consts(const __global double *T, const v3 eye)
     t.thi = add(t.hi, mk(pad, pad, pad));
     t.reach = nmax3(vmax(vabs(t.tlo), vabs(t.thi)));
     t.spec = t.S.x != 0.0 || t.S.y != 0.0 || t.S.z != 0.0;
+    const v3 tw = sub(t.thi, t.tlo), nw = sub(t.nhi, t.nlo);
+    t.p0 = scl(add(t.tlo, t.thi), 0.5);
+    t.r = 0.5 * sqrt(sum3(mk(tw.x * tw.x, tw.y * tw.y, tw.z * tw.z)));
+    t.m0 = scl(add(t.nlo, t.nhi), 0.5);
+    t.dn = 0.5 * sqrt(sum3(mk(nw.x * nw.x, nw.y * nw.y, nw.z * nw.z)));
     if (t.spec) {
         double len;
         t.n0 = unit(scl(add(t.nlo, t.nhi), 0.5), &len);
@@ -281,11 +373,20 @@ inline void node_term(const tile_c *tc, const __global double *N, const v3 eye, 
     double e[3];
     const double Rc[3] = {Rk.x, Rk.y, Rk.z}, Mc[3] = {M.x, M.y, M.z}, Fc[3] = {F.x, F.y, F.z},
                  Qc[3] = {Q.x, Q.y, Q.z}, Dc[3] = {D.x, D.y, D.z}, Sc[3] = {S.x, S.y, S.z};
+    /* Taylor's terms themselves, with the remainder, where surely lit (light_tree.py) */
+    double tay[3] = {INFINITY, INFINITY, INFINITY};
+    if (lit) {
+        const __global double *Tn = N + NODE_DOUBLES + N_ONE + N_TWO;
+        taylor_term(tc->p0, tc->m0, tc->r, tc->dn, Tn, c0, c1, c2, d_lo, A_lo, a1, a2,
+                    nu_hi, hess, tay);
+        for (int c = 0; c < 3; ++c)
+            tay[c] = tay[c] * 1.0 + grad * Rc[c] * Tn[37];
+    }
     for (int c = 0; c < 3; ++c) {
         const double e_rng = Rc[c] * g_hi;
         const double e_lip = grad * Mc[c];
         const double e_two = grad * Fc[c] + 0.5 * hess * Qc[c];
-        e[c] = Dc[c] * fmin(fmin(e_rng, e_lip), lit ? e_two : INFINITY);
+        e[c] = Dc[c] * fmin(fmin(fmin(e_rng, e_lip), lit ? e_two : INFINITY), tay[c]);
     }
     /* specular (where the tile has any) */
     if (tc->spec) {

@@ -16,29 +16,38 @@ import copy
 import numpy as np
 
 from ..core.floats import U
-from ..model.light_tree import LightTree, SpecularModel, TileBoxes, leaf_ranges
+from ..model.light_tree import LightTree, SpecularModel, TileBoxes, _sum3, leaf_ranges
+from ..model.taylor import THETA_POINTS
 
-#: Doubles per tile record (TILE_DOUBLES) and per node record before its falloff's
-#: turning points (NODE_DOUBLES), kernels/node_bound.cl.
+#: Doubles per tile record (TILE_DOUBLES), per node record before its falloff's
+#: turning points (NODE_DOUBLES) and after them (TAYLOR_DOUBLES: the Taylor term's),
+#: kernels/node_bound.cl.
 TILE_DOUBLES = 18
 NODE_DOUBLES = 21
+TAYLOR_DOUBLES = 38
 #: Work-items per work-group.
 LOCAL = 64
 
 
 def node_records(tree: LightTree, origin) -> np.ndarray:
-    """(K, NODE_DOUBLES + turning points) float64: each node's box (rebased), falloff,
-    radiance and moments with its float32 record's roundings added, as
-    :func:`~clphong.model.light_tree.cluster_terms` forms them."""
+    """(K, NODE_DOUBLES + turning points + TAYLOR_DOUBLES) float64: each node's box
+    (rebased), falloff, radiance and moments with its float32 record's roundings added,
+    as :func:`~clphong.model.light_tree.cluster_terms` forms them, then what its Taylor
+    term needs (:func:`~clphong.model.light_tree.taylor_term`)."""
     o = np.asarray(origin, np.float64)
     Rk = tree.radiance
-    rp = U * (np.abs(tree.position - o).max(axis=1) + np.abs(o).max())[..., None]
+    rp = U * (np.sqrt(_sum3((tree.position - o) ** 2)) + np.abs(o).max())[..., None]
     M = tree.moment + Rk * rp
     F = tree.first + Rk * rp
     Q = tree.quadratic + Rk * rp * (rp + 2 * tree.moment / np.maximum(Rk, 1e-300))
     one, two = tree.peaks
+    K = tree.n_nodes
     return np.ascontiguousarray(np.concatenate(
-        [tree.lo - o, tree.hi - o, tree.attenuation, Rk, M, F, Q, one, two], axis=1), np.float64)
+        [tree.lo - o, tree.hi - o, tree.attenuation, Rk, M, F, Q, one, two,
+         # the Taylor term's (TAYLOR_DOUBLES): |A‴|'s turning points, the float64
+         # representative (rebased), its moments per channel, the record's rounding
+         tree.third_peaks, tree.position - o, tree.first_vector.reshape(K, 9),
+         tree.second_moment.reshape(K, 18), tree.third_moment, rp], axis=1), np.float64)
 
 
 def tile_records(tiles: TileBoxes) -> np.ndarray:
@@ -64,7 +73,7 @@ class DeviceNodeTerms:
         self.prog = runtime.program("node_bound.cl", {
             "N_ONE": one.shape[1], "N_TWO": two.shape[1], "LOBE": int(lobe),
             "BLINN": int(spec.blinn), "FRESNEL": int(spec.fresnel),
-            "PERSPECTIVE": int(spec.perspective)})
+            "PERSPECTIVE": int(spec.perspective), "THETA_POINTS": THETA_POINTS})
         ro = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
         nodes = node_records(tree, origin)
         self.node_doubles = nodes.shape[1]

@@ -252,15 +252,13 @@ def falloff_slopes(c0, c1, c2, d, peaks):
     return at, s1 * (1 + SLOPE_SLACK), s2 * (1 + SLOPE_SLACK)
 
 
-def falloff_third_sup(att, d):
-    """``sup |A‴|`` over ``[d, ∞)`` for ``A = 1/p``, ``p = c0 + c1·d + c2·d²`` (``c0, c1, c2
-    ≥ 0``; ``att`` (K, 3) rows, ``d`` (K,)). ``A‴ = 6p′(p·p″ − p′²)/p⁴`` (p‴ = 0), and
-    ``A⁗``'s numerator ``6p″²p² − 36p′²p″p + 24p′⁴`` is a quartic in d: the sup is the
-    value at ``d`` or at one of its positive real roots beyond ``d`` (the limit is 0).
-    Roots are searched once per distinct row, on the row over its largest coefficient,
-    as :func:`falloff_peaks` does; the sup carries :data:`SLOPE_SLACK`."""
+def falloff_third_roots(att) -> np.ndarray:
+    """(K, 4): where ``|A‴|`` may peak for ``d > 0``, for ``A = 1/p``, ``p = c0 + c1·d +
+    c2·d²`` (``att`` (K, 3) rows, ``c0, c1, c2 ≥ 0``): ``A‴ = 6p′(p·p″ − p′²)/p⁴`` (p‴ =
+    0), and ``A⁗``'s numerator ``6p″²p² − 36p′²p″p + 24p′⁴`` is a quartic in d; its
+    positive real roots, ascending, NaN where none. One root search per distinct row,
+    on the row over its largest coefficient, as :func:`falloff_peaks` does."""
     att = np.asarray(att, np.float64).reshape(-1, 3)
-    d = np.asarray(d, np.float64)
     rows, inv = np.unique(att, axis=0, return_inverse=True)
     roots = np.full((len(rows), 4), np.nan)
     P = np.polynomial.polynomial
@@ -272,8 +270,19 @@ def falloff_third_sup(att, d):
                             P.polymul([24.0], P.polymul(P.polymul(p1, p1), P.polymul(p1, p1))))
         real = _positive_roots(quartic, 4)
         roots[i, :len(real)] = real
-    roots = roots[inv.reshape(-1)]
-    c0, c1, c2 = att[:, 0], att[:, 1], att[:, 2]
+    return roots[inv.reshape(-1)]
+
+
+def falloff_third_sup(att, d, roots=None):
+    """``sup |A‴|`` over ``[d, ∞)`` for ``A = 1/p`` (``att`` (…, 3), ``d`` (…)): the
+    value at ``d`` or at one of :func:`falloff_third_roots`' roots beyond ``d``
+    (``roots`` (…, 4), by default found here; the limit is 0); the sup carries
+    :data:`SLOPE_SLACK`. kernels/node_bound.cl ``falloff_third`` is the same."""
+    att = np.asarray(att, np.float64)
+    d = np.asarray(d, np.float64)
+    if roots is None:
+        roots = falloff_third_roots(att).reshape(att.shape[:-1] + (4,))
+    c0, c1, c2 = att[..., 0], att[..., 1], att[..., 2]
 
     def third(x):
         p = c0 + x * (c1 + x * c2)
@@ -282,8 +291,8 @@ def falloff_third_sup(att, d):
 
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         s = third(d)
-        for j in range(roots.shape[1]):
-            r = roots[:, j]
+        for j in range(roots.shape[-1]):
+            r = roots[..., j]
             s = np.fmax(s, np.where(r > d, third(r), 0.0))
     return s * (1 + SLOPE_SLACK)
 

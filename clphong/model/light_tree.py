@@ -49,7 +49,14 @@ hold, and the smallest is taken, per term:
 * **second order** (Taylor about the centroid ``p_k``, where ``Σ_i w_i (p_i − p_k) = 0``):
   ``|e_c| ≤ Λ·F_kc + ½·H·Q_kc`` with ``F_kc = |Σ_i R_ic (p_i − p_k)|`` (0 for lights
   of one colour), ``Q_kc = Σ_i R_ic·|p_i − p_k|²`` and ``H`` a bound of the Hessian;
-  only where ``n·u > 0`` over the whole box pair (the terms are smooth there).
+  only where ``n·u > 0`` over the whole box pair (the terms are smooth there);
+* **Taylor** (diffuse, where ``t`` is constant over the pair and ``n·u > 0`` over it):
+  the two terms themselves, ``∇g·F_c + ½·tr(∇²g·M_c)`` with ``F_c`` the vector and
+  ``M_c`` the tensor, both linear in ``n`` and bounded over the tile's boxes, plus the
+  third-order remainder ``⅙·sup‖∇³g‖·Σ_i R_ic |p_i − p_k|³``
+  (:mod:`clphong.model.taylor`, :func:`taylor_term`; 2026-12-08). Size bounds cannot
+  see that ``∇g·F_c`` and ``tr(∇²g·M_c)`` are far smaller than ``|∇g|·|F_c|`` and
+  ``‖∇²g‖·tr M_c`` when the moments and the derivatives point different ways.
 
 The constants, with ``A = A(d⁻)`` and ``d = d⁻`` where a term is decreasing in ``d``,
 and the falloff's own slopes ``A₁ = sup |A′|`` and ``A₂ = sup |A″|`` over ``d ≥ d⁻``
@@ -120,7 +127,8 @@ import numpy as np
 
 from ..core.floats import U
 from ..core.geometry import view_vector
-from .falloff import falloff_peaks, falloff_slopes
+from .falloff import falloff_peaks, falloff_slopes, falloff_third_roots, falloff_third_sup
+from .taylor import PAIRS, phi_sups, taylor_diffuse, third_derivative_sup
 
 #: Fewest clusterable lights worth a tree (below it every list is short anyway).
 MIN_TREE_LIGHTS = 64
@@ -144,8 +152,12 @@ class LightTree:
     moment: np.ndarray      # (K, 3) Σ_i R_ic·|p_i − p_k|
     quadratic: np.ndarray   # (K, 3) Σ_i R_ic·|p_i − p_k|²
     first: np.ndarray       # (K, 3) |Σ_i R_ic·(p_i − p_k)| (0 for lights of one colour)
+    first_vector: np.ndarray  # (K, 3, 3) Σ_i R_ic·(p_i − p_k), per channel c
+    second_moment: np.ndarray  # (K, 3, 6) Σ_i R_ic·(p_i − p_k)(p_i − p_k)ᵀ (taylor.PAIRS)
+    third_moment: np.ndarray  # (K, 3) Σ_i R_ic·|p_i − p_k|³
     attenuation: np.ndarray  # (K, 3) the shared c0, c1, c2
     peaks: tuple            # ((K, 2), (K, 3)) where |A′| and |A″| may peak (falloff_peaks)
+    third_peaks: np.ndarray  # (K, 4) where |A‴| may peak (falloff_third_roots)
     cone: np.ndarray        # (K, 5) the shared cone: a spot's axis, (s, o); (0, 0, 0, 0, 1)
     group: np.ndarray       # (K,) the light group of the node's lights (0 without groups)
     children: np.ndarray    # (K, 2) combined numbers
@@ -262,7 +274,7 @@ def build_light_tree(arrays) -> LightTree | None:
     gid = light_groups_of(arrays)
     los, his, reps, rads, moms, atts, kids = [], [], [], [], [], [], []
     cones, groups = [], []
-    quads, firsts = [], []
+    quads, fvecs, seconds, thirds = [], [], [], []
     levels: list[list[np.ndarray]] = []
     base = 0                                    # internal nodes numbered so far
     for members in classes:
@@ -293,8 +305,10 @@ def build_light_tree(arrays) -> LightTree | None:
             moms.append(np.add.reduceat(w * dist[:, None], off, axis=0))
             quads.append(np.add.reduceat(w * (dist * dist)[:, None], off, axis=0))
             delta = pp - cent[seg]                      # (m, 3) offsets from the centroid
-            firsts.append(np.sqrt(sum(np.add.reduceat(w * delta[:, i:i + 1], off, axis=0) ** 2
-                                      for i in range(3))))
+            fvecs.append(np.add.reduceat(w[:, :, None] * delta[:, None, :], off, axis=0))
+            pairs = np.stack([delta[:, a] * delta[:, b] for a, b in PAIRS], axis=1)
+            seconds.append(np.add.reduceat(w[:, :, None] * pairs[:, None, :], off, axis=0))
+            thirds.append(np.add.reduceat(w * (dist ** 3)[:, None], off, axis=0))
             rads.append(np.add.reduceat(w, off, axis=0))
             los.append(lo)
             his.append(hi)
@@ -337,9 +351,13 @@ def build_light_tree(arrays) -> LightTree | None:
 
     children = place([c for _, c in kids])
     att = place(atts)
+    fvec = place(fvecs)
     return LightTree(n_leaves=n, lo=place(los), hi=place(his), position=place(reps),
                      radiance=place(rads), moment=place(moms), quadratic=place(quads),
-                     first=place(firsts), attenuation=att, peaks=falloff_peaks(att),
+                     first=np.sqrt(np.sum(fvec * fvec, axis=-1)), first_vector=fvec,
+                     second_moment=place(seconds), third_moment=place(thirds),
+                     attenuation=att, peaks=falloff_peaks(att),
+                     third_peaks=falloff_third_roots(att),
                      cone=place(cones),
                      group=place(groups), children=children, levels=tuple(np.concatenate(lv) for lv in levels),
                      clusterable=sum(len(c) for c in classes),
@@ -578,8 +596,10 @@ def cluster_terms(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
         lit = nl_lo / d_hi - margin > 0              # the gate n·l > 0 surely on
         nu_hi = np.minimum(np.where(nl_hi > 0, nl_hi / d_lo, 0.0) + margin, 1.0)
         Rk = side(tree.radiance[k])
-        # the record's float32 roundings: position (u·|p|), added to the moments
-        rp = U * side(np.abs(tree.position[k] - o).max(axis=1) + np.abs(o).max())[..., None]
+        # the record's float32 roundings: position (u·|p|, its length: each coordinate
+        # rounds by ≤ u·|x_i|; the largest coordinate before 2026-12-08, √3 short on a
+        # diagonal), added to the moments
+        rp = U * side(np.sqrt(_sum3((tree.position[k] - o) ** 2)) + np.abs(o).max())[..., None]
         M = side(tree.moment[k]) + Rk * rp
         F = side(tree.first[k]) + Rk * rp
         Q = side(tree.quadratic[k]) + Rk * rp * (rp + 2 * side(tree.moment[k]) / np.maximum(Rk, 1e-300))
@@ -608,11 +628,17 @@ def cluster_terms(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
         hess = hess_g * t2 + np.where(spot, 2.0 * spot_lip * grad_g + g_hi * spot_hess, 0.0)
         e_two = grad[..., None] * F + 0.5 * hess[..., None] * Q
         smooth = (lit & smooth_t)[..., None]         # the second order: no kink in the pair
-        e = D * np.fmin(np.fmin(e_rng, e_lip), np.where(smooth, e_two, np.inf))
+        # Taylor's terms themselves, with the remainder (clphong/model/taylor.py), where
+        # t is constant over the pair (a point light, or inside a spot's inner cone), about
+        # the float64 centroid; the record's float32 position moves g by ≤ |∇g|·rp
+        e_tay = np.where((lit & ~spot)[..., None], taylor_term(
+            tree, k, side, tiles, tlo, thi, o, d_lo, A_lo, a1, a2, nu_hi, hess_g) * t2[..., None]
+            + grad_g[..., None] * Rk * rp, np.inf)
+        e = D * np.fmin(np.fmin(np.fmin(e_rng, e_lip), np.where(smooth, e_two, np.inf)), e_tay)
         if parts is not None:
             parts.update(diffuse=e, diffuse_range=D * e_rng, diffuse_first=D * e_lip,
                          diffuse_second=D * np.where(smooth, e_two, np.inf),
-                         diffuse_second_F=D * grad[..., None] * F)
+                         diffuse_second_F=D * grad[..., None] * F, diffuse_taylor=D * e_tay)
         if tiles.S.any():
             # ‖∇²A‖ = max(|A″|, |A′|/d) (radially and across)
             slopes = (a1, np.maximum(a2, a1_lo / d_lo))
@@ -622,6 +648,26 @@ def cluster_terms(tree: LightTree, tiles: TileBoxes, spec: SpecularModel,
         e = e + U * Rk * A_lo[..., None] * (D + S)
     e = np.where((d_lo > 0)[..., None], e, np.inf)       # the boxes touch (or NaN): none
     return np.where(dark[..., None], 0.0, e)
+
+
+def taylor_term(tree: LightTree, k, side, tiles: TileBoxes, tlo, thi, o, d_lo, A_lo, a1, a2,
+                c_hi, hess):
+    """:func:`~clphong.model.taylor.taylor_diffuse` for :func:`cluster_terms`' pairs (its
+    shapes: the tiles' (T, 1, …) and the nodes' ``side`` (1, K, …), or (P, 1, …)): the
+    tiles' widened boxes ``tlo, thi``, the pair's d⁻, A(d⁻), sup|A′|, sup|A″| over d ≥ d⁻,
+    the cosine's c⁺ and ``hess`` ≥ sup‖∇²g‖; sup‖∇³g‖ from
+    :func:`~clphong.model.falloff.falloff_third_sup`."""
+    P0 = 0.5 * (tlo + thi)
+    r = 0.5 * np.sqrt(_sum3((thi - tlo) ** 2))
+    n0 = 0.5 * (tiles.nlo + tiles.nhi)[:, None]
+    dn = 0.5 * np.sqrt(_sum3((tiles.nhi - tiles.nlo) ** 2))[:, None]
+    att = side(tree.attenuation[k])
+    a3 = falloff_third_sup(att, d_lo, side(tree.third_peaks[k]))
+    sup3 = third_derivative_sup(c_hi, d_lo, *phi_sups(A_lo, a1, a2, a3, d_lo))
+    x = side(tree.position[k] - o) - P0
+    return taylor_diffuse(x, side(tree.first_vector[k]), side(tree.second_moment[k]),
+                          side(tree.third_moment[k]), n0, dn, r, hess, sup3,
+                          att[..., 0], att[..., 1], att[..., 2])
 
 
 def diffuse_gradient_sup(c_lo, c_hi, L, A1):

@@ -25,15 +25,12 @@ import sys
 
 import numpy as np
 
-from ..model.falloff import falloff_slopes, falloff_third_sup
 from ..model.light_tree import (
     SpecularModel,
     TileBoxes,
-    _interval_dot,
     build_light_tree,
     choose_cut,
     cluster_bounds,
-    diffuse_hessian_sup,
     leaf_ranges,
 )
 from ..reference import shading as reference
@@ -427,125 +424,6 @@ def remainder_estimate(tree, T3, one, D, S) -> np.ndarray:
     return sup * T3 / 6.0
 
 
-#: Points of θ ∈ [0, π/2] at which :func:`third_derivative_sup` evaluates its bound.
-THETA_POINTS = 97
-
-
-def third_derivative_sup(c_hi, d, f1, f2, f3) -> np.ndarray:
-    """sup over unit e of |∇³g[e,e,e]| for g = (n·x)·φ(|x|), given at |x| ≥ d: c⁺ ≥ n·x/|x|
-    and sups f1 ≥ |φ′|, f2 ≥ |φ″|, f3 ≥ |φ‴| whose products with the powers of |x| below
-    fall with |x|. With t = u·e = cos θ, s = sin θ: ∇³g[e,e,e] = 3(n·e)·∇²φ[e,e] + (n·x)·
-    ∇³φ[e,e,e], |n·e| ≤ c⁺t + s, |∇²φ[e,e]| ≤ f2·t² + (f1/d)·s², |∇³φ[e,e,e]| ≤ f3·t³ +
-    3t·s²·(f2/d + f1/d²), so E(θ) = 3(c⁺t + s)(f2t² + (f1/d)s²) + c⁺d·(f3t³ + 3ts²(f2/d +
-    f1/d²)) bounds it. Its largest value on a grid of :data:`THETA_POINTS` over [0, π/2],
-    plus |E′|·Δθ/2 with |E′| ≤ 3·(the sum of its coefficients) (each term is a product of
-    cos and sin of degree ≤ 3), bounds its sup."""
-    B = f2 / d + f1 / d ** 2
-    k1, k2 = f2, f1 / d
-    k3, k4 = c_hi * d * f3, 3 * c_hi * d * B
-    best = np.zeros(np.shape(d))
-    for theta in np.linspace(0.0, np.pi / 2, THETA_POINTS):
-        t, s_ = np.cos(theta), np.sin(theta)
-        E = 3 * (c_hi * t + s_) * (k1 * t * t + k2 * s_ * s_) + k3 * t ** 3 + k4 * t * s_ * s_
-        best = np.fmax(best, E)
-    slope = 3 * (3 * (c_hi + 1) * (k1 + k2) + k3 + k4)
-    return best + slope * (np.pi / 2 / (THETA_POINTS - 1)) / 2
-
-
-def pair_sups(tree, tile: TileBoxes) -> dict:
-    """What :func:`taylor_bound` needs of each node's box paired with one tile's boxes
-    (K,) each: ``d_lo`` ≤ |ξ − P| ≤ ``d_hi`` for ξ in the node's box and P in the tile's;
-    ``lit`` (n·(ξ − P) > 0 for every n in the normals' box); ``c_lo`` ≤ n·(ξ − P)/|ξ − P|
-    ≤ ``c_hi`` for unit n there (where lit); ``A_lo`` = A(d⁻), ``a1_lo`` = |A′(d⁻)|, ``a1``
-    and ``a2`` the sups of |A′| and |A″| over d ≥ d⁻; and sups over d ≥ d⁻ of φ = A/d's
-    derivatives, each a sum of terms that fall with d (so d^k times them does too):
-    ``f1`` ≥ |φ′|, ``f2`` ≥ |φ″|, ``f3`` ≥ |φ‴|."""
-    tlo, thi = tile.lo[0], tile.hi[0]
-    c0, c1, c2 = (tree.attenuation[:, i] for i in range(3))
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        gap = np.maximum(tree.lo - thi, 0) + np.maximum(tlo - tree.hi, 0)
-        d_lo = np.linalg.norm(gap, axis=1)
-        span = np.maximum(tree.hi, thi) - np.minimum(tree.lo, tlo)
-        d_hi = np.linalg.norm(span, axis=1)
-        nl_lo, nl_hi = _interval_dot(tile.nlo[0], tile.nhi[0], tree.lo - thi, tree.hi - tlo)
-        a1_lo, a1, a2 = falloff_slopes(c0, c1, c2, d_lo, tree.peaks)
-        A_lo = 1.0 / (c0 + d_lo * (c1 + d_lo * c2))
-        a3 = falloff_third_sup(tree.attenuation, d_lo)
-        return dict(
-            d_lo=d_lo, d_hi=d_hi, lit=nl_lo > 0,
-            c_lo=np.clip(nl_lo / d_hi, 0.0, 1.0), c_hi=np.clip(nl_hi / d_lo, 0.0, 1.0),
-            A_lo=A_lo, a1_lo=a1_lo, a1=a1, a2=a2,
-            f1=a1 / d_lo + A_lo / d_lo ** 2,
-            f2=a2 / d_lo + 2 * a1 / d_lo ** 2 + 2 * A_lo / d_lo ** 3,
-            f3=a3 / d_lo + 3 * a2 / d_lo ** 2 + 6 * a1 / d_lo ** 3 + 6 * A_lo / d_lo ** 4)
-
-
-def taylor_bound(tree, F, M, T3, tile: TileBoxes, D) -> np.ndarray:
-    """(K, 3): a proven bound of each node's diffuse error at every pixel of one tile
-    (``tile``, a :class:`~clphong.model.light_tree.TileBoxes` of one tile: the boxes of
-    its positions and of its unit normals; one pixel: both boxes points), with the
-    tile's D (3,), against the float64 node error, for the diffuse weight g(x) =
-    (n·x)·φ(|x|), φ = A(d)/d, x = L − P. Where the node's box is not surely lit from
-    the tile (g has its kink) or touches it: +inf.
-
-    At a pixel (P, n), Taylor's theorem with the Lagrange remainder (the node's box
-    holds every segment from p_k to a light) gives the error as ∇g·F_c + ½·tr(∇²g·M_c)
-    at x̄ = p_k − P, plus at most ⅙·sup‖∇³g‖·Σ R_ic·|p_i − p_k|³. Both terms are linear
-    in n: ∇g·F = n·w₁, w₁ = φF + φ′(u·F)x, and tr(∇²g·M) = n·w₂, w₂ = 2φ′·Mu +
-    x·(φ″·uᵀMu + (φ′/d)·(tr M − uᵀMu)). They are taken at the tile's centre (P₀, the
-    normals' box centre n₀): |n·w| ≤ |n₀·w| + |n − n₀|·|w|, and a move of P by at most
-    r (the position box's half-diagonal) changes ∇g·F by at most sup‖∇²g‖·|F_c|·r
-    (:func:`~clphong.model.light_tree.diffuse_hessian_sup` over the pair) and
-    tr(∇²g·M) by at most sup‖∇³g‖·tr M_c·r. sup‖∇³g‖ over the pair of boxes is
-    :func:`third_derivative_sup` with φ's derivatives bounded term by term by A(d⁻) and
-    :func:`~clphong.model.falloff.falloff_slopes`' sup|A′| and sup|A″| over d ≥ d⁻, and
-    :func:`~clphong.model.falloff.falloff_third_sup`'s sup|A‴| (the crude |A‴| ≤ 48A/d³
-    made the remainder 5–13× the sampled one on the bench's falloff)."""
-    tlo, thi = tile.lo[0], tile.hi[0]
-    nlo, nhi = tile.nlo[0], tile.nhi[0]
-    P = 0.5 * (tlo + thi)
-    r = 0.5 * np.linalg.norm(thi - tlo)
-    n = 0.5 * (nlo + nhi)
-    dn = 0.5 * np.linalg.norm(nhi - nlo)
-    c0, c1, c2 = (tree.attenuation[:, i] for i in range(3))
-    x = tree.position - P
-    d = np.linalg.norm(x, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        u = x / d[:, None]
-        p = c0 + d * (c1 + d * c2)
-        A = 1.0 / p
-        A1 = -(c1 + 2 * c2 * d) / (p * p)
-        A2 = 2 * (d * (3 * c2 * c2 * d + 3 * c1 * c2) + c1 * c1 - c0 * c2) / (p * p * p)
-        phi = A / d
-        phi1 = A1 / d - A / d ** 2
-        phi2 = A2 / d - 2 * A1 / d ** 2 + 2 * A / d ** 3
-        # w₁ = φF + φ′(u·F)x and w₂ (K, 3 channels, 3)
-        uF = np.einsum("kci,ki->kc", F, u)
-        w1 = phi[:, None, None] * F + (phi1[:, None] * uF)[..., None] * x[:, None, :]
-        Mu = np.einsum("kcij,kj->kci", M, u)
-        uMu = np.einsum("kci,ki->kc", Mu, u)
-        trM = np.trace(M, axis1=-2, axis2=-1)
-        w2 = (2 * phi1[:, None, None] * Mu
-              + (phi2[:, None] * uMu + (phi1 / d)[:, None] * (trM - uMu))[..., None] * x[:, None, :])
-        first = np.abs(w1 @ n) + dn * np.linalg.norm(w1, axis=-1)
-        second = np.abs(w2 @ n) + dn * np.linalg.norm(w2, axis=-1)
-        q = pair_sups(tree, tile)
-        d_lo, lit, c_lo, c_hi = q["d_lo"], q["lit"], q["c_lo"], q["c_hi"]
-        f1, f2, f3 = q["f1"], q["f2"], q["f3"]
-        sup3 = third_derivative_sup(c_hi, d_lo, f1, f2, f3)
-        hess = diffuse_hessian_sup(c_lo, c_hi, (q["A_lo"] / d_lo + q["a1_lo"]) / d_lo, q["a2"])
-        first = first + (hess * r)[:, None] * np.linalg.norm(F, axis=-1)
-        second = second + (sup3 * r)[:, None] * trM
-        e = D * (first + 0.5 * second + sup3[:, None] * T3 / 6.0)
-    return np.where((lit & (d_lo > 0))[:, None] & np.isfinite(e), e, np.inf)
-
-
-def _pixel_tile(one) -> TileBoxes:
-    """The one-pixel tile of a reference Pixels of one pixel (D and S unused)."""
-    z = np.zeros((1, 3))
-    return TileBoxes(lo=one.p[:1], hi=one.p[:1], nlo=one.n[:1], nhi=one.n[:1], D=z, S=z)
-
-
 def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool = False,
                      tile: int = 1, seed: int = 0):
     """{(what, ε): [list entries per sample pixel]} of the threshold cut at each pixel,
@@ -555,14 +433,14 @@ def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool 
     derivatives and no remainder), "remainder" (the same with
     :func:`remainder_estimate` added: what a Taylor bound with a third-order remainder
     might keep, an estimate), "remainder, diffuse" (that for the diffuse term only, the
-    proven bound's specular term as it is), "proven, diffuse" (the diffuse term by
-    :func:`taylor_bound`, a proven bound over the tile, where it is the tighter; the
-    specular term as it is) and "bound" (the proven
-    :func:`~clphong.model.light_tree.cluster_bounds` on the one-pixel tile). With
+    proven bound's specular term as it is), "bound" (the proven
+    :func:`~clphong.model.light_tree.cluster_bounds`, whose diffuse term takes
+    :mod:`clphong.model.taylor`'s where that is the least) and "size bound" (the same
+    without its Taylor term: the range, first- and second-order size bounds). With
     ``relative`` each channel's budget is ε times the pixel's float64 value (ambient
-    and every light), as the relative budget asks. ``tile``: the proven bounds ("proven,
-    diffuse" and "bound") hold for the aligned ``tile`` × ``tile`` block holding the
-    pixel (the others are the pixel's own)."""
+    and every light), as the relative budget asks. ``tile``: the proven bounds hold for
+    the aligned ``tile`` × ``tile`` block holding the pixel (the others are the
+    pixel's own)."""
     tree, a, spec, idx, px, D, S = _sample(scene, gbuffer, n_pixels, seed)
     n = len(a["point_position"])
     F, M = node_moments(tree, a)
@@ -592,14 +470,13 @@ def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool 
         t2d = (taylor_terms(tree, F, M, one, D[j], zero)
                + remainder_estimate(tree, T3, one, D[j], zero))
         rem_d = b - dif + np.where(smooth, np.fmin(t2d, dif), dif)
-        if tile > 1:
-            parts = {}
-            bt = cluster_bounds(tree, box, spec, np.zeros(3), channels=True, parts=parts)[0]
-            dif_t = np.broadcast_to(parts["diffuse"], (1,) + bt.shape)[0]
-            proven = bt - dif_t + np.fmin(taylor_bound(tree, F, M, T3, box, box.D[0]), dif_t)
-        else:
-            bt = b
-            proven = b - dif + np.fmin(taylor_bound(tree, F, M, T3, _pixel_tile(one), D[j]), dif)
+        parts = {}
+        bt = cluster_bounds(tree, box, spec, np.zeros(3), channels=True, parts=parts)[0]
+        # the same bound without its Taylor term (light_tree.cluster_terms before it)
+        dif_t = np.broadcast_to(parts["diffuse"], (1,) + bt.shape)[0]
+        size = np.fmin(np.fmin(parts["diffuse_range"], parts["diffuse_first"]),
+                       parts["diffuse_second"])
+        before = bt - dif_t + np.broadcast_to(size, (1,) + bt.shape)[0]
         scale = 1.0
         if relative:
             value = (albedo[j] * reference.ambient_radiance(scene)
@@ -607,7 +484,7 @@ def taylor_cut_sizes(scene, gbuffer, eps_list, n_pixels: int, *, relative: bool 
                                            a["point_radiance"], a["point_attenuation"])[:, 0].sum(0))
             scale = 1.0 / value
         for what, e_ in (("exact", exact), ("taylor", tay), ("remainder", rem),
-                         ("remainder, diffuse", rem_d), ("proven, diffuse", proven), ("bound", bt)):
+                         ("remainder, diffuse", rem_d), ("bound", bt), ("size bound", before)):
             for e in eps_list:
                 used, cov = choose_cut(tree, (e_ * scale)[None], e)
                 out.setdefault((what, e), []).append(_entries(tree, used, cov, n))
@@ -628,8 +505,9 @@ def main(argv=None) -> int:
                    help="only the cut at each sample pixel with the true errors, with the "
                         "second-order Taylor terms at the pixel (taylor_terms), with those plus "
                         "a sampled estimate of a third-order remainder (remainder_estimate), "
-                        "with the proven Taylor bound of the diffuse term (taylor_bound) and "
-                        "with today's proven bound")
+                        "with the proven bound (light_tree.cluster_bounds, whose diffuse term "
+                        "takes Taylor's, clphong/model/taylor.py, where it is the least) and "
+                        "with that bound without its Taylor term")
     p.add_argument("--relative", action="store_true",
                    help="with --taylor: each channel's budget is ε times the pixel's value")
     p.add_argument("--tile", type=int, default=1,
@@ -646,15 +524,15 @@ def main(argv=None) -> int:
         rows = []
         for e in eps:
             ex, *more = (np.median(got[(w_, e)]) for w_ in
-                         ("exact", "taylor", "remainder", "remainder, diffuse", "proven, diffuse",
-                          "bound"))
+                         ("exact", "taylor", "remainder", "remainder, diffuse", "bound",
+                          "size bound"))
             rows.append([f"{e:g}" + (" relative" if args.relative else ""), args.lights,
                          f"{ex:.0f}"] + [f"{v:.0f} ({v / ex:.1f}×)" for v in more])
         print(markdown_table(["ε", "lights", "true errors", "Taylor terms at the pixel (no remainder)",
                               "with a sampled 3rd-order remainder (estimate)",
                               "the same, diffuse only",
-                              f"proven: diffuse by Taylor, {args.tile} px",
-                              f"proven bound, {args.tile} px"], rows))
+                              f"proven bound, {args.tile} px",
+                              f"the same without its Taylor term, {args.tile} px"], rows))
         return 0
     if args.levels:
         got = level_slack(bench_scene(args.scene, args.lights), bench_gbuffer(1920, 1080),
