@@ -17,6 +17,7 @@ from conftest import make_scene, random_gbuffer, random_lights
 from clphong.core.errors import DeviceError, DeviceWarning
 from clphong.device import isolate, selection, selftest
 from clphong.device.renderer import Renderer
+from clphong.model.taylor import THETA_POINTS
 
 
 def test_the_self_test_passes_at_the_chosen_width(device):
@@ -197,7 +198,8 @@ def test_the_tree_kernels_compile_with_intels_own_vectoriser(device, monkeypatch
     monkeypatch.setattr(rt, "_binary_path", lambda *a, **k: None)       # compile, not load
     monkeypatch.setattr("clphong.device.runtime.build_child",
                         lambda sel, mode=None: modes.append(mode) or real(sel, mode))
-    defines = dict(N_ONE=2, N_TWO=3, LOBE=1, BLINN=1, FRESNEL=0, PERSPECTIVE=1)
+    defines = dict(N_ONE=2, N_TWO=3, LOBE=1, BLINN=1, FRESNEL=0, PERSPECTIVE=1,
+                   THETA_POINTS=THETA_POINTS)
     prog = rt.program("node_bound.cl", defines)
     intel = rt.kind == "intel-cpu"                   # elsewhere the mode means nothing
     assert prog is not None and modes == ["0" if intel else None], modes
