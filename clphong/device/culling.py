@@ -358,14 +358,9 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
     # per light group, one plane per channel
     tile_budget = cl.Buffer(ctx, mf.READ_WRITE, planes * 3 * n_pad * 4 if floor is not None else 16)
     if floor is not None:
-        dirs, n_dir, ambient, _, pend, dend, gamb = floor
-        k0 = runtime.kernel(prog, "tile_floor")
-        k0.set_args(tiles, np.uint32(n_pad), lb, np.uint32(n_point), *cand_args, dirs,
-                    np.uint32(n_dir), ambient, np.float32(budget * FLOOR_SCALE),
-                    np.uint32(n_groups), pend, dend, gamb, tile_budget)
-        events.append(cl.enqueue_nd_range_kernel(queue, k0, (n_pad // lanes,), (CULL_LOCAL,),
-                                                 wait_for=events[-1:]))
-        group_args = (np.uint32(n_groups), pend)
+        events.append(_floor_pass(runtime, prog, tiles, n_pad, lb, n_point, cand_args, floor,
+                                  budget * FLOOR_SCALE, tile_budget, lanes, events[-1:]))
+        group_args = (np.uint32(n_groups), floor[4])
     else:
         group_args = (np.uint32(0), cl.Buffer(ctx, mf.READ_ONLY, 16))
     budget_args = (tile_budget, np.uint32(floor is not None), *group_args)
@@ -412,6 +407,46 @@ def _cull_level(runtime, prog, tiles, bounds_events, lb, n_point, *, budget, til
         if floors is not None and not n_groups:
             floors = floors[0]
     return ranges, lists, int(counts[:n_tiles].sum(dtype=np.int64)), seconds, floors, unused
+
+
+def _floor_pass(runtime, prog, tiles, n_pad, lb, n_point, cand_args, floor, scale, out, lanes,
+                wait_for):
+    """Launch kernels/cull.cl ``tile_floor``: each tile's (and light group's) ``scale``·T⁻_c
+    into ``out`` (planes × 3 × n_pad float32), T⁻_c a proven lower bound of its pixels'
+    totals in channel c (``floor``: :meth:`RelativeInput.floor_args`); its event."""
+    import pyopencl as cl
+
+    dirs, n_dir, ambient, n_groups, pend, dend, gamb = floor
+    k0 = runtime.kernel(prog, "tile_floor")
+    k0.set_args(tiles, np.uint32(n_pad), lb, np.uint32(n_point), *cand_args, dirs,
+                np.uint32(n_dir), ambient, np.float32(scale), np.uint32(n_groups), pend, dend,
+                gamb, out)
+    return cl.enqueue_nd_range_kernel(runtime.queue, k0, (n_pad // lanes,), (CULL_LOCAL,),
+                                      wait_for=wait_for)
+
+
+def _tile_floors(runtime, prog, tiles, lb, n_point, floor, *, c_ranges, c_lists, tiles_x,
+                 tiles_y, super_tiles, lanes, wait_for=()):
+    """Each tile's T⁻_c (:func:`_floor_pass`, FLOOR_SCALE in) from its super-tile's list
+    (``c_ranges``, ``c_lists``): (3, n_tiles) float64, or (G, 3, n_tiles) with light
+    groups. A lower bound of every pixel's total: the lights the super-tile's culling
+    dropped add nothing below 0 (the relative budget needs lights that do not subtract)."""
+    import pyopencl as cl
+
+    ctx = runtime.context
+    n_tiles = tiles_x * tiles_y
+    n_pad = _n_pad(n_tiles, lanes)
+    planes = max(floor[3], 1)
+    out = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, planes * 3 * n_pad * 4)
+    crb = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                    hostbuf=np.ascontiguousarray(c_ranges))
+    cand_args = (crb, c_lists, np.uint32(1), np.uint32(tiles_x), np.uint32(super_tiles))
+    ev = _floor_pass(runtime, prog, tiles, n_pad, lb, n_point, cand_args, floor, FLOOR_SCALE,
+                     out, lanes, list(wait_for))
+    got = np.zeros((planes, 3, n_pad), np.float32)
+    cl.enqueue_copy(runtime.queue, got, out, wait_for=[ev]).wait()
+    got = got[..., :n_tiles].astype(np.float64)
+    return got if floor[3] else got[0]
 
 
 #: The plan defines kernels/cull.cl reads; passing only these keeps one cull
@@ -638,11 +673,23 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
         if long:
             # the cut again per block of BLOCK_TILES² tiles, with all the budget the
             # super-tiles' culling left (no tiles' culling after it)
-            b_budget = ((budget - coarse_budget + coarse_budget * c_unused)
-                        * (1.0 if c_floors is None else c_floors))
+            # (relative: times the floors; each tile's own, from its super-tile's list,
+            # where higher than its super-tile's: a pixel's error is then at most
+            # ε/4·T⁻_s (super-tile culling) + 3ε/4·T⁻_t (the cut) ≤ ε·its value)
+            e_fine.wait()
+            st = np.arange(tiles_x * tiles_y)
+            st = (st // tiles_x // sup) * super_x + (st % tiles_x) // sup
+            if c_floors is None:
+                b_budget = (budget - coarse_budget + coarse_budget * c_unused)[st]
+            else:
+                t_floors = np.maximum(_tile_floors(
+                    runtime, prog, fine_tiles, lb, n_point, floor, c_ranges=c_ranges,
+                    c_lists=c_lists, tiles_x=tiles_x, tiles_y=tiles_y,
+                    super_tiles=super_x * super_y, lanes=lanes), c_floors[..., st])
+                b_budget = ((budget - coarse_budget) * t_floors
+                            + coarse_budget * c_unused[st] * c_floors[..., st])
             where = dict(tiles_x=tiles_x, tiles_y=tiles_y, sup=sup, super_x=super_x,
                          lanes=lanes, budget=b_budget)
-            e_fine.wait()
             block = (_device_cut(runtime, tree, fine_tiles, c_ranges, c_lists, point_records,
                                  n_point, frame, shared, **where)
                      if DEVICE_CUT and entries < DEVICE_ENTRIES else None)
@@ -657,13 +704,11 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
         if cut is not None:
             t_ranges, t_lists, records, records64, clusters, covered, layout, tree_s = cut
             if block is not None:
-                # the tiles' lists are the blocks'; their floors their super-tile's,
-                # which the cut's budget rests on
-                st = np.arange(tiles_x * tiles_y)
-                st = (st // tiles_x // sup) * super_x + (st % tiles_x) // sup
+                # the tiles' lists are the blocks'; their floors those the cut's budget
+                # rests on
                 with_tree = (t_ranges, t_lists,
                              int(t_ranges[shaded_tiles, 1].sum(dtype=np.int64)), 0.0,
-                             None if c_floors is None else c_floors[..., st], None)
+                             None if c_floors is None else t_floors, None)
             else:
                 n_ext = len(records) // POINT_RECORD
                 lb_ext = cl.Buffer(ctx, ro, hostbuf=pack_cull_lights(
@@ -731,7 +776,7 @@ def _mean_entries(ranges, tiles, *, tiles_x, sup, super_x) -> float:
 def _block_cut(runtime, prog, tin, fine_tiles, e_fine, c_ranges, c_lists, point_records,
                n_point, frame, shared, *, tiles_x, tiles_y, sup, super_x, lanes, budget):
     """The tree's cut per block of BLOCK_TILES² tiles (each from its super-tile's list and
-    with its budget: ``budget`` per super-tile, and channel where relative); returns
+    with the least budget of its tiles: ``budget`` per tile, and channel where relative); returns
     :func:`_tree_cut`'s tuple, its ranges per tile (a block's tiles share its list)."""
     blk = BLOCK_TILES
     assert sup % blk == 0, "a super-tile holds whole blocks"
@@ -742,15 +787,18 @@ def _block_cut(runtime, prog, tin, fine_tiles, e_fine, c_ranges, c_lists, point_
     per = sup // blk
     b = np.arange(bx * by)
     s_of_b = (b // bx // per) * super_x + (b % bx) // per
+    t = np.arange(tiles_x * tiles_y)
+    of = (t // tiles_x // blk) * bx + (t % tiles_x) // blk
     budget = np.asarray(budget, np.float64)
-    b_budget = budget[..., s_of_b] if budget.ndim else budget
+    b_budget = budget
+    if budget.ndim:                        # each block's least of its tiles'
+        b_budget = np.full(budget.shape[:-1] + (bx * by,), np.inf)
+        np.minimum.at(np.moveaxis(b_budget, -1, 0), of, np.moveaxis(budget, -1, 0))
     cut = _tree_cut(runtime, tin, block_tiles, np.asarray(c_ranges)[s_of_b], c_lists,
                     point_records, n_point, frame.origin, n_super=bx * by, budget=b_budget,
                     lanes=lanes, point_end=tin.point_end, shared=shared)
     if cut is None:
         return None
-    t = np.arange(tiles_x * tiles_y)
-    of = (t // tiles_x // blk) * bx + (t % tiles_x) // blk
     return (np.ascontiguousarray(cut[0][of]), *cut[1:])
 
 
@@ -758,7 +806,7 @@ def _device_cut(runtime, tin, fine_tiles, c_ranges, c_lists, point_records, n_po
                 shared, *, tiles_x, tiles_y, sup, super_x, lanes, budget):
     """The tree's cut per group of CUT_GROUP² tiles on the device (kernels/node_bound.cl
     ``tile_cut``), each from its super-tile's culled lights and with its budget
-    (``budget`` per super-tile, and channel where relative, as :func:`_block_cut`'s);
+    (``budget`` per tile, and channel where relative, as :func:`_block_cut`'s);
     :func:`_tree_cut`'s tuple, or None where the device cannot make it (no double,
     spots' cones, light groups) or no tile took a cluster. A tile whose group's cut
     would exceed the cap keeps its super-tile's list (exact)."""
@@ -787,7 +835,7 @@ def _device_cut(runtime, tin, fine_tiles, c_ranges, c_lists, point_records, n_po
     layout = shared["layout"]
     t = np.arange(n_tiles)
     t_super = (t // tiles_x // sup) * super_x + (t % tiles_x) // sup
-    share = budget[..., t_super] if budget.ndim else np.full(n_tiles, float(budget))
+    share = budget if budget.ndim else np.full(n_tiles, float(budget))
     share = np.broadcast_to(share.T if share.ndim == 2 else share[:, None], (n_tiles, 3))
     with np.errstate(divide="ignore"):
         scale = np.where(share > 0, (1 + 1e-12) / np.where(share > 0, share, 1.0), np.inf)

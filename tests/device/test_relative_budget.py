@@ -512,3 +512,41 @@ def test_a_nan_in_a_tile_leaves_it_without_a_floor():
         brute = Renderer(scene, nonfinite="pass").render(gb).image
     mine = tiles == bad
     assert np.array_equal(result.image[mine], brute[mine], equal_nan=True)
+
+
+
+@pytest.mark.parametrize("host", [False, True], ids=["on-device", "on-host"])
+def test_the_blocks_cut_rests_on_each_tiles_own_floor(monkeypatch, host):
+    """Where the tree's cut is made per group of tiles (the device's) or per block (the
+    host's), its budget rests on each tile's own floor (from its super-tile's list, over
+    the tile's box), never below its super-tile's, never above the tile's least total
+    (check_floors), and nearer it than the super-tile's is. (The claim itself, with
+    these budgets: tests/device/test_device_cut.py and test_tree_cut.py's relative
+    cases.)"""
+    from test_tree_cut import clustered_scene
+
+    import clphong.device.renderer as R
+    from clphong.device.culling import super_tiles, tile_of_pixels
+
+    monkeypatch.setattr(culling, "BLOCK_ENTRIES", 0)
+    monkeypatch.setattr(culling, "DEVICE_CUT", not host)
+    monkeypatch.setattr(culling, "TREE_ABOVE", 0.0)           # the tree tried (see above)
+    monkeypatch.setattr(R, "TREE_DEVICE_RATE", float("inf"))
+    rng = np.random.default_rng(22)
+    scene = clustered_scene(rng, n_clusters=8, per=60, spread=0.4, height=6.0, grey=False)
+    gb = heightfield(rng, 64, 96, bumps=0.1)
+    r = Renderer(scene, max_error=3e-2, relative=True, light_tree="always")
+    cull = r.shade(prepare_frame(gb, lanes=r.lanes)).cull
+    assert cull.tree_blocks and cull.clusters > 0
+    check_floors(r, gb, cull, totals(scene, gb))
+    tile = tile_of_pixels(gb.shape, r.lanes).reshape(-1)[~gb.background_mask().reshape(-1)]
+    t_min = least_totals(totals(scene, gb), tile, cull.n_tiles)
+    shaded = np.flatnonzero(np.isfinite(t_min[0]))
+    sup = super_tiles(r.lanes)
+    st = (shaded // cull.tiles_x // sup) * (cull.tiles_x // sup) + (shaded % cull.tiles_x) // sup
+    own = cull.floors[:, shaded] / t_min[:, shaded]
+    coarse = cull.coarse_floors[:, st] / t_min[:, shaded]
+    assert (own >= coarse).all()
+    # measured: own 0.64–0.83 of the least total (median 0.73), the super-tile's 0.33
+    assert np.median(own) >= 0.6 and np.median(coarse) <= 0.6 * np.median(own), \
+        (np.median(own), np.median(coarse))
