@@ -688,6 +688,15 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
                     super_tiles=super_x * super_y, lanes=lanes), c_floors[..., st])
                 b_budget = ((budget - coarse_budget) * t_floors
                             + coarse_budget * c_unused[st] * c_floors[..., st])
+                # a tile with no shaded pixel (tile_floor gives it 0, so its super-tile's
+                # floor) must not lower its block's or group's least: it takes its
+                # super-tile's largest
+                empty = np.ones(tiles_x * tiles_y, bool)
+                empty[shaded_tiles] = False
+                if empty.any():
+                    top = np.full(b_budget.shape[:-1] + (super_x * super_y,), -np.inf)
+                    np.maximum.at(np.moveaxis(top, -1, 0), st, np.moveaxis(b_budget, -1, 0))
+                    b_budget = np.where(empty, top[..., st], b_budget)
             where = dict(tiles_x=tiles_x, tiles_y=tiles_y, sup=sup, super_x=super_x,
                          lanes=lanes, budget=b_budget)
             block = (_device_cut(runtime, tree, fine_tiles, c_ranges, c_lists, point_records,

@@ -535,9 +535,14 @@ def test_the_blocks_cut_rests_on_each_tiles_own_floor(monkeypatch, host):
     rng = np.random.default_rng(22)
     scene = clustered_scene(rng, n_clusters=8, per=60, spread=0.4, height=6.0, grey=False)
     gb = heightfield(rng, 64, 96, bumps=0.1)
-    r = Renderer(scene, max_error=3e-2, relative=True, light_tree="always")
+    budgets = []                      # the per-tile budgets the cut is handed
+    name = "_block_cut" if host else "_device_cut"
+    real = getattr(culling, name)
+    monkeypatch.setattr(culling, name, lambda *a, **k: budgets.append(k["budget"]) or real(*a, **k))
+    eps = 3e-2
+    r = Renderer(scene, max_error=eps, relative=True, light_tree="always")
     cull = r.shade(prepare_frame(gb, lanes=r.lanes)).cull
-    assert cull.tree_blocks and cull.clusters > 0
+    assert cull.tree_blocks and cull.clusters > 0 and len(budgets) == 1
     check_floors(r, gb, cull, totals(scene, gb))
     tile = tile_of_pixels(gb.shape, r.lanes).reshape(-1)[~gb.background_mask().reshape(-1)]
     t_min = least_totals(totals(scene, gb), tile, cull.n_tiles)
@@ -546,7 +551,13 @@ def test_the_blocks_cut_rests_on_each_tiles_own_floor(monkeypatch, host):
     st = (shaded // cull.tiles_x // sup) * (cull.tiles_x // sup) + (shaded % cull.tiles_x) // sup
     own = cull.floors[:, shaded] / t_min[:, shaded]
     coarse = cull.coarse_floors[:, st] / t_min[:, shaded]
-    assert (own >= coarse).all()
+    # each shaded tile's budget: (ε − ε/4)·its floor, plus at most ε/4 of its
+    # super-tile's floor (what the super-tile's culling left unused)
+    rest = eps * (1 - culling.COARSE_SHARE)
+    got = budgets[0][:, shaded]
+    assert (got >= rest * cull.floors[:, shaded] * (1 - 1e-12)).all()
+    assert (got <= (rest * cull.floors[:, shaded] + eps * culling.COARSE_SHARE
+                    * cull.coarse_floors[:, st]) * (1 + 1e-12)).all()
     # measured: own 0.64–0.83 of the least total (median 0.73), the super-tile's 0.33
     assert np.median(own) >= 0.6 and np.median(coarse) <= 0.6 * np.median(own), \
         (np.median(own), np.median(coarse))
