@@ -429,7 +429,7 @@ def _tile_floors(runtime, prog, tiles, lb, n_point, floor, *, c_ranges, c_lists,
                  tiles_y, super_tiles, lanes, wait_for=()):
     """Each tile's T⁻_c (:func:`_floor_pass`, FLOOR_SCALE in) from its super-tile's list
     (``c_ranges``, ``c_lists``): (3, n_tiles) float64, or (G, 3, n_tiles) with light
-    groups. A lower bound of every pixel's total: the lights the super-tile's culling
+    groups, and the pass's device seconds. A lower bound of every pixel's total: the lights the super-tile's culling
     dropped add nothing below 0 (the relative budget needs lights that do not subtract)."""
     import pyopencl as cl
 
@@ -446,7 +446,7 @@ def _tile_floors(runtime, prog, tiles, lb, n_point, floor, *, c_ranges, c_lists,
     got = np.zeros((planes, 3, n_pad), np.float32)
     cl.enqueue_copy(runtime.queue, got, out, wait_for=[ev]).wait()
     got = got[..., :n_tiles].astype(np.float64)
-    return got if floor[3] else got[0]
+    return (got if floor[3] else got[0]), (ev.profile.end - ev.profile.start) * 1e-9
 
 
 #: The plan defines kernels/cull.cl reads; passing only these keeps one cull
@@ -682,10 +682,12 @@ def _build_tile_lists(runtime, plan, frame, point_records, n_point, *, budget, k
             if c_floors is None:
                 b_budget = (budget - coarse_budget + coarse_budget * c_unused)[st]
             else:
-                t_floors = np.maximum(_tile_floors(
+                t_floors, floor_s = _tile_floors(
                     runtime, prog, fine_tiles, lb, n_point, floor, c_ranges=c_ranges,
                     c_lists=c_lists, tiles_x=tiles_x, tiles_y=tiles_y,
-                    super_tiles=super_x * super_y, lanes=lanes), c_floors[..., st])
+                    super_tiles=super_x * super_y, lanes=lanes)
+                spent += floor_s                     # counted with culling's seconds
+                t_floors = np.maximum(t_floors, c_floors[..., st])
                 b_budget = ((budget - coarse_budget) * t_floors
                             + coarse_budget * c_unused[st] * c_floors[..., st])
                 # a tile with no shaded pixel (tile_floor gives it 0, so its super-tile's
